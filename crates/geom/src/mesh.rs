@@ -1,0 +1,1 @@
+//! Triangle meshes (filled by the formats work).

@@ -1,0 +1,1 @@
+//! trim-io (filled by its issue).

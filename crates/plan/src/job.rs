@@ -1,0 +1,292 @@
+//! The Job: the planner's output and the executor's input (DESIGN.md "Data contracts").
+//!
+//! Serialised as JSON with serde. The keys listed in DESIGN.md are stable for tools and tests
+//! outside the code; new keys may be added, existing ones keep their meaning. Units: lengths in
+//! millimetres, angles in degrees (this is an edge of the program), times in seconds, delays in
+//! microseconds, speeds in millimetres per second.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+use trim_geom::{ContourId, Point3, Vector3};
+
+/// The Job format version this code writes and reads.
+pub const JOB_VERSION: u32 = 1;
+
+/// A planned job: zones, each with its frame and layers.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Job {
+    /// The format version, [`JOB_VERSION`].
+    pub version: u32,
+    /// ΔH, the distance between layers along the zone axis (mm).
+    pub layer_step_mm: f64,
+    /// The focus processing length: the largest |z| from the focal plane that keeps the fluence
+    /// within tolerance (mm).
+    pub focus_half_length_mm: f64,
+    /// Zones in execution order.
+    pub zones: Vec<Zone>,
+    /// The settings the plan was made with.
+    pub settings: JobSettings,
+    /// What validation found.
+    pub validation: ValidationReport,
+    /// The time estimate.
+    pub estimate: TimeEstimate,
+}
+
+/// One zone: contours processed from one machine orientation, in layers along its axis.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Zone {
+    /// The zone id (0-based, unique in the job).
+    pub id: usize,
+    /// The zone frame's origin in the work-piece frame (mm): the zone centre.
+    pub origin: [f64; 3],
+    /// The zone frame's axes in the work-piece frame (right-handed, unit).
+    pub frame: Frame,
+    /// The ids of the input contours in this zone (a split contour's parts keep its id).
+    pub contours: Vec<ContourId>,
+    /// The largest angle between a contour feature vector and the zone axis (degrees).
+    pub max_incidence_deg: f64,
+    /// The largest angle between two contour feature vectors of the zone (degrees).
+    pub max_pairwise_deg: f64,
+    /// Layers, top down (index 0 first).
+    pub layers: Vec<Layer>,
+}
+
+/// A right-handed orthonormal frame: the axes of the zone frame in work-piece coordinates.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Frame {
+    /// The X axis (unit).
+    pub x: [f64; 3],
+    /// The Y axis (unit).
+    pub y: [f64; 3],
+    /// The Z axis (unit): the zone axis, the laser direction from the part toward the lens.
+    pub z: [f64; 3],
+}
+
+impl Frame {
+    /// The X axis as a vector.
+    #[must_use]
+    pub fn x_axis(&self) -> Vector3 {
+        Vector3::from(self.x)
+    }
+    /// The Y axis as a vector.
+    #[must_use]
+    pub fn y_axis(&self) -> Vector3 {
+        Vector3::from(self.y)
+    }
+    /// The Z axis as a vector.
+    #[must_use]
+    pub fn z_axis(&self) -> Vector3 {
+        Vector3::from(self.z)
+    }
+}
+
+/// One layer: a machine pose, a focus point, and the 2D galvo polylines marked from there.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Layer {
+    /// The layer index within its zone (0 = top, the first marked).
+    pub index: usize,
+    /// The focus point P_m in the work-piece frame (mm), paper Eq. 14.
+    pub focus_point: [f64; 3],
+    /// The machine axis positions that put the focus on `focus_point` with the beam along the
+    /// zone axis.
+    pub pose: Pose,
+    /// The polylines of this layer in galvo millimetres.
+    pub polylines: Vec<Polyline>,
+}
+
+/// Machine axis positions by axis name (lower case: "x", "y", "z", "a", "b", "c"). Linear axes
+/// in millimetres, rotary axes in degrees, as the CNC takes them.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct Pose(pub BTreeMap<String, f64>);
+
+impl Pose {
+    /// The value of one axis, if the pose has it.
+    #[must_use]
+    pub fn axis(&self, name: &str) -> Option<f64> {
+        self.0.get(name).copied()
+    }
+}
+
+/// One polyline in galvo millimetres: `x = (P − focus_point)·frame.x`,
+/// `y = (P − focus_point)·frame.y` for a registered point P.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Polyline {
+    /// The id of the input contour this polyline is (part of).
+    pub contour: ContourId,
+    /// At least two points, galvo millimetres.
+    pub points: Vec<[f64; 2]>,
+}
+
+impl Polyline {
+    /// The polyline length (mm).
+    #[must_use]
+    pub fn length_mm(&self) -> f64 {
+        self.points
+            .windows(2)
+            .map(|w| ((w[1][0] - w[0][0]).powi(2) + (w[1][1] - w[0][1]).powi(2)).sqrt())
+            .sum()
+    }
+}
+
+/// Galvo motion and laser timing, used for the time estimate and sent to the galvo as list
+/// commands.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GalvoSettings {
+    /// The usable field, width and height (mm), centred on the optical axis.
+    pub field_mm: [f64; 2],
+    /// Calibration: galvo bits per millimetre in the field.
+    pub bits_per_mm: f64,
+    /// Marking speed (mm/s).
+    pub mark_speed_mm_per_s: f64,
+    /// Jump speed (mm/s).
+    pub jump_speed_mm_per_s: f64,
+    /// Delay after the laser is switched on before the mirrors move (µs).
+    pub laser_on_delay_us: f64,
+    /// Delay after a mark before the laser is switched off (µs).
+    pub laser_off_delay_us: f64,
+    /// Settling delay after a jump (µs).
+    pub jump_delay_us: f64,
+    /// Settling delay after a mark (µs).
+    pub mark_delay_us: f64,
+    /// Delay at each polyline vertex (µs).
+    pub polygon_delay_us: f64,
+}
+
+impl Default for GalvoSettings {
+    fn default() -> Self {
+        GalvoSettings {
+            field_mm: [100.0, 100.0],
+            bits_per_mm: 10_000.0,
+            mark_speed_mm_per_s: 500.0,
+            jump_speed_mm_per_s: 3_000.0,
+            laser_on_delay_us: 100.0,
+            laser_off_delay_us: 100.0,
+            jump_delay_us: 200.0,
+            mark_delay_us: 100.0,
+            polygon_delay_us: 20.0,
+        }
+    }
+}
+
+/// The settings a job was planned with (whatever the planner needs to reproduce it).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JobSettings {
+    /// The incidence limit (degrees).
+    pub max_incidence_deg: f64,
+    /// The kinematics name ("xyzac-trt", "xyzbc-trt", "xyz").
+    pub kinematics: String,
+    /// Galvo motion and timing.
+    pub galvo: GalvoSettings,
+    /// The planner's other settings (beam, zoning, machine limits), as it wrote them.
+    #[serde(default)]
+    pub extra: serde_json::Value,
+}
+
+/// What validation checked and found.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct ValidationReport {
+    /// Whether every check passed.
+    pub passed: bool,
+    /// The largest distance of a planned point from its layer's focal plane (mm).
+    pub max_focus_deviation_mm: f64,
+    /// The largest incidence, lens ray angle included (degrees).
+    pub max_incidence_deg: f64,
+    /// The largest |x| or |y| of a galvo point (mm).
+    pub max_field_abs_mm: f64,
+    /// The largest error of mapping a galvo point back to its registered 3D point (mm).
+    pub max_round_trip_error_mm: f64,
+    /// One line per violation, naming zone, layer and contour.
+    pub violations: Vec<String>,
+}
+
+/// The time estimate (seconds).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct TimeEstimate {
+    /// The whole job.
+    pub total_s: f64,
+    /// Galvo marking, delays included.
+    pub marking_s: f64,
+    /// Galvo jumps, delays included.
+    pub jumping_s: f64,
+    /// Machine moves between layers and zones.
+    pub motion_s: f64,
+    /// Per zone, in job order.
+    pub per_zone_s: Vec<f64>,
+}
+
+/// Identifies one layer of a job: zone id and layer index.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct LayerKey {
+    /// The zone id.
+    pub zone: usize,
+    /// The layer index in the zone.
+    pub layer: usize,
+}
+
+impl std::fmt::Display for LayerKey {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "zone {} layer {}", self.zone, self.layer)
+    }
+}
+
+impl Job {
+    /// Every layer in execution order, with its zone.
+    pub fn layers(&self) -> impl Iterator<Item = (LayerKey, &Zone, &Layer)> {
+        self.zones.iter().flat_map(|z| {
+            z.layers.iter().map(move |l| {
+                (
+                    LayerKey {
+                        zone: z.id,
+                        layer: l.index,
+                    },
+                    z,
+                    l,
+                )
+            })
+        })
+    }
+
+    /// Reads a job from JSON text, checking the version.
+    pub fn from_json(text: &str) -> Result<Job, JobFormatError> {
+        let value: serde_json::Value = serde_json::from_str(text)?;
+        let version = value.get("version").and_then(serde_json::Value::as_u64);
+        if version != Some(u64::from(JOB_VERSION)) {
+            return Err(JobFormatError::Version {
+                found: version,
+                expected: JOB_VERSION,
+            });
+        }
+        Ok(serde_json::from_value(value)?)
+    }
+
+    /// The job as pretty JSON.
+    pub fn to_json(&self) -> Result<String, JobFormatError> {
+        Ok(serde_json::to_string_pretty(self)?)
+    }
+}
+
+/// Maps a galvo point of a layer back to the work-piece frame (the inverse of the projection):
+/// `P = focus_point + x·frame.x + y·frame.y` (on the focal plane).
+#[must_use]
+pub fn galvo_to_workpiece(zone: &Zone, layer: &Layer, xy: [f64; 2]) -> Point3 {
+    Point3::from(layer.focus_point) + zone.frame.x_axis() * xy[0] + zone.frame.y_axis() * xy[1]
+}
+
+/// A job file that cannot be read.
+#[derive(Debug, thiserror::Error)]
+pub enum JobFormatError {
+    /// Not valid JSON or not a job.
+    #[error("not a valid job: {0}")]
+    Json(#[from] serde_json::Error),
+    /// The version is missing or not the one this code reads.
+    #[error("job version {found:?} is not supported (this trimctl reads version {expected})")]
+    Version {
+        /// The version found, if any.
+        found: Option<u64>,
+        /// The version this code reads.
+        expected: u32,
+    },
+}

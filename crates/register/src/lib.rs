@@ -1,0 +1,1 @@
+//! trim-register (filled by its issue).

@@ -1,0 +1,134 @@
+//! The crates point one way (DESIGN.md, STYLE.md practice 2): geom ← register, geom ← plan ← io ←
+//! cli; pybind on top; and tokio, pyo3 and clap never reach geom, register or plan.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::process::Command;
+
+use serde_json::Value;
+
+fn host_triple() -> String {
+    let out = Command::new("rustc")
+        .arg("-vV")
+        .output()
+        .expect("rustc -vV runs");
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .find_map(|l| l.strip_prefix("host: "))
+        .expect("rustc -vV names the host")
+        .to_string()
+}
+
+fn metadata() -> Value {
+    let host = host_triple();
+    let out = Command::new(env!("CARGO"))
+        .args([
+            "metadata",
+            "--format-version",
+            "1",
+            "--filter-platform",
+            &host,
+        ])
+        .current_dir(trimctl_tests::workspace_root())
+        .output()
+        .expect("cargo metadata runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("cargo metadata prints JSON")
+}
+
+/// Normal (non-dev, non-build) dependencies of every package, by package name.
+fn normal_deps(meta: &Value) -> BTreeMap<String, BTreeSet<String>> {
+    let names: BTreeMap<&str, &str> = meta["packages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| (p["id"].as_str().unwrap(), p["name"].as_str().unwrap()))
+        .collect();
+    meta["resolve"]["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|node| {
+            let deps = node["deps"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter(|d| {
+                    d["dep_kinds"]
+                        .as_array()
+                        .unwrap()
+                        .iter()
+                        .any(|k| k["kind"].is_null())
+                })
+                .map(|d| names[d["pkg"].as_str().unwrap()].to_string())
+                .collect();
+            (names[node["id"].as_str().unwrap()].to_string(), deps)
+        })
+        .collect()
+}
+
+fn reach(deps: &BTreeMap<String, BTreeSet<String>>, from: &str) -> BTreeSet<String> {
+    let mut seen = BTreeSet::new();
+    let mut stack = vec![from.to_string()];
+    while let Some(n) = stack.pop() {
+        for d in deps.get(&n).into_iter().flatten() {
+            if seen.insert(d.clone()) {
+                stack.push(d.clone());
+            }
+        }
+    }
+    seen
+}
+
+#[test]
+fn workspace_crates_point_one_way() {
+    let deps = normal_deps(&metadata());
+    let ours = [
+        "trim-geom",
+        "trim-register",
+        "trim-plan",
+        "trim-io",
+        "trimctl",
+        "trimctl-py",
+    ];
+    let allowed: BTreeMap<&str, &[&str]> = BTreeMap::from([
+        ("trim-geom", &[][..]),
+        ("trim-register", &["trim-geom"][..]),
+        ("trim-plan", &["trim-geom"][..]),
+        ("trim-io", &["trim-geom", "trim-plan"][..]),
+        (
+            "trimctl",
+            &["trim-geom", "trim-register", "trim-plan", "trim-io"][..],
+        ),
+        (
+            "trimctl-py",
+            &["trim-geom", "trim-register", "trim-plan"][..],
+        ),
+    ]);
+    for krate in ours {
+        let inner: BTreeSet<&str> = deps[krate]
+            .iter()
+            .map(String::as_str)
+            .filter(|d| ours.contains(d))
+            .collect();
+        let ok: BTreeSet<&str> = allowed[krate].iter().copied().collect();
+        assert!(
+            inner.is_subset(&ok),
+            "{krate} depends on {inner:?}; only {ok:?} are allowed"
+        );
+    }
+}
+
+#[test]
+fn runtime_frameworks_stay_out_of_the_algorithm_crates() {
+    let deps = normal_deps(&metadata());
+    for krate in ["trim-geom", "trim-register", "trim-plan"] {
+        let all = reach(&deps, krate);
+        for banned in ["tokio", "pyo3", "clap"] {
+            assert!(!all.contains(banned), "{banned} reaches {krate}");
+        }
+    }
+}
