@@ -1,6 +1,11 @@
 //! The crates point one way (DESIGN.md, STYLE.md practice 2): geom ← register, geom ← plan ← io ←
 //! cli; pybind on top; and tokio, pyo3 and clap never reach geom, register or plan.
 
+#![expect(
+    clippy::unwrap_used,
+    reason = "test helpers: a malformed cargo metadata output should fail the test loudly"
+)]
+
 use std::collections::{BTreeMap, BTreeSet};
 use std::process::Command;
 
