@@ -1,6 +1,60 @@
-//! The `trimctl` command line.
+//! The `trimctl` command line: one struct per subcommand, results on stdout, diagnostics on
+//! stderr. `main` alone owns the exit codes (see [`exit`]).
 
-fn main() -> std::process::ExitCode {
-    eprintln!("trimctl: not built yet (see README)");
-    std::process::ExitCode::FAILURE
+mod beam;
+mod config_cmd;
+mod exit;
+mod info;
+mod plan;
+mod register;
+mod run;
+mod sim;
+mod synth;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+/// Zone-layered ultrafast-laser trimming of deformed freeform parts.
+#[derive(Parser, Debug)]
+#[command(name = "trimctl", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Register, plan and execute a job on the cell (no argument: the built-in demo).
+    Run(run::Args),
+    /// Register a CAM path onto a scan of the clamped part.
+    Register(register::Args),
+    /// Plan zones, layers, galvo polylines and machine poses from a (registered) path.
+    Plan(plan::Args),
+    /// Print the beam optics figures as JSON.
+    Beam(beam::Args),
+    /// Print what a point cloud, mesh or path file holds, as JSON.
+    Info(info::Args),
+    /// Write a synthetic ceramic-core-like test case.
+    Synth(synth::Args),
+    /// Start device simulators as servers.
+    Sim(sim::Args),
+    /// Show the job.toml configuration.
+    Config(config_cmd::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    exit::init_logging();
+    let result = match cli.command {
+        Command::Run(a) => run::run(a),
+        Command::Register(a) => register::run(a),
+        Command::Plan(a) => plan::run(a),
+        Command::Beam(a) => beam::run(a),
+        Command::Info(a) => info::run(a),
+        Command::Synth(a) => synth::run(a),
+        Command::Sim(a) => sim::run(a),
+        Command::Config(a) => config_cmd::run(a),
+    };
+    exit::code_for(result)
 }

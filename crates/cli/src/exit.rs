@@ -1,0 +1,73 @@
+//! Exit codes, owned by `main` alone.
+//!
+//! | code | meaning |
+//! |---|---|
+//! | 0 | done |
+//! | 1 | refused or bad input (nothing was started, or the job refused to start) |
+//! | 2 | device fault (the laser was switched off first; the cell is safe) |
+//! | 3 | interrupted (Ctrl-C; the laser was switched off first; resume with `--resume`) |
+//!
+//! Commands return `anyhow::Result<()>`. An error that is not a [`Failure`] exits with 1.
+
+use std::process::ExitCode;
+
+/// Why a command ended without success.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[expect(
+    dead_code,
+    reason = "DeviceFault and Interrupted are raised by `trimctl run` (its issue)"
+)]
+pub enum Exit {
+    /// Refused or bad input.
+    Refused = 1,
+    /// A device fault.
+    DeviceFault = 2,
+    /// Interrupted by the operator.
+    Interrupted = 3,
+}
+
+/// An error that carries its exit code.
+#[derive(Debug, thiserror::Error)]
+#[error("{source:#}")]
+pub struct Failure {
+    /// The exit code.
+    pub exit: Exit,
+    /// What happened.
+    pub source: anyhow::Error,
+}
+
+impl Failure {
+    /// Wraps an error with an exit code.
+    #[expect(dead_code, reason = "used by `trimctl run` (its issue)")]
+    pub fn with_exit(exit: Exit, source: impl Into<anyhow::Error>) -> anyhow::Error {
+        anyhow::Error::new(Failure {
+            exit,
+            source: source.into(),
+        })
+    }
+}
+
+/// Logs to stderr; `RUST_LOG` filters (default `info`).
+pub fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .try_init();
+}
+
+/// The exit code of a command's result; prints the error as one line on stderr.
+pub fn code_for(result: anyhow::Result<()>) -> ExitCode {
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("trimctl: error: {e:#}");
+            let code = e
+                .downcast_ref::<Failure>()
+                .map_or(Exit::Refused, |f| f.exit);
+            ExitCode::from(code as u8)
+        }
+    }
+}

@@ -1,0 +1,1 @@
+//! Synthetic test cases (filled by the registration work).
