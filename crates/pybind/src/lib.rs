@@ -1,1 +1,22 @@
-//! Python bindings (filled by the bindings issue).
+//! The Python module `trimctl._native` (wrapped by the pure-Python package `trimctl`).
+//!
+//! Logic lives in the trimctl crates; this crate converts arguments, releases the GIL for long
+//! calls through one helper ([`gil::run_detached`]) and maps errors to one exception hierarchy
+//! ([`errors`]).
+
+mod arrays;
+mod cloud;
+mod errors;
+mod gil;
+
+use pyo3::prelude::*;
+
+/// The native module.
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    errors::register(m)?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_function(wrap_pyfunction!(cloud::estimate_normals, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::voxel_downsample, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,29 @@
+"""trimctl: zone-layered ultrafast-laser trimming of deformed freeform parts.
+
+Registration and planning for scripting. All lengths are millimetres, angles degrees at this
+interface. Arrays are numpy float64: points and vectors as (N, 3), galvo points as (N, 2).
+Options are keyword-only. Errors from the library derive from :class:`TrimError`; a wrong
+argument shape, dtype or a non-finite value raises :class:`ValueError` naming the argument.
+"""
+
+from ._native import (
+    FileFormatError,
+    InternalError,
+    PlanningError,
+    RegistrationError,
+    TrimError,
+    __version__,
+    estimate_normals,
+    voxel_downsample,
+)
+
+__all__ = [
+    "FileFormatError",
+    "InternalError",
+    "PlanningError",
+    "RegistrationError",
+    "TrimError",
+    "__version__",
+    "estimate_normals",
+    "voxel_downsample",
+]

@@ -1,0 +1,62 @@
+//! Point-cloud processing from trim-geom: normals and voxel down-sampling.
+
+use numpy::PyArray2;
+use pyo3::prelude::*;
+use trim_geom::PointCloud;
+use trim_geom::math::{Point3, Vector3};
+use trim_geom::normals::{Orientation, estimate_normals as estimate};
+use trim_geom::voxel::voxel_downsample as downsample;
+
+use crate::arrays::{self, Array};
+use crate::errors::{geom_error, value_error};
+use crate::gil::run_detached;
+
+/// Estimates unit normals by PCA over the `k` nearest neighbours, oriented toward `viewpoint`
+/// (mm) or along `reference`; with neither, along +Z.
+#[pyfunction]
+#[pyo3(signature = (points, *, k = 16, viewpoint = None, reference = None))]
+pub fn estimate_normals<'py>(
+    py: Python<'py>,
+    points: &Bound<'py, PyAny>,
+    k: usize,
+    viewpoint: Option<[f64; 3]>,
+    reference: Option<[f64; 3]>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let pts = arrays::points("points", points)?;
+    let orientation = match (viewpoint, reference) {
+        (Some(_), Some(_)) => {
+            return Err(value_error(
+                "viewpoint",
+                "give either viewpoint or reference, not both",
+            ));
+        }
+        (Some(v), None) => Orientation::TowardViewpoint(Point3::from(v)),
+        (None, Some(r)) => Orientation::AlongReference(Vector3::from(r)),
+        (None, None) => Orientation::AlongReference(Vector3::z()),
+    };
+    let normals = run_detached(py, move || estimate(&pts, k, orientation))?.map_err(geom_error)?;
+    Ok(arrays::from_vectors(py, &normals))
+}
+
+/// Down-samples to one point per occupied `voxel` (mm) cube: the centroid of its points.
+/// Returns `(points, normals)`; `normals` is `None` when none were given.
+#[pyfunction]
+#[pyo3(signature = (points, *, voxel, normals = None))]
+pub fn voxel_downsample<'py>(
+    py: Python<'py>,
+    points: &Bound<'py, PyAny>,
+    voxel: f64,
+    normals: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(Array<'py>, Option<Array<'py>>)> {
+    let pts = arrays::points("points", points)?;
+    let cloud = match normals {
+        Some(n) => PointCloud::with_normals(pts, arrays::vectors("normals", n)?),
+        None => PointCloud::new(pts),
+    }
+    .map_err(geom_error)?;
+    let down = run_detached(py, move || downsample(&cloud, voxel))?.map_err(geom_error)?;
+    Ok((
+        arrays::from_points(py, down.points()),
+        down.normals().map(|n| arrays::from_vectors(py, n)),
+    ))
+}

@@ -1,0 +1,73 @@
+//! One exception hierarchy for every Rust error that reaches Python.
+//!
+//! ```text
+//! TrimError(Exception)
+//! ├── FileFormatError      a file could not be read or parsed (names the file and line)
+//! ├── RegistrationError    registration failed (no overlap, degenerate, too few points)
+//! ├── PlanningError        planning refused the input or found no valid plan
+//! └── InternalError        a bug: please report it
+//! ```
+//! Wrong argument shapes, dtypes, non-finite values and out-of-range options raise the
+//! built-in `ValueError` instead, naming the argument.
+
+use pyo3::create_exception;
+use pyo3::exceptions::{PyException, PyValueError};
+use pyo3::prelude::*;
+use trim_geom::GeomError;
+
+create_exception!(
+    trimctl,
+    TrimError,
+    PyException,
+    "Base class of every trimctl error."
+);
+create_exception!(
+    trimctl,
+    FileFormatError,
+    TrimError,
+    "A file could not be read, parsed or written."
+);
+create_exception!(
+    trimctl,
+    RegistrationError,
+    TrimError,
+    "Registration failed."
+);
+create_exception!(
+    trimctl,
+    PlanningError,
+    TrimError,
+    "Planning refused the input or found no valid plan."
+);
+create_exception!(
+    trimctl,
+    InternalError,
+    TrimError,
+    "An internal error (a bug): please report it."
+);
+
+/// Adds the exception classes to the module.
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
+    m.add("TrimError", py.get_type::<TrimError>())?;
+    m.add("FileFormatError", py.get_type::<FileFormatError>())?;
+    m.add("RegistrationError", py.get_type::<RegistrationError>())?;
+    m.add("PlanningError", py.get_type::<PlanningError>())?;
+    m.add("InternalError", py.get_type::<InternalError>())?;
+    Ok(())
+}
+
+/// A `ValueError` naming the argument.
+pub fn value_error(name: &str, message: impl std::fmt::Display) -> PyErr {
+    PyValueError::new_err(format!("{name}: {message}"))
+}
+
+/// Maps a geometry error: file problems to `FileFormatError`, bad values to `ValueError`.
+pub fn geom_error(e: GeomError) -> PyErr {
+    match e {
+        GeomError::Io { .. } | GeomError::Parse { .. } | GeomError::UnsupportedFormat { .. } => {
+            FileFormatError::new_err(e.to_string())
+        }
+        other => PyValueError::new_err(other.to_string()),
+    }
+}
