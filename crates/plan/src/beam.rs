@@ -1,0 +1,309 @@
+//! Beam optics of the focused Gaussian beam (DESIGN.md "Beam", paper §2.1–2.2).
+//!
+//! SI inside the formulas, named units at the edges: the settings carry their unit in the name
+//! (`power_w`, `wavelength_nm`, `focal_length_mm`), results too (`waist_radius_mm`).
+//!
+//! Corrections to the paper (DESIGN.md): the waist *radius* is `w0 = 2·M²·λ·f/(π·D)` (the
+//! paper's Eq. 6 with 4 gives the diameter, while its quoted 20.4 µm is the radius), and the
+//! Rayleigh length follows from it, `zR = π·w0²/(M²·λ)` (≈ 2.24 mm; the paper's printed
+//! 4.994 mm is the major beam diameter at the lens, not zR).
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{PlanError, require_open_closed, require_positive, require_range};
+
+/// Step of the scan for [`Beam::max_incidence_for_line_width_rad`] (radians, 0.01°).
+pub const INCIDENCE_SCAN_STEP_RAD: f64 = 0.01 * std::f64::consts::PI / 180.0;
+
+/// Bisection steps after the scan brackets the limit (2⁻⁴⁰ of a step).
+const INCIDENCE_BISECTION_STEPS: usize = 40;
+
+/// The laser, lens and process figures (paper §2.1–2.2). Defaults are the paper's cell.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Beam {
+    /// Average laser power P (W).
+    pub power_w: f64,
+    /// Pulse repetition rate h (Hz).
+    pub repetition_rate_hz: f64,
+    /// Wavelength λ (nm).
+    pub wavelength_nm: f64,
+    /// Beam quality factor M².
+    pub m_squared: f64,
+    /// Effective focal length f of the (f-theta) lens (mm).
+    pub focal_length_mm: f64,
+    /// Beam diameter D at the lens entrance (mm).
+    pub beam_diameter_mm: f64,
+    /// Fluence tolerance t: the fraction of the peak fluence that still processes (0.97 means
+    /// within 3 % of F0); sets the focus processing length.
+    pub fluence_tolerance: f64,
+    /// F0/F_th: peak fluence over the material's ablation threshold.
+    pub fluence_threshold_ratio: f64,
+    /// The incidence θ at which the spot ratios are reported (degrees).
+    pub incidence_deg: f64,
+    /// The allowed relative change of the spot radius (line width) with incidence, e.g. 0.005
+    /// for ±0.5 %; sets [`Beam::max_incidence_for_line_width_rad`].
+    pub line_width_tolerance: f64,
+}
+
+impl Default for Beam {
+    fn default() -> Self {
+        Beam {
+            power_w: 53.59,
+            repetition_rate_hz: 250_000.0,
+            wavelength_nm: 532.0,
+            m_squared: 1.1,
+            focal_length_mm: 259.4,
+            beam_diameter_mm: 4.7313,
+            fluence_tolerance: 0.97,
+            fluence_threshold_ratio: 2.0,
+            incidence_deg: 5.0,
+            line_width_tolerance: 0.005,
+        }
+    }
+}
+
+/// The figures `trimctl beam` prints, in the units of their names.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct BeamReport {
+    /// E = P/h (µJ), paper Eq. 4.
+    pub pulse_energy_uj: f64,
+    /// w0 (µm), DESIGN.md's corrected paper Eq. 6.
+    pub waist_radius_um: f64,
+    /// zR (mm), paper Eq. 5 with M².
+    pub rayleigh_length_mm: f64,
+    /// F0 = 2E/(π·w0²) (J/cm²), paper Eq. 2.
+    pub peak_fluence_j_per_cm2: f64,
+    /// The focus processing length zR·√(1/t − 1) (mm, each side of the focus).
+    pub focus_half_length_mm: f64,
+    /// r_min/r at θ, paper Eq. 7–8.
+    pub spot_ratio_min: f64,
+    /// r_max/r at θ, paper Eq. 7–8.
+    pub spot_ratio_max: f64,
+    /// The largest incidence that keeps both ratios within the line-width tolerance (degrees).
+    pub max_incidence_for_line_width_deg: f64,
+}
+
+impl Beam {
+    /// Refuses out-of-range values, naming the key (`beam.power_w`).
+    pub fn validate(&self) -> Result<(), PlanError> {
+        require_positive("beam.power_w", self.power_w)?;
+        require_positive("beam.repetition_rate_hz", self.repetition_rate_hz)?;
+        require_positive("beam.wavelength_nm", self.wavelength_nm)?;
+        if !(self.m_squared.is_finite() && self.m_squared >= 1.0) {
+            return Err(PlanError::setting(
+                "beam.m_squared",
+                self.m_squared,
+                "must be ≥ 1 (a Gaussian beam has M² = 1)",
+            ));
+        }
+        require_positive("beam.focal_length_mm", self.focal_length_mm)?;
+        require_positive("beam.beam_diameter_mm", self.beam_diameter_mm)?;
+        if !(self.fluence_tolerance.is_finite()
+            && self.fluence_tolerance > 0.0
+            && self.fluence_tolerance < 1.0)
+        {
+            return Err(PlanError::setting(
+                "beam.fluence_tolerance",
+                self.fluence_tolerance,
+                "must be within (0, 1)",
+            ));
+        }
+        if !(self.fluence_threshold_ratio.is_finite() && self.fluence_threshold_ratio > 1.0) {
+            return Err(PlanError::setting(
+                "beam.fluence_threshold_ratio",
+                self.fluence_threshold_ratio,
+                "must be > 1 (below threshold nothing is ablated)",
+            ));
+        }
+        require_range("beam.incidence_deg", self.incidence_deg, 0.0, 89.0)?;
+        if self.fluence_threshold_ratio * self.incidence_deg.to_radians().cos() <= 1.0 {
+            return Err(PlanError::setting(
+                "beam.incidence_deg",
+                self.incidence_deg,
+                "at this incidence F0·cos θ is below the ablation threshold",
+            ));
+        }
+        require_open_closed("beam.line_width_tolerance", self.line_width_tolerance, 0.0, 0.5)?;
+        Ok(())
+    }
+
+    /// E = P/h (J), paper Eq. 4.
+    #[must_use]
+    pub fn pulse_energy_j(&self) -> f64 {
+        self.power_w / self.repetition_rate_hz
+    }
+
+    /// λ (m).
+    fn wavelength_m(&self) -> f64 {
+        self.wavelength_nm * 1e-9
+    }
+
+    /// w0 = 2·M²·λ·f/(π·D) (mm): the focused waist *radius* (paper Eq. 6 corrected).
+    #[must_use]
+    pub fn waist_radius_mm(&self) -> f64 {
+        2.0 * self.m_squared * self.wavelength_m() * 1e3 * self.focal_length_mm
+            / (std::f64::consts::PI * self.beam_diameter_mm)
+    }
+
+    /// zR = π·w0²/(M²·λ) (mm), paper Eq. 5 with the beam quality factor.
+    #[must_use]
+    pub fn rayleigh_length_mm(&self) -> f64 {
+        let w0 = self.waist_radius_mm();
+        std::f64::consts::PI * w0 * w0 / (self.m_squared * self.wavelength_m() * 1e3)
+    }
+
+    /// w(z) = w0·√(1 + (z/zR)²) (mm), paper Eq. 3; `z_mm` from the focus along the axis.
+    #[must_use]
+    pub fn radius_at_mm(&self, z_mm: f64) -> f64 {
+        let q = z_mm / self.rayleigh_length_mm();
+        self.waist_radius_mm() * (1.0 + q * q).sqrt()
+    }
+
+    /// Peak fluence F(z) = 2E/(π·w(z)²) (J/mm²), paper Eq. 2 with w(z).
+    #[must_use]
+    pub fn peak_fluence_j_per_mm2(&self, z_mm: f64) -> f64 {
+        let w = self.radius_at_mm(z_mm);
+        2.0 * self.pulse_energy_j() / (std::f64::consts::PI * w * w)
+    }
+
+    /// The focus processing length (paper §2.1 "LPL"): the largest |z| with
+    /// F(z) ≥ t·F0, i.e. zR·√(1/t − 1) (mm, each side of the focus).
+    #[must_use]
+    pub fn focus_half_length_mm(&self) -> f64 {
+        self.rayleigh_length_mm() * (1.0 / self.fluence_tolerance - 1.0).sqrt()
+    }
+
+    /// (r_min/r, r_max/r) at incidence θ (radians), paper Eq. 7–8: with k = F0/F_th,
+    /// r² = (w0²/2)·ln k, r_min² = (w0²/2)·ln(k·cos θ), r_max = r_min/cos θ. `None` when
+    /// F0·cos θ is at or below the threshold (no ablation).
+    #[must_use]
+    pub fn spot_ratios(&self, incidence_rad: f64) -> Option<(f64, f64)> {
+        let k = self.fluence_threshold_ratio;
+        let cos = incidence_rad.cos();
+        let inner = (k * cos).ln();
+        if !(inner > 0.0 && cos > 0.0) {
+            return None;
+        }
+        let ratio_min = (inner / k.ln()).sqrt();
+        Some((ratio_min, ratio_min / cos))
+    }
+
+    /// The largest incidence (radians) for which both spot ratios stay within
+    /// `1 ± line_width_tolerance`: scanned from 0 in [`INCIDENCE_SCAN_STEP_RAD`] steps, then
+    /// bisected to the first violation.
+    #[must_use]
+    pub fn max_incidence_for_line_width_rad(&self) -> f64 {
+        let tol = self.line_width_tolerance;
+        let within = |theta: f64| {
+            self.spot_ratios(theta)
+                .is_some_and(|(lo, hi)| (lo - 1.0).abs() <= tol && (hi - 1.0).abs() <= tol)
+        };
+        let mut good = 0.0;
+        let max = std::f64::consts::FRAC_PI_2;
+        while good + INCIDENCE_SCAN_STEP_RAD < max && within(good + INCIDENCE_SCAN_STEP_RAD) {
+            good += INCIDENCE_SCAN_STEP_RAD;
+        }
+        let mut bad = (good + INCIDENCE_SCAN_STEP_RAD).min(max);
+        for _ in 0..INCIDENCE_BISECTION_STEPS {
+            let mid = 0.5 * (good + bad);
+            if within(mid) {
+                good = mid;
+            } else {
+                bad = mid;
+            }
+        }
+        good
+    }
+
+    /// The figures `trimctl beam` prints. Validate first: an invalid beam gives NaN.
+    #[must_use]
+    pub fn report(&self) -> BeamReport {
+        let (ratio_min, ratio_max) = self
+            .spot_ratios(self.incidence_deg.to_radians())
+            .unwrap_or((f64::NAN, f64::NAN));
+        BeamReport {
+            pulse_energy_uj: self.pulse_energy_j() * 1e6,
+            waist_radius_um: self.waist_radius_mm() * 1e3,
+            rayleigh_length_mm: self.rayleigh_length_mm(),
+            // J/mm² → J/cm²: ×100.
+            peak_fluence_j_per_cm2: self.peak_fluence_j_per_mm2(0.0) * 100.0,
+            focus_half_length_mm: self.focus_half_length_mm(),
+            spot_ratio_min: ratio_min,
+            spot_ratio_max: ratio_max,
+            max_incidence_for_line_width_deg: self.max_incidence_for_line_width_rad().to_degrees(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reproduces_the_papers_figures() {
+        let b = Beam::default();
+        b.validate().unwrap();
+        let r = b.report();
+        // Paper §2.1: E = 214.36 µJ (exact arithmetic of 53.59 W / 250 kHz).
+        assert!((r.pulse_energy_uj - 214.36).abs() < 1e-9, "{r:?}");
+        // w0 ≈ 20.4 µm (paper rounds to 0.1 µm).
+        assert!((r.waist_radius_um - 20.4).abs() < 0.05, "{r:?}");
+        // F0 = 32.7248 J/cm² (paper; within 0.05 %, the rounding of D).
+        assert!((r.peak_fluence_j_per_cm2 - 32.7248).abs() < 0.016, "{r:?}");
+        // "z can reach 0.4 mm" at 97 %: within 0.01 mm.
+        assert!((r.focus_half_length_mm - 0.4).abs() < 0.01, "{r:?}");
+        // 99.72 % and 100.11 % at F0/F_th = 2, θ = 5° (paper rounds to 0.01 %).
+        assert!((r.spot_ratio_min * 100.0 - 99.72).abs() < 0.005, "{r:?}");
+        assert!((r.spot_ratio_max * 100.0 - 100.11).abs() < 0.005, "{r:?}");
+        // zR is computed, not the paper's 4.994 mm: π·w0²/(M²·λ) ≈ 2.24 mm.
+        assert!((r.rayleigh_length_mm - 2.2396).abs() < 0.001, "{r:?}");
+    }
+
+    #[test]
+    fn fluence_at_focus_half_length_is_the_tolerance() {
+        let b = Beam::default();
+        let z = b.focus_half_length_mm();
+        let ratio = b.peak_fluence_j_per_mm2(z) / b.peak_fluence_j_per_mm2(0.0);
+        assert!((ratio - b.fluence_tolerance).abs() < 1e-12);
+        // w(zR) = √2·w0.
+        let w = b.radius_at_mm(b.rayleigh_length_mm());
+        assert!((w / b.waist_radius_mm() - 2f64.sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn line_width_limit_is_where_a_ratio_leaves_the_tolerance() {
+        let b = Beam::default();
+        let theta = b.max_incidence_for_line_width_rad();
+        // Closed form for the binding side (r_min): ln(k·cos θ)/ln k = (1 − tol)².
+        let k = b.fluence_threshold_ratio;
+        let expected = ((k.ln() * (1.0 - b.line_width_tolerance).powi(2)).exp() / k).acos();
+        assert!((theta - expected).abs() < 1e-9, "{theta} vs {expected}");
+        let (lo, hi) = b.spot_ratios(theta).unwrap();
+        assert!(lo >= 1.0 - b.line_width_tolerance - 1e-9 && hi <= 1.0 + b.line_width_tolerance);
+    }
+
+    #[test]
+    fn validate_names_the_key() {
+        let b = Beam {
+            power_w: -1.0,
+            ..Beam::default()
+        };
+        assert!(b.validate().unwrap_err().to_string().contains("beam.power_w"));
+        let b = Beam {
+            fluence_tolerance: 1.0,
+            ..Beam::default()
+        };
+        assert!(
+            b.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("beam.fluence_tolerance")
+        );
+        let b = Beam {
+            m_squared: f64::NAN,
+            ..Beam::default()
+        };
+        assert!(b.validate().unwrap_err().to_string().contains("beam.m_squared"));
+    }
+}

@@ -1,0 +1,159 @@
+//! The error type of trim-plan: every variant says what was wrong and where (contour id, zone,
+//! settings key).
+
+use trim_geom::ContourId;
+
+/// Everything that can make planning refuse.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum PlanError {
+    /// A settings value is out of range. `key` is the dotted settings key (`beam.power_w`).
+    #[error("setting {key} = {value}: {message}")]
+    InvalidSetting {
+        /// The dotted key, as in job.toml.
+        key: &'static str,
+        /// The value given, as text.
+        value: String,
+        /// What is accepted.
+        message: String,
+    },
+    /// A contour has a point or feature vector that is NaN or infinite.
+    #[error("contour {contour}: {what} {index} is not finite")]
+    NonFinite {
+        /// The contour id from the input path.
+        contour: ContourId,
+        /// "point" or "feature vector".
+        what: &'static str,
+        /// The 0-based index of the point in the contour.
+        index: usize,
+    },
+    /// A contour's feature vector is zero (or its per-point vectors cancel out).
+    #[error("contour {contour}: feature vector {index} has zero length")]
+    ZeroFeature {
+        /// The contour id.
+        contour: ContourId,
+        /// The 0-based point index.
+        index: usize,
+    },
+    /// A contour has zero length (all points coincide) or fewer than two points.
+    #[error("contour {contour}: zero-length contour ({points} points, length {length_mm} mm)")]
+    ZeroLength {
+        /// The contour id.
+        contour: ContourId,
+        /// How many points it has.
+        points: usize,
+        /// Its length (mm).
+        length_mm: f64,
+    },
+    /// A contour id appears twice.
+    #[error("contour {contour}: id appears more than once")]
+    DuplicateContour {
+        /// The repeated id.
+        contour: ContourId,
+    },
+    /// Nothing to plan.
+    #[error("the path has no contours")]
+    EmptyPath,
+    /// More zones were asked for than there are contours (pieces) to put in them.
+    #[error("zoning.k = {k} but there are only {contours} contours (pieces after splitting)")]
+    TooManyZones {
+        /// The k asked for.
+        k: usize,
+        /// The number of samples (contour pieces).
+        contours: usize,
+    },
+    /// A fixed k gives a zone that breaks the incidence limit.
+    #[error(
+        "zone {zone} (contours {contours:?}): incidence {incidence_deg:.3}° exceeds the limit \
+         {limit_deg:.3}° with zoning.k = {k}; leave k unset to choose it automatically"
+    )]
+    IncidenceLimit {
+        /// The zone index in the zoning result.
+        zone: usize,
+        /// Its contour ids.
+        contours: Vec<ContourId>,
+        /// Its largest incidence (degrees).
+        incidence_deg: f64,
+        /// The limit (degrees).
+        limit_deg: f64,
+        /// The fixed k.
+        k: usize,
+    },
+    /// k-means failed inside linfa.
+    #[error("k-means with k = {k} failed: {message}")]
+    KMeans {
+        /// The k.
+        k: usize,
+        /// linfa's message.
+        message: String,
+    },
+    /// No machine pose within the axis limits points the beam along a zone's axis.
+    #[error(
+        "zone {zone} (contours {contours:?}): no {kinematics} pose within the axis limits puts the \
+         beam along ({:.4}, {:.4}, {:.4}): {reason}",
+        axis[0], axis[1], axis[2]
+    )]
+    Unreachable {
+        /// The zone id.
+        zone: usize,
+        /// Its contour ids.
+        contours: Vec<ContourId>,
+        /// The kinematics name.
+        kinematics: String,
+        /// The zone axis (work-piece frame, unit).
+        axis: [f64; 3],
+        /// Which limit or why.
+        reason: String,
+    },
+}
+
+impl PlanError {
+    /// An out-of-range setting.
+    pub fn setting(key: &'static str, value: impl ToString, message: impl Into<String>) -> Self {
+        PlanError::InvalidSetting {
+            key,
+            value: value.to_string(),
+            message: message.into(),
+        }
+    }
+}
+
+/// Checks that `value` is finite and strictly positive.
+pub(crate) fn require_positive(key: &'static str, value: f64) -> Result<(), PlanError> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(PlanError::setting(key, value, "must be a finite number > 0"))
+    }
+}
+
+/// Checks that `value` is finite and within `[lo, hi]`.
+pub(crate) fn require_range(key: &'static str, value: f64, lo: f64, hi: f64) -> Result<(), PlanError> {
+    if value.is_finite() && (lo..=hi).contains(&value) {
+        Ok(())
+    } else {
+        Err(PlanError::setting(
+            key,
+            value,
+            format!("must be within [{lo}, {hi}]"),
+        ))
+    }
+}
+
+/// Checks that `value` is finite and within the open-closed interval `(lo, hi]`.
+pub(crate) fn require_open_closed(
+    key: &'static str,
+    value: f64,
+    lo: f64,
+    hi: f64,
+) -> Result<(), PlanError> {
+    if value.is_finite() && value > lo && value <= hi {
+        Ok(())
+    } else {
+        Err(PlanError::setting(
+            key,
+            value,
+            format!("must be within ({lo}, {hi}]"),
+        ))
+    }
+}
