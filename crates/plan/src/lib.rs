@@ -9,8 +9,10 @@
 
 pub mod beam;
 pub mod error;
+pub mod field;
 pub mod frame;
 pub mod job;
+pub mod layer;
 pub mod piece;
 pub mod zoning;
 
