@@ -1,1 +1,310 @@
-//! File formats (filled by the formats work).
+//! File formats: PLY, PCD and XYZ point clouds, STL and PLY meshes, and the path CSV.
+//!
+//! Every reader has a twin taking the file's bytes and the name to put in errors
+//! (`read_points_from_bytes(bytes, name)`), so parsers are tested and fuzzed without touching the
+//! disk; the file-based functions read the whole file and call it. Writers likewise have
+//! `encode_*` twins returning the bytes.
+//!
+//! Errors name the file and the place: the 1-based line for text, the 0-based element (vertex,
+//! point, facet) for binary bodies. A truncated binary body says how many elements the header
+//! declared and how many were found. Readers never panic and never drop a row: a row they cannot
+//! use is an error. Header counts are never trusted for allocation: capacity is capped by the
+//! bytes that remain.
+//!
+//! Coordinates are read as written (trimctl works in millimetres; a file in metres stays in
+//! metres, the caller scales it).
+
+mod path_csv;
+mod pcd;
+mod ply;
+mod stl;
+mod text;
+mod xyz;
+
+use std::path::Path as FsPath;
+
+use crate::cloud::PointCloud;
+use crate::error::{GeomError, Location, Result};
+use crate::mesh::Mesh;
+use crate::path::Path;
+
+pub use ply::PlyScalar;
+
+/// The encoding of a PLY file body.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PlyEncoding {
+    /// One element per text line.
+    Ascii,
+    /// Packed binary, little-endian.
+    BinaryLittleEndian,
+    /// Packed binary, big-endian.
+    BinaryBigEndian,
+}
+
+/// The encoding of a PCD file body.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PcdEncoding {
+    /// One point per text line.
+    Ascii,
+    /// Packed binary, little-endian, point after point.
+    Binary,
+}
+
+/// What a file holds, for readers that accept more than one kind ([`read_geometry`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Geometry {
+    /// A point cloud (PLY without faces, PCD, XYZ).
+    Points(PointCloud),
+    /// A triangle mesh (STL, PLY with faces).
+    Mesh(Box<Mesh>),
+    /// A trimming path (path CSV).
+    Path(Path),
+}
+
+/// The formats trimctl knows, by file extension.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Format {
+    Ply,
+    Pcd,
+    Xyz,
+    Stl,
+    PathCsv,
+}
+
+const KNOWN_EXTENSIONS: &str = ".ply, .pcd, .xyz, .txt, .stl, .csv";
+
+fn format_of(name: &FsPath) -> Result<Format> {
+    let ext = name
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase());
+    match ext.as_deref() {
+        Some("ply") => Ok(Format::Ply),
+        Some("pcd") => Ok(Format::Pcd),
+        Some("xyz" | "txt") => Ok(Format::Xyz),
+        Some("stl") => Ok(Format::Stl),
+        Some("csv") => Ok(Format::PathCsv),
+        Some(other) => Err(GeomError::UnsupportedFormat {
+            path: name.into(),
+            message: format!("unknown extension .{other} (known: {KNOWN_EXTENSIONS})"),
+        }),
+        None => Err(GeomError::UnsupportedFormat {
+            path: name.into(),
+            message: format!("no file extension to tell the format by (known: {KNOWN_EXTENSIONS})"),
+        }),
+    }
+}
+
+/// An error about an in-memory value built from a file, placed in that file: a non-finite value
+/// by its element, anything else about the file as a whole (at its end, once all was read).
+fn in_file(name: &FsPath, e: GeomError) -> GeomError {
+    match e {
+        GeomError::NonFinite { what, index } => GeomError::parse(
+            name,
+            Location::Element(index),
+            format!("{what} {index} is not finite"),
+        ),
+        e @ (GeomError::Parse { .. }
+        | GeomError::Io { .. }
+        | GeomError::UnsupportedFormat { .. }) => e,
+        other => GeomError::parse(name, Location::End, other.to_string()),
+    }
+}
+
+fn read_file(path: &FsPath) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|e| GeomError::io(path, e))
+}
+
+fn write_file(path: &FsPath, bytes: &[u8]) -> Result<()> {
+    std::fs::write(path, bytes).map_err(|e| GeomError::io(path, e))
+}
+
+/// Reads a point cloud, by extension: `.ply` (ascii or binary; faces ignored), `.pcd` (ascii or
+/// binary), `.xyz` or `.txt` (`x y z [nx ny nz]` per line). A `.stl` is refused with a pointer to
+/// [`read_mesh`]; other extensions are refused by name.
+pub fn read_points(path: &FsPath) -> Result<PointCloud> {
+    match format_of(path)? {
+        Format::Ply | Format::Pcd | Format::Xyz => read_points_from_bytes(&read_file(path)?, path),
+        other => Err(wrong_kind(path, other, "a point cloud")),
+    }
+}
+
+/// [`read_points`] on bytes already in memory; `name` gives the format (by extension) and is the
+/// file named in errors.
+pub fn read_points_from_bytes(bytes: &[u8], name: &FsPath) -> Result<PointCloud> {
+    match format_of(name)? {
+        Format::Ply => Ok(ply::parse(bytes, name)?.cloud),
+        Format::Pcd => pcd::parse(bytes, name),
+        Format::Xyz => xyz::parse(bytes, name),
+        other => Err(wrong_kind(name, other, "a point cloud")),
+    }
+}
+
+/// The error for a file whose format holds another kind of data than the one asked for.
+fn wrong_kind(name: &FsPath, format: Format, wanted: &str) -> GeomError {
+    let message = match format {
+        Format::Stl => format!(
+            "an STL file is a mesh, not {wanted}: read it with read_mesh (and sample it with \
+             Mesh::sample_area_weighted)"
+        ),
+        Format::PathCsv => {
+            format!("a .csv file is a trimming path, not {wanted}: read it with read_path")
+        }
+        Format::Pcd | Format::Xyz => format!(
+            "a point-cloud format, not {wanted}: read it with read_points (meshes are read from \
+             .stl or .ply with faces)"
+        ),
+        Format::Ply => format!("a PLY file does not hold {wanted}"),
+    };
+    GeomError::UnsupportedFormat {
+        path: name.into(),
+        message,
+    }
+}
+
+/// Reads a triangle mesh: `.stl` (ascii or binary) or `.ply` with a `face` element (polygons are
+/// fan-triangulated). Other extensions are refused by name.
+pub fn read_mesh(path: &FsPath) -> Result<Mesh> {
+    match format_of(path)? {
+        Format::Stl | Format::Ply => read_mesh_from_bytes(&read_file(path)?, path),
+        other => Err(wrong_kind(path, other, "a mesh")),
+    }
+}
+
+/// [`read_mesh`] on bytes already in memory; `name` gives the format and is named in errors.
+pub fn read_mesh_from_bytes(bytes: &[u8], name: &FsPath) -> Result<Mesh> {
+    match format_of(name)? {
+        Format::Stl => stl::parse(bytes, name),
+        Format::Ply => ply::into_mesh(ply::parse(bytes, name)?, name),
+        other => Err(wrong_kind(name, other, "a mesh")),
+    }
+}
+
+/// Reads a trimming path from a path CSV (DESIGN.md "Path CSV").
+///
+/// The header names the columns `contour,x,y,z,u,v,w`, in any order; extra columns are ignored;
+/// a missing one is an error naming it. One row per point, the rows of a contour contiguous and
+/// in path order. Errors name the line (and the column for a bad cell): a non-numeric or
+/// non-finite cell, a contour id that reappears after another contour (both lines named), a
+/// contour of one point or of zero length.
+pub fn read_path(path: &FsPath) -> Result<Path> {
+    read_path_from_bytes(&read_file(path)?, path)
+}
+
+/// [`read_path`] on bytes already in memory; `name` is the file named in errors.
+pub fn read_path_from_bytes(bytes: &[u8], name: &FsPath) -> Result<Path> {
+    path_csv::parse(bytes, name)
+}
+
+/// Reads whatever the file holds, by extension: `.csv` → path, `.stl` → mesh, `.ply` → mesh if it
+/// has at least one face, else points; `.pcd`, `.xyz`, `.txt` → points.
+pub fn read_geometry(path: &FsPath) -> Result<Geometry> {
+    format_of(path)?;
+    read_geometry_from_bytes(&read_file(path)?, path)
+}
+
+/// [`read_geometry`] on bytes already in memory; `name` gives the format and is named in errors.
+pub fn read_geometry_from_bytes(bytes: &[u8], name: &FsPath) -> Result<Geometry> {
+    match format_of(name)? {
+        Format::PathCsv => path_csv::parse(bytes, name).map(Geometry::Path),
+        Format::Stl => stl::parse(bytes, name).map(|m| Geometry::Mesh(Box::new(m))),
+        Format::Ply => {
+            let data = ply::parse(bytes, name)?;
+            if data.faces.is_empty() {
+                Ok(Geometry::Points(data.cloud))
+            } else {
+                ply::into_mesh(data, name).map(|m| Geometry::Mesh(Box::new(m)))
+            }
+        }
+        Format::Pcd => pcd::parse(bytes, name).map(Geometry::Points),
+        Format::Xyz => xyz::parse(bytes, name).map(Geometry::Points),
+    }
+}
+
+/// Writes a point cloud as PLY with double-precision `x y z` (and `nx ny nz` when the cloud has
+/// normals), so coordinates round-trip exactly.
+pub fn write_ply(path: &FsPath, cloud: &PointCloud, encoding: PlyEncoding) -> Result<()> {
+    write_file(path, &encode_ply(cloud, encoding, PlyScalar::Double))
+}
+
+/// The bytes of a PLY file of `cloud`, with coordinates (and normals) stored as `scalar`.
+/// `PlyScalar::Float` rounds each value to the nearest `f32`.
+#[must_use]
+pub fn encode_ply(cloud: &PointCloud, encoding: PlyEncoding, scalar: PlyScalar) -> Vec<u8> {
+    ply::encode(cloud, encoding, scalar)
+}
+
+/// Writes a point cloud as PCD v0.7 with double-precision (`SIZE 8`, `TYPE F`) fields `x y z`
+/// and, when the cloud has normals, `normal_x normal_y normal_z`.
+pub fn write_pcd(path: &FsPath, cloud: &PointCloud, encoding: PcdEncoding) -> Result<()> {
+    write_file(path, &encode_pcd(cloud, encoding))
+}
+
+/// The bytes of a PCD file of `cloud` (see [`write_pcd`]).
+#[must_use]
+pub fn encode_pcd(cloud: &PointCloud, encoding: PcdEncoding) -> Vec<u8> {
+    pcd::encode(cloud, encoding)
+}
+
+/// Writes a point cloud as XYZ text: `x y z` or `x y z nx ny nz` per line, shortest round-trip
+/// decimal for each value.
+pub fn write_xyz(path: &FsPath, cloud: &PointCloud) -> Result<()> {
+    write_file(path, &encode_xyz(cloud))
+}
+
+/// The bytes of an XYZ file of `cloud` (see [`write_xyz`]).
+#[must_use]
+pub fn encode_xyz(cloud: &PointCloud) -> Vec<u8> {
+    xyz::encode(cloud)
+}
+
+/// Writes a mesh as binary STL (via stl_io). STL stores `f32`: each coordinate is rounded to the
+/// nearest `f32`. Facet normals are the right-hand-rule face normals (zero for degenerate
+/// triangles).
+pub fn write_stl(path: &FsPath, mesh: &Mesh) -> Result<()> {
+    let bytes = encode_stl(mesh).map_err(|e| match e {
+        GeomError::InvalidArgument { message, .. } => {
+            GeomError::parse(path, Location::Header, message)
+        }
+        other => other,
+    })?;
+    write_file(path, &bytes)
+}
+
+/// The bytes of a binary STL file of `mesh` (see [`write_stl`]). Fails only for a mesh of more
+/// than `u32::MAX` triangles, which binary STL cannot count.
+pub fn encode_stl(mesh: &Mesh) -> Result<Vec<u8>> {
+    stl::encode(mesh)
+}
+
+/// Writes a path as a path CSV: header `contour,x,y,z,u,v,w`, one row per point, contours in
+/// order, each value in the shortest decimal that reads back to the same `f64`.
+pub fn write_path(path: &FsPath, trim_path: &Path) -> Result<()> {
+    write_file(path, &encode_path(trim_path))
+}
+
+/// The bytes of a path CSV of `trim_path` (see [`write_path`]).
+#[must_use]
+pub fn encode_path(trim_path: &Path) -> Vec<u8> {
+    path_csv::encode(trim_path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dispatch_refuses_unknown_and_stl_as_points() {
+        let e = read_points_from_bytes(b"", FsPath::new("a.obj")).unwrap_err();
+        assert!(
+            e.to_string().contains("a.obj") && e.to_string().contains(".obj"),
+            "{e}"
+        );
+        let e = read_points_from_bytes(b"", FsPath::new("noext")).unwrap_err();
+        assert!(e.to_string().contains("no file extension"), "{e}");
+        let e =
+            read_points_from_bytes(b"solid x\nendsolid x\n", FsPath::new("part.STL")).unwrap_err();
+        assert!(e.to_string().contains("read_mesh"), "{e}");
+        let e = read_mesh_from_bytes(b"1 2 3\n", FsPath::new("a.xyz")).unwrap_err();
+        assert!(e.to_string().contains("not a mesh"), "{e}");
+    }
+}

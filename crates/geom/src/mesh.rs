@@ -110,10 +110,7 @@ impl Mesh {
             }
             total_mm2 += area_mm2;
             surface_indices.push(*tri);
-            #[expect(
-                clippy::cast_possible_truncation,
-                reason = "t < triangles.len(), checked above to fit in u32"
-            )]
+            // t < triangles.len(), checked above to fit in u32.
             surface_to_triangle.push(t as u32);
             cumulative_area_mm2.push(total_mm2);
         }
@@ -249,10 +246,7 @@ impl Mesh {
     fn nearest_triangle_normal(&self, on_surface: &Point3) -> Vector3 {
         let mut best = (f64::INFINITY, Vector3::z());
         for t in 0..self.surface.num_triangles() {
-            #[expect(
-                clippy::cast_possible_truncation,
-                reason = "t < num_triangles, which fits in u32"
-            )]
+            // t < num_triangles, which fits in u32.
             let tri = self.surface.triangle(t as u32);
             let d = tri.distance_to_local_point(on_surface, false);
             if d < best.0 {
