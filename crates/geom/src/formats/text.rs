@@ -121,7 +121,7 @@ mod tests {
         assert_eq!(l.next(), Some((3, &b""[..])));
         assert_eq!(l.next(), Some((4, &b"c"[..])));
         assert_eq!(l.next(), None);
-        assert_eq!(l.offset(), 8);
+        assert_eq!(l.offset(), 7);
     }
 
     #[test]
