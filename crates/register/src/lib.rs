@@ -1,1 +1,22 @@
-//! trim-register (filled by its issue).
+//! Registration for trimctl: ICP on a kd-tree, the Umeyama similarity, a regional registration of
+//! contour paths on a smooth deformation field, and the six-point datum fit.
+//!
+//! Frames are in names, `b_from_a` (see trim-geom). Millimetres and radians throughout.
+//!
+//! - [`umeyama`]: closed-form similarity between paired points (Umeyama 1991).
+//! - [`point_to_plane`]: the linearised point-to-plane / point-to-point normal equations.
+//! - [`icp`]: ICP (point-to-point, point-to-plane; rigid or scaled; robust; pyramid).
+//! - [`kernel`]: robust kernels.
+//! - [`reduce`]: deterministic parallel sums.
+
+pub mod error;
+pub mod icp;
+pub mod kernel;
+pub mod point_to_plane;
+pub mod reduce;
+pub mod umeyama;
+
+pub use error::{RegisterError, Result};
+pub use icp::{IcpMethod, IcpResult, IcpSettings, IcpTarget, PyramidLevel, icp, icp_pyramid};
+pub use kernel::RobustKernel;
+pub use umeyama::{UmeyamaFit, umeyama, umeyama_weighted};

@@ -1,0 +1,106 @@
+//! The error type of trim-register: every variant says what was wrong and where.
+
+use trim_geom::{ContourId, GeomError};
+
+/// Result alias for trim-register.
+pub type Result<T, E = RegisterError> = std::result::Result<T, E>;
+
+/// Everything that can go wrong in registration. Bad input is refused with one of these, never
+/// answered with an identity transform.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum RegisterError {
+    /// A cloud that must hold points is empty.
+    #[error("{which} cloud is empty")]
+    EmptyCloud {
+        /// Which cloud ("source", "target", "scan", "CAD").
+        which: &'static str,
+    },
+    /// A method needs normals that the cloud does not carry.
+    #[error("{which} cloud has no normals; {method} needs them")]
+    MissingNormals {
+        /// Which cloud.
+        which: &'static str,
+        /// The method that needs them.
+        method: &'static str,
+    },
+    /// Too few correspondences (within the maximum distance, after trimming) to solve.
+    #[error(
+        "{stage}: {got} correspondences within {max_distance_mm} mm, needs at least {needed}"
+    )]
+    TooFewCorrespondences {
+        /// Which step (e.g. "icp level 2, iteration 5").
+        stage: String,
+        /// The minimum.
+        needed: usize,
+        /// What was found.
+        got: usize,
+        /// The maximum correspondence distance in force, mm.
+        max_distance_mm: f64,
+    },
+    /// The normal equations are singular: the data does not fix the transform.
+    #[error("{stage}: normal equations are singular (eigenvalues {eigenvalues:?})")]
+    Singular {
+        /// Which step.
+        stage: String,
+        /// The eigenvalues, ascending.
+        eigenvalues: Vec<f64>,
+    },
+    /// Two sequences that must pair up do not.
+    #[error("{what}: {expected} entries expected, got {got}")]
+    LengthMismatch {
+        /// What was paired.
+        what: &'static str,
+        /// The expected length.
+        expected: usize,
+        /// The given length.
+        got: usize,
+    },
+    /// A setting is out of range.
+    #[error("setting `{name}`: {message}")]
+    InvalidSetting {
+        /// The setting's key, as in the `[register]` table of job.toml.
+        name: String,
+        /// What is wrong and what is accepted.
+        message: String,
+    },
+    /// An input value is not finite.
+    #[error("{what} is not finite")]
+    NonFinite {
+        /// What value.
+        what: String,
+    },
+    /// The scan and the CAD do not overlap after coarse alignment.
+    #[error(
+        "scan and CAD do not overlap: {fraction_pct:.1} % of scan points lie within {distance_mm} mm of the CAD (needs {needed_pct:.0} %)"
+    )]
+    NotOverlapping {
+        /// The fraction of scan points near the CAD, percent.
+        fraction_pct: f64,
+        /// The distance used, mm.
+        distance_mm: f64,
+        /// The required fraction, percent.
+        needed_pct: f64,
+    },
+    /// A contour could not be registered at all.
+    #[error("contour {contour}: {message}")]
+    Contour {
+        /// The contour id.
+        contour: ContourId,
+        /// What was wrong.
+        message: String,
+    },
+    /// A geometry error (bad cloud, bad path).
+    #[error(transparent)]
+    Geom(#[from] GeomError),
+}
+
+impl RegisterError {
+    /// An out-of-range setting.
+    pub fn setting(name: impl Into<String>, message: impl Into<String>) -> Self {
+        RegisterError::InvalidSetting {
+            name: name.into(),
+            message: message.into(),
+        }
+    }
+}
