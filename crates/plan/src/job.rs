@@ -133,7 +133,7 @@ impl Polyline {
 /// Galvo motion and laser timing, used for the time estimate and sent to the galvo as list
 /// commands.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct GalvoSettings {
     /// The usable field, width and height (mm), centred on the optical axis.
     pub field_mm: [f64; 2],

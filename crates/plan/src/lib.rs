@@ -12,6 +12,7 @@ pub mod error;
 pub mod field;
 pub mod frame;
 pub mod job;
+pub mod kinematics;
 pub mod layer;
 pub mod piece;
 pub mod zoning;
