@@ -1,1 +1,23 @@
-//! trim-io (filled by its issue).
+//! trim-io: the cell's devices and the execution of a Job (DESIGN.md "Execution and devices").
+//!
+//! - [`galvo`]: the 2D scanner over TCP (docs/protocols/galvo.md): codec, client, simulator.
+//! - [`laser`]: the laser over RS-232 with command profiles as data; simulator on a pty.
+//! - [`cnc`]: the five-axis CNC behind the [`cnc::Cnc`] trait; LinuxCNC `linuxcncrsh` client and
+//!   a simulator of that protocol.
+//! - [`executor`]: the state machine over the Job with its interlocks, the [`journal`], and the
+//!   run [`record`] (MCAP).
+//! - [`cell`]: the three devices together, and [`cell::SimCell`], all three simulated.
+//!
+//! Device calls return `Result<Result<T, Fault>, Error>`: the outer error is the transport (link,
+//! timeout, garbled bytes), the inner one the device's own refusal or fault.
+
+// pub mod cell;
+// pub mod cnc;
+// pub mod executor;
+pub mod fault;
+pub mod galvo;
+// pub mod journal;
+pub mod laser;
+// pub mod record;
+pub mod safety;
+pub mod tap;

@@ -1,0 +1,11 @@
+//! The galvo scanner over TCP (docs/protocols/galvo.md): protocol, timing model, client,
+//! simulator, and the conversion of a layer's polylines into a list.
+
+pub mod client;
+pub mod list;
+pub mod protocol;
+pub mod sim;
+pub mod timing;
+
+pub use client::{GalvoClient, GalvoClientConfig, GalvoError, GalvoFault, GalvoResult};
+pub use sim::{GalvoSim, GalvoSimConfig, Lit, MarkRecord};

@@ -1,0 +1,695 @@
+//! A galvo controller simulator that implements docs/protocols/galvo.md on a TCP port: two list
+//! buffers, the timing model as its clock, the reply cache for resends, the heartbeat watchdog,
+//! a record of every vector it marked (with whether light reached the part), and fault injection.
+
+use std::collections::{HashMap, VecDeque};
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use futures::{SinkExt, StreamExt};
+use tokio::io::AsyncWriteExt;
+use tokio::net::{TcpListener, TcpStream};
+use tokio::task::JoinHandle;
+use tokio_util::codec::Framed;
+
+use super::protocol::{
+    ControllerState, Frame, FrameCodec, FrameError, ListCommand, NO_LIST, REPLY_CACHE_LEN,
+    Request, StatusBlock, StatusCode, decode_frame, reply_frame, type_name,
+};
+use super::timing::ListClock;
+use crate::fault::{FaultKind, FaultSwitch};
+use crate::safety::{CellEvent, SafetyMonitor};
+
+/// How often the watchdog looks at the link (ms).
+const WATCHDOG_TICK_MS: u64 = 5;
+/// The longest a stalled connection is held before it is closed (s).
+const STALL_HOLD_S: u64 = 600;
+
+/// Simulator settings.
+#[derive(Debug, Clone)]
+pub struct GalvoSimConfig {
+    /// Half the field in bits: coordinates beyond ±this are refused with `OUT_OF_FIELD`.
+    pub half_field_bits: i64,
+    /// Real seconds per modelled second (1 = real time; 0 = as fast as possible).
+    pub time_scale: f64,
+    /// Largest number of commands a list holds.
+    pub list_capacity: u32,
+}
+
+impl Default for GalvoSimConfig {
+    fn default() -> Self {
+        GalvoSimConfig {
+            half_field_bits: 1 << 30,
+            time_scale: 1.0,
+            list_capacity: 1 << 20,
+        }
+    }
+}
+
+/// Whether light reached the part during a marked vector.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub enum Lit {
+    /// The light path was open for the whole vector.
+    Full,
+    /// The light path changed during the vector: partly marked.
+    Partial,
+    /// No light: the mirrors moved, nothing was marked.
+    Dry,
+}
+
+/// One `MARK` vector the simulator executed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct MarkRecord {
+    /// The tag of the list.
+    pub tag: u32,
+    /// Start (bits).
+    pub from_bits: [i32; 2],
+    /// End (bits).
+    pub to_bits: [i32; 2],
+    /// Light during the vector.
+    pub lit: Lit,
+}
+
+#[derive(Debug, Default, Clone)]
+struct ListBuf {
+    tag: u32,
+    commands: Vec<ListCommand>,
+}
+
+#[derive(Debug)]
+struct Controller {
+    lists: [ListBuf; 2],
+    state: ControllerState,
+    exec_list: u8,
+    exec_tag: u32,
+    commands_done: u32,
+    marks_done: u32,
+    laser_signals: bool,
+    gate: bool,
+    elapsed_ns: f64,
+    last_error: u16,
+    heartbeat_timeout_ms: u32,
+    last_rx: Instant,
+    session: bool,
+    stop_requested: bool,
+    cache: HashMap<u32, Frame>,
+    cache_order: VecDeque<u32>,
+    garble_next: bool,
+    run_id: u64,
+}
+
+struct Shared {
+    config: GalvoSimConfig,
+    ctl: Mutex<Controller>,
+    monitor: SafetyMonitor,
+    faults: FaultSwitch,
+    marks: Mutex<Vec<MarkRecord>>,
+    conn_task: Mutex<Option<JoinHandle<()>>>,
+}
+
+impl Shared {
+    fn ctl(&self) -> MutexGuard<'_, Controller> {
+        self.ctl
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    fn set_gate(&self, c: &mut Controller, open: bool) {
+        if c.gate != open {
+            c.gate = open;
+            self.monitor.report(CellEvent::Gate(open));
+        }
+    }
+
+    /// Drops the laser signals and stops the list: the watchdog and link-loss reaction.
+    fn trip(&self, why: &str) {
+        let mut c = self.ctl();
+        if !c.session {
+            return;
+        }
+        tracing::warn!(why, "galvo simulator: watchdog trip, laser signals dropped");
+        c.session = false;
+        c.laser_signals = false;
+        self.set_gate(&mut c, false);
+        if c.state == ControllerState::Executing {
+            c.stop_requested = true;
+        }
+        c.state = ControllerState::WatchdogTrip;
+        c.last_error = StatusCode::Watchdog.code();
+    }
+}
+
+/// A running galvo simulator. Dropping it stops the server.
+pub struct GalvoSim {
+    addr: SocketAddr,
+    shared: Arc<Shared>,
+    tasks: Vec<JoinHandle<()>>,
+}
+
+impl Drop for GalvoSim {
+    fn drop(&mut self) {
+        for t in &self.tasks {
+            t.abort();
+        }
+        if let Some(t) = self
+            .shared
+            .conn_task
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .take()
+        {
+            t.abort();
+        }
+    }
+}
+
+impl GalvoSim {
+    /// Starts a simulator listening on `bind` (use port 0 for any free port).
+    pub async fn start(
+        bind: SocketAddr,
+        config: GalvoSimConfig,
+        monitor: SafetyMonitor,
+        faults: FaultSwitch,
+    ) -> std::io::Result<GalvoSim> {
+        let listener = TcpListener::bind(bind).await?;
+        let addr = listener.local_addr()?;
+        let shared = Arc::new(Shared {
+            config,
+            ctl: Mutex::new(Controller {
+                lists: [ListBuf::default(), ListBuf::default()],
+                state: ControllerState::Idle,
+                exec_list: NO_LIST,
+                exec_tag: 0,
+                commands_done: 0,
+                marks_done: 0,
+                laser_signals: false,
+                gate: false,
+                elapsed_ns: 0.0,
+                last_error: 0,
+                heartbeat_timeout_ms: 0,
+                last_rx: Instant::now(),
+                session: false,
+                stop_requested: false,
+                cache: HashMap::new(),
+                cache_order: VecDeque::new(),
+                garble_next: false,
+                run_id: 0,
+            }),
+            monitor,
+            faults,
+            marks: Mutex::new(Vec::new()),
+            conn_task: Mutex::new(None),
+        });
+        let accept = tokio::spawn(accept_loop(listener, shared.clone()));
+        let watchdog = tokio::spawn(watchdog_loop(shared.clone()));
+        Ok(GalvoSim {
+            addr,
+            shared,
+            tasks: vec![accept, watchdog],
+        })
+    }
+
+    /// The address it listens on.
+    #[must_use]
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// Every vector executed so far, in order.
+    #[must_use]
+    pub fn marks(&self) -> Vec<MarkRecord> {
+        self.shared
+            .marks
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+    }
+
+    /// The modelled time of all lists executed (s).
+    #[must_use]
+    pub fn elapsed_s(&self) -> f64 {
+        self.shared.ctl().elapsed_ns * 1e-9
+    }
+
+    /// The fault switch.
+    #[must_use]
+    pub fn faults(&self) -> &FaultSwitch {
+        &self.shared.faults
+    }
+
+    /// The current status block (as a `STATUS` request would return it).
+    #[must_use]
+    pub fn status(&self) -> StatusBlock {
+        status_block(&self.shared.ctl())
+    }
+}
+
+fn status_block(c: &Controller) -> StatusBlock {
+    StatusBlock {
+        state: c.state,
+        list: c.exec_list,
+        tag: c.exec_tag,
+        commands_done: c.commands_done,
+        marks_done: c.marks_done,
+        laser_signals: c.laser_signals,
+        gate_open: c.gate,
+        elapsed_ns: c.elapsed_ns as u64,
+        loaded: [
+            u32::try_from(c.lists[0].commands.len()).unwrap_or(u32::MAX),
+            u32::try_from(c.lists[1].commands.len()).unwrap_or(u32::MAX),
+        ],
+        last_error: c.last_error,
+    }
+}
+
+async fn accept_loop(listener: TcpListener, shared: Arc<Shared>) {
+    loop {
+        let Ok((stream, peer)) = listener.accept().await else {
+            continue;
+        };
+        tracing::debug!(%peer, "galvo simulator: connection");
+        let old = shared
+            .conn_task
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .take();
+        if let Some(old) = old {
+            old.abort();
+            shared.trip("connection replaced");
+        }
+        {
+            let mut c = shared.ctl();
+            c.cache.clear();
+            c.cache_order.clear();
+            c.garble_next = false;
+        }
+        let task = tokio::spawn(serve(stream, shared.clone()));
+        *shared
+            .conn_task
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(task);
+    }
+}
+
+async fn watchdog_loop(shared: Arc<Shared>) {
+    loop {
+        tokio::time::sleep(Duration::from_millis(WATCHDOG_TICK_MS)).await;
+        let expired = {
+            let c = shared.ctl();
+            c.session
+                && c.heartbeat_timeout_ms > 0
+                && c.last_rx.elapsed() > Duration::from_millis(u64::from(c.heartbeat_timeout_ms))
+        };
+        if expired {
+            shared.trip("heartbeat timeout");
+        }
+    }
+}
+
+async fn serve(stream: TcpStream, shared: Arc<Shared>) {
+    let _ = stream.set_nodelay(true);
+    let mut framed = Framed::new(stream, FrameCodec);
+    loop {
+        if shared.faults.stalled() {
+            let _ = tokio::time::timeout(
+                Duration::from_secs(STALL_HOLD_S),
+                shared.faults.wait_released(),
+            )
+            .await;
+            shared.trip("connection closed after a stall");
+            return;
+        }
+        let next = tokio::select! {
+            f = framed.next() => f,
+            () = tokio::time::sleep(Duration::from_millis(50)) => continue,
+        };
+        let frame = match next {
+            None => {
+                shared.trip("connection closed");
+                return;
+            }
+            Some(Ok(f)) => f,
+            Some(Err(e)) => {
+                // Reply BAD_FRAME when the header still gives a sequence number, then close.
+                tracing::warn!(error = %e, "galvo simulator: bad frame, closing");
+                let mut buf = framed.read_buffer().clone();
+                let sequence = match decode_frame(&mut buf) {
+                    Err(FrameError::UnsupportedVersion { sequence, .. }) => Some(sequence),
+                    _ if buf.len() >= 8 => Some(u32::from_le_bytes([buf[4], buf[5], buf[6], buf[7]])),
+                    _ => None,
+                };
+                if let Some(sequence) = sequence {
+                    let req = Frame {
+                        crc: false,
+                        sequence,
+                        frame_type: 0,
+                        payload: Vec::new(),
+                    };
+                    let _ = framed
+                        .send(reply_frame(&req, StatusCode::BadFrame, e.to_string().as_bytes()))
+                        .await;
+                }
+                shared.trip("bad frame");
+                return;
+            }
+        };
+        shared.ctl().last_rx = Instant::now();
+        let name = type_name(frame.frame_type);
+        match shared.faults.on_command(name) {
+            Some(FaultKind::DropLink) => {
+                shared.trip("link dropped (fault)");
+                return;
+            }
+            Some(FaultKind::Stall) => continue,
+            Some(FaultKind::Garble) => {
+                shared.ctl().garble_next = true;
+            }
+            Some(FaultKind::Refuse) => {
+                let rep = reply_frame(&frame, StatusCode::Refused, b"refused (fault injection)");
+                if framed.send(rep).await.is_err() {
+                    shared.trip("connection closed");
+                    return;
+                }
+                continue;
+            }
+            None => {}
+        }
+        let cached = shared.ctl().cache.get(&frame.sequence).cloned();
+        let reply = match cached {
+            Some(r) => r,
+            None => {
+                let r = handle(&shared, &frame);
+                let mut c = shared.ctl();
+                c.cache.insert(frame.sequence, r.clone());
+                c.cache_order.push_back(frame.sequence);
+                while c.cache_order.len() > REPLY_CACHE_LEN {
+                    if let Some(old) = c.cache_order.pop_front() {
+                        c.cache.remove(&old);
+                    }
+                }
+                r
+            }
+        };
+        let garble = std::mem::take(&mut shared.ctl().garble_next);
+        let sent = if garble {
+            let mut bytes = super::protocol::encode_frame(&reply);
+            bytes[0] ^= 0x5A;
+            let last = bytes.len() - 1;
+            bytes[last] ^= 0xFF;
+            framed.get_mut().write_all(&bytes).await
+        } else {
+            framed.send(reply).await
+        };
+        if sent.is_err() {
+            shared.trip("connection closed");
+            return;
+        }
+    }
+}
+
+fn handle(shared: &Arc<Shared>, frame: &Frame) -> Frame {
+    let req = match Request::decode(frame.frame_type, &frame.payload) {
+        Ok(r) => r,
+        Err(FrameError::UnknownType(_)) => {
+            return reply_frame(frame, StatusCode::UnknownType, b"unknown request type");
+        }
+        Err(e) => return reply_frame(frame, StatusCode::BadPayload, e.to_string().as_bytes()),
+    };
+    let (code, data): (StatusCode, Vec<u8>) = match execute_request(shared, req) {
+        Ok(data) => (StatusCode::Ok, data),
+        Err((code, msg)) => (code, msg.into_bytes()),
+    };
+    reply_frame(frame, code, &data)
+}
+
+fn execute_request(shared: &Arc<Shared>, req: Request) -> Result<Vec<u8>, (StatusCode, String)> {
+    let mut c = shared.ctl();
+    match req {
+        Request::Hello {
+            heartbeat_timeout_ms,
+        } => {
+            c.heartbeat_timeout_ms = heartbeat_timeout_ms;
+            c.session = true;
+            c.last_rx = Instant::now();
+            let mut out = vec![super::protocol::PROTOCOL_VERSION];
+            out.extend_from_slice(&shared.config.list_capacity.to_le_bytes());
+            Ok(out)
+        }
+        Request::Heartbeat => Ok(Vec::new()),
+        Request::Status => Ok(status_block(&c).encode()),
+        Request::LoadList {
+            list,
+            tag,
+            commands,
+        } => {
+            let l = check_list(list)?;
+            if c.state == ControllerState::Executing && c.exec_list == list {
+                return Err((StatusCode::ListBusy, format!("list {list} is executing")));
+            }
+            check_field(&commands, shared.config.half_field_bits)?;
+            check_capacity(commands.len(), shared.config.list_capacity)?;
+            c.lists[l] = ListBuf { tag, commands };
+            Ok(u32::try_from(c.lists[l].commands.len())
+                .unwrap_or(u32::MAX)
+                .to_le_bytes()
+                .to_vec())
+        }
+        Request::AppendList { list, commands } => {
+            let l = check_list(list)?;
+            if c.state == ControllerState::Executing && c.exec_list == list {
+                return Err((StatusCode::ListBusy, format!("list {list} is executing")));
+            }
+            check_field(&commands, shared.config.half_field_bits)?;
+            check_capacity(c.lists[l].commands.len() + commands.len(), shared.config.list_capacity)?;
+            c.lists[l].commands.extend(commands);
+            Ok(u32::try_from(c.lists[l].commands.len())
+                .unwrap_or(u32::MAX)
+                .to_le_bytes()
+                .to_vec())
+        }
+        Request::Execute { list } => {
+            let l = check_list(list)?;
+            if c.last_error == StatusCode::Watchdog.code() {
+                return Err((StatusCode::Watchdog, "watchdog trip latched".into()));
+            }
+            if c.state == ControllerState::Executing {
+                return Err((StatusCode::ListBusy, format!("list {} runs", c.exec_list)));
+            }
+            if c.lists[l].commands.is_empty() {
+                return Err((StatusCode::ListEmpty, format!("list {list} is empty")));
+            }
+            if !c.laser_signals {
+                return Err((StatusCode::SignalsOff, "laser signals disabled".into()));
+            }
+            c.state = ControllerState::Executing;
+            c.exec_list = list;
+            c.exec_tag = c.lists[l].tag;
+            c.commands_done = 0;
+            c.marks_done = 0;
+            c.stop_requested = false;
+            c.run_id += 1;
+            let run_id = c.run_id;
+            let commands = c.lists[l].commands.clone();
+            let tag = c.exec_tag;
+            drop(c);
+            shared.monitor.report(CellEvent::GalvoExecuting(true));
+            tokio::spawn(run_list(shared.clone(), commands, tag, run_id));
+            Ok(Vec::new())
+        }
+        Request::Stop => {
+            c.laser_signals = false;
+            shared.set_gate(&mut c, false);
+            if c.state == ControllerState::Executing {
+                c.stop_requested = true;
+                c.state = ControllerState::Stopped;
+            }
+            Ok(Vec::new())
+        }
+        Request::LaserSignals { enable } => {
+            if enable && c.last_error == StatusCode::Watchdog.code() {
+                return Err((StatusCode::Watchdog, "watchdog trip latched".into()));
+            }
+            c.laser_signals = enable;
+            if !enable {
+                shared.set_gate(&mut c, false);
+            }
+            Ok(Vec::new())
+        }
+        Request::ResetError => {
+            c.last_error = 0;
+            if matches!(
+                c.state,
+                ControllerState::WatchdogTrip | ControllerState::Error | ControllerState::Stopped
+            ) {
+                c.state = ControllerState::Idle;
+            }
+            c.session = true;
+            c.last_rx = Instant::now();
+            Ok(Vec::new())
+        }
+    }
+}
+
+fn check_list(list: u8) -> Result<usize, (StatusCode, String)> {
+    match list {
+        0 | 1 => Ok(usize::from(list)),
+        other => Err((StatusCode::BadPayload, format!("no list {other} (0 or 1)"))),
+    }
+}
+
+fn check_capacity(n: usize, cap: u32) -> Result<(), (StatusCode, String)> {
+    if n > cap as usize {
+        return Err((StatusCode::BadPayload, format!("{n} commands over the list capacity {cap}")));
+    }
+    Ok(())
+}
+
+fn check_field(commands: &[ListCommand], half: i64) -> Result<(), (StatusCode, String)> {
+    for (i, c) in commands.iter().enumerate() {
+        if let ListCommand::Jump { x, y } | ListCommand::Mark { x, y } = *c
+            && (i64::from(x).abs() > half || i64::from(y).abs() > half)
+        {
+            return Err((
+                StatusCode::OutOfField,
+                format!("command {i}: ({x}, {y}) bits outside ±{half}"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Executes a list in (scaled) real time, one command after the other.
+async fn run_list(shared: Arc<Shared>, commands: Vec<ListCommand>, tag: u32, run_id: u64) {
+    let list_number = shared.faults.on_list_start();
+    let mut clock = ListClock::new();
+    let mut pos = [0_i32, 0_i32];
+    let scale = shared.config.time_scale;
+    let sleep_ns = |ns: f64| async move {
+        if scale > 0.0 && ns > 0.0 {
+            tokio::time::sleep(Duration::from_secs_f64(ns * 1e-9 * scale)).await;
+        } else {
+            tokio::task::yield_now().await;
+        }
+    };
+    let mut marks_in_list = 0_u32;
+    for cmd in &commands {
+        if still_running(&shared, run_id).is_none() {
+            return;
+        }
+        let step = clock.step(cmd);
+        if step.run_end_ns > 0.0 {
+            sleep_ns(step.run_end_ns).await;
+            let mut c = shared.ctl();
+            c.elapsed_ns += step.run_end_ns;
+            shared.set_gate(&mut c, false);
+        }
+        let from = pos;
+        if let ListCommand::Jump { x, y } | ListCommand::Mark { x, y } = *cmd {
+            pos = [x, y];
+        }
+        if step.is_mark {
+            let before = {
+                let mut c = shared.ctl();
+                if c.laser_signals {
+                    shared.set_gate(&mut c, true);
+                }
+                shared.monitor.light_epoch()
+            };
+            sleep_ns(step.ns).await;
+            let Some(mut c) = still_running(&shared, run_id) else {
+                return;
+            };
+            let after = shared.monitor.light_epoch();
+            let lit = if before.on && after.on && after.offs == before.offs {
+                Lit::Full
+            } else if !before.on && !after.on && after.ons == before.ons {
+                Lit::Dry
+            } else {
+                Lit::Partial
+            };
+            c.elapsed_ns += step.ns;
+            c.commands_done += 1;
+            if lit == Lit::Full {
+                c.marks_done += 1;
+            }
+            drop(c);
+            shared
+                .marks
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .push(MarkRecord {
+                    tag,
+                    from_bits: from,
+                    to_bits: pos,
+                    lit,
+                });
+            marks_in_list += 1;
+            if let Some(kind) = shared.faults.on_marks(list_number, marks_in_list) {
+                inject_mid_list(&shared, kind);
+            }
+        } else {
+            sleep_ns(step.ns).await;
+            let Some(mut c) = still_running(&shared, run_id) else {
+                return;
+            };
+            c.elapsed_ns += step.ns;
+            c.commands_done += 1;
+        }
+    }
+    let end_ns = clock.finish();
+    sleep_ns(end_ns).await;
+    let Some(mut c) = still_running(&shared, run_id) else {
+        return;
+    };
+    c.elapsed_ns += end_ns;
+    shared.set_gate(&mut c, false);
+    c.state = ControllerState::Idle;
+    drop(c);
+    shared.monitor.report(CellEvent::GalvoExecuting(false));
+}
+
+/// The controller lock if list `run_id` may go on; otherwise ends it (gate closed, executing off).
+fn still_running(shared: &Arc<Shared>, run_id: u64) -> Option<MutexGuard<'_, Controller>> {
+    let mut c = shared.ctl();
+    if c.run_id == run_id && !c.stop_requested {
+        return Some(c);
+    }
+    if c.run_id == run_id {
+        shared.set_gate(&mut c, false);
+        if c.state == ControllerState::Executing {
+            c.state = ControllerState::Stopped;
+        }
+        c.stop_requested = false;
+        c.run_id += 1;
+        drop(c);
+        shared.monitor.report(CellEvent::GalvoExecuting(false));
+    }
+    None
+}
+
+fn inject_mid_list(shared: &Arc<Shared>, kind: FaultKind) {
+    match kind {
+        FaultKind::DropLink => {
+            if let Some(t) = shared
+                .conn_task
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .take()
+            {
+                t.abort();
+            }
+            shared.trip("link dropped (fault)");
+        }
+        FaultKind::Stall => shared.faults.set_stalled(),
+        FaultKind::Garble => shared.ctl().garble_next = true,
+        FaultKind::Refuse => {
+            let mut c = shared.ctl();
+            c.last_error = StatusCode::Refused.code();
+            c.laser_signals = false;
+            shared.set_gate(&mut c, false);
+            c.stop_requested = true;
+            c.state = ControllerState::Error;
+        }
+    }
+}

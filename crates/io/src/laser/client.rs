@@ -1,0 +1,334 @@
+//! The laser client: a serial port (tokio-serial) speaking a [`Profile`]; every reply checked,
+//! faults decoded, every await with a timeout.
+
+use std::time::Duration;
+
+use bytes::{Buf, BytesMut};
+use futures::{SinkExt, StreamExt};
+use tokio_serial::SerialPortBuilderExt;
+use tokio_util::codec::{Decoder, Encoder, Framed};
+
+use super::profile::{LaserStatus, Profile, QueryKind, capture, fill, format_value, ops};
+use crate::tap::{Device, Direction, Tap};
+
+/// Default time to wait for one reply (ms).
+pub const REPLY_TIMEOUT_MS: u64 = 500;
+/// Longest reply line accepted (bytes).
+pub const MAX_LINE_LEN: usize = 256;
+
+/// Lines split on an exact terminator, in both directions.
+#[derive(Debug, Clone)]
+pub struct LineCodec {
+    terminator: Vec<u8>,
+}
+
+impl LineCodec {
+    /// A codec for a terminator such as "\r\n" or "\r".
+    #[must_use]
+    pub fn new(terminator: &str) -> LineCodec {
+        LineCodec {
+            terminator: terminator.as_bytes().to_vec(),
+        }
+    }
+}
+
+impl Decoder for LineCodec {
+    type Item = String;
+    type Error = std::io::Error;
+    fn decode(&mut self, src: &mut BytesMut) -> Result<Option<String>, std::io::Error> {
+        let t = &self.terminator;
+        if let Some(pos) = src.windows(t.len()).position(|w| w == t.as_slice()) {
+            let line = src.split_to(pos);
+            src.advance(t.len());
+            return Ok(Some(String::from_utf8_lossy(&line).into_owned()));
+        }
+        if src.len() > MAX_LINE_LEN {
+            src.clear();
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("no line terminator within {MAX_LINE_LEN} bytes"),
+            ));
+        }
+        Ok(None)
+    }
+}
+
+impl Encoder<String> for LineCodec {
+    type Error = std::io::Error;
+    fn encode(&mut self, item: String, dst: &mut BytesMut) -> Result<(), std::io::Error> {
+        dst.extend_from_slice(item.as_bytes());
+        dst.extend_from_slice(&self.terminator);
+        Ok(())
+    }
+}
+
+/// A transport failure on the serial line.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum LaserError {
+    /// The port could not be opened.
+    #[error("laser: cannot open {path}: {reason}")]
+    Open {
+        /// The device path.
+        path: String,
+        /// Why.
+        reason: String,
+    },
+    /// No reply in time.
+    #[error("laser: no reply to {command:?} within {timeout_ms} ms")]
+    Timeout {
+        /// The line sent.
+        command: String,
+        /// The timeout (ms).
+        timeout_ms: u64,
+    },
+    /// The port failed.
+    #[error("laser: link lost during {command:?}: {reason}")]
+    LinkLost {
+        /// The line sent.
+        command: String,
+        /// Why.
+        reason: String,
+    },
+    /// The reply is neither the expected one nor a refusal.
+    #[error("laser: bad reply to {command:?}: got {reply:?}, expected {expected:?}")]
+    BadReply {
+        /// The line sent.
+        command: String,
+        /// The line received.
+        reply: String,
+        /// The template expected.
+        expected: String,
+    },
+    /// A profile without the operation was asked for it.
+    #[error("laser profile {profile} has no {op}")]
+    Unsupported {
+        /// The profile.
+        profile: String,
+        /// The operation.
+        op: String,
+    },
+}
+
+/// The laser's own refusal or fault.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum LaserFault {
+    /// The laser answered with an error.
+    #[error("laser refused {command:?}: {reply:?}")]
+    Refused {
+        /// The line sent.
+        command: String,
+        /// Its reply.
+        reply: String,
+    },
+    /// The laser reports faults.
+    #[error("laser faults: {}", faults.join("; "))]
+    Faults {
+        /// Decoded faults.
+        faults: Vec<String>,
+    },
+    /// The key switch is off.
+    #[error("laser key switch is off")]
+    KeyOff,
+}
+
+/// A device result: transport error outside, the laser's refusal or fault inside.
+pub type LaserResult<T> = Result<Result<T, LaserFault>, LaserError>;
+
+/// A laser on a serial port.
+pub struct LaserClient {
+    port: Framed<tokio_serial::SerialStream, LineCodec>,
+    profile: Profile,
+    reply_timeout: Duration,
+    tap: Tap,
+    broken: Option<String>,
+}
+
+impl LaserClient {
+    /// Opens the serial device at `path` with the profile's line settings (8N1).
+    pub fn open(path: &str, profile: Profile, reply_timeout: Duration, tap: Tap) -> Result<LaserClient, LaserError> {
+        let stream = tokio_serial::new(path, profile.baud)
+            .data_bits(tokio_serial::DataBits::Eight)
+            .parity(tokio_serial::Parity::None)
+            .stop_bits(tokio_serial::StopBits::One)
+            .flow_control(tokio_serial::FlowControl::None)
+            .open_native_async()
+            .map_err(|e| LaserError::Open {
+                path: path.to_owned(),
+                reason: e.to_string(),
+            })?;
+        let codec = LineCodec::new(&profile.terminator);
+        Ok(LaserClient {
+            port: Framed::new(stream, codec),
+            profile,
+            reply_timeout,
+            tap,
+            broken: None,
+        })
+    }
+
+    /// The profile.
+    #[must_use]
+    pub fn profile(&self) -> &Profile {
+        &self.profile
+    }
+
+    /// Sends a line, returns the reply line (refusals inside).
+    async fn exchange(&mut self, line: String) -> LaserResult<String> {
+        if let Some(reason) = &self.broken {
+            return Err(LaserError::LinkLost {
+                command: line,
+                reason: format!("link already lost: {reason}"),
+            });
+        }
+        // Drop stale bytes (a late reply to a timed-out command) before sending.
+        self.port.read_buffer_mut().clear();
+        self.tap.record(Device::Laser, Direction::Command, || line.clone());
+        let timeout_ms = u64::try_from(self.reply_timeout.as_millis()).unwrap_or(u64::MAX);
+        let deadline = tokio::time::Instant::now() + self.reply_timeout;
+        match tokio::time::timeout_at(deadline, self.port.send(line.clone())).await {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => return Err(self.broken(LaserError::LinkLost { command: line, reason: e.to_string() })),
+            Err(_) => return Err(self.broken(LaserError::Timeout { command: line, timeout_ms })),
+        }
+        let reply = match tokio::time::timeout_at(deadline, self.port.next()).await {
+            Err(_) => return Err(self.broken(LaserError::Timeout { command: line, timeout_ms })),
+            Ok(None) => {
+                return Err(self.broken(LaserError::LinkLost {
+                    command: line,
+                    reason: "port closed".into(),
+                }));
+            }
+            Ok(Some(Err(e))) => {
+                return Err(LaserError::BadReply {
+                    command: line,
+                    reply: e.to_string(),
+                    expected: "a terminated line".into(),
+                });
+            }
+            Ok(Some(Ok(r))) => r,
+        };
+        self.tap.record(Device::Laser, Direction::Reply, || reply.clone());
+        if self.profile.is_error_reply(&reply) {
+            return Ok(Err(LaserFault::Refused { command: line, reply }));
+        }
+        Ok(Ok(reply))
+    }
+
+    fn broken(&mut self, e: LaserError) -> LaserError {
+        self.broken = Some(e.to_string());
+        e
+    }
+
+    /// Runs a profile command and checks its reply (the echoed value must match).
+    pub async fn command(&mut self, op: &str, value: Option<f64>) -> LaserResult<()> {
+        let Some(ex) = self.profile.commands.get(op).cloned() else {
+            return Err(LaserError::Unsupported {
+                profile: self.profile.name.clone(),
+                op: op.to_owned(),
+            });
+        };
+        let v = value.map(format_value);
+        let line = fill(&ex.send, v.as_deref());
+        let reply = match self.exchange(line.clone()).await? {
+            Ok(r) => r,
+            Err(f) => return Ok(Err(f)),
+        };
+        let ok = match (capture(&ex.reply, &reply), value) {
+            (Some(echo), Some(sent)) if ex.reply.contains(super::profile::VALUE) => echo
+                .trim()
+                .parse::<f64>()
+                .is_ok_and(|e| (e - sent).abs() <= 1e-3 * sent.abs().max(1.0)),
+            (Some(_), _) => true,
+            (None, _) => false,
+        };
+        if !ok {
+            return Err(LaserError::BadReply {
+                command: line,
+                reply,
+                expected: fill(&ex.reply, v.as_deref()),
+            });
+        }
+        Ok(Ok(()))
+    }
+
+    /// Enables or disables emission.
+    pub async fn emission(&mut self, on: bool) -> LaserResult<()> {
+        self.command(if on { ops::EMISSION_ON } else { ops::EMISSION_OFF }, None)
+            .await
+    }
+
+    /// Sets the power (percent).
+    pub async fn set_power_pct(&mut self, pct: f64) -> LaserResult<()> {
+        self.command(ops::SET_POWER_PCT, Some(pct)).await
+    }
+
+    /// Runs every query of the profile and decodes the status.
+    pub async fn status(&mut self) -> LaserResult<LaserStatus> {
+        let mut status = LaserStatus::default();
+        let queries: Vec<_> = self.profile.queries.values().cloned().collect();
+        for q in queries {
+            let reply = match self.exchange(q.send.clone()).await? {
+                Ok(r) => r,
+                Err(f) => return Ok(Err(f)),
+            };
+            let bad = |reply: String| LaserError::BadReply {
+                command: q.send.clone(),
+                reply,
+                expected: q.reply.clone(),
+            };
+            let Some(value) = capture(&q.reply, &reply) else {
+                return Err(bad(reply));
+            };
+            if let Err(why) = self.profile.decode_query(q.kind, value, &mut status) {
+                return Err(bad(format!("{reply} ({why})")));
+            }
+        }
+        Ok(Ok(status))
+    }
+
+    /// Checks the laser is ready: key on (when a query tells) and no faults.
+    pub async fn check(&mut self) -> LaserResult<LaserStatus> {
+        let status = match self.status().await? {
+            Ok(s) => s,
+            Err(f) => return Ok(Err(f)),
+        };
+        if !status.faults.is_empty() {
+            return Ok(Err(LaserFault::Faults {
+                faults: status.faults,
+            }));
+        }
+        if status.key_on == Some(false) {
+            return Ok(Err(LaserFault::KeyOff));
+        }
+        Ok(Ok(status))
+    }
+
+    /// Whether this profile has a query of the kind.
+    #[must_use]
+    pub fn has_query(&self, kind: QueryKind) -> bool {
+        self.profile.queries.values().any(|q| q.kind == kind)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn line_codec_splits_on_the_exact_terminator() {
+        let mut c = LineCodec::new("\r\n");
+        let mut b = BytesMut::from(&b"L=1\r\nF=0\r"[..]);
+        assert_eq!(c.decode(&mut b).unwrap(), Some("L=1".to_owned()));
+        assert_eq!(c.decode(&mut b).unwrap(), None);
+        b.extend_from_slice(b"\n");
+        assert_eq!(c.decode(&mut b).unwrap(), Some("F=0".to_owned()));
+        let mut c = LineCodec::new("\r");
+        let mut b = BytesMut::from(&b"STA: 4\r"[..]);
+        assert_eq!(c.decode(&mut b).unwrap(), Some("STA: 4".to_owned()));
+        let mut long = BytesMut::from(&[b'x'; MAX_LINE_LEN + 1][..]);
+        assert!(c.decode(&mut long).is_err());
+        let mut out = BytesMut::new();
+        c.encode("EMON".into(), &mut out).unwrap();
+        assert_eq!(&out[..], b"EMON\r");
+    }
+}
