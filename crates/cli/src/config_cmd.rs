@@ -1,10 +1,32 @@
-//! `trimctl config` (filled by its issue).
+//! `trimctl config`: show or check the job.toml configuration.
+
+use std::path::PathBuf;
+
+use crate::config::{JobConfig, TEMPLATE};
 
 /// Arguments of `trimctl config`.
 #[derive(clap::Args, Debug)]
-pub struct Args {}
+pub struct Args {
+    /// Print the full default job file, with comments.
+    #[arg(long, conflicts_with = "check")]
+    dump: bool,
+    /// Check a job file: unknown keys and out-of-range values are refused with the key named.
+    #[arg(long, value_name = "JOB.toml")]
+    check: Option<PathBuf>,
+}
 
 /// Runs the command.
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("`trimctl config` is not built yet")
+pub fn run(args: Args) -> anyhow::Result<()> {
+    match args.check {
+        Some(path) => {
+            JobConfig::load(&path)?;
+            println!("{}: ok", path.display());
+        }
+        None => {
+            // --dump is the default action.
+            let _ = args.dump;
+            print!("{TEMPLATE}");
+        }
+    }
+    Ok(())
 }

@@ -2,6 +2,7 @@
 //! stderr. `main` alone owns the exit codes (see [`exit`]).
 
 mod beam;
+mod config;
 mod config_cmd;
 mod exit;
 mod info;
