@@ -456,7 +456,18 @@ pub(super) fn parse(bytes: &[u8], name: &FsPath) -> Result<PointCloud> {
             for &(field, slot) in &wanted {
                 let f = &header.fields[field];
                 let token = tokens.get(first_value[field]).copied().unwrap_or("");
-                values[slot] = super::text::parse_f64(token, name, at, &f.name)?;
+                // An F 4 field holds an f32 in ascii as in binary: parse it as one.
+                values[slot] = if f.ty == Ty::F4 {
+                    token.parse::<f32>().map(f64::from).map_err(|_| {
+                        GeomError::parse(
+                            name,
+                            at,
+                            format!("{}: {:?} is not a number", f.name, truncate(token)),
+                        )
+                    })?
+                } else {
+                    super::text::parse_f64(token, name, at, &f.name)?
+                };
             }
             push_point(
                 values,

@@ -532,12 +532,19 @@ impl Source for Ascii<'_> {
         }
     }
 
-    fn value(&mut self, _ty: Ty, element: &Element, index: usize) -> Result<f64> {
+    fn value(&mut self, ty: Ty, element: &Element, index: usize) -> Result<f64> {
         let token = self
             .tokens
             .next()
             .ok_or_else(|| self.short(element, index))?;
-        token.parse::<f64>().map_err(|_| {
+        // A `float` property holds an f32 in ascii as in binary: parse it as one, so both
+        // encodings of a file read to the same values.
+        let parsed = if ty == Ty::F32 {
+            token.parse::<f32>().map(f64::from)
+        } else {
+            token.parse::<f64>()
+        };
+        parsed.map_err(|_| {
             GeomError::parse(
                 self.name,
                 Location::Line(self.line_no),
