@@ -1,0 +1,22 @@
+"""Shared fixtures for the trimctl Python tests."""
+
+import pathlib
+
+import numpy as np
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+SHARED_DATA = ROOT.parent / "shared" / "data"
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(20261121)
+
+
+@pytest.fixture
+def plane_points():
+    """A 20 × 20 grid on the plane z = 0.2 x (mm)."""
+    i, j = np.meshgrid(np.arange(20) * 0.5, np.arange(20) * 0.5, indexing="ij")
+    x, y = i.ravel(), j.ravel()
+    return np.column_stack([x, y, 0.2 * x]).astype(np.float64)
