@@ -12,7 +12,7 @@
 //! timeout, garbled bytes), the inner one the device's own refusal or fault.
 
 // pub mod cell;
-// pub mod cnc;
+pub mod cnc;
 // pub mod executor;
 pub mod fault;
 pub mod galvo;

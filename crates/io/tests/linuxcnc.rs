@@ -1,0 +1,182 @@
+//! Integration test against a real, headless LinuxCNC (xyzac-trt sim config) started through
+//! `scripts/linuxcnc-sim`, following ../shared/cnc/LINUXCNC.md. Fails with a clear message when
+//! LinuxCNC is not installed, unless `TRIMCTL_SKIP_LINUXCNC=1`.
+//!
+//! Everything runs in one test function: LinuxCNC is one instance per machine.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use trim_geom::{Point3, UnitVector3, Vector3};
+use trim_io::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
+use trim_io::cnc::{Cnc, CncFault};
+use trim_io::tap::Tap;
+use trim_plan::kinematics::{AxisPose, KinematicsKind, MachineSettings, forward, inverse, joints_of};
+
+/// The port the test's LinuxCNC listens on (not the default 5007, to stay clear of a user's).
+const PORT: u16 = 5017;
+/// Reached vs commanded, world and joints (mm, degrees).
+const POSITION_TOLERANCE: f64 = 1e-3;
+/// The focus must land on the planned point within this (mm).
+const FOCUS_TOLERANCE_MM: f64 = 1e-6;
+/// Generous: a move of the sim machine takes a few seconds (20 mm/s, 30 deg/s).
+const MOTION_TIMEOUT: Duration = Duration::from_secs(60);
+
+fn script() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/linuxcnc-sim")
+}
+
+struct Instance;
+
+impl Instance {
+    fn start() -> Instance {
+        // A leftover instance from an earlier, aborted test run is stopped first.
+        let _ = Command::new(script()).env("TRIMCTL_LINUXCNC_RUN", run_dir()).arg("stop").status();
+        let t = Instant::now();
+        let out = Command::new(script())
+            .env("TRIMCTL_LINUXCNC_RUN", run_dir())
+            .args(["start", "--port", &PORT.to_string()])
+            .output()
+            .expect("run scripts/linuxcnc-sim");
+        assert!(
+            out.status.success(),
+            "scripts/linuxcnc-sim start failed:\n{}\n{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        eprintln!("linuxcnc started in {:.2} s", t.elapsed().as_secs_f64());
+        Instance
+    }
+}
+
+impl Drop for Instance {
+    fn drop(&mut self) {
+        let t = Instant::now();
+        let ok = Command::new(script())
+            .env("TRIMCTL_LINUXCNC_RUN", run_dir())
+            .arg("stop")
+            .status()
+            .is_ok_and(|s| s.success());
+        eprintln!("linuxcnc stopped ({ok}) in {:.2} s", t.elapsed().as_secs_f64());
+    }
+}
+
+fn run_dir() -> String {
+    std::env::var("TRIMCTL_LINUXCNC_RUN").unwrap_or_else(|_| "/tmp/trimctl-linuxcnc-test".into())
+}
+
+fn linuxcnc_available() -> bool {
+    let installed = Command::new("sh")
+        .args(["-c", "command -v linuxcnc"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if installed {
+        return true;
+    }
+    if std::env::var("TRIMCTL_SKIP_LINUXCNC").as_deref() == Ok("1") {
+        eprintln!("SKIPPED: linuxcnc is not installed and TRIMCTL_SKIP_LINUXCNC=1");
+        return false;
+    }
+    panic!(
+        "linuxcnc is not installed: run scripts/install-deps (Debian package linuxcnc-uspace, \
+         --no-install-recommends), or set TRIMCTL_SKIP_LINUXCNC=1 to skip this test"
+    );
+}
+
+/// Planner-style poses: a focus point and a beam direction through the planner's inverse
+/// kinematics (xyzac-trt, TCP pose mode, the sim config's pivot offsets).
+fn planned_poses(m: &MachineSettings) -> Vec<(Point3, UnitVector3, AxisPose)> {
+    let targets = [
+        (Point3::new(10.0, 20.0, -5.0), Vector3::new(0.0, 0.0, 1.0)),
+        (Point3::new(-12.5, 8.0, 3.0), Vector3::new(0.3, 0.2, 0.93)),
+        (Point3::new(5.0, -15.0, -10.0), Vector3::new(-0.4, 0.1, 0.9)),
+    ];
+    let mut previous = AxisPose::HOME;
+    targets
+        .iter()
+        .map(|(p, d)| {
+            let dir = UnitVector3::new_normalize(*d);
+            let candidates = inverse(m, p, &dir, previous.rotary_deg);
+            let pose = trim_plan::kinematics::choose_pose(m, &candidates, &previous)
+                .unwrap_or_else(|e| panic!("no pose for {p:?} {d:?}: {e}"));
+            previous = pose;
+            (*p, dir, pose)
+        })
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn real_linuxcnc_takes_planned_five_axis_poses() {
+    if !linuxcnc_available() {
+        return;
+    }
+    let _instance = Instance::start();
+    let addr: SocketAddr = format!("127.0.0.1:{PORT}").parse().unwrap();
+    let t = Instant::now();
+    let mut cnc = LinuxCnc::connect(addr, LinuxCncConfig::default(), Tap::none())
+        .await
+        .expect("link")
+        .expect("session");
+    cnc.enable().await.expect("link").expect("enable");
+    eprintln!("connect + enable (estop off, machine on, home, M428): {:.2} s", t.elapsed().as_secs_f64());
+
+    let m = MachineSettings::default();
+    assert_eq!(m.kinematics, KinematicsKind::XyzacTrt);
+    for (point, dir, pose) in planned_poses(&m) {
+        // The planner's pose puts the focus on the point with the beam along the direction.
+        let (focus, beam) = forward(&m, &pose);
+        assert!((focus - point).norm() < FOCUS_TOLERANCE_MM, "{focus:?} vs {point:?}");
+        assert!((beam.into_inner() - dir.into_inner()).norm() < 1e-9);
+
+        let job_pose = pose.to_job_pose(KinematicsKind::XyzacTrt);
+        let t = Instant::now();
+        cnc.start_move(&job_pose).await.expect("link").expect("move accepted");
+        let reached = cnc
+            .wait_in_position(MOTION_TIMEOUT)
+            .await
+            .expect("link")
+            .expect("in position");
+        eprintln!("move to {job_pose:?}: {:.2} s", t.elapsed().as_secs_f64());
+        // Commanded world = reached world (LinuxCNC with M428 reports the tool tip).
+        for (axis, commanded) in &job_pose.0 {
+            let got = reached.world.axis(axis).unwrap();
+            assert!((got - commanded).abs() < POSITION_TOLERANCE, "{axis}: {got} vs {commanded}");
+        }
+        // Joints = the planner's inverse kinematics, and they differ from world under TCP
+        // kinematics once the table tilts.
+        let joints = joints_of(&m, &pose);
+        for i in 0..3 {
+            assert!(
+                (reached.joints[i] - joints[i]).abs() < POSITION_TOLERANCE,
+                "joint {i}: LinuxCNC {} vs planner {} (pose {pose:?})",
+                reached.joints[i],
+                joints[i]
+            );
+        }
+        assert!((reached.joints[3] - pose.tilt_deg).abs() < POSITION_TOLERANCE);
+        assert!((reached.joints[4] - pose.rotary_deg).abs() < POSITION_TOLERANCE);
+        let joint_world_gap = (0..3)
+            .map(|i| (reached.joints[i] - pose.linear_mm[i]).abs())
+            .fold(0.0, f64::max);
+        if pose.tilt_deg.abs() > 1.0 {
+            assert!(joint_world_gap > 0.1, "joints equal world under TCP kinematics: {reached:?}");
+        }
+    }
+
+    // A move beyond the limits is refused with LinuxCNC's own messages.
+    let mut too_far = trim_plan::job::Pose::default();
+    too_far.0.insert("x".into(), 500.0);
+    cnc.start_move(&too_far).await.expect("link").expect("received");
+    let refused = cnc.wait_in_position(MOTION_TIMEOUT).await.expect("link");
+    match refused {
+        Err(CncFault::Refused { errors, .. }) => {
+            assert!(errors.iter().any(|e| e.contains("limit")), "{errors:?}");
+        }
+        other => panic!("expected a refusal, got {other:?}"),
+    }
+    cnc.abort().await.expect("link").expect("abort");
+    assert!(cnc.errors().await.expect("link").expect("errors").len() < 64);
+    cnc.estop().await.expect("link").expect("estop");
+}
