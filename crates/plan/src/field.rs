@@ -123,9 +123,16 @@ fn in_plane(x: &Vector3, y: &Vector3, centre: &Point3, p: &Point3) -> [f64; 2] {
 }
 
 /// The origin of a set of pieces (bounding-box centre in the plane through `centre`) and how
-/// they fit around it.
+/// they fit around it. Points whose feature vector is already more than `limit_rad` from the
+/// axis are left out of the incidence: no section can fix them (validation reports them).
 #[must_use]
-pub fn fit(pieces: &[Piece], centre: &Point3, axis: &UnitVector3, lens: &Lens) -> (Point3, SectionFit) {
+pub fn fit(
+    pieces: &[Piece],
+    centre: &Point3,
+    axis: &UnitVector3,
+    lens: &Lens,
+    limit_rad: f64,
+) -> (Point3, SectionFit) {
     let frame = paper_frame(axis);
     let (x, y, z) = (frame.x_axis(), frame.y_axis(), frame.z_axis());
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
@@ -146,8 +153,10 @@ pub fn fit(pieces: &[Piece], centre: &Point3, axis: &UnitVector3, lens: &Lens) -
         for (p, f) in piece.points.iter().zip(&piece.features) {
             let uv = in_plane(&x, &y, &origin, p);
             result.max_radius_mm = result.max_radius_mm.max(uv[0].hypot(uv[1]));
-            let ray = lens.ray(&x, &y, &z, uv);
-            result.max_incidence_rad = result.max_incidence_rad.max(angle_rad(f, &ray));
+            if angle_rad(f, &z) <= limit_rad {
+                let ray = lens.ray(&x, &y, &z, uv);
+                result.max_incidence_rad = result.max_incidence_rad.max(angle_rad(f, &ray));
+            }
         }
     }
     (origin, result)
@@ -224,7 +233,7 @@ pub fn sections(
     let mut out = Vec::new();
     let mut stack = vec![pieces];
     while let Some(group) = stack.pop() {
-        let (origin, f) = fit(&group, centre, axis, lens);
+        let (origin, f) = fit(&group, centre, axis, lens, limit_rad);
         let fits = f.max_radius_mm <= field_radius_mm && f.max_incidence_rad <= limit_rad;
         if fits {
             out.push(Section {
@@ -317,7 +326,7 @@ mod tests {
         let s = sections(pieces, &Point3::new(115.0, 0.0, 0.0), &axis, 50.0, 0.1, &lens);
         assert!(s.len() >= 3, "230 mm in a 100 mm field: {}", s.len());
         for sec in &s {
-            let (_, f) = fit(&sec.pieces, &sec.origin, &axis, &lens);
+            let (_, f) = fit(&sec.pieces, &sec.origin, &axis, &lens, 0.1);
             assert!(f.max_radius_mm <= 50.0);
             // Whole contours: no piece was cut.
             for p in &sec.pieces {
@@ -339,7 +348,7 @@ mod tests {
         assert!(s.len() >= 4, "{}", s.len());
         let mut covered: Vec<(f64, f64)> = Vec::new();
         for sec in &s {
-            let (_, f) = fit(&sec.pieces, &sec.origin, &axis, &lens);
+            let (_, f) = fit(&sec.pieces, &sec.origin, &axis, &lens, limit);
             assert!(f.max_incidence_rad <= limit);
             for p in &sec.pieces {
                 covered.push((p.source[0], *p.source.last().unwrap()));

@@ -171,6 +171,60 @@ impl Default for GalvoSettings {
     }
 }
 
+impl GalvoSettings {
+    /// Refuses out-of-range values, naming the key (`galvo.field_mm`).
+    pub fn validate(&self) -> Result<(), crate::PlanError> {
+        use crate::error::require_positive;
+        require_positive("galvo.field_mm", self.field_mm[0])?;
+        require_positive("galvo.field_mm", self.field_mm[1])?;
+        require_positive("galvo.bits_per_mm", self.bits_per_mm)?;
+        require_positive("galvo.mark_speed_mm_per_s", self.mark_speed_mm_per_s)?;
+        require_positive("galvo.jump_speed_mm_per_s", self.jump_speed_mm_per_s)?;
+        let delays: [(&'static str, f64); 5] = [
+            ("galvo.laser_on_delay_us", self.laser_on_delay_us),
+            ("galvo.laser_off_delay_us", self.laser_off_delay_us),
+            ("galvo.jump_delay_us", self.jump_delay_us),
+            ("galvo.mark_delay_us", self.mark_delay_us),
+            ("galvo.polygon_delay_us", self.polygon_delay_us),
+        ];
+        for (key, v) in delays {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(crate::PlanError::setting(key, v, "must be a finite number ≥ 0"));
+            }
+        }
+        Ok(())
+    }
+
+    /// The time (s) to mark polylines from the field centre, as `(marking_s, jumping_s)`: each
+    /// polyline is a jump to its start (jump speed + jump delay) and one mark run (length at
+    /// mark speed + laser-on delay + a polygon delay per inner vertex + laser-off and mark
+    /// delays). The same model as the galvo simulator (docs/protocols/galvo.md §6).
+    #[must_use]
+    pub fn polylines_time_s(&self, polylines: &[Polyline]) -> (f64, f64) {
+        const S_PER_US: f64 = 1e-6;
+        let mut pos = [0.0_f64, 0.0_f64];
+        let (mut marking_s, mut jumping_s) = (0.0, 0.0);
+        for pl in polylines {
+            let (Some(first), Some(last)) = (pl.points.first(), pl.points.last()) else {
+                continue;
+            };
+            let jump_mm = (first[0] - pos[0]).hypot(first[1] - pos[1]);
+            jumping_s += jump_mm / self.jump_speed_mm_per_s + self.jump_delay_us * S_PER_US;
+            let segments = pl.points.len().saturating_sub(1);
+            if segments > 0 {
+                marking_s += pl.length_mm() / self.mark_speed_mm_per_s
+                    + (self.laser_on_delay_us
+                        + (segments - 1) as f64 * self.polygon_delay_us
+                        + self.laser_off_delay_us
+                        + self.mark_delay_us)
+                        * S_PER_US;
+            }
+            pos = *last;
+        }
+        (marking_s, jumping_s)
+    }
+}
+
 /// The settings a job was planned with (whatever the planner needs to reproduce it).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct JobSettings {

@@ -4,6 +4,12 @@
 //! - [`piece`]: contours as pieces (contours split where their feature vectors spread).
 //! - [`zoning`]: k-means zoning with the incidence limit and automatic k.
 //! - [`frame`]: local zone frames (paper Eq. 11–13, right-handed).
+//! - [`layer`]: layers by paper Eq. 14 and the galvo projection.
+//! - [`field`]: scan-field sections and the lens ray angle.
+//! - [`kinematics`]: machine poses (LinuxCNC xyzac-trt, xyzbc-trt, fixed head).
+//! - [`order`]: zone ordering (nearest neighbour + 2-opt).
+//! - [`planner`]: [`plan`], validation and the time estimate.
+//! - [`testing`]: a synthetic ceramic-core-like path.
 //! - [`job`]: the Job model, the planner's output.
 //! - [`error`]: [`PlanError`].
 
@@ -13,11 +19,18 @@ pub mod field;
 pub mod frame;
 pub mod job;
 pub mod kinematics;
+pub mod order;
 pub mod layer;
 pub mod piece;
+pub mod planner;
+pub mod testing;
 pub mod zoning;
 
 pub use beam::{Beam, BeamReport};
 pub use error::PlanError;
 pub use job::{Frame, GalvoSettings, Job, JobSettings, Layer, LayerKey, Polyline, Pose, Zone};
+pub use field::FieldSettings;
+pub use kinematics::{AxisPose, KinematicsKind, MachineSettings, PoseMode};
+pub use layer::LayerSettings;
+pub use planner::{PlanOutput, PlanSettings, ZoneRow, plan, plan_with_report};
 pub use zoning::ZoningSettings;

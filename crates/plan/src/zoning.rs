@@ -9,15 +9,21 @@
 //! - **k-means** through linfa-clustering: k-means++ seeding, [`ZoningSettings::restarts`] runs,
 //!   a fixed seed (so the result is deterministic).
 //! - **Zone axis**: the direction that minimises the largest angle to the zone's feature
-//!   vectors (every point's, not only the contours' means): the better of the normalised mean
-//!   and a Bădoiu–Clarkson iteration on the sphere ([`AXIS_ITERATIONS`] steps toward the
-//!   farthest vector). The minimax axis can admit zones the mean would refuse; the largest
+//!   vectors (every point's, not only the contours' means): the best of the normalised mean,
+//!   the first vector, and a Bădoiu–Clarkson iteration on the sphere ([`AXIS_ITERATIONS`] steps
+//!   toward the farthest vector). The minimax axis can admit zones the mean would refuse; the largest
 //!   incidence it reports is the exact largest angle to the axis it returns.
 //! - **Automatic k**: k doubles from 1 until every zone keeps every feature vector within the
 //!   limit of its axis, then bisects; the k returned is feasible and k − 1 was tried and is not
 //!   (for this seed). If no k up to [`ZoningSettings::max_auto_k`] is feasible, violating zones
 //!   are split greedily in two (the farthest pair of contour directions as seeds) until all
 //!   comply; a single piece always complies (see [`crate::piece`]), so this terminates.
+//! - **Merging** ([`ZoningSettings::merge`]): k-means does not know the constraint, so the
+//!   smallest feasible k usually still has zones that could share an orientation. Pairs of
+//!   zones are merged, closest axes first, while the union keeps the incidence limit and its
+//!   in-plane extent fits `merge_radius_mm` (the planner passes the field radius, or for a
+//!   non-telecentric lens the radius whose ray angle fits the lens budget), so merges do not
+//!   just create zones the field sectioning must cut apart again.
 
 use std::collections::BTreeMap;
 
@@ -35,6 +41,12 @@ use crate::piece::{Piece, angle_rad};
 
 /// Steps of the minimax-axis iteration (its error shrinks like 1/√steps of the cone angle).
 pub const AXIS_ITERATIONS: usize = 64;
+
+/// The default weight of the extent-scaled positions. Scaled positions span about 1 while
+/// feature vectors a few degrees apart differ by about 0.09 (5°): at weight 1 the positions
+/// swamp the directions and k-means clusters by position (the paper's Fig. 11(b) effect), so
+/// the automatic k grows large before the incidence limit holds. At 0.1 both count.
+pub const DEFAULT_POSITION_WEIGHT: f64 = 0.1;
 
 /// k-means stops when the centroids move less than this (sample units).
 pub const KMEANS_TOLERANCE: f64 = 1e-9;
@@ -55,17 +67,21 @@ pub struct ZoningSettings {
     pub max_iterations: u64,
     /// The largest k the automatic search tries before splitting zones greedily.
     pub max_auto_k: usize,
+    /// Merge zones after an automatic k-means while the union keeps the limits (see the module
+    /// docs). A fixed k is kept as given.
+    pub merge: bool,
 }
 
 impl Default for ZoningSettings {
     fn default() -> Self {
         ZoningSettings {
             k: None,
-            position_weight: 1.0,
+            position_weight: DEFAULT_POSITION_WEIGHT,
             restarts: 10,
             seed: 0x7a0e_5eed,
             max_iterations: 300,
             max_auto_k: 256,
+            merge: true,
         }
     }
 }
@@ -134,6 +150,8 @@ pub struct Zoning {
     pub automatic: bool,
     /// How many greedy splits were needed after k-means (0 when k-means alone complied).
     pub greedy_splits: usize,
+    /// How many merges followed.
+    pub merges: usize,
 }
 
 /// The minimax axis of a set of unit vectors and its largest angle (radians): the better of
@@ -153,6 +171,12 @@ pub fn zone_axis(directions: &[Vector3]) -> (UnitVector3, f64) {
         directions.first().copied().unwrap_or_else(Vector3::z)
     };
     let mut best = (c, max_angle(&c));
+    if let Some(first) = directions.first() {
+        let m = max_angle(first);
+        if m < best.1 {
+            best = (*first, m);
+        }
+    }
     for i in 1..=AXIS_ITERATIONS {
         let Some(far) = directions
             .iter()
@@ -323,12 +347,79 @@ fn split_group(pieces: &[Piece], g: &ZoneGroup) -> Option<(ZoneGroup, ZoneGroup)
     Some((make_group(pieces, left, false), make_group(pieces, right, false)))
 }
 
+/// The in-plane radius of a zone about its bounding-box centre: the half diagonal of the
+/// bounding box of its points in the plane across its axis (mm).
+#[must_use]
+pub fn in_plane_radius_mm(pieces: &[Piece], group: &ZoneGroup) -> f64 {
+    let frame = crate::frame::paper_frame(&group.axis);
+    let (x, y) = (frame.x_axis(), frame.y_axis());
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in group.pieces.iter().flat_map(|&i| pieces[i].points.iter()) {
+        let uv = [p.coords.dot(&x), p.coords.dot(&y)];
+        for k in 0..2 {
+            lo[k] = lo[k].min(uv[k]);
+            hi[k] = hi[k].max(uv[k]);
+        }
+    }
+    0.5 * (hi[0] - lo[0]).hypot(hi[1] - lo[1])
+}
+
+/// Merges zones, closest axes first, while the union keeps every feature vector within
+/// `limit_rad` of its axis and fits `max_radius_mm` in plane. Returns the zones and the
+/// number of merges. Only pairs whose axes are within 2·limit can comply, so only those are
+/// tried; a pair that failed is not tried again until one of its zones changes.
+#[must_use]
+pub fn merge_groups(
+    pieces: &[Piece],
+    groups: Vec<ZoneGroup>,
+    limit_rad: f64,
+    max_radius_mm: f64,
+) -> (Vec<ZoneGroup>, usize) {
+    let mut next_id = groups.len();
+    let mut zones: Vec<(usize, ZoneGroup)> = groups.into_iter().enumerate().collect();
+    let mut failed: std::collections::HashSet<(usize, usize)> = std::collections::HashSet::new();
+    let mut merges = 0;
+    loop {
+        let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+        for a in 0..zones.len() {
+            for b in a + 1..zones.len() {
+                let angle = angle_rad(&zones[a].1.axis, &zones[b].1.axis);
+                let key = (zones[a].0.min(zones[b].0), zones[a].0.max(zones[b].0));
+                if angle <= 2.0 * limit_rad && !failed.contains(&key) {
+                    pairs.push((angle, a, b));
+                }
+            }
+        }
+        pairs.sort_by(|p, q| p.0.total_cmp(&q.0).then(p.1.cmp(&q.1)).then(p.2.cmp(&q.2)));
+        let mut merged = None;
+        for (_, a, b) in pairs {
+            let mut members = zones[a].1.pieces.clone();
+            members.extend_from_slice(&zones[b].1.pieces);
+            let union = make_group(pieces, members, false);
+            if union.max_incidence_rad <= limit_rad && in_plane_radius_mm(pieces, &union) <= max_radius_mm {
+                merged = Some((a, b, union));
+                break;
+            }
+            failed.insert((zones[a].0.min(zones[b].0), zones[a].0.max(zones[b].0)));
+        }
+        let Some((a, b, union)) = merged else {
+            break;
+        };
+        zones[a] = (next_id, union);
+        next_id += 1;
+        zones.remove(b);
+        merges += 1;
+    }
+    (zones.into_iter().map(|z| z.1).collect(), merges)
+}
+
 /// Zones the pieces so that every feature vector lies within `limit_rad` of its zone's axis
 /// (see the module docs for the procedure). With a fixed k, a violating zone is an error.
 pub fn zone_pieces(
     pieces: &[Piece],
     limit_rad: f64,
     settings: &ZoningSettings,
+    merge_radius_mm: f64,
 ) -> Result<Zoning, PlanError> {
     settings.validate()?;
     if pieces.is_empty() {
@@ -343,15 +434,22 @@ pub fn zone_pieces(
         ))
     };
     let finish = |groups: Vec<ZoneGroup>, k: usize, automatic: bool, greedy_splits: usize| {
-        let groups = groups
+        let (groups, merges) = if settings.merge && automatic {
+            merge_groups(pieces, groups, limit_rad, merge_radius_mm)
+        } else {
+            (groups, 0)
+        };
+        let mut groups: Vec<ZoneGroup> = groups
             .into_iter()
             .map(|g| make_group(pieces, g.pieces, true))
             .collect();
+        groups.sort_by_key(|g| g.pieces[0]);
         Zoning {
             groups,
             k,
             automatic,
             greedy_splits,
+            merges,
         }
     };
 
@@ -473,7 +571,7 @@ mod tests {
             }
         }
         let limit = 5f64.to_radians();
-        let z = zone_pieces(&pieces, limit, &ZoningSettings::default()).unwrap();
+        let z = zone_pieces(&pieces, limit, &ZoningSettings::default(), f64::INFINITY).unwrap();
         assert!(z.automatic);
         assert!(z.groups.iter().all(|g| g.max_incidence_rad <= limit));
         assert_eq!(z.greedy_splits, 0);
@@ -481,11 +579,11 @@ mod tests {
         // k − 1 does not comply (the bisection invariant).
         let fewer = groups_from_labels(
             &pieces,
-            &kmeans_labels(&samples(&pieces, 1.0).unwrap(), z.k - 1, &ZoningSettings::default())
+            &kmeans_labels(&samples(&pieces, DEFAULT_POSITION_WEIGHT).unwrap(), z.k - 1, &ZoningSettings::default())
                 .unwrap(),
         );
         assert!(!complies(&fewer, limit));
-        let again = zone_pieces(&pieces, limit, &ZoningSettings::default()).unwrap();
+        let again = zone_pieces(&pieces, limit, &ZoningSettings::default(), f64::INFINITY).unwrap();
         assert_eq!(z, again);
     }
 
@@ -499,11 +597,11 @@ mod tests {
             k: Some(3),
             ..ZoningSettings::default()
         };
-        let e = zone_pieces(&pieces, 0.1, &settings).unwrap_err();
+        let e = zone_pieces(&pieces, 0.1, &settings, f64::INFINITY).unwrap_err();
         assert!(matches!(e, PlanError::TooManyZones { k: 3, contours: 2 }), "{e}");
         let mut bad = pieces.clone();
         bad[1].features[0] = Vector3::new(f64::NAN, 0.0, 1.0);
-        let e = zone_pieces(&bad, 0.1, &ZoningSettings::default()).unwrap_err();
+        let e = zone_pieces(&bad, 0.1, &ZoningSettings::default(), f64::INFINITY).unwrap_err();
         assert!(e.to_string().contains("contour 2"), "{e}");
     }
 
@@ -518,7 +616,7 @@ mod tests {
             ..ZoningSettings::default()
         };
         let limit = 5f64.to_radians();
-        let z = zone_pieces(&pieces, limit, &settings).unwrap();
+        let z = zone_pieces(&pieces, limit, &settings, f64::INFINITY).unwrap();
         assert!(z.greedy_splits > 0);
         assert!(z.groups.iter().all(|g| g.max_incidence_rad <= limit));
         let mut all: Vec<usize> = z.groups.iter().flat_map(|g| g.pieces.clone()).collect();

@@ -1,0 +1,667 @@
+//! The planner: from a registered path to a validated, ordered [`Job`] (DESIGN.md "The flow",
+//! paper §2.3–2.5).
+//!
+//! Steps: (1) contours → pieces, splitting contours whose feature vectors spread wider than the
+//! zoning limit ([`crate::piece`]); (2) k-means zoning with automatic k ([`crate::zoning`]);
+//! (3) scan-field sections ([`crate::field`]); (4) layers by paper Eq. 14 ([`crate::layer`]);
+//! (5) zone order (nearest neighbour + 2-opt on machine move time, [`crate::order`]) and machine
+//! poses, the tilt branch chosen per zone within the axis limits with the least rotary travel
+//! ([`crate::kinematics`]); (6) the zone frame is the galvo head's frame at that pose (its Z is
+//! the zone axis; X/Y are where the galvo's x/y point), and the galvo polylines are the points'
+//! (x, y) in it relative to the layer's focus point; (7) validation and the time estimate.
+//!
+//! # What the round trip guarantees
+//!
+//! A galvo point (x, y) of a layer is the projection of its registered point P along the zone
+//! axis onto the layer's focal plane: `job::galvo_to_workpiece(zone, layer, (x, y))` is
+//! `P − h·Z` with h = (P − F)·Z its height over the focal plane, |h| ≤ ΔH/2 ≤ the focus
+//! processing length. Validation recomputes P independently from the input path (each planned
+//! point remembers where on its contour it lies: original vertices, or points interpolated on a
+//! segment where a layer boundary or a section seam cuts it) and checks
+//! `|galvo_to_workpiece(x, y) + h·Z − P| ≤ 1 µm` for every galvo point, with h kept from the
+//! planning. Equivalently: in the focal plane, the galvo point is P's projection to 1 µm, and
+//! along the beam the point is within ΔH/2 of the focus — which the Job JSON alone (without h)
+//! can state but not undo. It also checks that every contour is covered exactly once: the
+//! polylines of a contour, ordered along it, start at its first point, meet end to start, and
+//! end at its last point (no gap, no overlap).
+
+use serde::{Deserialize, Serialize};
+use trim_geom::{ContourId, Path, Point3, UnitVector3, Vector3};
+
+use crate::beam::Beam;
+use crate::error::{PlanError, require_open_closed};
+use crate::field::{FieldSettings, Lens, Section, sections};
+use crate::job::{
+    GalvoSettings, JOB_VERSION, Job, JobSettings, Layer, Polyline, TimeEstimate, ValidationReport,
+    Zone, galvo_to_workpiece,
+};
+use crate::kinematics::{
+    AxisPose, MachineSettings, choose_pose, forward, head_frame, inverse, limit_violation,
+    move_time_s,
+};
+use crate::layer::{LayerSettings, ZoneLayers, layer_pieces, project};
+use crate::piece::{Piece, angle_rad, pieces_of};
+use crate::zoning::{ZoneGroup, Zoning, ZoningSettings, make_group, zone_pieces};
+
+/// The round-trip tolerance (mm): 1 µm.
+pub const ROUND_TRIP_TOLERANCE_MM: f64 = 1e-3;
+
+/// Slack (mm or radians) on the focus, field and incidence checks for rounding.
+pub const CHECK_SLACK: f64 = 1e-9;
+
+/// Slack on contour-coverage checks (in units of the vertex index).
+pub const COVERAGE_SLACK: f64 = 1e-9;
+
+/// How close `forward(pose)` must come to the focus point (mm) and zone axis (radians).
+pub const POSE_TOLERANCE: f64 = 1e-6;
+
+/// At most this many violation lines are listed; the rest are counted.
+pub const MAX_VIOLATION_LINES: usize = 200;
+
+/// Every planning option (job.toml: top-level `max_incidence_deg` and the `[beam]`,
+/// `[zoning]`, `[layers]`, `[field]`, `[machine]` and `[galvo]` tables).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PlanSettings {
+    /// The incidence limit (degrees): the largest angle between a contour's feature vector and
+    /// the beam that reaches it, lens ray angle included.
+    pub max_incidence_deg: f64,
+    /// Beam optics.
+    pub beam: Beam,
+    /// Zoning.
+    pub zoning: ZoningSettings,
+    /// Layering.
+    pub layers: LayerSettings,
+    /// Lens and field sectioning.
+    pub field: FieldSettings,
+    /// Machine kinematics, limits and speeds.
+    pub machine: MachineSettings,
+    /// Galvo field, speeds and delays.
+    pub galvo: GalvoSettings,
+}
+
+impl Default for PlanSettings {
+    fn default() -> Self {
+        PlanSettings {
+            max_incidence_deg: 5.0,
+            beam: Beam::default(),
+            zoning: ZoningSettings::default(),
+            layers: LayerSettings::default(),
+            field: FieldSettings::default(),
+            machine: MachineSettings::default(),
+            galvo: GalvoSettings::default(),
+        }
+    }
+}
+
+impl PlanSettings {
+    /// Refuses out-of-range values, naming the key.
+    pub fn validate(&self) -> Result<(), PlanError> {
+        require_open_closed("max_incidence_deg", self.max_incidence_deg, 0.0, 45.0)?;
+        self.beam.validate()?;
+        self.zoning.validate()?;
+        self.layers.validate()?;
+        self.field.validate(self.max_incidence_deg)?;
+        self.machine.validate()?;
+        self.galvo.validate()?;
+        Ok(())
+    }
+
+    fn lens(&self) -> Lens {
+        Lens {
+            telecentric: self.field.telecentric,
+            focal_length_mm: self.beam.focal_length_mm,
+        }
+    }
+}
+
+/// One row of the zone table (paper Table 1), per job zone.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ZoneRow {
+    /// The job zone id (execution order).
+    pub zone: usize,
+    /// The k-means zone it is a section of.
+    pub cluster: usize,
+    /// Centre (x, y, z) in mm and axis (u, v, w), work-piece frame.
+    pub centre: [f64; 6],
+    /// The largest angle between two contour feature vectors of the zone (degrees).
+    pub max_pairwise_deg: f64,
+    /// The largest angle between a feature vector and the zone axis (degrees).
+    pub max_incidence_deg: f64,
+    /// The same with the lens ray angle (degrees).
+    pub max_incidence_with_lens_deg: f64,
+    /// Number of layers.
+    pub layers: usize,
+    /// Input contour ids.
+    pub contours: Vec<ContourId>,
+}
+
+/// Everything planning produced: the Job plus the zoning summary and zone table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlanOutput {
+    /// The job.
+    pub job: Job,
+    /// The k-means k used.
+    pub k: usize,
+    /// Whether k was chosen automatically.
+    pub automatic_k: bool,
+    /// The number of k-means zones after greedy splits (before sectioning).
+    pub clusters: usize,
+    /// Greedy splits after k-means.
+    pub greedy_splits: usize,
+    /// Zone merges after k-means.
+    pub merges: usize,
+    /// How many pieces the contours became.
+    pub pieces: usize,
+    /// One row per job zone, in job order.
+    pub table: Vec<ZoneRow>,
+}
+
+/// Where every planned point came from, for validation: per job zone, per layer, per polyline.
+#[derive(Debug, Clone, PartialEq)]
+struct Trace {
+    source: Vec<f64>,
+    features: Vec<Vector3>,
+    height_mm: Vec<f64>,
+}
+
+/// A section with its layers and zone axis, before ordering.
+struct Planned {
+    cluster: usize,
+    axis: UnitVector3,
+    section: Section,
+    layers: ZoneLayers,
+}
+
+/// Plans a job from a (registered) path. See the module docs.
+pub fn plan(path: &Path, settings: &PlanSettings) -> Result<Job, PlanError> {
+    Ok(plan_with_report(path, settings)?.job)
+}
+
+/// [`plan`], also returning the zoning summary and the zone table.
+pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutput, PlanError> {
+    settings.validate()?;
+    let limit_rad = settings.max_incidence_deg.to_radians();
+    let zoning_limit_rad = settings.field.zoning_limit_rad(limit_rad);
+    let focus_half_length_mm = settings.beam.focus_half_length_mm();
+    let step_mm = settings.layers.step_for(focus_half_length_mm)?;
+    let lens = settings.lens();
+    let field_radius_mm = 0.5 * settings.galvo.field_mm[0].min(settings.galvo.field_mm[1]);
+
+    // (1) pieces; (2) zoning.
+    let pieces = pieces_of(path, zoning_limit_rad, zoning_limit_rad)?;
+    let merge_radius_mm = if settings.field.telecentric {
+        field_radius_mm
+    } else {
+        field_radius_mm.min(
+            settings.beam.focal_length_mm * settings.field.lens_ray_budget_deg.to_radians().tan(),
+        )
+    };
+    let zoning = match settings.machine.kinematics.fixed_direction() {
+        Some(axis) => fixed_direction_zoning(&pieces, axis),
+        None => zone_pieces(&pieces, zoning_limit_rad, &settings.zoning, merge_radius_mm)?,
+    };
+
+    // (3) sections; (4) layers.
+    let mut planned = Vec::new();
+    for (cluster, group) in zoning.groups.iter().enumerate() {
+        let members: Vec<Piece> = group.pieces.iter().map(|&i| pieces[i].clone()).collect();
+        for section in sections(
+            members,
+            &group.centre,
+            &group.axis,
+            field_radius_mm,
+            limit_rad,
+            &lens,
+        ) {
+            let layers = layer_pieces(&section.pieces, &section.origin, &group.axis, step_mm);
+            planned.push(Planned {
+                cluster,
+                axis: group.axis,
+                section,
+                layers,
+            });
+        }
+    }
+
+    // (5) order and poses.
+    let machine = &settings.machine;
+    let focus_points = |p: &Planned| -> Vec<Point3> {
+        p.layers
+            .layers
+            .iter()
+            .map(|(_, h, _)| p.section.origin + p.axis.into_inner() * *h)
+            .collect()
+    };
+    let mut provisional = Vec::with_capacity(planned.len());
+    for (i, p) in planned.iter().enumerate() {
+        let poses = zone_poses(machine, &focus_points(p), &p.axis, &AxisPose::HOME)
+            .map_err(|reason| unreachable(i, p, &pieces_contours(&p.section), machine, reason))?;
+        provisional.push(poses);
+    }
+    let order = crate::order::order(
+        planned.len(),
+        |j| move_time_s(machine, &AxisPose::HOME, &provisional[j][0]),
+        |i, j| {
+            let last = provisional[i].last().unwrap_or(&AxisPose::HOME);
+            move_time_s(machine, last, &provisional[j][0])
+        },
+    );
+
+    let mut zones = Vec::with_capacity(planned.len());
+    let mut traces: Vec<Vec<Vec<Trace>>> = Vec::with_capacity(planned.len());
+    let mut table = Vec::with_capacity(planned.len());
+    let mut previous = AxisPose::HOME;
+    let mut estimate = TimeEstimate::default();
+    for (zone_id, &idx) in order.iter().enumerate() {
+        let p = &planned[idx];
+        let contours = pieces_contours(&p.section);
+        let poses = zone_poses(machine, &focus_points(p), &p.axis, &previous)
+            .map_err(|reason| unreachable(zone_id, p, &contours, machine, reason))?;
+        let frame = head_frame(machine.kinematics, poses[0].tilt_deg, poses[0].rotary_deg);
+        let mut zone_s = 0.0;
+        let mut layers = Vec::with_capacity(poses.len());
+        let mut zone_traces = Vec::with_capacity(poses.len());
+        for (index, ((_, h, pieces_in_layer), pose)) in p.layers.layers.iter().zip(&poses).enumerate() {
+            let focus = p.section.origin + p.axis.into_inner() * *h;
+            let mut polylines = Vec::with_capacity(pieces_in_layer.len());
+            let mut layer_traces = Vec::with_capacity(pieces_in_layer.len());
+            for lp in pieces_in_layer {
+                let (points, heights): (Vec<[f64; 2]>, Vec<f64>) =
+                    lp.points.iter().map(|q| project(&frame, &focus, q)).unzip();
+                polylines.push(Polyline {
+                    contour: lp.contour,
+                    points,
+                });
+                layer_traces.push(Trace {
+                    source: lp.source.clone(),
+                    features: lp.features.clone(),
+                    height_mm: heights,
+                });
+            }
+            let (marking_s, jumping_s) = settings.galvo.polylines_time_s(&polylines);
+            let motion_s = move_time_s(machine, &previous, pose);
+            estimate.marking_s += marking_s;
+            estimate.jumping_s += jumping_s;
+            estimate.motion_s += motion_s;
+            zone_s += marking_s + jumping_s + motion_s;
+            previous = *pose;
+            layers.push(Layer {
+                index,
+                focus_point: [focus.x, focus.y, focus.z],
+                pose: pose.to_job_pose(machine.kinematics),
+                polylines,
+            });
+            zone_traces.push(layer_traces);
+        }
+        estimate.per_zone_s.push(zone_s);
+        let (max_incidence_rad, max_pairwise_rad) = section_angles(&p.section, &p.axis);
+        let zone = Zone {
+            id: zone_id,
+            origin: [p.section.origin.x, p.section.origin.y, p.section.origin.z],
+            frame,
+            contours: contours.clone(),
+            max_incidence_deg: max_incidence_rad.to_degrees(),
+            max_pairwise_deg: max_pairwise_rad.to_degrees(),
+            layers,
+        };
+        let with_lens = zone_traces
+            .iter()
+            .zip(&zone.layers)
+            .flat_map(|(lt, layer)| lt.iter().zip(&layer.polylines))
+            .flat_map(|(t, pl)| t.features.iter().zip(&pl.points))
+            .map(|(f, xy)| angle_rad(f, &lens.ray(&frame.x_axis(), &frame.y_axis(), &frame.z_axis(), *xy)))
+            .fold(0.0, f64::max);
+        let a = p.axis.into_inner();
+        table.push(ZoneRow {
+            zone: zone_id,
+            cluster: p.cluster,
+            centre: [zone.origin[0], zone.origin[1], zone.origin[2], a.x, a.y, a.z],
+            max_pairwise_deg: zone.max_pairwise_deg,
+            max_incidence_deg: zone.max_incidence_deg,
+            max_incidence_with_lens_deg: with_lens.to_degrees(),
+            layers: zone.layers.len(),
+            contours,
+        });
+        zones.push(zone);
+        traces.push(zone_traces);
+    }
+    estimate.total_s = estimate.marking_s + estimate.jumping_s + estimate.motion_s;
+
+    let mut job = Job {
+        version: JOB_VERSION,
+        layer_step_mm: step_mm,
+        focus_half_length_mm,
+        zones,
+        settings: JobSettings {
+            max_incidence_deg: settings.max_incidence_deg,
+            kinematics: machine.kinematics.name().to_owned(),
+            galvo: settings.galvo,
+            extra: serde_json::to_value(settings).unwrap_or(serde_json::Value::Null),
+        },
+        validation: ValidationReport::default(),
+        estimate,
+    };
+    job.validation = validate(&job, &traces, path, settings);
+    Ok(PlanOutput {
+        job,
+        k: zoning.k,
+        automatic_k: zoning.automatic,
+        clusters: zoning.groups.len(),
+        greedy_splits: zoning.greedy_splits,
+        merges: zoning.merges,
+        pieces: pieces.len(),
+        table,
+    })
+}
+
+/// A fixed-head machine: one zone with the machine's beam direction as its axis.
+fn fixed_direction_zoning(pieces: &[Piece], axis: UnitVector3) -> Zoning {
+    let mut g: ZoneGroup = make_group(pieces, (0..pieces.len()).collect(), true);
+    g.axis = axis;
+    g.max_incidence_rad = pieces
+        .iter()
+        .flat_map(|p| p.features.iter())
+        .map(|f| angle_rad(f, &axis))
+        .fold(0.0, f64::max);
+    Zoning {
+        groups: vec![g],
+        k: 1,
+        automatic: false,
+        greedy_splits: 0,
+        merges: 0,
+    }
+}
+
+fn pieces_contours(section: &Section) -> Vec<ContourId> {
+    let mut ids: Vec<ContourId> = section.pieces.iter().map(|p| p.contour).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    ids
+}
+
+fn unreachable(
+    zone: usize,
+    p: &Planned,
+    contours: &[ContourId],
+    machine: &MachineSettings,
+    reason: String,
+) -> PlanError {
+    PlanError::Unreachable {
+        zone,
+        contours: contours.to_vec(),
+        kinematics: machine.kinematics.name().to_owned(),
+        axis: [p.axis.x, p.axis.y, p.axis.z],
+        reason,
+    }
+}
+
+/// The poses of a zone's layers: one tilt branch for all (so the zone has one frame), the
+/// branch within limits for every layer with the least rotary travel from `previous`.
+fn zone_poses(
+    machine: &MachineSettings,
+    focus_points: &[Point3],
+    axis: &UnitVector3,
+    previous: &AxisPose,
+) -> Result<Vec<AxisPose>, String> {
+    let Some(first) = focus_points.first() else {
+        return Ok(Vec::new());
+    };
+    let branches = inverse(machine, first, axis, previous.rotary_deg);
+    if branches.is_empty() {
+        return Err("the kinematics cannot point the beam that way".to_owned());
+    }
+    let mut best: Option<(f64, Vec<AxisPose>)> = None;
+    let mut reasons = Vec::new();
+    for branch in &branches {
+        let mut poses = Vec::with_capacity(focus_points.len());
+        let mut prev = *previous;
+        let mut failed = None;
+        for f in focus_points {
+            let cands: Vec<AxisPose> = inverse(machine, f, axis, prev.rotary_deg)
+                .into_iter()
+                .filter(|c| (c.tilt_deg - branch.tilt_deg).abs() < 1e-9)
+                .collect();
+            match choose_pose(machine, &cands, &prev) {
+                Ok(pose) => {
+                    poses.push(pose);
+                    prev = pose;
+                }
+                Err(why) => {
+                    failed = Some(why);
+                    break;
+                }
+            }
+        }
+        match failed {
+            Some(why) => reasons.push(why),
+            None => {
+                let travel = crate::kinematics::rotary_travel_deg(previous, &poses[0]);
+                if best.as_ref().is_none_or(|(t, _)| travel < *t - 1e-12) {
+                    best = Some((travel, poses));
+                }
+            }
+        }
+    }
+    best.map(|b| b.1).ok_or_else(|| reasons.join("; "))
+}
+
+/// (largest incidence to the axis, largest pairwise angle between piece features), radians.
+fn section_angles(section: &Section, axis: &UnitVector3) -> (f64, f64) {
+    let incidence = section
+        .pieces
+        .iter()
+        .flat_map(|p| p.features.iter())
+        .map(|f| angle_rad(f, axis))
+        .fold(0.0, f64::max);
+    let means: Vec<Vector3> = section.pieces.iter().map(|p| p.feature().into_inner()).collect();
+    let mut pairwise: f64 = 0.0;
+    for (i, a) in means.iter().enumerate() {
+        for b in &means[i + 1..] {
+            pairwise = pairwise.max(angle_rad(a, b));
+        }
+    }
+    (incidence, pairwise)
+}
+
+/// The registered point at `source` (vertex index + fraction) on a contour.
+fn point_on_contour(points: &[Point3], source: f64) -> Point3 {
+    let last = points.len() - 1;
+    let i = (source.floor().max(0.0) as usize).min(last.saturating_sub(1));
+    let t = source - i as f64;
+    points[i] + (points[(i + 1).min(last)] - points[i]) * t
+}
+
+/// Checks the job against the input path and the settings (see the module docs).
+fn validate(job: &Job, traces: &[Vec<Vec<Trace>>], path: &Path, settings: &PlanSettings) -> ValidationReport {
+    let mut r = ValidationReport::default();
+    let mut lines: Vec<String> = Vec::new();
+    let mut more = 0usize;
+    let mut violation = |s: String| {
+        if lines.len() < MAX_VIOLATION_LINES {
+            lines.push(s);
+        } else {
+            more += 1;
+        }
+    };
+    let limit_rad = settings.max_incidence_deg.to_radians();
+    let half_field = [0.5 * settings.galvo.field_mm[0], 0.5 * settings.galvo.field_mm[1]];
+    let lens = settings.lens();
+    let mut coverage: std::collections::BTreeMap<ContourId, Vec<(f64, f64)>> = Default::default();
+    for (zone, zone_traces) in job.zones.iter().zip(traces) {
+        let (fx, fy, fz) = (zone.frame.x_axis(), zone.frame.y_axis(), zone.frame.z_axis());
+        for (layer, layer_traces) in zone.layers.iter().zip(zone_traces) {
+            let at = format!("zone {} layer {}", zone.id, layer.index);
+            match AxisPose::from_job_pose(&layer.pose, settings.machine.kinematics) {
+                None => violation(format!("{at}: pose lacks an axis: {:?}", layer.pose)),
+                Some(pose) => {
+                    if let Some(why) = limit_violation(&settings.machine, &pose) {
+                        violation(format!("{at}: pose outside the axis limits: {why}"));
+                    }
+                    let (tip, dir) = forward(&settings.machine, &pose);
+                    let focus = Point3::from(layer.focus_point);
+                    if (tip - focus).norm() > POSE_TOLERANCE || angle_rad(&dir, &fz) > POSE_TOLERANCE {
+                        violation(format!("{at}: the pose does not put the focus on the focus point along the zone axis"));
+                    }
+                }
+            }
+            for (pl, t) in layer.polylines.iter().zip(layer_traces) {
+                let Some(contour) = path.get(pl.contour) else {
+                    violation(format!("{at}: contour {} is not in the path", pl.contour));
+                    continue;
+                };
+                if pl.points.len() < 2 {
+                    violation(format!("{at} contour {}: polyline has fewer than 2 points", pl.contour));
+                }
+                coverage
+                    .entry(pl.contour)
+                    .or_default()
+                    .push((t.source[0], *t.source.last().unwrap_or(&t.source[0])));
+                for (i, ((xy, h), f)) in pl.points.iter().zip(&t.height_mm).zip(&t.features).enumerate() {
+                    let here = || format!("{at} contour {} point {i}", pl.contour);
+                    r.max_focus_deviation_mm = r.max_focus_deviation_mm.max(h.abs());
+                    if h.abs() > job.focus_half_length_mm + CHECK_SLACK {
+                        violation(format!("{}: {h:.4} mm from the focal plane", here()));
+                    }
+                    let field_abs = xy[0].abs().max(xy[1].abs());
+                    r.max_field_abs_mm = r.max_field_abs_mm.max(field_abs);
+                    if xy[0].abs() > half_field[0] + CHECK_SLACK || xy[1].abs() > half_field[1] + CHECK_SLACK {
+                        violation(format!("{}: ({:.3}, {:.3}) mm outside the field", here(), xy[0], xy[1]));
+                    }
+                    let incidence = angle_rad(f, &lens.ray(&fx, &fy, &fz, *xy));
+                    r.max_incidence_deg = r.max_incidence_deg.max(incidence.to_degrees());
+                    if incidence > limit_rad + CHECK_SLACK {
+                        violation(format!("{}: incidence {:.3}° over the limit", here(), incidence.to_degrees()));
+                    }
+                    let registered = point_on_contour(contour.points(), t.source[i]);
+                    let back = galvo_to_workpiece(zone, layer, *xy) + fz * *h;
+                    let err = (back - registered).norm();
+                    r.max_round_trip_error_mm = r.max_round_trip_error_mm.max(err);
+                    if err > ROUND_TRIP_TOLERANCE_MM {
+                        violation(format!("{}: round trip off by {err:.6} mm", here()));
+                    }
+                }
+            }
+        }
+    }
+    for c in path.contours() {
+        let last = (c.points().len() - 1) as f64;
+        let mut spans = coverage.remove(&c.id()).unwrap_or_default();
+        spans.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut reach = 0.0;
+        let mut ok = !spans.is_empty();
+        for (s, e) in &spans {
+            if (s - reach).abs() > COVERAGE_SLACK {
+                ok = false;
+            }
+            reach = *e;
+        }
+        if !ok || (reach - last).abs() > COVERAGE_SLACK {
+            violation(format!(
+                "contour {}: not covered exactly once (gap or overlap along it)",
+                c.id()
+            ));
+        }
+    }
+    if more > 0 {
+        lines.push(format!("… and {more} more violations"));
+    }
+    r.passed = lines.is_empty();
+    r.violations = lines;
+    r
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::synthetic_core_path;
+
+    #[test]
+    fn synthetic_core_plans_and_validates() {
+        let path = synthetic_core_path(60, 1);
+        let out = plan_with_report(&path, &PlanSettings::default()).unwrap();
+        let v = &out.job.validation;
+        assert!(v.passed, "{:?}", v.violations);
+        assert!(v.max_round_trip_error_mm <= ROUND_TRIP_TOLERANCE_MM);
+        assert!(v.max_incidence_deg <= 5.0 + 1e-9);
+        assert!(out.automatic_k);
+        for row in &out.table {
+            assert!(row.max_incidence_deg <= 3.0 + 1e-9, "zoning keeps the 3° budget: {row:?}");
+        }
+        // Zone frames are right-handed with Z the zone axis; layers top down.
+        for z in &out.job.zones {
+            assert!(crate::frame::orthonormality_error(&z.frame) < 1e-12);
+            for w in z.layers.windows(2) {
+                let d = Point3::from(w[0].focus_point) - Point3::from(w[1].focus_point);
+                assert!((d.dot(&z.frame.z_axis()) - out.job.layer_step_mm).abs() < 1e-9 || d.dot(&z.frame.z_axis()) > 0.0);
+            }
+        }
+        // The JSON round trip keeps every galvo point to 1e-12 mm (serde_json parses floats
+        // to within an ulp or so, not always bit-exactly).
+        let back = Job::from_json(&out.job.to_json().unwrap()).unwrap();
+        assert_eq!(back.zones.len(), out.job.zones.len());
+        let flat = |j: &Job| -> Vec<f64> {
+            j.zones
+                .iter()
+                .flat_map(|z| z.layers.iter())
+                .flat_map(|l| l.polylines.iter())
+                .flat_map(|p| p.points.iter().flat_map(|xy| [xy[0], xy[1]]))
+                .collect()
+        };
+        let (a, b) = (flat(&out.job), flat(&back));
+        assert_eq!(a.len(), b.len());
+        assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-12));
+    }
+
+    #[test]
+    fn telecentric_zoning_uses_the_full_limit_and_is_deterministic() {
+        let path = synthetic_core_path(60, 2);
+        let settings = PlanSettings {
+            field: FieldSettings {
+                telecentric: true,
+                ..FieldSettings::default()
+            },
+            ..PlanSettings::default()
+        };
+        let a = plan_with_report(&path, &settings).unwrap();
+        assert!(a.job.validation.passed, "{:?}", a.job.validation.violations);
+        assert!(a.table.iter().all(|r| r.max_incidence_deg <= 5.0 + 1e-9));
+        let b = plan_with_report(&path, &settings).unwrap();
+        assert_eq!(a.job.to_json().unwrap(), b.job.to_json().unwrap());
+    }
+
+    #[test]
+    fn unreachable_axis_names_the_zone() {
+        // Beam pointing down −Z needs A = ±180°: outside −100..50.
+        let c = trim_geom::Contour::new(
+            42,
+            vec![Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 0.0, 0.0)],
+            -Vector3::z(),
+        )
+        .unwrap();
+        let path = Path::new(vec![c]).unwrap();
+        let e = plan(&path, &PlanSettings::default()).unwrap_err();
+        assert!(matches!(e, PlanError::Unreachable { .. }), "{e}");
+        assert!(e.to_string().contains("42"), "{e}");
+    }
+
+    #[test]
+    fn refuses_bad_settings_by_key() {
+        let path = synthetic_core_path(4, 1);
+        let settings = PlanSettings {
+            max_incidence_deg: -1.0,
+            ..PlanSettings::default()
+        };
+        let e = plan(&path, &settings).unwrap_err();
+        assert!(e.to_string().contains("max_incidence_deg"), "{e}");
+        let settings = PlanSettings {
+            zoning: ZoningSettings {
+                k: Some(100),
+                ..ZoningSettings::default()
+            },
+            ..PlanSettings::default()
+        };
+        let e = plan(&path, &settings).unwrap_err();
+        assert!(matches!(e, PlanError::TooManyZones { k: 100, .. }), "{e}");
+    }
+}
