@@ -124,7 +124,12 @@ impl Beam {
                 "at this incidence F0·cos θ is below the ablation threshold",
             ));
         }
-        require_open_closed("beam.line_width_tolerance", self.line_width_tolerance, 0.0, 0.5)?;
+        require_open_closed(
+            "beam.line_width_tolerance",
+            self.line_width_tolerance,
+            0.0,
+            0.5,
+        )?;
         Ok(())
     }
 
@@ -289,7 +294,12 @@ mod tests {
             power_w: -1.0,
             ..Beam::default()
         };
-        assert!(b.validate().unwrap_err().to_string().contains("beam.power_w"));
+        assert!(
+            b.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("beam.power_w")
+        );
         let b = Beam {
             fluence_tolerance: 1.0,
             ..Beam::default()
@@ -304,6 +314,11 @@ mod tests {
             m_squared: f64::NAN,
             ..Beam::default()
         };
-        assert!(b.validate().unwrap_err().to_string().contains("beam.m_squared"));
+        assert!(
+            b.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("beam.m_squared")
+        );
     }
 }

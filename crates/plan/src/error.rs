@@ -123,12 +123,21 @@ pub(crate) fn require_positive(key: &'static str, value: f64) -> Result<(), Plan
     if value.is_finite() && value > 0.0 {
         Ok(())
     } else {
-        Err(PlanError::setting(key, value, "must be a finite number > 0"))
+        Err(PlanError::setting(
+            key,
+            value,
+            "must be a finite number > 0",
+        ))
     }
 }
 
 /// Checks that `value` is finite and within `[lo, hi]`.
-pub(crate) fn require_range(key: &'static str, value: f64, lo: f64, hi: f64) -> Result<(), PlanError> {
+pub(crate) fn require_range(
+    key: &'static str,
+    value: f64,
+    lo: f64,
+    hi: f64,
+) -> Result<(), PlanError> {
     if value.is_finite() && (lo..=hi).contains(&value) {
         Ok(())
     } else {

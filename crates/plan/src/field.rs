@@ -52,7 +52,12 @@ impl FieldSettings {
     /// Refuses out-of-range values, naming the key. `limit_deg` is the incidence limit.
     pub fn validate(&self, limit_deg: f64) -> Result<(), PlanError> {
         if !self.telecentric {
-            require_range("field.lens_ray_budget_deg", self.lens_ray_budget_deg, 0.0, limit_deg)?;
+            require_range(
+                "field.lens_ray_budget_deg",
+                self.lens_ray_budget_deg,
+                0.0,
+                limit_deg,
+            )?;
             if self.lens_ray_budget_deg >= limit_deg {
                 return Err(PlanError::setting(
                     "field.lens_ray_budget_deg",
@@ -89,7 +94,13 @@ impl Lens {
     /// `(x, y)` (mm from the field centre), in the frame (X, Y, Z) given: Z·f − x·X − y·Y,
     /// normalised (a pinhole at the focal length above the field centre).
     #[must_use]
-    pub fn ray(&self, x_axis: &Vector3, y_axis: &Vector3, z_axis: &Vector3, xy: [f64; 2]) -> Vector3 {
+    pub fn ray(
+        &self,
+        x_axis: &Vector3,
+        y_axis: &Vector3,
+        z_axis: &Vector3,
+        xy: [f64; 2],
+    ) -> Vector3 {
         if self.telecentric {
             *z_axis
         } else {
@@ -191,9 +202,12 @@ fn halve(p: &Piece) -> (Piece, Piece) {
                 a.source.push(source);
             }
             let from = if t < 1.0 { i + 1 } else { i + 2 };
-            b.points.extend_from_slice(&p.points[from.min(p.points.len())..]);
-            b.features.extend_from_slice(&p.features[from.min(p.points.len())..]);
-            b.source.extend_from_slice(&p.source[from.min(p.points.len())..]);
+            b.points
+                .extend_from_slice(&p.points[from.min(p.points.len())..]);
+            b.features
+                .extend_from_slice(&p.features[from.min(p.points.len())..]);
+            b.source
+                .extend_from_slice(&p.source[from.min(p.points.len())..]);
             if a.points.len() >= 2 && b.points.len() >= 2 {
                 return (a, b);
             }
@@ -258,12 +272,19 @@ pub fn sections(
                 .map(|p| ((p.centroid() - centre).dot(&dir), p))
                 .collect();
             keyed.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let right: Vec<Piece> = keyed.split_off(keyed.len() / 2).into_iter().map(|k| k.1).collect();
+            let right: Vec<Piece> = keyed
+                .split_off(keyed.len() / 2)
+                .into_iter()
+                .map(|k| k.1)
+                .collect();
             let left: Vec<Piece> = keyed.into_iter().map(|k| k.1).collect();
             // Pushed so the left half is processed first: sections come out in a stable order.
             stack.push(right);
             stack.push(left);
-        } else if let Some(piece) = group.first().filter(|p| p.length_mm() >= MIN_SPLIT_LENGTH_MM && p.points.len() >= 2) {
+        } else if let Some(piece) = group
+            .first()
+            .filter(|p| p.length_mm() >= MIN_SPLIT_LENGTH_MM && p.points.len() >= 2)
+        {
             let (a, b) = halve(piece);
             if a.points.len() >= 2 && b.points.len() >= 2 && a != *piece {
                 stack.push(vec![b]);
@@ -293,7 +314,9 @@ mod tests {
         let (a, b) = (Point3::from(from), Point3::from(to));
         Piece {
             contour: id,
-            points: (0..n).map(|i| a + (b - a) * (i as f64 / (n - 1) as f64)).collect(),
+            points: (0..n)
+                .map(|i| a + (b - a) * (i as f64 / (n - 1) as f64))
+                .collect(),
             features: vec![feature.normalize(); n],
             source: (0..n).map(|i| i as f64).collect(),
         }
@@ -323,7 +346,14 @@ mod tests {
             telecentric: true,
             focal_length_mm: 259.4,
         };
-        let s = sections(pieces, &Point3::new(115.0, 0.0, 0.0), &axis, 50.0, 0.1, &lens);
+        let s = sections(
+            pieces,
+            &Point3::new(115.0, 0.0, 0.0),
+            &axis,
+            50.0,
+            0.1,
+            &lens,
+        );
         assert!(s.len() >= 3, "230 mm in a 100 mm field: {}", s.len());
         for sec in &s {
             let (_, f) = fit(&sec.pieces, &sec.origin, &axis, &lens, 0.1);
@@ -344,7 +374,14 @@ mod tests {
         };
         let pieces = vec![line(1, [0.0, 0.0, 0.0], [60.0, 0.0, 0.0], 61, Vector3::z())];
         let limit = 3f64.to_radians();
-        let s = sections(pieces, &Point3::new(30.0, 0.0, 0.0), &axis, 50.0, limit, &lens);
+        let s = sections(
+            pieces,
+            &Point3::new(30.0, 0.0, 0.0),
+            &axis,
+            50.0,
+            limit,
+            &lens,
+        );
         assert!(s.len() >= 4, "{}", s.len());
         let mut covered: Vec<(f64, f64)> = Vec::new();
         for sec in &s {

@@ -189,7 +189,11 @@ impl GalvoSettings {
         ];
         for (key, v) in delays {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(crate::PlanError::setting(key, v, "must be a finite number ≥ 0"));
+                return Err(crate::PlanError::setting(
+                    key,
+                    v,
+                    "must be a finite number ≥ 0",
+                ));
             }
         }
         Ok(())

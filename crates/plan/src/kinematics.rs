@@ -199,7 +199,10 @@ impl MachineSettings {
             ("machine.z_offset_mm", self.z_offset_mm),
             ("machine.tool_offset_mm", self.tool_offset_mm),
             ("machine.rot_point_mm", self.rot_point_mm.iter().sum()),
-            ("machine.workpiece_origin_mm", self.workpiece_origin_mm.iter().sum()),
+            (
+                "machine.workpiece_origin_mm",
+                self.workpiece_origin_mm.iter().sum(),
+            ),
             ("machine.settle_s", self.settle_s),
         ];
         for (key, v) in finite {
@@ -208,10 +211,17 @@ impl MachineSettings {
             }
         }
         if self.settle_s < 0.0 {
-            return Err(PlanError::setting("machine.settle_s", self.settle_s, "must be ≥ 0"));
+            return Err(PlanError::setting(
+                "machine.settle_s",
+                self.settle_s,
+                "must be ≥ 0",
+            ));
         }
         require_positive("machine.linear_speed_mm_per_s", self.linear_speed_mm_per_s)?;
-        require_positive("machine.rotary_speed_deg_per_s", self.rotary_speed_deg_per_s)?;
+        require_positive(
+            "machine.rotary_speed_deg_per_s",
+            self.rotary_speed_deg_per_s,
+        )?;
         Ok(())
     }
 
@@ -287,7 +297,11 @@ fn rot_z(a: f64) -> nalgebra::Matrix3<f64> {
 
 /// `machine_from_table` for the rotary axis values (degrees).
 #[must_use]
-pub fn machine_from_table(kind: KinematicsKind, tilt_deg: f64, rotary_deg: f64) -> nalgebra::Matrix3<f64> {
+pub fn machine_from_table(
+    kind: KinematicsKind,
+    tilt_deg: f64,
+    rotary_deg: f64,
+) -> nalgebra::Matrix3<f64> {
     let (t, c) = (tilt_deg.to_radians(), rotary_deg.to_radians());
     match kind {
         KinematicsKind::XyzacTrt => rot_x(t) * rot_z(c),
@@ -309,7 +323,12 @@ pub fn head_frame(kind: KinematicsKind, tilt_deg: f64, rotary_deg: f64) -> Frame
 
 /// LinuxCNC's inverse kinematics: joint X/Y/Z for a world (table-frame) tool point.
 #[must_use]
-pub fn joints_from_world(m: &MachineSettings, world: &Vector3, tilt_deg: f64, rotary_deg: f64) -> Vector3 {
+pub fn joints_from_world(
+    m: &MachineSettings,
+    world: &Vector3,
+    tilt_deg: f64,
+    rotary_deg: f64,
+) -> Vector3 {
     let r = Vector3::from(m.rot_point_mm);
     let (o, o_c) = m.pivot_offset(rotary_deg.to_radians());
     machine_from_table(m.kinematics, tilt_deg, rotary_deg) * (world - r - o_c) + r + o
@@ -317,7 +336,12 @@ pub fn joints_from_world(m: &MachineSettings, world: &Vector3, tilt_deg: f64, ro
 
 /// LinuxCNC's forward kinematics: the world (table-frame) tool point for joint X/Y/Z.
 #[must_use]
-pub fn world_from_joints(m: &MachineSettings, joints: &Vector3, tilt_deg: f64, rotary_deg: f64) -> Vector3 {
+pub fn world_from_joints(
+    m: &MachineSettings,
+    joints: &Vector3,
+    tilt_deg: f64,
+    rotary_deg: f64,
+) -> Vector3 {
     let r = Vector3::from(m.rot_point_mm);
     let (o, o_c) = m.pivot_offset(rotary_deg.to_radians());
     machine_from_table(m.kinematics, tilt_deg, rotary_deg).transpose() * (joints - r - o) + o_c + r
@@ -328,7 +352,12 @@ pub fn world_from_joints(m: &MachineSettings, joints: &Vector3, tilt_deg: f64, r
 pub fn joints_of(m: &MachineSettings, pose: &AxisPose) -> Vector3 {
     match m.pose_mode {
         PoseMode::Joints => Vector3::from(pose.linear_mm),
-        PoseMode::Tcp => joints_from_world(m, &Vector3::from(pose.linear_mm), pose.tilt_deg, pose.rotary_deg),
+        PoseMode::Tcp => joints_from_world(
+            m,
+            &Vector3::from(pose.linear_mm),
+            pose.tilt_deg,
+            pose.rotary_deg,
+        ),
     }
 }
 
@@ -338,10 +367,16 @@ pub fn joints_of(m: &MachineSettings, pose: &AxisPose) -> Vector3 {
 pub fn forward(m: &MachineSettings, pose: &AxisPose) -> (Point3, UnitVector3) {
     let world = match m.pose_mode {
         PoseMode::Tcp => Vector3::from(pose.linear_mm),
-        PoseMode::Joints => world_from_joints(m, &Vector3::from(pose.linear_mm), pose.tilt_deg, pose.rotary_deg),
+        PoseMode::Joints => world_from_joints(
+            m,
+            &Vector3::from(pose.linear_mm),
+            pose.tilt_deg,
+            pose.rotary_deg,
+        ),
     };
     let point = Point3::from(world - Vector3::from(m.workpiece_origin_mm));
-    let dir = machine_from_table(m.kinematics, pose.tilt_deg, pose.rotary_deg).transpose() * Vector3::z();
+    let dir =
+        machine_from_table(m.kinematics, pose.tilt_deg, pose.rotary_deg).transpose() * Vector3::z();
     (point, UnitVector3::new_normalize(dir))
 }
 
@@ -350,7 +385,12 @@ pub fn forward(m: &MachineSettings, pose: &AxisPose) -> (Point3, UnitVector3) {
 /// lens). Limits are not checked here ([`choose_pose`] does). At the singularity (beam along
 /// C) C is `c_hint_deg`. The fixed-head machine has a pose only for +Z.
 #[must_use]
-pub fn inverse(m: &MachineSettings, point: &Point3, direction: &UnitVector3, c_hint_deg: f64) -> Vec<AxisPose> {
+pub fn inverse(
+    m: &MachineSettings,
+    point: &Point3,
+    direction: &UnitVector3,
+    c_hint_deg: f64,
+) -> Vec<AxisPose> {
     let d = direction.into_inner();
     let world = point.coords + Vector3::from(m.workpiece_origin_mm);
     let mut angles: Vec<(f64, f64)> = Vec::new();
@@ -404,7 +444,12 @@ pub fn limit_violation(m: &MachineSettings, pose: &AxisPose) -> Option<String> {
     let lim = [m.x_limits_mm, m.y_limits_mm, m.z_limits_mm];
     let world = match m.pose_mode {
         PoseMode::Tcp => Vector3::from(pose.linear_mm),
-        PoseMode::Joints => world_from_joints(m, &Vector3::from(pose.linear_mm), pose.tilt_deg, pose.rotary_deg),
+        PoseMode::Joints => world_from_joints(
+            m,
+            &Vector3::from(pose.linear_mm),
+            pose.tilt_deg,
+            pose.rotary_deg,
+        ),
     };
     let joints = joints_of(m, pose);
     for (i, name) in ["X", "Y", "Z"].into_iter().enumerate() {
@@ -412,16 +457,30 @@ pub fn limit_violation(m: &MachineSettings, pose: &AxisPose) -> Option<String> {
             return Some(format!("{name} = {:.3} mm outside {:?}", world[i], lim[i]));
         }
         if !inside(joints[i], lim[i]) {
-            return Some(format!("joint {name} = {:.3} mm outside {:?}", joints[i], lim[i]));
+            return Some(format!(
+                "joint {name} = {:.3} mm outside {:?}",
+                joints[i], lim[i]
+            ));
         }
     }
     if let Some(tilt) = m.kinematics.tilt_axis() {
-        let tl = if tilt == "a" { m.a_limits_deg } else { m.b_limits_deg };
+        let tl = if tilt == "a" {
+            m.a_limits_deg
+        } else {
+            m.b_limits_deg
+        };
         if !inside(pose.tilt_deg, tl) {
-            return Some(format!("{} = {:.3}° outside {tl:?}", tilt.to_uppercase(), pose.tilt_deg));
+            return Some(format!(
+                "{} = {:.3}° outside {tl:?}",
+                tilt.to_uppercase(),
+                pose.tilt_deg
+            ));
         }
         if !inside(pose.rotary_deg, m.c_limits_deg) {
-            return Some(format!("C = {:.3}° outside {:?}", pose.rotary_deg, m.c_limits_deg));
+            return Some(format!(
+                "C = {:.3}° outside {:?}",
+                pose.rotary_deg, m.c_limits_deg
+            ));
         }
     }
     None
@@ -448,7 +507,11 @@ pub fn rotary_travel_deg(a: &AxisPose, b: &AxisPose) -> f64 {
 
 /// The candidate within limits with the least rotary travel from `previous` (C unwrapped by
 /// whole turns toward it; ties: the smaller |tilt|). `Err` says why none fits.
-pub fn choose_pose(m: &MachineSettings, candidates: &[AxisPose], previous: &AxisPose) -> Result<AxisPose, String> {
+pub fn choose_pose(
+    m: &MachineSettings,
+    candidates: &[AxisPose],
+    previous: &AxisPose,
+) -> Result<AxisPose, String> {
     let mut best: Option<AxisPose> = None;
     let mut reasons = Vec::new();
     for cand in candidates {
@@ -457,7 +520,12 @@ pub fn choose_pose(m: &MachineSettings, candidates: &[AxisPose], previous: &Axis
             p.rotary_deg = unwrap_c(p.rotary_deg, previous.rotary_deg, m.c_limits_deg);
             if m.pose_mode == PoseMode::Joints {
                 // Joint X/Y/Z depend on C only through whole turns: unchanged.
-                let world = world_from_joints(m, &Vector3::from(cand.linear_mm), cand.tilt_deg, cand.rotary_deg);
+                let world = world_from_joints(
+                    m,
+                    &Vector3::from(cand.linear_mm),
+                    cand.tilt_deg,
+                    cand.rotary_deg,
+                );
                 let j = joints_from_world(m, &world, p.tilt_deg, p.rotary_deg);
                 p.linear_mm = [j.x, j.y, j.z];
             }
@@ -467,7 +535,10 @@ pub fn choose_pose(m: &MachineSettings, candidates: &[AxisPose], previous: &Axis
             continue;
         }
         let better = best.is_none_or(|b| {
-            let (tb, tp) = (rotary_travel_deg(&b, previous), rotary_travel_deg(&p, previous));
+            let (tb, tp) = (
+                rotary_travel_deg(&b, previous),
+                rotary_travel_deg(&p, previous),
+            );
             tp < tb - 1e-12 || ((tp - tb).abs() <= 1e-12 && p.tilt_deg.abs() < b.tilt_deg.abs())
         });
         if better {
@@ -493,7 +564,11 @@ pub fn move_time_s(m: &MachineSettings, from: &AxisPose, to: &AxisPose) -> f64 {
         .max((from.rotary_deg - to.rotary_deg).abs())
         / m.rotary_speed_deg_per_s;
     let moving = linear.max(rotary);
-    if moving > 0.0 { moving + m.settle_s } else { 0.0 }
+    if moving > 0.0 {
+        moving + m.settle_s
+    } else {
+        0.0
+    }
 }
 
 #[cfg(test)]
@@ -517,7 +592,10 @@ mod tests {
         // ends with JOINT_POS -1.339746 26.123724 -3.888296 15 30.
         let m = MachineSettings::default();
         let j = joints_from_world(&m, &Vector3::new(10.0, 20.0, -5.0), 15.0, 30.0);
-        assert!((j - Vector3::new(-1.339746, 26.123724, -3.888296)).amax() < 1e-6, "{j}");
+        assert!(
+            (j - Vector3::new(-1.339746, 26.123724, -3.888296)).amax() < 1e-6,
+            "{j}"
+        );
         let w = world_from_joints(&m, &j, 15.0, 30.0);
         assert!((w - Vector3::new(10.0, 20.0, -5.0)).amax() < 1e-12);
     }
@@ -540,7 +618,10 @@ mod tests {
                     for pose in &cands {
                         let (p, back) = forward(&m, pose);
                         assert!((p - point).norm() < 1e-9, "{kind:?} {mode:?} {pose:?}");
-                        assert!((back.into_inner() - d.into_inner()).norm() < 1e-12, "{kind:?} {pose:?}");
+                        assert!(
+                            (back.into_inner() - d.into_inner()).norm() < 1e-12,
+                            "{kind:?} {pose:?}"
+                        );
                         let f = head_frame(kind, pose.tilt_deg, pose.rotary_deg);
                         assert!(crate::frame::orthonormality_error(&f) < 1e-12);
                         assert!((f.z_axis() - d.into_inner()).norm() < 1e-12);
@@ -560,7 +641,11 @@ mod tests {
     fn a_positive_tilts_beam_toward_plus_y() {
         // Table tilted by +A about X: the machine +Z seen from the table leans to +Y_table.
         let m = MachineSettings::default();
-        let pose = AxisPose { linear_mm: [0.0; 3], tilt_deg: 30.0, rotary_deg: 0.0 };
+        let pose = AxisPose {
+            linear_mm: [0.0; 3],
+            tilt_deg: 30.0,
+            rotary_deg: 0.0,
+        };
         let (_, d) = forward(&m, &pose);
         assert!((d.into_inner() - Vector3::new(0.0, 0.5, 3f64.sqrt() / 2.0)).norm() < 1e-12);
     }
@@ -571,10 +656,18 @@ mod tests {
         // Steep axis: A = ±82°, only −82° is within −100..50.
         let d = UnitVector3::new_normalize(Vector3::new(0.752, -0.644, 0.136));
         let cands = inverse(&m, &Point3::new(10.0, 5.0, 20.0), &d, 0.0);
-        let prev = AxisPose { linear_mm: [0.0; 3], tilt_deg: 0.0, rotary_deg: 720.0 };
+        let prev = AxisPose {
+            linear_mm: [0.0; 3],
+            tilt_deg: 0.0,
+            rotary_deg: 720.0,
+        };
         let pose = choose_pose(&m, &cands, &prev).unwrap();
         assert!(pose.tilt_deg < 0.0);
-        assert!((pose.rotary_deg - 720.0).abs() <= 180.0, "C unwrapped toward 720: {}", pose.rotary_deg);
+        assert!(
+            (pose.rotary_deg - 720.0).abs() <= 180.0,
+            "C unwrapped toward 720: {}",
+            pose.rotary_deg
+        );
         // Pointing down (−Z) needs A = ±180°: out of limits.
         let down = UnitVector3::new_normalize(-Vector3::z());
         let cands = inverse(&m, &Point3::origin(), &down, 0.0);

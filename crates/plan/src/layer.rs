@@ -262,7 +262,11 @@ mod tests {
         for (_, focus_z, polylines) in &zl.layers {
             for lp in polylines {
                 for (p, s) in lp.points.iter().zip(&lp.source) {
-                    assert!((p.z - focus_z).abs() <= step / 2.0 + 1e-12, "{} vs {focus_z}", p.z);
+                    assert!(
+                        (p.z - focus_z).abs() <= step / 2.0 + 1e-12,
+                        "{} vs {focus_z}",
+                        p.z
+                    );
                     // The point lies on the input polyline at its source parameter.
                     let i = (s.floor() as usize).min(1);
                     let t = s - i as f64;

@@ -11,7 +11,7 @@
 //! - [`planner`]: [`plan`], validation and the time estimate.
 //! - [`testing`]: a synthetic ceramic-core-like path.
 //! - [`job`]: the Job model, the planner's output.
-//! - [`error`]: [`PlanError`].
+//! - [`error`]: the error type, [`PlanError`].
 
 pub mod beam;
 pub mod error;
@@ -19,8 +19,8 @@ pub mod field;
 pub mod frame;
 pub mod job;
 pub mod kinematics;
-pub mod order;
 pub mod layer;
+pub mod order;
 pub mod piece;
 pub mod planner;
 pub mod testing;
@@ -28,8 +28,8 @@ pub mod zoning;
 
 pub use beam::{Beam, BeamReport};
 pub use error::PlanError;
-pub use job::{Frame, GalvoSettings, Job, JobSettings, Layer, LayerKey, Polyline, Pose, Zone};
 pub use field::FieldSettings;
+pub use job::{Frame, GalvoSettings, Job, JobSettings, Layer, LayerKey, Polyline, Pose, Zone};
 pub use kinematics::{AxisPose, KinematicsKind, MachineSettings, PoseMode};
 pub use layer::LayerSettings;
 pub use planner::{PlanOutput, PlanSettings, ZoneRow, plan, plan_with_report};

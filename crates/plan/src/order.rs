@@ -16,7 +16,11 @@ pub const TWO_OPT_MAX_PASSES: usize = 50;
 const IMPROVEMENT_EPS: f64 = 1e-12;
 
 /// The cost of visiting `order` from the start: `start(first) + Σ cost(a, b)`.
-pub fn path_cost(order: &[usize], start: &impl Fn(usize) -> f64, cost: &impl Fn(usize, usize) -> f64) -> f64 {
+pub fn path_cost(
+    order: &[usize],
+    start: &impl Fn(usize) -> f64,
+    cost: &impl Fn(usize, usize) -> f64,
+) -> f64 {
     match order.first() {
         None => 0.0,
         Some(&first) => start(first) + order.windows(2).map(|w| cost(w[0], w[1])).sum::<f64>(),
@@ -26,7 +30,11 @@ pub fn path_cost(order: &[usize], start: &impl Fn(usize) -> f64, cost: &impl Fn(
 /// An order of `n` items: nearest neighbour from the start (ties: the lower index), then 2-opt
 /// with O(1) move evaluation (prefix sums of the forward and backward edge costs along the
 /// current order, so reversing a stretch costs its backward sum instead of its forward sum).
-pub fn order(n: usize, start: impl Fn(usize) -> f64, cost: impl Fn(usize, usize) -> f64) -> Vec<usize> {
+pub fn order(
+    n: usize,
+    start: impl Fn(usize) -> f64,
+    cost: impl Fn(usize, usize) -> f64,
+) -> Vec<usize> {
     let matrix: Vec<f64> = (0..n * n).map(|k| cost(k / n, k % n)).collect();
     let c = |i: usize, j: usize| matrix[i * n + j];
     let starts: Vec<f64> = (0..n).map(&start).collect();
@@ -45,7 +53,7 @@ pub fn order(n: usize, start: impl Fn(usize) -> f64, cost: impl Fn(usize, usize)
         out.push(next);
         current = Some(next);
     }
-    if n < 3 || n > TWO_OPT_MAX_ZONES {
+    if !(3..=TWO_OPT_MAX_ZONES).contains(&n) {
         return out;
     }
     for _ in 0..TWO_OPT_MAX_PASSES {
@@ -60,11 +68,28 @@ pub fn order(n: usize, start: impl Fn(usize) -> f64, cost: impl Fn(usize, usize)
             }
             let mut best: Option<(usize, f64)> = None;
             for j in i + 1..n {
-                let before = if i == 0 { starts[out[0]] } else { c(out[i - 1], out[i]) };
-                let after_old = if j + 1 < n { c(out[j], out[j + 1]) } else { 0.0 };
-                let enter = if i == 0 { starts[out[j]] } else { c(out[i - 1], out[j]) };
-                let leave = if j + 1 < n { c(out[i], out[j + 1]) } else { 0.0 };
-                let delta = (enter + leave + (bwd[j] - bwd[i])) - (before + after_old + (fwd[j] - fwd[i]));
+                let before = if i == 0 {
+                    starts[out[0]]
+                } else {
+                    c(out[i - 1], out[i])
+                };
+                let after_old = if j + 1 < n {
+                    c(out[j], out[j + 1])
+                } else {
+                    0.0
+                };
+                let enter = if i == 0 {
+                    starts[out[j]]
+                } else {
+                    c(out[i - 1], out[j])
+                };
+                let leave = if j + 1 < n {
+                    c(out[i], out[j + 1])
+                } else {
+                    0.0
+                };
+                let delta =
+                    (enter + leave + (bwd[j] - bwd[i])) - (before + after_old + (fwd[j] - fwd[i]));
                 if delta < -IMPROVEMENT_EPS && best.is_none_or(|(_, d)| delta < d) {
                     best = Some((j, delta));
                 }
@@ -89,10 +114,10 @@ mod tests {
     fn two_opt_untangles_a_crossing_tour() {
         // Points on a line visited from x = 0; nearest neighbour already gives the sorted
         // order for points on a line, so use a layout where it does not: a zig-zag.
-        let xs = [0.0, 10.0, 1.0, 11.0, 2.0, 12.0];
-        let ys = [0.0, 0.0, 5.0, 5.0, 10.0, 10.0];
-        let d = |i: usize, j: usize| ((xs[i] - xs[j]) as f64).hypot(ys[i] - ys[j]);
-        let start = |j: usize| (xs[j] as f64).hypot(ys[j]);
+        let xs: [f64; 6] = [0.0, 10.0, 1.0, 11.0, 2.0, 12.0];
+        let ys: [f64; 6] = [0.0, 0.0, 5.0, 5.0, 10.0, 10.0];
+        let d = |i: usize, j: usize| (xs[i] - xs[j]).hypot(ys[i] - ys[j]);
+        let start = |j: usize| xs[j].hypot(ys[j]);
         let o = order(6, start, d);
         let mut sorted = o.clone();
         sorted.sort_unstable();
@@ -100,7 +125,9 @@ mod tests {
         // Brute force the optimum over all 720 permutations.
         let mut perm: Vec<usize> = (0..6).collect();
         let mut best = f64::INFINITY;
-        permute(&mut perm, 0, &mut |p| best = best.min(path_cost(p, &start, &d)));
+        permute(&mut perm, 0, &mut |p| {
+            best = best.min(path_cost(p, &start, &d))
+        });
         let got = path_cost(&o, &start, &d);
         assert!(got <= best * 1.10 + 1e-9, "2-opt {got} vs optimum {best}");
     }

@@ -142,7 +142,10 @@ pub fn pieces_of(
         if spread <= split_above_rad {
             out.push(whole);
         } else {
-            out.extend(split_piece(&densify(&whole, piece_spread_rad), piece_spread_rad));
+            out.extend(split_piece(
+                &densify(&whole, piece_spread_rad),
+                piece_spread_rad,
+            ));
         }
     }
     if out.is_empty() {

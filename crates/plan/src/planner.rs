@@ -262,7 +262,9 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
         let mut zone_s = 0.0;
         let mut layers = Vec::with_capacity(poses.len());
         let mut zone_traces = Vec::with_capacity(poses.len());
-        for (index, ((_, h, pieces_in_layer), pose)) in p.layers.layers.iter().zip(&poses).enumerate() {
+        for (index, ((_, h, pieces_in_layer), pose)) in
+            p.layers.layers.iter().zip(&poses).enumerate()
+        {
             let focus = p.section.origin + p.axis.into_inner() * *h;
             let mut polylines = Vec::with_capacity(pieces_in_layer.len());
             let mut layer_traces = Vec::with_capacity(pieces_in_layer.len());
@@ -310,13 +312,25 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
             .zip(&zone.layers)
             .flat_map(|(lt, layer)| lt.iter().zip(&layer.polylines))
             .flat_map(|(t, pl)| t.features.iter().zip(&pl.points))
-            .map(|(f, xy)| angle_rad(f, &lens.ray(&frame.x_axis(), &frame.y_axis(), &frame.z_axis(), *xy)))
+            .map(|(f, xy)| {
+                angle_rad(
+                    f,
+                    &lens.ray(&frame.x_axis(), &frame.y_axis(), &frame.z_axis(), *xy),
+                )
+            })
             .fold(0.0, f64::max);
         let a = p.axis.into_inner();
         table.push(ZoneRow {
             zone: zone_id,
             cluster: p.cluster,
-            centre: [zone.origin[0], zone.origin[1], zone.origin[2], a.x, a.y, a.z],
+            centre: [
+                zone.origin[0],
+                zone.origin[1],
+                zone.origin[2],
+                a.x,
+                a.y,
+                a.z,
+            ],
             max_pairwise_deg: zone.max_pairwise_deg,
             max_incidence_deg: zone.max_incidence_deg,
             max_incidence_with_lens_deg: with_lens.to_degrees(),
@@ -454,7 +468,11 @@ fn section_angles(section: &Section, axis: &UnitVector3) -> (f64, f64) {
         .flat_map(|p| p.features.iter())
         .map(|f| angle_rad(f, axis))
         .fold(0.0, f64::max);
-    let means: Vec<Vector3> = section.pieces.iter().map(|p| p.feature().into_inner()).collect();
+    let means: Vec<Vector3> = section
+        .pieces
+        .iter()
+        .map(|p| p.feature().into_inner())
+        .collect();
     let mut pairwise: f64 = 0.0;
     for (i, a) in means.iter().enumerate() {
         for b in &means[i + 1..] {
@@ -473,7 +491,12 @@ fn point_on_contour(points: &[Point3], source: f64) -> Point3 {
 }
 
 /// Checks the job against the input path and the settings (see the module docs).
-fn validate(job: &Job, traces: &[Vec<Vec<Trace>>], path: &Path, settings: &PlanSettings) -> ValidationReport {
+fn validate(
+    job: &Job,
+    traces: &[Vec<Vec<Trace>>],
+    path: &Path,
+    settings: &PlanSettings,
+) -> ValidationReport {
     let mut r = ValidationReport::default();
     let mut lines: Vec<String> = Vec::new();
     let mut more = 0usize;
@@ -485,11 +508,18 @@ fn validate(job: &Job, traces: &[Vec<Vec<Trace>>], path: &Path, settings: &PlanS
         }
     };
     let limit_rad = settings.max_incidence_deg.to_radians();
-    let half_field = [0.5 * settings.galvo.field_mm[0], 0.5 * settings.galvo.field_mm[1]];
+    let half_field = [
+        0.5 * settings.galvo.field_mm[0],
+        0.5 * settings.galvo.field_mm[1],
+    ];
     let lens = settings.lens();
     let mut coverage: std::collections::BTreeMap<ContourId, Vec<(f64, f64)>> = Default::default();
     for (zone, zone_traces) in job.zones.iter().zip(traces) {
-        let (fx, fy, fz) = (zone.frame.x_axis(), zone.frame.y_axis(), zone.frame.z_axis());
+        let (fx, fy, fz) = (
+            zone.frame.x_axis(),
+            zone.frame.y_axis(),
+            zone.frame.z_axis(),
+        );
         for (layer, layer_traces) in zone.layers.iter().zip(zone_traces) {
             let at = format!("zone {} layer {}", zone.id, layer.index);
             match AxisPose::from_job_pose(&layer.pose, settings.machine.kinematics) {
@@ -500,8 +530,12 @@ fn validate(job: &Job, traces: &[Vec<Vec<Trace>>], path: &Path, settings: &PlanS
                     }
                     let (tip, dir) = forward(&settings.machine, &pose);
                     let focus = Point3::from(layer.focus_point);
-                    if (tip - focus).norm() > POSE_TOLERANCE || angle_rad(&dir, &fz) > POSE_TOLERANCE {
-                        violation(format!("{at}: the pose does not put the focus on the focus point along the zone axis"));
+                    if (tip - focus).norm() > POSE_TOLERANCE
+                        || angle_rad(&dir, &fz) > POSE_TOLERANCE
+                    {
+                        violation(format!(
+                            "{at}: the pose does not put the focus on the focus point along the zone axis"
+                        ));
                     }
                 }
             }
@@ -511,13 +545,22 @@ fn validate(job: &Job, traces: &[Vec<Vec<Trace>>], path: &Path, settings: &PlanS
                     continue;
                 };
                 if pl.points.len() < 2 {
-                    violation(format!("{at} contour {}: polyline has fewer than 2 points", pl.contour));
+                    violation(format!(
+                        "{at} contour {}: polyline has fewer than 2 points",
+                        pl.contour
+                    ));
                 }
                 coverage
                     .entry(pl.contour)
                     .or_default()
                     .push((t.source[0], *t.source.last().unwrap_or(&t.source[0])));
-                for (i, ((xy, h), f)) in pl.points.iter().zip(&t.height_mm).zip(&t.features).enumerate() {
+                for (i, ((xy, h), f)) in pl
+                    .points
+                    .iter()
+                    .zip(&t.height_mm)
+                    .zip(&t.features)
+                    .enumerate()
+                {
                     let here = || format!("{at} contour {} point {i}", pl.contour);
                     r.max_focus_deviation_mm = r.max_focus_deviation_mm.max(h.abs());
                     if h.abs() > job.focus_half_length_mm + CHECK_SLACK {
@@ -525,13 +568,24 @@ fn validate(job: &Job, traces: &[Vec<Vec<Trace>>], path: &Path, settings: &PlanS
                     }
                     let field_abs = xy[0].abs().max(xy[1].abs());
                     r.max_field_abs_mm = r.max_field_abs_mm.max(field_abs);
-                    if xy[0].abs() > half_field[0] + CHECK_SLACK || xy[1].abs() > half_field[1] + CHECK_SLACK {
-                        violation(format!("{}: ({:.3}, {:.3}) mm outside the field", here(), xy[0], xy[1]));
+                    if xy[0].abs() > half_field[0] + CHECK_SLACK
+                        || xy[1].abs() > half_field[1] + CHECK_SLACK
+                    {
+                        violation(format!(
+                            "{}: ({:.3}, {:.3}) mm outside the field",
+                            here(),
+                            xy[0],
+                            xy[1]
+                        ));
                     }
                     let incidence = angle_rad(f, &lens.ray(&fx, &fy, &fz, *xy));
                     r.max_incidence_deg = r.max_incidence_deg.max(incidence.to_degrees());
                     if incidence > limit_rad + CHECK_SLACK {
-                        violation(format!("{}: incidence {:.3}° over the limit", here(), incidence.to_degrees()));
+                        violation(format!(
+                            "{}: incidence {:.3}° over the limit",
+                            here(),
+                            incidence.to_degrees()
+                        ));
                     }
                     let registered = point_on_contour(contour.points(), t.source[i]);
                     let back = galvo_to_workpiece(zone, layer, *xy) + fz * *h;
@@ -586,14 +640,20 @@ mod tests {
         assert!(v.max_incidence_deg <= 5.0 + 1e-9);
         assert!(out.automatic_k);
         for row in &out.table {
-            assert!(row.max_incidence_deg <= 3.0 + 1e-9, "zoning keeps the 3° budget: {row:?}");
+            assert!(
+                row.max_incidence_deg <= 3.0 + 1e-9,
+                "zoning keeps the 3° budget: {row:?}"
+            );
         }
         // Zone frames are right-handed with Z the zone axis; layers top down.
         for z in &out.job.zones {
             assert!(crate::frame::orthonormality_error(&z.frame) < 1e-12);
             for w in z.layers.windows(2) {
                 let d = Point3::from(w[0].focus_point) - Point3::from(w[1].focus_point);
-                assert!((d.dot(&z.frame.z_axis()) - out.job.layer_step_mm).abs() < 1e-9 || d.dot(&z.frame.z_axis()) > 0.0);
+                assert!(
+                    (d.dot(&z.frame.z_axis()) - out.job.layer_step_mm).abs() < 1e-9
+                        || d.dot(&z.frame.z_axis()) > 0.0
+                );
             }
         }
         // The JSON round trip keeps every galvo point to 1e-12 mm (serde_json parses floats

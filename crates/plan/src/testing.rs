@@ -33,7 +33,10 @@ fn uniform(rng: &mut Xoshiro256PlusPlus) -> f64 {
 
 fn surface(phi: f64, z: f64) -> (Point3, Vector3) {
     let n = Vector3::new(phi.cos(), phi.sin(), NORMAL_LIFT).normalize();
-    (Point3::new(CORE_RADIUS_MM * phi.cos(), CORE_RADIUS_MM * phi.sin(), z), n)
+    (
+        Point3::new(CORE_RADIUS_MM * phi.cos(), CORE_RADIUS_MM * phi.sin(), z),
+        n,
+    )
 }
 
 /// The synthetic core path with `n_contours` contours (≥ 2), seeded. `n_contours = 60` is the
@@ -53,7 +56,9 @@ pub fn synthetic_core_path(n_contours: usize, seed: u64) -> Path {
     let mut contours = Vec::with_capacity(n_contours);
     for h in 0..n_holes {
         let (row, col) = (h / cols, h % cols);
-        let phi = (-40.0 + 35.0 * (col as f64 + 0.5 + 0.2 * (uniform(&mut rng) - 0.5)) / cols as f64).to_radians();
+        let phi = (-40.0
+            + 35.0 * (col as f64 + 0.5 + 0.2 * (uniform(&mut rng) - 0.5)) / cols as f64)
+            .to_radians();
         let z = -CORE_HALF_HEIGHT_MM + dz * (row as f64 + 0.5);
         let (c, n) = surface(phi, z);
         // Tangent plane basis: along the azimuth and along Z (orthogonalised).
@@ -65,7 +70,10 @@ pub fn synthetic_core_path(n_contours: usize, seed: u64) -> Path {
                 c + (t1 * a.cos() + t2 * a.sin()) * hole_radius
             })
             .collect();
-        contours.push(Contour::new(h as i64, points, n).expect("a hole has distinct points and a unit feature"));
+        contours.push(
+            Contour::new(h as i64, points, n)
+                .expect("a hole has distinct points and a unit feature"),
+        );
     }
     let strip_rows = n_strips.div_ceil(2).max(1);
     let strip_dz = 2.0 * CORE_HALF_HEIGHT_MM / strip_rows as f64;
@@ -76,12 +84,16 @@ pub fn synthetic_core_path(n_contours: usize, seed: u64) -> Path {
         let z = -CORE_HALF_HEIGHT_MM + strip_dz * (row as f64 + 0.5);
         let (points, features): (Vec<Point3>, Vec<Vector3>) = (0..STRIP_POINTS)
             .map(|i| {
-                let phi = (start_deg + span_deg * i as f64 / (STRIP_POINTS - 1) as f64).to_radians();
+                let phi =
+                    (start_deg + span_deg * i as f64 / (STRIP_POINTS - 1) as f64).to_radians();
                 surface(phi, z)
             })
             .unzip();
         let id = (n_holes + s) as i64;
-        contours.push(Contour::with_features(id, points, features).expect("a strip has distinct points and unit features"));
+        contours.push(
+            Contour::with_features(id, points, features)
+                .expect("a strip has distinct points and unit features"),
+        );
     }
     Path::new(contours).expect("ids are unique")
 }

@@ -103,7 +103,11 @@ impl ZoningSettings {
             return Err(PlanError::setting("zoning.restarts", 0, "must be ≥ 1"));
         }
         if self.max_iterations == 0 {
-            return Err(PlanError::setting("zoning.max_iterations", 0, "must be ≥ 1"));
+            return Err(PlanError::setting(
+                "zoning.max_iterations",
+                0,
+                "must be ≥ 1",
+            ));
         }
         if self.max_auto_k == 0 {
             return Err(PlanError::setting("zoning.max_auto_k", 0, "must be ≥ 1"));
@@ -334,7 +338,8 @@ fn split_group(pieces: &[Piece], g: &ZoneGroup) -> Option<(ZoneGroup, ZoneGroup)
     let (fa, fb) = (feature(seed_a), feature(seed_b));
     let (mut left, mut right) = (Vec::new(), Vec::new());
     for &i in &g.pieces {
-        if i == seed_a || (i != seed_b && angle_rad(&fa, &feature(i)) <= angle_rad(&fb, &feature(i)))
+        if i == seed_a
+            || (i != seed_b && angle_rad(&fa, &feature(i)) <= angle_rad(&fb, &feature(i)))
         {
             left.push(i);
         } else {
@@ -344,7 +349,10 @@ fn split_group(pieces: &[Piece], g: &ZoneGroup) -> Option<(ZoneGroup, ZoneGroup)
     if left.is_empty() || right.is_empty() {
         return None;
     }
-    Some((make_group(pieces, left, false), make_group(pieces, right, false)))
+    Some((
+        make_group(pieces, left, false),
+        make_group(pieces, right, false),
+    ))
 }
 
 /// The in-plane radius of a zone about its bounding-box centre: the half diagonal of the
@@ -396,7 +404,9 @@ pub fn merge_groups(
             let mut members = zones[a].1.pieces.clone();
             members.extend_from_slice(&zones[b].1.pieces);
             let union = make_group(pieces, members, false);
-            if union.max_incidence_rad <= limit_rad && in_plane_radius_mm(pieces, &union) <= max_radius_mm {
+            if union.max_incidence_rad <= limit_rad
+                && in_plane_radius_mm(pieces, &union) <= max_radius_mm
+            {
                 merged = Some((a, b, union));
                 break;
             }
@@ -579,8 +589,12 @@ mod tests {
         // k − 1 does not comply (the bisection invariant).
         let fewer = groups_from_labels(
             &pieces,
-            &kmeans_labels(&samples(&pieces, DEFAULT_POSITION_WEIGHT).unwrap(), z.k - 1, &ZoningSettings::default())
-                .unwrap(),
+            &kmeans_labels(
+                &samples(&pieces, DEFAULT_POSITION_WEIGHT).unwrap(),
+                z.k - 1,
+                &ZoningSettings::default(),
+            )
+            .unwrap(),
         );
         assert!(!complies(&fewer, limit));
         let again = zone_pieces(&pieces, limit, &ZoningSettings::default(), f64::INFINITY).unwrap();
@@ -598,7 +612,10 @@ mod tests {
             ..ZoningSettings::default()
         };
         let e = zone_pieces(&pieces, 0.1, &settings, f64::INFINITY).unwrap_err();
-        assert!(matches!(e, PlanError::TooManyZones { k: 3, contours: 2 }), "{e}");
+        assert!(
+            matches!(e, PlanError::TooManyZones { k: 3, contours: 2 }),
+            "{e}"
+        );
         let mut bad = pieces.clone();
         bad[1].features[0] = Vector3::new(f64::NAN, 0.0, 1.0);
         let e = zone_pieces(&bad, 0.1, &ZoningSettings::default(), f64::INFINITY).unwrap_err();
