@@ -1,0 +1,145 @@
+//! Point selection for registration: unbiased voxel thinning and visibility culling of the CAD.
+
+use rayon::prelude::*;
+use trim_geom::{Point3, PointCloud, Vector3};
+
+use crate::error::{RegisterError, Result};
+
+/// Keeps, per occupied voxel of `voxel_mm`, the one point nearest the voxel's centroid (ties to
+/// the lower index). Unlike centroid down-sampling it never moves a point off the surface (no
+/// bias at edges), and it is deterministic. Returns ascending indices into `points`.
+pub fn voxel_pick(points: &[Point3], voxel_mm: f64) -> Result<Vec<usize>> {
+    if !(voxel_mm.is_finite() && voxel_mm > 0.0) {
+        return Err(RegisterError::setting("voxel_mm", format!("must be finite and > 0, got {voxel_mm}")));
+    }
+    let key = |p: &Point3| {
+        [
+            (p.x / voxel_mm).floor() as i64,
+            (p.y / voxel_mm).floor() as i64,
+            (p.z / voxel_mm).floor() as i64,
+        ]
+    };
+    let mut order: Vec<([i64; 3], usize)> = points.par_iter().enumerate().map(|(i, p)| (key(p), i)).collect();
+    order.par_sort_unstable();
+    let mut picked = Vec::new();
+    let mut start = 0;
+    while start < order.len() {
+        let mut end = start + 1;
+        while end < order.len() && order[end].0 == order[start].0 {
+            end += 1;
+        }
+        let group = &order[start..end];
+        let centroid: Vector3 = group.iter().map(|&(_, i)| points[i].coords).sum::<Vector3>() / group.len() as f64;
+        let best = group
+            .iter()
+            .map(|&(_, i)| ((points[i].coords - centroid).norm_squared(), i))
+            .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)))
+            .map_or(group[0].1, |b| b.1);
+        picked.push(best);
+        start = end;
+    }
+    picked.sort_unstable();
+    Ok(picked)
+}
+
+/// Where the scanner looked from, in the frame of the cloud it is applied to.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum View {
+    /// A scanner at this point (perspective), mm.
+    From(Point3),
+    /// A scanner infinitely far along this direction (orthographic): it looks along `−dir`.
+    Along(Vector3),
+}
+
+/// The indices of the CAD points whose outward normal faces the scanner:
+/// `n · v ≥ min_cos` with `v` the unit direction to the scanner. Back faces (the far side of a
+/// slab, walls turned away) cannot be in the scan, and matching scan points to them is what
+/// sends the paper's local fits astray. Refuses a CAD cloud without normals.
+pub fn facing_indices(cad: &PointCloud, view: View, min_cos: f64) -> Result<Vec<usize>> {
+    let normals = cad.normals().ok_or(RegisterError::MissingNormals {
+        which: "CAD",
+        method: "visibility culling",
+    })?;
+    Ok(cad
+        .points()
+        .par_iter()
+        .zip(normals.par_iter())
+        .enumerate()
+        .filter_map(|(i, (p, n))| {
+            let v = match view {
+                View::From(eye) => eye - p,
+                View::Along(d) => d,
+            };
+            let norm = v.norm();
+            (norm > 0.0 && n.dot(&v) / norm >= min_cos).then_some(i)
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn picks_one_point_per_voxel_on_the_surface() {
+        let pts: Vec<Point3> = (0..1000).map(|i| Point3::new(f64::from(i) * 0.01, 0.0, 0.0)).collect();
+        let idx = voxel_pick(&pts, 1.0).unwrap();
+        assert_eq!(idx.len(), 10);
+        // Every picked point is an input point near a voxel centre.
+        for (k, &i) in idx.iter().enumerate() {
+            assert!((pts[i].x - (k as f64 + 0.495)).abs() < 0.011, "{}", pts[i].x);
+        }
+        assert!(voxel_pick(&pts, 0.0).is_err());
+    }
+
+    #[test]
+    fn culls_back_faces() {
+        let cad = PointCloud::with_normals(
+            vec![Point3::origin(), Point3::origin(), Point3::origin()],
+            vec![Vector3::z(), -Vector3::z(), Vector3::x()],
+        )
+        .unwrap();
+        let up = facing_indices(&cad, View::Along(Vector3::z()), -0.1).unwrap();
+        assert_eq!(up, vec![0, 2]);
+        let eye = facing_indices(&cad, View::From(Point3::new(0.0, 0.0, -10.0)), 0.5).unwrap();
+        assert_eq!(eye, vec![1]);
+    }
+}
+
+/// Voxel centroids of the voxels holding at least `min_count` points (deterministic, in voxel
+/// order). Isolated outliers sit alone in their voxels and drop out, which plain centroid
+/// down-sampling would keep (at coarse voxels they can outnumber the surface).
+pub fn dense_voxel_centroids(points: &[Point3], voxel_mm: f64, min_count: usize) -> Result<Vec<Point3>> {
+    if !(voxel_mm.is_finite() && voxel_mm > 0.0) {
+        return Err(RegisterError::setting("voxel_mm", format!("must be finite and > 0, got {voxel_mm}")));
+    }
+    let mut keyed: Vec<([i64; 3], usize)> = points
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            (
+                [
+                    (p.x / voxel_mm).floor() as i64,
+                    (p.y / voxel_mm).floor() as i64,
+                    (p.z / voxel_mm).floor() as i64,
+                ],
+                i,
+            )
+        })
+        .collect();
+    keyed.par_sort_unstable();
+    let mut out = Vec::new();
+    let mut start = 0;
+    while start < keyed.len() {
+        let mut end = start + 1;
+        while end < keyed.len() && keyed[end].0 == keyed[start].0 {
+            end += 1;
+        }
+        if end - start >= min_count {
+            let sum: Vector3 = keyed[start..end].iter().map(|&(_, i)| points[i].coords).sum();
+            out.push(Point3::from(sum / (end - start) as f64));
+        }
+        start = end;
+    }
+    Ok(out)
+}
