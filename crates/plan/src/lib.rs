@@ -9,6 +9,7 @@
 //! - [`kinematics`]: machine poses (LinuxCNC xyzac-trt, xyzbc-trt, fixed head).
 //! - [`order`]: zone ordering (nearest neighbour + 2-opt).
 //! - [`planner`]: [`plan`], validation and the time estimate.
+//! - [`svg`]: SVG plots of a job.
 //! - [`testing`]: a synthetic ceramic-core-like path.
 //! - [`job`]: the Job model, the planner's output.
 //! - [`error`]: the error type, [`PlanError`].
@@ -22,6 +23,7 @@ pub mod kinematics;
 pub mod layer;
 pub mod order;
 pub mod piece;
+pub mod svg;
 pub mod planner;
 pub mod testing;
 pub mod zoning;
