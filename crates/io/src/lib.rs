@@ -11,13 +11,13 @@
 //! Device calls return `Result<Result<T, Fault>, Error>`: the outer error is the transport (link,
 //! timeout, garbled bytes), the inner one the device's own refusal or fault.
 
-// pub mod cell;
+pub mod cell;
 pub mod cnc;
-// pub mod executor;
+pub mod executor;
 pub mod fault;
 pub mod galvo;
-// pub mod journal;
+pub mod journal;
 pub mod laser;
-// pub mod record;
+pub mod record;
 pub mod safety;
 pub mod tap;

@@ -74,6 +74,9 @@ pub struct LinuxCnc {
     tap: Tap,
     commanded: Option<Pose>,
     broken: Option<String>,
+    addr: SocketAddr,
+    /// An exchange was started and not finished (its future was dropped, e.g. on cancel).
+    in_flight: bool,
 }
 
 /// Splits complete lines off `buf` on any run of CR/LF.
@@ -157,6 +160,8 @@ impl LinuxCnc {
             tap,
             commanded: None,
             broken: None,
+            addr,
+            in_flight: false,
         };
         let hello = format!("hello {} trimctl 1.0", c.config.connect_password);
         let r = c.exchange(&hello, None).await?;
@@ -234,9 +239,18 @@ impl LinuxCnc {
                 reason: format!("link already lost: {reason}"),
             });
         }
+        if self.in_flight {
+            // A dropped exchange left a reply on its way: the session is out of step.
+            self.broken = Some("an earlier command was abandoned mid-reply".into());
+            return Err(CncError::LinkLost {
+                command: command.to_owned(),
+                reason: "an earlier command was abandoned mid-reply".into(),
+            });
+        }
         let timeout = timeout.unwrap_or(self.config.reply_timeout);
         let deadline = tokio::time::Instant::now() + timeout;
         self.lines.clear();
+        self.in_flight = true;
         self.tap.record(Device::Cnc, Direction::Command, || command.to_owned());
         let mut line = command.as_bytes().to_vec();
         line.extend_from_slice(b"\r\n");
@@ -251,6 +265,7 @@ impl LinuxCnc {
                 timeout_ms: 0,
             }),
         };
+        self.in_flight = false;
         match result {
             Ok(reply) => {
                 self.tap.record(Device::Cnc, Direction::Reply, || reply.clone());
@@ -422,6 +437,22 @@ impl LinuxCnc {
     }
 }
 
+impl LinuxCnc {
+    /// Sends a stop command on this session, or, when the session is busy (a `set wait done`
+    /// abandoned mid-reply: linuxcncrsh would only read the stop after the wait) or broken, on a
+    /// fresh session.
+    async fn stop_command(&mut self, command: &str) -> CncResult<()> {
+        if self.in_flight || self.broken.is_some() {
+            let mut fresh = match LinuxCnc::connect(self.addr, self.config.clone(), self.tap.clone()).await? {
+                Ok(c) => c,
+                Err(f) => return Ok(Err(f)),
+            };
+            return fresh.set(command, None).await;
+        }
+        self.set(command, None).await
+    }
+}
+
 impl Cnc for LinuxCnc {
     fn enable(&mut self) -> BoxFuture<'_, CncResult<()>> {
         Box::pin(self.do_enable())
@@ -447,11 +478,11 @@ impl Cnc for LinuxCnc {
     }
 
     fn abort(&mut self) -> BoxFuture<'_, CncResult<()>> {
-        Box::pin(self.set("set abort", None))
+        Box::pin(self.stop_command("set abort"))
     }
 
     fn estop(&mut self) -> BoxFuture<'_, CncResult<()>> {
-        Box::pin(self.set("set estop on", None))
+        Box::pin(self.stop_command("set estop on"))
     }
 
     fn errors(&mut self) -> BoxFuture<'_, CncResult<Vec<String>>> {

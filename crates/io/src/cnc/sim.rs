@@ -196,7 +196,8 @@ async fn serve(mut stream: TcpStream, shared: Arc<Shared>) {
         };
         buf.0.extend_from_slice(&chunk[..n]);
         while let Some(line) = buf.next_line() {
-            if session.echo {
+            // linuxcncrsh echoes lines only once linked (after `hello`), while echo is on.
+            if session.echo && session.hello {
                 let _ = stream.write_all(format!("{line}\r\n").as_bytes()).await;
             }
             let key = fault_key(&line);

@@ -1,0 +1,265 @@
+//! The cell: galvo, laser and CNC clients together ([`Cell`]), their addresses and timeouts,
+//! and [`SimCell`], the three simulators started in-process on loopback and a pty.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use crate::cnc::Cnc;
+use crate::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
+use crate::cnc::sim::{CncSim, CncSimConfig};
+use crate::fault::{Fault, FaultSwitch};
+use crate::galvo::{GalvoClient, GalvoClientConfig, GalvoSim, GalvoSimConfig};
+use crate::laser::{LaserClient, LaserSim, Profile};
+use crate::safety::SafetyMonitor;
+use crate::tap::Tap;
+
+/// Default galvo reply timeout (ms).
+pub const GALVO_REPLY_TIMEOUT_MS: u64 = crate::galvo::client::REPLY_TIMEOUT_MS;
+/// Default laser reply timeout (ms).
+pub const LASER_REPLY_TIMEOUT_MS: u64 = crate::laser::client::REPLY_TIMEOUT_MS;
+/// Default CNC reply timeout (ms).
+pub const CNC_REPLY_TIMEOUT_MS: u64 = crate::cnc::linuxcnc::REPLY_TIMEOUT_MS;
+/// Default timeout of one CNC move until in position (s).
+pub const CNC_MOTION_TIMEOUT_S: u64 = 120;
+/// A list may take this many times its modelled time before it counts as stalled.
+pub const LIST_TIME_FACTOR: f64 = 3.0;
+/// Plus this margin (ms).
+pub const LIST_TIME_MARGIN_MS: u64 = 2000;
+/// Timeout of each laser-off / galvo-stop / motion-stop command on the way down (ms): short,
+/// because the link may be the thing that failed.
+pub const SHUTDOWN_STEP_TIMEOUT_MS: u64 = 500;
+
+/// Every timeout of a run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Timeouts {
+    /// One galvo reply.
+    pub galvo_reply: Duration,
+    /// Galvo resends after a reply timeout.
+    pub galvo_resends: u32,
+    /// The heartbeat timeout asked of the galvo controller (ms).
+    pub galvo_heartbeat_ms: u32,
+    /// One laser reply.
+    pub laser_reply: Duration,
+    /// One CNC reply (commands that do not wait for motion).
+    pub cnc_reply: Duration,
+    /// One CNC move until in position.
+    pub cnc_motion: Duration,
+    /// A list's timeout: modelled time × this factor ...
+    pub list_time_factor: f64,
+    /// ... plus this margin.
+    pub list_time_margin: Duration,
+    /// Each step of the way down (laser off, galvo stop, motion stop).
+    pub shutdown_step: Duration,
+}
+
+impl Default for Timeouts {
+    fn default() -> Self {
+        Timeouts {
+            galvo_reply: Duration::from_millis(GALVO_REPLY_TIMEOUT_MS),
+            galvo_resends: crate::galvo::client::RESENDS,
+            galvo_heartbeat_ms: crate::galvo::client::HEARTBEAT_TIMEOUT_MS,
+            laser_reply: Duration::from_millis(LASER_REPLY_TIMEOUT_MS),
+            cnc_reply: Duration::from_millis(CNC_REPLY_TIMEOUT_MS),
+            cnc_motion: Duration::from_secs(CNC_MOTION_TIMEOUT_S),
+            list_time_factor: LIST_TIME_FACTOR,
+            list_time_margin: Duration::from_millis(LIST_TIME_MARGIN_MS),
+            shutdown_step: Duration::from_millis(SHUTDOWN_STEP_TIMEOUT_MS),
+        }
+    }
+}
+
+/// Where the devices are.
+#[derive(Debug, Clone)]
+pub struct CellAddresses {
+    /// The galvo controller (TCP).
+    pub galvo: SocketAddr,
+    /// The laser's serial device node.
+    pub laser_path: PathBuf,
+    /// The laser's command profile.
+    pub laser_profile: Profile,
+    /// The CNC's linuxcncrsh (TCP).
+    pub cnc: SocketAddr,
+}
+
+/// The three devices, connected.
+pub struct Cell {
+    /// The galvo client.
+    pub galvo: GalvoClient,
+    /// The laser client.
+    pub laser: LaserClient,
+    /// The CNC.
+    pub cnc: Box<dyn Cnc>,
+}
+
+/// A device that could not be reached.
+#[derive(Debug, thiserror::Error)]
+pub enum CellError {
+    /// The galvo.
+    #[error("{0}")]
+    Galvo(String),
+    /// The laser.
+    #[error("{0}")]
+    Laser(String),
+    /// The CNC.
+    #[error("{0}")]
+    Cnc(String),
+}
+
+impl Cell {
+    /// Connects to the three devices (galvo session with heartbeat, laser port, LinuxCNC session).
+    pub async fn connect(addrs: &CellAddresses, timeouts: &Timeouts, tap: Tap) -> Result<Cell, CellError> {
+        let galvo = GalvoClient::connect(
+            addrs.galvo,
+            GalvoClientConfig {
+                reply_timeout: timeouts.galvo_reply,
+                resends: timeouts.galvo_resends,
+                heartbeat_timeout_ms: timeouts.galvo_heartbeat_ms,
+                ..GalvoClientConfig::default()
+            },
+            tap.clone(),
+        )
+        .await
+        .map_err(|e| CellError::Galvo(e.to_string()))?
+        .map_err(|f| CellError::Galvo(f.to_string()))?;
+        let laser = LaserClient::open(
+            &addrs.laser_path.to_string_lossy(),
+            addrs.laser_profile.clone(),
+            timeouts.laser_reply,
+            tap.clone(),
+        )
+        .map_err(|e| CellError::Laser(e.to_string()))?;
+        let cnc = LinuxCnc::connect(
+            addrs.cnc,
+            LinuxCncConfig {
+                reply_timeout: timeouts.cnc_reply,
+                ..LinuxCncConfig::default()
+            },
+            tap,
+        )
+        .await
+        .map_err(|e| CellError::Cnc(e.to_string()))?
+        .map_err(|f| CellError::Cnc(f.to_string()))?;
+        Ok(Cell {
+            galvo,
+            laser,
+            cnc: Box::new(cnc),
+        })
+    }
+}
+
+/// Faults to arm in each simulator.
+#[derive(Debug, Clone, Default)]
+pub struct SimFaults {
+    /// Galvo faults.
+    pub galvo: Vec<Fault>,
+    /// Laser faults.
+    pub laser: Vec<Fault>,
+    /// CNC faults.
+    pub cnc: Vec<Fault>,
+}
+
+/// Simulator settings.
+#[derive(Debug, Clone)]
+pub struct SimOptions {
+    /// The laser profile the laser simulator speaks.
+    pub laser_profile: Profile,
+    /// Galvo: real seconds per modelled second.
+    pub galvo_time_scale: f64,
+    /// CNC: real seconds per simulated second.
+    pub cnc_time_scale: f64,
+    /// Faults to arm.
+    pub faults: SimFaults,
+}
+
+impl SimOptions {
+    /// Real-time simulators with the given laser profile and no faults.
+    #[must_use]
+    pub fn new(laser_profile: Profile) -> SimOptions {
+        SimOptions {
+            laser_profile,
+            galvo_time_scale: 1.0,
+            cnc_time_scale: 1.0,
+            faults: SimFaults::default(),
+        }
+    }
+}
+
+/// The three simulators, sharing one [`SafetyMonitor`].
+pub struct SimCell {
+    /// The galvo simulator (loopback TCP).
+    pub galvo: GalvoSim,
+    /// The laser simulator (pty).
+    pub laser: LaserSim,
+    /// The CNC simulator (loopback TCP, linuxcncrsh protocol).
+    pub cnc: CncSim,
+    /// The cell's event log and interlock checks.
+    pub monitor: SafetyMonitor,
+    profile: Profile,
+}
+
+/// A simulator that could not start.
+#[derive(Debug, thiserror::Error)]
+#[error("simulator: {0}")]
+pub struct SimError(pub String);
+
+impl SimCell {
+    /// Starts the three simulators on 127.0.0.1 (free ports) and a pty.
+    pub async fn start(options: SimOptions) -> Result<SimCell, SimError> {
+        let monitor = SafetyMonitor::new();
+        let lo: SocketAddr = ([127, 0, 0, 1], 0).into();
+        let galvo = GalvoSim::start(
+            lo,
+            GalvoSimConfig {
+                time_scale: options.galvo_time_scale,
+                ..GalvoSimConfig::default()
+            },
+            monitor.clone(),
+            FaultSwitch::new(options.faults.galvo),
+        )
+        .await
+        .map_err(|e| SimError(format!("galvo: {e}")))?;
+        let laser = LaserSim::start(
+            options.laser_profile.clone(),
+            monitor.clone(),
+            FaultSwitch::new(options.faults.laser),
+        )
+        .map_err(|e| SimError(e.to_string()))?;
+        let cnc = CncSim::start(
+            lo,
+            CncSimConfig {
+                time_scale: options.cnc_time_scale,
+                ..CncSimConfig::default()
+            },
+            monitor.clone(),
+            FaultSwitch::new(options.faults.cnc),
+        )
+        .await
+        .map_err(|e| SimError(format!("cnc: {e}")))?;
+        Ok(SimCell {
+            galvo,
+            laser,
+            cnc,
+            monitor,
+            profile: options.laser_profile,
+        })
+    }
+
+    /// The simulators' addresses (the laser's pty node and profile included).
+    #[must_use]
+    pub fn addresses(&self) -> CellAddresses {
+        CellAddresses {
+            galvo: self.galvo.addr(),
+            laser_path: self.laser.path().to_owned(),
+            laser_profile: self.profile.clone(),
+            cnc: self.cnc.addr(),
+        }
+    }
+
+    /// Disarms every fault and releases stalls and dropped links.
+    pub fn clear_faults(&self) {
+        self.galvo.faults().clear();
+        self.laser.faults().clear();
+        self.cnc.faults().clear();
+    }
+}

@@ -1,0 +1,696 @@
+//! The executor: a state machine over the Job (DESIGN.md "Execution and devices", paper §3).
+//!
+//! Per layer, in job order: [`Phase::Move`] → [`Phase::WaitInPosition`] → [`Phase::LoadList`]
+//! → [`Phase::EnableEmission`] → [`Phase::Execute`] → [`Phase::WaitDone`] → [`Phase::GateOff`]
+//! → [`Phase::Journal`]. Interlocks:
+//! - emission is enabled only after the CNC is in position and the list is loaded, and disabled
+//!   before the next move, so the laser never emits while the CNC moves; the galvo gate opens
+//!   only while its list marks;
+//! - every device await has a timeout ([`Timeouts`]), and a cancel (Ctrl-C) is honoured at every
+//!   await;
+//! - on any fault, timeout, lost link, bad reply or cancel: **laser off first** (the serial
+//!   emission-off command and the galvo laser signals off, together), **then** the galvo list is
+//!   stopped, **then** motion is stopped; then the layer is journaled as cut, with how far it got;
+//! - a finished layer is journaled (fsync) before the next begins; [`Executor::resume`] continues
+//!   at the first unfinished layer, from the first vector the galvo did not mark.
+
+use std::collections::BTreeSet;
+use std::future::Future;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use tokio::sync::mpsc::UnboundedSender;
+use tokio_util::sync::CancellationToken;
+use trim_plan::job::{Job, LayerKey};
+
+use crate::cell::{Cell, Timeouts};
+use crate::galvo::list::{layer_list, vector_count};
+use crate::galvo::protocol::{ControllerState, NO_LIST, StatusBlock};
+use crate::galvo::timing::{list_time_s, polylines_time_s};
+use crate::journal::{Entry, Journal, JournalError, JournalState};
+use crate::record::{LogLevel, SharedRecorder};
+use crate::tap::{Device, now_ns};
+
+/// How often the galvo status is polled while a list runs (ms).
+pub const STATUS_POLL_MS: u64 = 10;
+/// How often the laser's faults are checked while a list runs (ms); also once right after
+/// `EXECUTE`.
+pub const LASER_POLL_MS: u64 = 250;
+
+/// The steps of a layer (and the run's preparation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize)]
+pub enum Phase {
+    /// Before the first layer: reset the galvo, laser off and checked, CNC enabled.
+    Prepare,
+    /// CNC move to the layer's pose.
+    Move,
+    /// Wait until the CNC is in position.
+    WaitInPosition,
+    /// Load the layer's list into a galvo list buffer.
+    LoadList,
+    /// Laser emission on.
+    EnableEmission,
+    /// Start the list.
+    Execute,
+    /// Wait until the list is done.
+    WaitDone,
+    /// Laser emission off.
+    GateOff,
+    /// Journal the finished layer.
+    Journal,
+}
+
+impl Phase {
+    /// The phases of one layer, in order.
+    pub const LAYER: [Phase; 8] = [
+        Phase::Move,
+        Phase::WaitInPosition,
+        Phase::LoadList,
+        Phase::EnableEmission,
+        Phase::Execute,
+        Phase::WaitDone,
+        Phase::GateOff,
+        Phase::Journal,
+    ];
+}
+
+/// Progress events for a progress display.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub enum Progress {
+    /// The run starts.
+    Started {
+        /// Layers in the job.
+        layers: usize,
+        /// Layers already finished (resume).
+        finished_before: usize,
+        /// Vectors in the job.
+        vectors: u64,
+    },
+    /// A layer enters a phase.
+    Phase {
+        /// The layer.
+        key: LayerKey,
+        /// Its position in the job (0-based).
+        index: usize,
+        /// The phase.
+        phase: Phase,
+    },
+    /// Vectors of the running layer marked so far.
+    Vectors {
+        /// The layer.
+        key: LayerKey,
+        /// Marked.
+        done: u32,
+        /// In the layer.
+        total: u32,
+    },
+    /// A layer is finished and journaled.
+    LayerDone {
+        /// The layer.
+        key: LayerKey,
+        /// Its position in the job.
+        index: usize,
+    },
+    /// A layer was finished in an earlier run (resume).
+    LayerSkipped {
+        /// The layer.
+        key: LayerKey,
+    },
+}
+
+/// Why a run stopped.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub enum StopCause {
+    /// Cancelled by the operator.
+    Cancelled,
+    /// A device's link failed (timeout, lost link, garbled or unexpected reply).
+    Link {
+        /// The device.
+        device: Device,
+        /// What happened.
+        message: String,
+    },
+    /// A device refused or reported a fault.
+    Fault {
+        /// The device.
+        device: Device,
+        /// What happened.
+        message: String,
+    },
+}
+
+impl std::fmt::Display for StopCause {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StopCause::Cancelled => f.write_str("cancelled"),
+            StopCause::Link { device, message } => write!(f, "{device} link: {message}"),
+            StopCause::Fault { device, message } => write!(f, "{device} fault: {message}"),
+        }
+    }
+}
+
+/// What the way down did, in order, and how long the laser-off took (host view).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ShutdownReport {
+    /// The serial emission-off was acknowledged.
+    pub laser_off_ok: bool,
+    /// The galvo laser signals off was acknowledged.
+    pub galvo_signals_off_ok: bool,
+    /// The galvo stop was acknowledged.
+    pub galvo_stop_ok: bool,
+    /// The CNC abort was acknowledged.
+    pub cnc_abort_ok: bool,
+    /// From the fault's detection to both laser-off commands answered or timed out (s).
+    pub laser_off_s: f64,
+    /// From detection to the end of the way down (s).
+    pub total_s: f64,
+}
+
+/// A run that stopped before the end.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Stopped {
+    /// Why.
+    pub cause: StopCause,
+    /// The layer it stopped in (`None`: during preparation).
+    pub key: Option<LayerKey>,
+    /// The phase it stopped in.
+    pub phase: Phase,
+    /// Vectors of that layer marked, when known.
+    pub vectors_done: Option<u32>,
+    /// Vectors in that layer.
+    pub vectors: u32,
+    /// Layers finished (this run and before).
+    pub layers_finished: usize,
+    /// The way down.
+    pub shutdown: ShutdownReport,
+    /// When the fault was detected.
+    #[serde(skip)]
+    pub detected_at: Option<Instant>,
+}
+
+/// A run that did not finish.
+#[derive(Debug, thiserror::Error)]
+pub enum ExecError {
+    /// Stopped by a fault or a cancel; the laser is off, the layer journaled as cut.
+    #[error("run stopped in {} ({phase:?}): {cause}; {done} of {total} vectors of the layer marked", .0.key.map_or("preparation".to_owned(), |k| k.to_string()), phase = .0.phase, cause = .0.cause, done = .0.vectors_done.map_or("unknown".to_owned(), |v| v.to_string()), total = .0.vectors)]
+    Stopped(Box<Stopped>),
+    /// The journal.
+    #[error(transparent)]
+    Journal(#[from] JournalError),
+    /// The job cannot be sent to the galvo.
+    #[error("job: {0}")]
+    Job(String),
+    /// Resume cannot tell how far the cut layer got.
+    #[error("resume: cannot tell how far {key} got: {reason}")]
+    ResumeUnknown {
+        /// The layer.
+        key: LayerKey,
+        /// Why.
+        reason: String,
+    },
+}
+
+/// One layer's timing (wall clock, s).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct LayerTiming {
+    /// The layer.
+    pub key: LayerKey,
+    /// Move and wait in position.
+    pub motion_s: f64,
+    /// From `EXECUTE` to done seen.
+    pub list_s: f64,
+    /// The galvo's modelled time of the list.
+    pub modelled_s: f64,
+    /// The whole layer.
+    pub total_s: f64,
+    /// `total − motion − list`: the executor's own per-layer overhead (load, emission on/off,
+    /// journal, polling granularity).
+    pub overhead_s: f64,
+}
+
+/// A finished run.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RunSummary {
+    /// Layers in the job.
+    pub layers_total: usize,
+    /// Layers marked in this run.
+    pub layers_marked: usize,
+    /// Layers skipped as finished before (resume).
+    pub layers_skipped: usize,
+    /// Vectors marked in this run.
+    pub vectors_marked: u64,
+    /// The cut layer this run continued, and the vector it continued from.
+    pub resumed_from: Option<(LayerKey, u32)>,
+    /// Wall time (s).
+    pub wall_s: f64,
+    /// The galvo's modelled time of this run's lists (s).
+    pub galvo_modelled_s: f64,
+    /// The timing model's estimate for the layers marked whole in this run (s).
+    pub galvo_estimate_s: f64,
+    /// Per layer.
+    pub layers: Vec<LayerTiming>,
+}
+
+/// Executor settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ExecOptions {
+    /// Timeouts.
+    pub timeouts: Timeouts,
+    /// Laser power to set before the first layer (%), if any.
+    pub laser_power_pct: Option<f64>,
+}
+
+impl Default for ExecOptions {
+    fn default() -> Self {
+        ExecOptions {
+            timeouts: Timeouts::default(),
+            laser_power_pct: None,
+        }
+    }
+}
+
+/// Runs a Job on a Cell.
+pub struct Executor {
+    job: Job,
+    cell: Cell,
+    journal_path: PathBuf,
+    recorder: Option<SharedRecorder>,
+    options: ExecOptions,
+    progress: Option<UnboundedSender<Progress>>,
+    cancel: CancellationToken,
+}
+
+type Step<T> = Result<T, StopCause>;
+
+impl Executor {
+    /// An executor for `job` on `cell`, journaling to `journal_path`, recording to `recorder`.
+    #[must_use]
+    pub fn new(job: Job, cell: Cell, journal_path: impl Into<PathBuf>, recorder: Option<SharedRecorder>) -> Executor {
+        Executor {
+            job,
+            cell,
+            journal_path: journal_path.into(),
+            recorder,
+            options: ExecOptions::default(),
+            progress: None,
+            cancel: CancellationToken::new(),
+        }
+    }
+
+    /// Replaces the options.
+    #[must_use]
+    pub fn with_options(mut self, options: ExecOptions) -> Executor {
+        self.options = options;
+        self
+    }
+
+    /// Runs the job from the start (the journal must not exist).
+    pub async fn run(mut self, cancel: CancellationToken, progress: Option<UnboundedSender<Progress>>) -> Result<RunSummary, ExecError> {
+        self.cancel = cancel;
+        self.progress = progress;
+        self.check_job()?;
+        let journal = Journal::create(&self.journal_path, &self.job)?;
+        self.execute(journal, JournalState::default()).await
+    }
+
+    /// Continues a stopped run: skips finished layers, continues the cut layer from the first
+    /// vector not marked, never marks a vector twice.
+    pub async fn resume(mut self, cancel: CancellationToken, progress: Option<UnboundedSender<Progress>>) -> Result<RunSummary, ExecError> {
+        self.cancel = cancel;
+        self.progress = progress;
+        self.check_job()?;
+        let (journal, state) = Journal::resume(&self.journal_path, &self.job)?;
+        self.execute(journal, state).await
+    }
+
+    fn check_job(&self) -> Result<(), ExecError> {
+        for (key, _, layer) in self.job.layers() {
+            layer_list(layer, &self.job.settings.galvo, 0).map_err(|e| ExecError::Job(format!("{key}: {e}")))?;
+        }
+        Ok(())
+    }
+
+    fn emit(&self, p: Progress) {
+        if let Some(tx) = &self.progress {
+            let _ = tx.send(p);
+        }
+    }
+
+    fn log(&self, level: LogLevel, message: &str) {
+        if let Some(r) = &self.recorder {
+            let mut r = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            if let Err(e) = r.log(now_ns(), level, message) {
+                tracing::warn!(error = %e, "record: log lost");
+            }
+        }
+    }
+
+    fn record_layer(&self, key: LayerKey, state: &str, done: u32, total: u32, flush: bool) {
+        if let Some(r) = &self.recorder {
+            let mut r = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            let res = r.layer(now_ns(), key, state, done, total, &self.job);
+            let res = res.and_then(|()| if flush { r.flush() } else { Ok(()) });
+            if let Err(e) = res {
+                tracing::warn!(error = %e, "record: layer message lost");
+            }
+        }
+    }
+
+    /// Awaits a device call with a timeout and the cancel token; maps both error layers.
+    async fn guard<T, E1: std::fmt::Display, E2: std::fmt::Display>(
+        cancel: &CancellationToken,
+        timeout: Duration,
+        device: Device,
+        what: &str,
+        fut: impl Future<Output = Result<Result<T, E2>, E1>>,
+    ) -> Step<T> {
+        tokio::select! {
+            biased;
+            () = cancel.cancelled() => Err(StopCause::Cancelled),
+            r = tokio::time::timeout(timeout, fut) => match r {
+                Err(_) => Err(StopCause::Link { device, message: format!("{what}: no answer within {} ms", timeout.as_millis()) }),
+                Ok(Err(e)) => Err(StopCause::Link { device, message: e.to_string() }),
+                Ok(Ok(Err(f))) => Err(StopCause::Fault { device, message: f.to_string() }),
+                Ok(Ok(Ok(v))) => Ok(v),
+            }
+        }
+    }
+
+    /// A timeout for a galvo request: every attempt's reply timeout plus slack.
+    fn galvo_timeout(&self) -> Duration {
+        let t = &self.options.timeouts;
+        t.galvo_reply * (t.galvo_resends + 1) + Duration::from_millis(100)
+    }
+
+    async fn galvo_status(&self) -> Step<StatusBlock> {
+        Self::guard(&self.cancel, self.galvo_timeout(), Device::Galvo, "STATUS", self.cell.galvo.status()).await
+    }
+
+    async fn prepare(&mut self) -> Step<()> {
+        let (c, gt, lt) = (self.cancel.clone(), self.galvo_timeout(), self.options.timeouts.laser_reply);
+        Self::guard(&c, lt, Device::Laser, "emission off", self.cell.laser.emission(false)).await?;
+        Self::guard(&c, gt, Device::Galvo, "RESET_ERROR", self.cell.galvo.reset_error()).await?;
+        Self::guard(&c, gt, Device::Galvo, "LASER_SIGNALS on", self.cell.galvo.laser_signals(true)).await?;
+        let queries = self.cell.laser.profile().queries.len().max(1);
+        let lt_all = lt * u32::try_from(queries).unwrap_or(1);
+        Self::guard(&c, lt_all, Device::Laser, "status", self.cell.laser.check()).await?;
+        if let Some(p) = self.options.laser_power_pct {
+            Self::guard(&c, lt, Device::Laser, "set power", self.cell.laser.set_power_pct(p)).await?;
+        }
+        let enable_timeout = self.options.timeouts.cnc_motion;
+        Self::guard(&c, enable_timeout, Device::Cnc, "enable", self.cell.cnc.enable()).await?;
+        Ok(())
+    }
+
+    /// Laser off first (serial and galvo signals together), then galvo stop, then motion stop.
+    async fn shut_down(&mut self) -> ShutdownReport {
+        let t0 = Instant::now();
+        let step = self.options.timeouts.shutdown_step;
+        let cell = &mut self.cell;
+        let (laser, galvo) = tokio::join!(
+            tokio::time::timeout(step, cell.laser.emission(false)),
+            tokio::time::timeout(step, cell.galvo.laser_signals(false)),
+        );
+        let laser_off_s = t0.elapsed().as_secs_f64();
+        let laser_off_ok = matches!(laser, Ok(Ok(Ok(()))));
+        let galvo_signals_off_ok = matches!(galvo, Ok(Ok(Ok(()))));
+        let galvo_stop_ok = matches!(tokio::time::timeout(step, cell.galvo.stop()).await, Ok(Ok(Ok(()))));
+        // A stop on a fresh CNC session may need a connect: allow it the reply timeout too.
+        let cnc_step = step + self.options.timeouts.cnc_reply;
+        let cnc_abort_ok = matches!(tokio::time::timeout(cnc_step, cell.cnc.abort()).await, Ok(Ok(Ok(()))));
+        let report = ShutdownReport {
+            laser_off_ok,
+            galvo_signals_off_ok,
+            galvo_stop_ok,
+            cnc_abort_ok,
+            laser_off_s,
+            total_s: t0.elapsed().as_secs_f64(),
+        };
+        tracing::warn!(?report, "executor: way down");
+        report
+    }
+
+    /// Where the cut layer continues: the first vector the galvo did not mark.
+    async fn resume_point(&self, state: &JournalState) -> Result<Option<(LayerKey, u32)>, ExecError> {
+        let Some(Entry::LayerBegin { key, first_vector, tag, .. }) = &state.open_begin else {
+            return Ok(None);
+        };
+        let cut = match &state.open_cut {
+            Some(Entry::LayerCut { vectors_done, .. }) => *vectors_done,
+            _ => None,
+        };
+        let status = self.galvo_status().await.ok();
+        let done = match status {
+            Some(s) if s.list != NO_LIST && s.tag == *tag => first_vector + s.marks_done,
+            // The controller's last list is an earlier one of this run: this one never ran.
+            Some(s) if s.list != NO_LIST && s.tag >> 16 == tag >> 16 && s.tag < *tag => cut.unwrap_or(*first_vector),
+            _ => match cut {
+                Some(v) => v,
+                None => {
+                    return Err(ExecError::ResumeUnknown {
+                        key: *key,
+                        reason: format!("the galvo does not report list tag {tag} (status {status:?}) and the journal has no count"),
+                    });
+                }
+            },
+        };
+        Ok(Some((*key, done)))
+    }
+
+    #[expect(clippy::too_many_lines, reason = "the state machine reads best as one sequence of phases")]
+    async fn execute(mut self, mut journal: Journal, state: JournalState) -> Result<RunSummary, ExecError> {
+        let started = Instant::now();
+        let total_layers = self.job.layers().count();
+        let vectors_total: u64 = self.job.layers().map(|(_, _, l)| u64::from(vector_count(l))).sum();
+        let finished: BTreeSet<LayerKey> = state.finished.clone();
+        self.emit(Progress::Started {
+            layers: total_layers,
+            finished_before: finished.len(),
+            vectors: vectors_total,
+        });
+        if let Some(r) = &self.recorder {
+            let mut r = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            if let Err(e) = r.zone_frames(now_ns(), &self.job) {
+                tracing::warn!(error = %e, "record: zone frames lost");
+            }
+        }
+        self.log(LogLevel::Info, &format!("run starts: {total_layers} layers, {} finished before", finished.len()));
+
+        if let Err(cause) = self.prepare().await {
+            return Err(self.stop(&mut journal, cause, None, Phase::Prepare, None, 0, finished.len()).await);
+        }
+        let resumed_from = self.resume_point(&state).await?;
+        let elapsed0 = self.galvo_status().await.map(|s| s.elapsed_ns).unwrap_or(0);
+        let mut summary = RunSummary {
+            layers_total: total_layers,
+            layers_marked: 0,
+            layers_skipped: 0,
+            vectors_marked: 0,
+            resumed_from,
+            wall_s: 0.0,
+            galvo_modelled_s: 0.0,
+            galvo_estimate_s: 0.0,
+            layers: Vec::new(),
+        };
+        let mut finished_count = finished.len();
+        let mut list_buf = 0_u8;
+        let layers: Vec<(usize, LayerKey)> = self.job.layers().enumerate().map(|(i, (k, _, _))| (i, k)).collect();
+        for (index, key) in layers {
+            let (pose, layer) = {
+                let (_, _, l) = self.job.layers().nth(index).unwrap_or_else(|| unreachable!("index from the same iterator"));
+                (l.pose.clone(), l.clone())
+            };
+            let n = vector_count(&layer);
+            if finished.contains(&key) {
+                summary.layers_skipped += 1;
+                self.emit(Progress::LayerSkipped { key });
+                self.record_layer(key, "skipped", n, n, false);
+                continue;
+            }
+            let first = match resumed_from {
+                Some((k, v)) if k == key => v.min(n),
+                _ => 0,
+            };
+            let settings = self.job.settings.galvo;
+            let t_layer = Instant::now();
+            if first >= n {
+                // Every vector was marked before the cut: only the journal entry was missing.
+                journal.append(&Entry::LayerDone { key, vectors: n })?;
+                finished_count += 1;
+                summary.layers_marked += 1;
+                self.record_layer(key, "done", n, n, true);
+                self.emit(Progress::LayerDone { key, index });
+                continue;
+            }
+            let c = self.cancel.clone();
+            let t = self.options.timeouts;
+            let phase_of = |p: Phase| Progress::Phase { key, index, phase: p };
+
+            // On failure: how far the layer got, then the way down (see `stop`).
+            macro_rules! step {
+                ($phase:expr, $began:expr, $e:expr) => {
+                    match $e {
+                        Ok(v) => v,
+                        Err(cause) => {
+                            let began: bool = $began;
+                            let done = if began {
+                                self.marked_so_far(first, journal.current_tag()).await
+                            } else if first > 0 {
+                                Some(first)
+                            } else {
+                                None
+                            };
+                            return Err(self.stop(&mut journal, cause, Some(key), $phase, done, n, finished_count).await);
+                        }
+                    }
+                };
+            }
+
+            self.emit(phase_of(Phase::Move));
+            self.record_layer(key, "started", first, n, false);
+            step!(Phase::Move, false, Self::guard(&c, t.cnc_reply, Device::Cnc, "move", self.cell.cnc.start_move(&pose)).await);
+            self.emit(phase_of(Phase::WaitInPosition));
+            step!(Phase::WaitInPosition, false, Self::guard(&c, t.cnc_motion + Duration::from_secs(1), Device::Cnc, "wait in position", self.cell.cnc.wait_in_position(t.cnc_motion)).await);
+            let motion_s = t_layer.elapsed().as_secs_f64();
+
+            self.emit(phase_of(Phase::LoadList));
+            let commands = layer_list(&layer, &settings, first).map_err(|e| ExecError::Job(format!("{key}: {e}")))?;
+            let modelled_list_s = list_time_s(&commands);
+            let tag = journal.next_tag();
+            journal.append(&Entry::LayerBegin { key, first_vector: first, vectors: n, tag })?;
+            let frames = u32::try_from(commands.len().div_ceil(crate::galvo::client::COMMANDS_PER_FRAME)).unwrap_or(u32::MAX).max(1);
+            step!(Phase::LoadList, true, Self::guard(&c, self.galvo_timeout() * frames, Device::Galvo, "LOAD_LIST", self.cell.galvo.load_list(list_buf, tag, &commands)).await);
+
+            self.emit(phase_of(Phase::EnableEmission));
+            step!(Phase::EnableEmission, true, Self::guard(&c, t.laser_reply, Device::Laser, "emission on", self.cell.laser.emission(true)).await);
+
+            self.emit(phase_of(Phase::Execute));
+            let t_exec = Instant::now();
+            step!(Phase::Execute, true, Self::guard(&c, self.galvo_timeout(), Device::Galvo, "EXECUTE", self.cell.galvo.execute(list_buf)).await);
+
+            self.emit(phase_of(Phase::WaitDone));
+            let deadline = t_exec + Duration::from_secs_f64(modelled_list_s * t.list_time_factor) + t.list_time_margin;
+            let mut last_laser_check: Option<Instant> = None;
+            let expected_marks = n - first;
+            let done_status = loop {
+                if last_laser_check.is_none_or(|l| l.elapsed() >= Duration::from_millis(LASER_POLL_MS)) {
+                    let queries = u32::try_from(self.cell.laser.profile().queries.len().max(1)).unwrap_or(1);
+                    step!(Phase::WaitDone, true, Self::guard(&c, t.laser_reply * queries, Device::Laser, "status", self.cell.laser.check()).await);
+                    last_laser_check = Some(Instant::now());
+                }
+                let s = step!(Phase::WaitDone, true, self.galvo_status().await);
+                let lost = |m: String| StopCause::Fault { device: Device::Galvo, message: m };
+                if s.tag != tag || s.list != list_buf {
+                    step!(Phase::WaitDone, true, Err::<(), _>(lost(format!("the galvo reports list {} tag {}, not list {list_buf} tag {tag}", s.list, s.tag))));
+                }
+                self.emit(Progress::Vectors { key, done: first + s.marks_done, total: n });
+                match s.state {
+                    ControllerState::Executing => {}
+                    ControllerState::Idle => break s,
+                    other => {
+                        step!(Phase::WaitDone, true, Err::<(), _>(lost(format!("the galvo stopped the list: {other:?}, error code {}", s.last_error))));
+                    }
+                }
+                if Instant::now() > deadline {
+                    step!(Phase::WaitDone, true, Err::<(), _>(StopCause::Link { device: Device::Galvo, message: format!("list not done within {:.3} s", (deadline - t_exec).as_secs_f64()) }));
+                }
+                tokio::select! {
+                    () = c.cancelled() => { step!(Phase::WaitDone, true, Err::<(), _>(StopCause::Cancelled)); }
+                    () = tokio::time::sleep(Duration::from_millis(STATUS_POLL_MS)) => {}
+                }
+            };
+            let list_s = t_exec.elapsed().as_secs_f64();
+            if done_status.marks_done != expected_marks || done_status.commands_done as usize != commands.len() {
+                step!(Phase::WaitDone, true, Err::<(), _>(StopCause::Fault {
+                    device: Device::Galvo,
+                    message: format!("list ended with {} of {expected_marks} vectors marked with light ({} of {} commands)", done_status.marks_done, done_status.commands_done, commands.len()),
+                }));
+            }
+
+            self.emit(phase_of(Phase::GateOff));
+            step!(Phase::GateOff, true, Self::guard(&c, t.laser_reply, Device::Laser, "emission off", self.cell.laser.emission(false)).await);
+
+            self.emit(phase_of(Phase::Journal));
+            journal.append(&Entry::LayerDone { key, vectors: n })?;
+            finished_count += 1;
+            summary.layers_marked += 1;
+            summary.vectors_marked += u64::from(expected_marks);
+            if first == 0 {
+                let (m, j) = polylines_time_s(&layer.polylines, &settings);
+                summary.galvo_estimate_s += m + j;
+            }
+            self.record_layer(key, "done", n, n, true);
+            self.emit(Progress::LayerDone { key, index });
+            let total_s = t_layer.elapsed().as_secs_f64();
+            summary.layers.push(LayerTiming {
+                key,
+                motion_s,
+                list_s,
+                modelled_s: modelled_list_s,
+                total_s,
+                overhead_s: total_s - motion_s - list_s,
+            });
+            list_buf ^= 1;
+        }
+        let elapsed1 = self.galvo_status().await.map(|s| s.elapsed_ns).unwrap_or(elapsed0);
+        summary.galvo_modelled_s = elapsed1.saturating_sub(elapsed0) as f64 * 1e-9;
+        let (c, gt) = (self.cancel.clone(), self.galvo_timeout());
+        if let Err(cause) = Self::guard(&c, gt, Device::Galvo, "LASER_SIGNALS off", self.cell.galvo.laser_signals(false)).await {
+            tracing::warn!(%cause, "executor: laser signals off at the end failed");
+        }
+        summary.wall_s = started.elapsed().as_secs_f64();
+        self.log(LogLevel::Info, &format!("run finished: {} layers marked, {} skipped", summary.layers_marked, summary.layers_skipped));
+        if let Some(r) = &self.recorder {
+            let _ = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner).flush();
+        }
+        Ok(summary)
+    }
+
+    /// How many vectors of the layer are marked, from the galvo (short timeout; `None` when it
+    /// cannot tell).
+    async fn marked_so_far(&self, first: u32, tag: u32) -> Option<u32> {
+        let step = self.options.timeouts.shutdown_step;
+        match tokio::time::timeout(step, self.cell.galvo.status()).await {
+            Ok(Ok(Ok(s))) if s.tag == tag && s.list != NO_LIST => Some(first + s.marks_done),
+            Ok(Ok(Ok(s))) if s.tag >> 16 == tag >> 16 && s.tag < tag => Some(first),
+            _ => None,
+        }
+    }
+
+    #[expect(clippy::too_many_arguments, reason = "the cut layer's whole description, once")]
+    async fn stop(
+        &mut self,
+        journal: &mut Journal,
+        cause: StopCause,
+        key: Option<LayerKey>,
+        phase: Phase,
+        vectors_done: Option<u32>,
+        vectors: u32,
+        layers_finished: usize,
+    ) -> ExecError {
+        let detected_at = Instant::now();
+        let shutdown = self.shut_down().await;
+        if let Some(key) = key
+            && phase >= Phase::LoadList
+        {
+            if let Err(e) = journal.append(&Entry::LayerCut { key, vectors_done, reason: cause.to_string() }) {
+                tracing::error!(error = %e, "journal: cut entry lost");
+            }
+            self.record_layer(key, "cut", vectors_done.unwrap_or(0), vectors, true);
+        }
+        self.log(LogLevel::Error, &format!("run stopped at {phase:?}: {cause}"));
+        if let Some(r) = &self.recorder {
+            let _ = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner).flush();
+        }
+        ExecError::Stopped(Box::new(Stopped {
+            cause,
+            key,
+            phase,
+            vectors_done,
+            vectors,
+            layers_finished,
+            shutdown,
+            detected_at: Some(detected_at),
+        }))
+    }
+}

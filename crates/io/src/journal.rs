@@ -1,0 +1,374 @@
+//! The run journal: an append-only file of JSON lines, fsync'd after every entry, so a crash
+//! or a fault never loses a finished layer and `resume` knows where to continue.
+//!
+//! Entries: `start` (the job's digest), `layer_begin` (a list for a layer is about to be loaded:
+//! its first vector and its galvo tag), `layer_done`, `layer_cut` (a layer stopped midway, with
+//! how many of its vectors were marked when known). A torn last line (a crash mid-write,
+//! no newline) is ignored and cut off on resume; any other bad line is an error.
+
+use std::collections::BTreeSet;
+use std::fs::{File, OpenOptions};
+use std::io::{BufRead, BufReader, Write};
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use trim_plan::job::{Job, LayerKey};
+
+/// One journal line.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Entry {
+    /// A run started (or resumed).
+    Start {
+        /// FNV-1a 64 of the job's JSON: resume refuses another job.
+        job_digest: String,
+        /// Layers in the job.
+        layers: usize,
+        /// Wall-clock time (ns since the Unix epoch).
+        time_ns: u64,
+        /// Whether this is a resume.
+        resume: bool,
+    },
+    /// A list for a layer is about to be loaded.
+    LayerBegin {
+        /// The layer.
+        key: LayerKey,
+        /// The first vector of the list (0 unless resumed midway).
+        first_vector: u32,
+        /// Vectors in the layer.
+        vectors: u32,
+        /// The galvo list tag.
+        tag: u32,
+    },
+    /// A layer is finished: every vector marked.
+    LayerDone {
+        /// The layer.
+        key: LayerKey,
+        /// Vectors in the layer.
+        vectors: u32,
+    },
+    /// A layer stopped midway.
+    LayerCut {
+        /// The layer.
+        key: LayerKey,
+        /// Vectors of the layer marked, when known.
+        vectors_done: Option<u32>,
+        /// Why it stopped.
+        reason: String,
+    },
+}
+
+/// A journal that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum JournalError {
+    /// Reading or writing failed.
+    #[error("journal {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// A line is not a journal entry.
+    #[error("journal {path} line {line}: {what}")]
+    BadLine {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong.
+        what: String,
+    },
+    /// The journal belongs to another job.
+    #[error("journal {path} is for another job (digest {found}, this job {expected})")]
+    OtherJob {
+        /// The file.
+        path: PathBuf,
+        /// The journal's digest.
+        found: String,
+        /// This job's digest.
+        expected: String,
+    },
+    /// A fresh run was asked for but the journal exists.
+    #[error("journal {0} exists: resume the run, or remove the journal to start over")]
+    Exists(PathBuf),
+    /// Resume was asked for but there is no journal.
+    #[error("journal {0} does not exist: nothing to resume")]
+    Missing(PathBuf),
+}
+
+/// What a journal says about a run.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct JournalState {
+    /// Finished layers.
+    pub finished: BTreeSet<LayerKey>,
+    /// The last `layer_begin` with no `layer_done` after it.
+    pub open_begin: Option<Entry>,
+    /// The last `layer_cut` for that layer.
+    pub open_cut: Option<Entry>,
+    /// `layer_begin` entries so far (the next tag counts on from it).
+    pub begins: u32,
+    /// Whether the last line was torn (ignored).
+    pub torn_tail: bool,
+    /// Bytes up to the end of the last whole line (where a torn tail starts).
+    pub good_len: u64,
+    /// Every entry, in order.
+    pub entries: Vec<Entry>,
+}
+
+/// An open journal (append only).
+#[derive(Debug)]
+pub struct Journal {
+    path: PathBuf,
+    file: File,
+    digest: String,
+    begins: u32,
+}
+
+/// FNV-1a 64 of the job's JSON, hex.
+#[must_use]
+pub fn job_digest(job: &Job) -> String {
+    let text = serde_json::to_string(job).unwrap_or_default();
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in text.bytes() {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
+fn io(path: &Path) -> impl Fn(std::io::Error) -> JournalError + '_ {
+    move |source| JournalError::Io {
+        path: path.to_owned(),
+        source,
+    }
+}
+
+/// Reads a journal without opening it for writing.
+pub fn read(path: &Path) -> Result<JournalState, JournalError> {
+    let file = File::open(path).map_err(io(path))?;
+    let mut lines: Vec<String> = Vec::new();
+    let mut reader = BufReader::new(file);
+    loop {
+        let mut line = String::new();
+        if reader.read_line(&mut line).map_err(io(path))? == 0 {
+            break;
+        }
+        lines.push(line);
+    }
+    let mut st = JournalState::default();
+    let n = lines.len();
+    for (i, line) in lines.iter().enumerate() {
+        if line.trim().is_empty() {
+            st.good_len += line.len() as u64;
+            continue;
+        }
+        let entry: Entry = match serde_json::from_str(line) {
+            Ok(e) => e,
+            Err(_) if i + 1 == n && !line.ends_with('\n') => {
+                tracing::warn!(path = %path.display(), "journal: torn last line ignored");
+                st.torn_tail = true;
+                continue;
+            }
+            Err(e) => {
+                return Err(JournalError::BadLine {
+                    path: path.to_owned(),
+                    line: i + 1,
+                    what: e.to_string(),
+                });
+            }
+        };
+        match &entry {
+            Entry::LayerBegin { .. } => {
+                st.begins += 1;
+                st.open_begin = Some(entry.clone());
+                st.open_cut = None;
+            }
+            Entry::LayerDone { key, .. } => {
+                st.finished.insert(*key);
+                if matches!(&st.open_begin, Some(Entry::LayerBegin { key: k, .. }) if k == key) {
+                    st.open_begin = None;
+                    st.open_cut = None;
+                }
+            }
+            Entry::LayerCut { .. } => st.open_cut = Some(entry.clone()),
+            Entry::Start { .. } => {}
+        }
+        st.good_len += line.len() as u64;
+        st.entries.push(entry);
+    }
+    Ok(st)
+}
+
+impl Journal {
+    /// Creates a journal for a fresh run; refuses an existing file.
+    pub fn create(path: &Path, job: &Job) -> Result<Journal, JournalError> {
+        let file = OpenOptions::new()
+            .create_new(true)
+            .append(true)
+            .open(path)
+            .map_err(|e| {
+                if e.kind() == std::io::ErrorKind::AlreadyExists {
+                    JournalError::Exists(path.to_owned())
+                } else {
+                    io(path)(e)
+                }
+            })?;
+        let mut j = Journal {
+            path: path.to_owned(),
+            file,
+            digest: job_digest(job),
+            begins: 0,
+        };
+        j.append(&Entry::Start {
+            job_digest: j.digest.clone(),
+            layers: job.layers().count(),
+            time_ns: crate::tap::now_ns(),
+            resume: false,
+        })?;
+        Ok(j)
+    }
+
+    /// Opens an existing journal of this job to resume; returns what it says.
+    pub fn resume(path: &Path, job: &Job) -> Result<(Journal, JournalState), JournalError> {
+        if !path.exists() {
+            return Err(JournalError::Missing(path.to_owned()));
+        }
+        let st = read(path)?;
+        let digest = job_digest(job);
+        let found = st.entries.iter().find_map(|e| match e {
+            Entry::Start { job_digest, .. } => Some(job_digest.clone()),
+            _ => None,
+        });
+        if found.as_deref() != Some(digest.as_str()) {
+            return Err(JournalError::OtherJob {
+                path: path.to_owned(),
+                found: found.unwrap_or_else(|| "none".into()),
+                expected: digest,
+            });
+        }
+        let file = OpenOptions::new().append(true).open(path).map_err(io(path))?;
+        if st.torn_tail {
+            // The only change to written bytes: a torn last line (a crash mid-write) is cut off.
+            file.set_len(st.good_len).map_err(io(path))?;
+            file.sync_data().map_err(io(path))?;
+        }
+        let mut j = Journal {
+            path: path.to_owned(),
+            file,
+            digest,
+            begins: st.begins,
+        };
+        j.append(&Entry::Start {
+            job_digest: j.digest.clone(),
+            layers: job.layers().count(),
+            time_ns: crate::tap::now_ns(),
+            resume: true,
+        })?;
+        Ok((j, st))
+    }
+
+    /// The tag of the next list: unique per attempt within this journal, the digest's low bits
+    /// in the high half so another job's list is not mistaken for this one's.
+    pub fn next_tag(&mut self) -> u32 {
+        self.begins += 1;
+        self.current_tag()
+    }
+
+    /// The tag [`Journal::next_tag`] gave last.
+    #[must_use]
+    pub fn current_tag(&self) -> u32 {
+        let high = u32::from_str_radix(&self.digest[12..16], 16).unwrap_or(0) << 16;
+        high | (self.begins & 0xFFFF)
+    }
+
+    /// Appends an entry and fsyncs.
+    pub fn append(&mut self, entry: &Entry) -> Result<(), JournalError> {
+        let mut line = serde_json::to_string(entry).map_err(|e| JournalError::Io {
+            path: self.path.clone(),
+            source: std::io::Error::other(e),
+        })?;
+        line.push('\n');
+        self.file.write_all(line.as_bytes()).map_err(io(&self.path))?;
+        self.file.sync_data().map_err(io(&self.path))?;
+        Ok(())
+    }
+
+    /// The file.
+    #[must_use]
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use trim_plan::job::{GalvoSettings, JobSettings, TimeEstimate, ValidationReport};
+
+    fn job() -> Job {
+        Job {
+            version: 1,
+            layer_step_mm: 0.1,
+            focus_half_length_mm: 0.4,
+            zones: vec![],
+            settings: JobSettings {
+                max_incidence_deg: 5.0,
+                kinematics: "xyzac-trt".into(),
+                galvo: GalvoSettings::default(),
+                extra: serde_json::Value::Null,
+            },
+            validation: ValidationReport::default(),
+            estimate: TimeEstimate::default(),
+        }
+    }
+
+    #[test]
+    fn entries_survive_reopen_and_a_torn_tail_is_ignored() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.journal");
+        let j0 = job();
+        let k = LayerKey { zone: 0, layer: 1 };
+        {
+            let mut j = Journal::create(&path, &j0).unwrap();
+            let tag = j.next_tag();
+            j.append(&Entry::LayerBegin { key: k, first_vector: 0, vectors: 5, tag }).unwrap();
+            j.append(&Entry::LayerDone { key: k, vectors: 5 }).unwrap();
+            let k2 = LayerKey { zone: 1, layer: 0 };
+            let tag = j.next_tag();
+            j.append(&Entry::LayerBegin { key: k2, first_vector: 0, vectors: 3, tag }).unwrap();
+            j.append(&Entry::LayerCut { key: k2, vectors_done: Some(2), reason: "test".into() }).unwrap();
+        }
+        assert!(matches!(Journal::create(&path, &j0), Err(JournalError::Exists(_))));
+        // A crash mid-write.
+        std::fs::OpenOptions::new().append(true).open(&path).unwrap().write_all(b"{\"kind\":\"layer_do").unwrap();
+        let (mut j, st) = Journal::resume(&path, &j0).unwrap();
+        assert!(st.torn_tail);
+        assert_eq!(st.finished.iter().copied().collect::<Vec<_>>(), vec![k]);
+        assert!(matches!(st.open_begin, Some(Entry::LayerBegin { first_vector: 0, vectors: 3, .. })));
+        assert!(matches!(st.open_cut, Some(Entry::LayerCut { vectors_done: Some(2), .. })));
+        assert_eq!(st.begins, 2);
+        assert_eq!(j.next_tag() & 0xFFFF, 3);
+        j.append(&Entry::LayerDone { key: LayerKey { zone: 1, layer: 0 }, vectors: 3 }).unwrap();
+        let st = read(&path).unwrap();
+        assert!(!st.torn_tail);
+        assert_eq!(st.finished.len(), 2);
+        assert!(st.open_begin.is_none());
+        let mut other = job();
+        other.layer_step_mm = 0.2;
+        assert!(matches!(Journal::resume(&path, &other), Err(JournalError::OtherJob { .. })));
+        assert!(matches!(Journal::resume(&dir.path().join("none"), &j0), Err(JournalError::Missing(_))));
+    }
+
+    #[test]
+    fn a_bad_line_in_the_middle_is_an_error_with_its_number() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("j");
+        std::fs::write(&path, "{\"kind\":\"nope\"}\n{\"kind\":\"layer_done\",\"key\":{\"zone\":0,\"layer\":0},\"vectors\":1}\n").unwrap();
+        match read(&path) {
+            Err(JournalError::BadLine { line, .. }) => assert_eq!(line, 1),
+            other => panic!("{other:?}"),
+        }
+    }
+}
