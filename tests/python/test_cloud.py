@@ -58,3 +58,54 @@ def test_error_hierarchy():
     for cls in (trimctl.FileFormatError, trimctl.RegistrationError, trimctl.PlanningError,
                 trimctl.InternalError):
         assert issubclass(cls, trimctl.TrimError)
+
+
+def test_points_round_trip_through_ply(tmp_path, plane_points):
+    normals = trimctl.estimate_normals(plane_points, k=8)
+    f = tmp_path / "cloud.ply"
+    trimctl.write_points(f, plane_points, normals=normals)
+    pts, ns = trimctl.read_points(f)
+    np.testing.assert_array_equal(pts, plane_points)
+    np.testing.assert_allclose(ns, normals, atol=1e-15)
+
+
+def test_read_points_of_real_scans():
+    from conftest import SHARED_DATA
+
+    pts, normals = trimctl.read_points(SHARED_DATA / "bunny" / "bun0.pcd")
+    assert pts.shape == (397, 3) and normals is not None
+    pts, normals = trimctl.read_points(SHARED_DATA / "lidar-pair" / "source.ply")
+    assert pts.shape == (69792, 3) and normals is None
+
+
+def test_path_round_trip_and_accessors(tmp_path):
+    ids = np.array([3, 3, 3, 7, 7])
+    pts = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [5, 5, 5], [6, 5, 5]], dtype=np.float64)
+    feats = np.tile([0.0, 0.0, 2.0], (5, 1))
+    path = trimctl.Path(ids, pts, feats)
+    assert len(path) == 2 and path.num_points == 5 and path.contour_ids == [3, 7]
+    np.testing.assert_array_equal(path.features, np.tile([0.0, 0.0, 1.0], (5, 1)))
+    f = tmp_path / "path.csv"
+    trimctl.write_path(f, path)
+    back = trimctl.read_path(f)
+    np.testing.assert_array_equal(back.ids, ids)
+    np.testing.assert_array_equal(back.points, pts)
+    c_pts, c_feats = back.contour(7)
+    np.testing.assert_array_equal(c_pts, pts[3:])
+
+
+def test_bad_paths_and_files_name_the_fault(tmp_path):
+    with pytest.raises(ValueError, match="contour 9"):
+        trimctl.Path([9], np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
+    with pytest.raises(ValueError, match="contiguous"):
+        trimctl.Path([1, 1, 2, 2, 1, 1], np.arange(18.0).reshape(6, 3), np.tile([0.0, 0, 1], (6, 1)))
+    bad = tmp_path / "bad.csv"
+    bad.write_text("contour,x,y,z,u,v,w\n1,0,0,0,0,0,1\n1,abc,0,0,0,0,1\n")
+    with pytest.raises(trimctl.FileFormatError, match=r"bad.csv.*line 3"):
+        trimctl.read_path(bad)
+    with pytest.raises(trimctl.FileFormatError, match="missing.ply"):
+        trimctl.read_points(tmp_path / "missing.ply")
+    empty = tmp_path / "empty.ply"
+    empty.write_bytes(b"")
+    with pytest.raises(trimctl.FileFormatError, match="empty.ply"):
+        trimctl.read_points(empty)

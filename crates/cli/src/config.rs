@@ -1,31 +1,65 @@
 //! `job.toml`: one serde schema for a whole job. Defaults live in code; `trimctl config --dump`
-//! prints the full default file with comments ([`TEMPLATE`]); unknown keys and out-of-range
-//! values are refused with the key named.
+//! prints the full default file with a comment on every key ([`dump_default`], from
+//! [`KEY_DOCS`]); unknown keys and out-of-range values are refused with the key named.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
-use trim_plan::{Beam, GalvoSettings};
+use toml::Value;
+use trim_plan::field::FieldSettings;
+use trim_plan::kinematics::MachineSettings;
+use trim_plan::layer::LayerSettings;
+use trim_plan::planner::PlanSettings;
+use trim_plan::{Beam, GalvoSettings, ZoningSettings};
+use trim_register::regional::RegisterSettings;
 
-/// The commented default job file. A test checks that it parses to [`JobConfig::default`] and
-/// names every key.
-pub const TEMPLATE: &str = include_str!("job.default.toml");
-
-/// A whole job: part files, registration, beam, planning, galvo, cell and output.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+/// A whole job: part files, registration, planning (incidence limit, beam, zoning, layers, lens
+/// field, machine, galvo), the cell and the output folder. Each table is one section of job.toml.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct JobConfig {
     /// The part's files.
     pub part: PartConfig,
+    /// Registration of the CAM path onto the scan.
+    pub register: RegisterSettings,
+    /// The incidence limit (degrees).
+    pub max_incidence_deg: f64,
     /// Beam optics (paper §2.1–2.2).
     pub beam: Beam,
+    /// Zoning (paper §2.4).
+    pub zoning: ZoningSettings,
+    /// Layering (paper Eq. 14).
+    pub layers: LayerSettings,
+    /// Lens and scan-field sectioning.
+    pub field: FieldSettings,
+    /// Machine kinematics, limits and speeds.
+    pub machine: MachineSettings,
     /// Galvo field, calibration, speeds and delays.
     pub galvo: GalvoSettings,
     /// Where the devices are.
     pub cell: CellConfig,
     /// Where the run folder goes.
     pub output: OutputConfig,
+}
+
+impl Default for JobConfig {
+    fn default() -> Self {
+        let plan = PlanSettings::default();
+        JobConfig {
+            part: PartConfig::default(),
+            register: RegisterSettings::default(),
+            max_incidence_deg: plan.max_incidence_deg,
+            beam: plan.beam,
+            zoning: plan.zoning,
+            layers: plan.layers,
+            field: plan.field,
+            machine: plan.machine,
+            galvo: plan.galvo,
+            cell: CellConfig::default(),
+            output: OutputConfig::default(),
+        }
+    }
 }
 
 /// The part's input files. Relative paths are relative to the job file's folder. With no CAD,
@@ -90,8 +124,8 @@ impl JobConfig {
     pub fn load(path: &Path) -> anyhow::Result<JobConfig> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read job file {}", path.display()))?;
-        let mut config = JobConfig::parse(&text)
-            .with_context(|| format!("job file {}", path.display()))?;
+        let mut config =
+            JobConfig::parse(&text).with_context(|| format!("job file {}", path.display()))?;
         let base = path.parent().unwrap_or(Path::new("."));
         for p in [
             &mut config.part.cad,
@@ -127,8 +161,10 @@ impl JobConfig {
 
     /// Checks every value's range, naming the key at fault.
     pub fn validate(&self) -> anyhow::Result<()> {
-        self.beam.validate().context("[beam]")?;
-        validate_galvo(&self.galvo)?;
+        self.plan_settings().validate()?;
+        self.register
+            .validate()
+            .map_err(|e| anyhow::anyhow!("register.{e}"))?;
         for (key, value) in [
             ("cell.cnc", &self.cell.cnc),
             ("cell.galvo", &self.cell.galvo),
@@ -154,43 +190,528 @@ impl JobConfig {
         Ok(())
     }
 
+    /// The planner's settings.
+    pub fn plan_settings(&self) -> PlanSettings {
+        PlanSettings {
+            max_incidence_deg: self.max_incidence_deg,
+            beam: self.beam,
+            zoning: self.zoning,
+            layers: self.layers,
+            field: self.field,
+            machine: self.machine,
+            galvo: self.galvo,
+        }
+    }
+
     /// Whether the job runs the built-in demo part.
     pub fn is_demo(&self) -> bool {
         self.part.cad.is_none()
     }
 }
 
-fn validate_galvo(g: &GalvoSettings) -> anyhow::Result<()> {
-    let positive = [
-        ("galvo.field_mm[0]", g.field_mm[0]),
-        ("galvo.field_mm[1]", g.field_mm[1]),
-        ("galvo.bits_per_mm", g.bits_per_mm),
-        ("galvo.mark_speed_mm_per_s", g.mark_speed_mm_per_s),
-        ("galvo.jump_speed_mm_per_s", g.jump_speed_mm_per_s),
-    ];
-    for (key, v) in positive {
-        if !(v.is_finite() && v > 0.0) {
-            bail!("{key}: must be a finite number > 0, got {v}");
+/// The file's opening comment.
+const HEADER: &str = "\
+# trimctl job file. Every key is optional: a missing key takes the default shown here.
+# Units are in the key names: _mm millimetres, _deg degrees, _us microseconds, _s seconds.
+# `trimctl config --dump > job.toml` writes this file; `trimctl run job.toml` runs it.
+";
+
+/// One comment per key (dotted path) and, for keys unset by default, an example value shown
+/// commented out. A test checks that every key of the default file has one.
+pub const KEY_DOCS: &[(&str, &str, Option<&str>)] = &[
+    (
+        "part",
+        "The part's files, relative to this file. Leave all three out for the built-in demo part.",
+        None,
+    ),
+    (
+        "part.cad",
+        "CAD model: STL or PLY mesh, or a PLY/PCD/XYZ point cloud with normals.",
+        Some("\"cad.stl\""),
+    ),
+    (
+        "part.path",
+        "CAM template path: CSV with columns contour,x,y,z,u,v,w (mm, unit feature vector).",
+        Some("\"path.csv\""),
+    ),
+    (
+        "part.scan",
+        "Scan of the clamped part: PLY, PCD or XYZ (normals optional).",
+        Some("\"scan.ply\""),
+    ),
+    (
+        "max_incidence_deg",
+        "Incidence limit: the largest angle between a contour's feature vector and the beam, lens ray angle included.",
+        None,
+    ),
+    ("output", "Where runs are recorded.", None),
+    (
+        "output.runs_dir",
+        "Each run writes a new time-stamped folder here (or the folder given with --out).",
+        None,
+    ),
+    (
+        "cell",
+        "Where the devices are: \"sim\" starts the built-in simulator for that device.",
+        None,
+    ),
+    (
+        "cell.cnc",
+        "LinuxCNC linuxcncrsh as HOST:PORT (e.g. \"127.0.0.1:5007\"), or \"sim\".",
+        None,
+    ),
+    (
+        "cell.galvo",
+        "Galvo controller as HOST:PORT, or \"sim\".",
+        None,
+    ),
+    (
+        "cell.laser",
+        "Laser serial device (e.g. \"/dev/ttyUSB0\"), or \"sim\".",
+        None,
+    ),
+    (
+        "cell.laser_profile",
+        "Laser command profile: \"monaco\" (Coherent-Monaco-like) or \"ipg\" (IPG-like).",
+        None,
+    ),
+    (
+        "register",
+        "Registration of the CAM path onto the scan (docs/DESIGN.md \"Registration\").",
+        None,
+    ),
+    (
+        "register.coarse",
+        "The coarse stage: a global similarity from the fixture pose.",
+        None,
+    ),
+    (
+        "register.field",
+        "The field stage: a smooth deformation field over the part.",
+        None,
+    ),
+    (
+        "register.quality",
+        "The quality tests that flag a contour untrustworthy.",
+        None,
+    ),
+    (
+        "beam",
+        "Laser and lens (paper §2.1-2.2); the defaults are the paper's cell.",
+        None,
+    ),
+    (
+        "zoning",
+        "k-means zoning under the incidence limit (paper §2.4).",
+        None,
+    ),
+    (
+        "layers",
+        "Layers along each zone axis (paper Eq. 14).",
+        None,
+    ),
+    ("field", "The lens and the galvo field.", None),
+    (
+        "machine",
+        "Machine kinematics, travel limits and speeds (LinuxCNC names).",
+        None,
+    ),
+    (
+        "galvo",
+        "Galvo field, calibration, speeds and delays.",
+        None,
+    ),
+    (
+        "register.mode",
+        "Regional (field) or global (similarity only).",
+        None,
+    ),
+    (
+        "register.scanner_viewpoint_mm",
+        "The scanner's position in the scan frame, mm. When absent the scanner is taken to look along `−view_direction` from infinitely far.",
+        Some("[0.0, 0.0, 500.0]"),
+    ),
+    (
+        "register.view_direction",
+        "Direction toward the scanner in the scan frame (used without a viewpoint).",
+        None,
+    ),
+    (
+        "register.facing_min_cos",
+        "CAD points whose normal makes `cos < facing_min_cos` with the direction to the scanner are culled (−0.2 keeps walls up to 102° off the view).",
+        None,
+    ),
+    (
+        "register.cad_sample_points",
+        "Points sampled from a CAD mesh.",
+        None,
+    ),
+    ("register.coarse.init", "Where to start.", None),
+    (
+        "register.coarse.max_init_rotation_deg",
+        "The principal-axes start is refused beyond this rotation from the nominal pose, degrees.",
+        None,
+    ),
+    (
+        "register.coarse.min_voxel_points",
+        "A voxel must hold this many scan points to count (drops isolated outliers).",
+        None,
+    ),
+    (
+        "register.coarse.levels",
+        "Pyramid levels, coarse to fine (scan voxel size, maximum distance, iterations).",
+        None,
+    ),
+    (
+        "register.coarse.with_scale",
+        "Estimate a uniform scale at the finest level (the coarser levels are rigid: a scan → CAD fit with a free scale at coarse resolution can shrink the scan onto the surface).",
+        None,
+    ),
+    (
+        "register.coarse.huber_fraction",
+        "Huber threshold as a fraction of each level's maximum distance.",
+        None,
+    ),
+    (
+        "register.field.spacing_mm",
+        "Control-point spacing, mm.",
+        None,
+    ),
+    (
+        "register.field.voxel_mm",
+        "Scan thinning voxel for the fit (one real point kept per voxel), mm.",
+        None,
+    ),
+    (
+        "register.field.iterations",
+        "Gauss-Newton iterations.",
+        None,
+    ),
+    (
+        "register.field.max_distance_start_mm",
+        "Maximum correspondence distance at the first iteration, mm.",
+        None,
+    ),
+    (
+        "register.field.max_distance_end_mm",
+        "…shrinking geometrically to this by iteration `iterations − 3`, mm.",
+        None,
+    ),
+    ("register.field.huber_mm", "Huber threshold, mm.", None),
+    (
+        "register.field.smoothness",
+        "Weight of the second-difference prior relative to the mean data weight per unknown.",
+        None,
+    ),
+    (
+        "register.quality.coverage_radius_mm",
+        "A contour point is covered when a matched scan point lies within this, mm.",
+        None,
+    ),
+    (
+        "register.quality.patch_radius_mm",
+        "Scan points within this of a contour make its local patch, mm.",
+        None,
+    ),
+    (
+        "register.quality.min_coverage",
+        "Flag a contour covered on less than this fraction of its points.",
+        None,
+    ),
+    (
+        "register.quality.max_residual_mm",
+        "Flag a contour whose patch residual (RMS, mm) exceeds this.",
+        None,
+    ),
+    (
+        "register.quality.min_degeneracy_ratio",
+        "A patch is degenerate when `λmin/λmax` of its `Σ n nᵀ` is below this.",
+        None,
+    ),
+    (
+        "register.quality.support_radius_mm",
+        "The surroundings (within this, mm) must constrain a degenerate patch's weakest direction.",
+        None,
+    ),
+    (
+        "register.quality.min_overlap",
+        "Refuse the whole registration when fewer than this fraction of scan points lie within `overlap_distance_mm` of the CAD after the coarse stage.",
+        None,
+    ),
+    (
+        "register.quality.overlap_distance_mm",
+        "Distance for the overlap test, mm.",
+        None,
+    ),
+    ("beam.power_w", "Average laser power P (W).", None),
+    (
+        "beam.repetition_rate_hz",
+        "Pulse repetition rate h (Hz).",
+        None,
+    ),
+    ("beam.wavelength_nm", "Wavelength λ (nm).", None),
+    ("beam.m_squared", "Beam quality factor M².", None),
+    (
+        "beam.focal_length_mm",
+        "Effective focal length f of the (f-theta) lens (mm).",
+        None,
+    ),
+    (
+        "beam.beam_diameter_mm",
+        "Beam diameter D at the lens entrance (mm).",
+        None,
+    ),
+    (
+        "beam.fluence_tolerance",
+        "Fluence tolerance t: the fraction of the peak fluence that still processes (0.97 means within 3 % of F0); sets the focus processing length.",
+        None,
+    ),
+    (
+        "beam.fluence_threshold_ratio",
+        "F0/F_th: peak fluence over the material's ablation threshold.",
+        None,
+    ),
+    (
+        "beam.incidence_deg",
+        "The incidence θ at which the spot ratios are reported (degrees).",
+        None,
+    ),
+    (
+        "beam.line_width_tolerance",
+        "The allowed relative change of the spot radius (line width) with incidence, e.g. 0.005 for ±0.5 %; sets [`Beam::max_incidence_for_line_width_rad`].",
+        None,
+    ),
+    (
+        "zoning.k",
+        "A fixed number of zones; unset: the smallest that keeps the incidence limit.",
+        Some("10"),
+    ),
+    (
+        "zoning.position_weight",
+        "The weight of the (extent-scaled) positions against the unit feature vectors.",
+        None,
+    ),
+    (
+        "zoning.restarts",
+        "k-means runs with different k-means++ seeds; the lowest inertia wins.",
+        None,
+    ),
+    (
+        "zoning.seed",
+        "The seed of the k-means random generator.",
+        None,
+    ),
+    (
+        "zoning.max_iterations",
+        "The most Lloyd iterations per run.",
+        None,
+    ),
+    (
+        "zoning.max_auto_k",
+        "The largest k the automatic search tries before splitting zones greedily.",
+        None,
+    ),
+    (
+        "zoning.merge",
+        "Merge zones after an automatic k-means while the union keeps the limits (see the module docs). A fixed k is kept as given.",
+        None,
+    ),
+    (
+        "layers.step_mm",
+        "ΔH (mm); unset: derived from the beam, 2 · focus half length · `step_safety`.",
+        Some("0.3"),
+    ),
+    (
+        "layers.step_safety",
+        "The fraction of the focus processing length a layer may use on each side.",
+        None,
+    ),
+    (
+        "field.telecentric",
+        "A telecentric lens: the beam is parallel to the optical axis everywhere in the field.",
+        None,
+    ),
+    (
+        "field.lens_ray_budget_deg",
+        "For a non-telecentric lens: the part of the incidence limit reserved for the lens ray angle (degrees). Zoning keeps feature vectors within (limit − this) of the zone axis; sectioning then keeps feature-to-ray angles within the full limit.",
+        None,
+    ),
+    ("machine.kinematics", "The kinematics.", None),
+    ("machine.pose_mode", "What the Job's pose values are.", None),
+    (
+        "machine.x_limits_mm",
+        "X travel [min, max] (mm), axis and joint.",
+        None,
+    ),
+    ("machine.y_limits_mm", "Y travel (mm).", None),
+    ("machine.z_limits_mm", "Z travel (mm).", None),
+    ("machine.a_limits_deg", "A travel (degrees).", None),
+    (
+        "machine.b_limits_deg",
+        "B travel (degrees; the sim's joint 3 limits).",
+        None,
+    ),
+    ("machine.c_limits_deg", "C travel (degrees).", None),
+    (
+        "machine.rot_point_mm",
+        "LinuxCNC `x/y/z-rot-point` (mm).",
+        None,
+    ),
+    (
+        "machine.x_offset_mm",
+        "LinuxCNC `x-offset` (B/C only; the sim's xyzbc-trt uses −20) (mm).",
+        None,
+    ),
+    (
+        "machine.y_offset_mm",
+        "LinuxCNC `y-offset` (A/C only) (mm).",
+        None,
+    ),
+    (
+        "machine.z_offset_mm",
+        "LinuxCNC `z-offset` (the sim's xyzac-trt uses 10, xyzbc-trt −15) (mm).",
+        None,
+    ),
+    (
+        "machine.tool_offset_mm",
+        "LinuxCNC `tool-offset`: the tool length of the active tool (mm).",
+        None,
+    ),
+    (
+        "machine.workpiece_origin_mm",
+        "The work-piece frame's origin in the table frame (mm).",
+        None,
+    ),
+    (
+        "machine.linear_speed_mm_per_s",
+        "Linear joint speed for the time estimate (mm/s).",
+        None,
+    ),
+    (
+        "machine.rotary_speed_deg_per_s",
+        "Rotary joint speed for the time estimate (degrees/s).",
+        None,
+    ),
+    (
+        "machine.settle_s",
+        "Time to settle in position after each move (s).",
+        None,
+    ),
+    (
+        "galvo.field_mm",
+        "The usable field, width and height (mm), centred on the optical axis.",
+        None,
+    ),
+    (
+        "galvo.bits_per_mm",
+        "Calibration: galvo bits per millimetre in the field.",
+        None,
+    ),
+    ("galvo.mark_speed_mm_per_s", "Marking speed (mm/s).", None),
+    ("galvo.jump_speed_mm_per_s", "Jump speed (mm/s).", None),
+    (
+        "galvo.laser_on_delay_us",
+        "Delay after the laser is switched on before the mirrors move (µs).",
+        None,
+    ),
+    (
+        "galvo.laser_off_delay_us",
+        "Delay after a mark before the laser is switched off (µs).",
+        None,
+    ),
+    (
+        "galvo.jump_delay_us",
+        "Settling delay after a jump (µs).",
+        None,
+    ),
+    (
+        "galvo.mark_delay_us",
+        "Settling delay after a mark (µs).",
+        None,
+    ),
+    (
+        "galvo.polygon_delay_us",
+        "Delay at each polyline vertex (µs).",
+        None,
+    ),
+];
+
+fn doc_for(key: &str) -> Option<&'static (&'static str, &'static str, Option<&'static str>)> {
+    KEY_DOCS.iter().find(|(k, _, _)| *k == key)
+}
+
+fn comment(out: &mut String, text: &str) {
+    for line in text.lines() {
+        out.push_str("# ");
+        out.push_str(line);
+        out.push('\n');
+    }
+}
+
+/// The full default job file, with a comment on every key.
+#[must_use]
+pub fn dump_default() -> String {
+    let mut out = String::from(HEADER);
+    let Ok(Value::Table(root)) = Value::try_from(JobConfig::default()) else {
+        return out;
+    };
+    render_table(&mut out, "", &root);
+    out
+}
+
+fn render_table(out: &mut String, prefix: &str, table: &toml::map::Map<String, Value>) {
+    let join = |k: &str| {
+        if prefix.is_empty() {
+            k.to_string()
+        } else {
+            format!("{prefix}.{k}")
+        }
+    };
+    // Scalars and arrays first (TOML puts them before sub-tables), then the unset keys.
+    for (k, v) in table.iter().filter(|(_, v)| !v.is_table()) {
+        let key = join(k);
+        if let Some((_, doc, _)) = doc_for(&key) {
+            comment(out, doc);
+        }
+        out.push_str(&format!("{k} = {v}\n"));
+    }
+    let depth = prefix.matches('.').count() + usize::from(!prefix.is_empty());
+    for (key, doc, example) in KEY_DOCS {
+        let (parent, leaf) = key.rsplit_once('.').unwrap_or(("", key));
+        if parent == prefix && key.matches('.').count() == depth && !table.contains_key(leaf) {
+            if let Some(example) = example {
+                comment(out, doc);
+                out.push_str(&format!("# {leaf} = {example}\n"));
+            }
         }
     }
-    let delays = [
-        ("galvo.laser_on_delay_us", g.laser_on_delay_us),
-        ("galvo.laser_off_delay_us", g.laser_off_delay_us),
-        ("galvo.jump_delay_us", g.jump_delay_us),
-        ("galvo.mark_delay_us", g.mark_delay_us),
-        ("galvo.polygon_delay_us", g.polygon_delay_us),
-    ];
-    for (key, v) in delays {
-        if !(v.is_finite() && (0.0..=1e6).contains(&v)) {
-            bail!("{key}: must be between 0 and 1e6 µs, got {v}");
+    for (k, v) in table.iter() {
+        if let Value::Table(t) = v {
+            let key = join(k);
+            out.push('\n');
+            if let Some((_, doc, _)) = doc_for(&key) {
+                comment(out, doc);
+            }
+            out.push_str(&format!("[{key}]\n"));
+            render_table(out, &key, t);
         }
     }
-    // The field in bits must fit the protocol's signed 32-bit coordinates.
-    let half_bits = 0.5 * g.field_mm[0].max(g.field_mm[1]) * g.bits_per_mm;
-    if half_bits > f64::from(i32::MAX) {
-        bail!("galvo.bits_per_mm: field × calibration exceeds the 32-bit coordinate range");
+}
+
+/// Every key path of a TOML table, tables included.
+#[cfg(test)]
+fn key_paths(prefix: &str, table: &toml::map::Map<String, Value>, out: &mut Vec<String>) {
+    for (k, v) in table {
+        let key = if prefix.is_empty() {
+            k.clone()
+        } else {
+            format!("{prefix}.{k}")
+        };
+        out.push(key.clone());
+        if let Value::Table(t) = v {
+            key_paths(&key, t, out);
+        }
     }
-    Ok(())
 }
 
 #[cfg(test)]
@@ -198,27 +719,56 @@ mod tests {
     use super::*;
 
     #[test]
-    fn template_is_the_default_and_names_every_key() {
-        let parsed = JobConfig::parse(TEMPLATE).expect("template parses");
+    fn dump_is_the_default_and_documents_every_key() {
+        let dump = dump_default();
+        let parsed = JobConfig::parse(&dump).expect("the dump parses");
         assert_eq!(parsed, JobConfig::default());
-        let value = toml::Value::try_from(JobConfig::default()).unwrap();
-        let table = value.as_table().unwrap();
-        for (section, body) in table {
-            assert!(TEMPLATE.contains(&format!("[{section}]")), "[{section}] missing");
-            if let Some(t) = body.as_table() {
-                for key in t.keys() {
-                    assert!(
-                        TEMPLATE.contains(&format!("\n{key} =")) || TEMPLATE.contains(&format!("\n# {key} =")),
-                        "{section}.{key} missing from the template"
-                    );
-                }
+        let Value::Table(root) = Value::try_from(JobConfig::default()).unwrap() else {
+            panic!("the config is a table");
+        };
+        let mut keys = Vec::new();
+        key_paths("", &root, &mut keys);
+        let missing: Vec<&String> = keys.iter().filter(|k| doc_for(k).is_none()).collect();
+        assert!(
+            missing.is_empty(),
+            "keys without a comment in KEY_DOCS: {missing:?}"
+        );
+        // Documented keys exist: set or shown as a commented-out example.
+        for (key, _, example) in KEY_DOCS {
+            let leaf = key.rsplit('.').next().unwrap();
+            assert!(
+                keys.contains(&key.to_string()) || example.is_some(),
+                "KEY_DOCS names {key}, which the config does not have"
+            );
+            if let Some(example) = example {
+                assert!(
+                    dump.contains(&format!("# {leaf} = {example}")),
+                    "{key} example missing"
+                );
             }
         }
     }
 
     #[test]
+    fn unset_keys_shown_as_examples_are_accepted() {
+        for (key, _, example) in KEY_DOCS {
+            let Some(example) = example else { continue };
+            let (section, leaf) = key.rsplit_once('.').unwrap_or(("", key));
+            let text = if section.is_empty() {
+                format!("{leaf} = {example}\n")
+            } else {
+                format!("[{section}]\n{leaf} = {example}\n")
+            };
+            let parsed: Result<JobConfig, _> = toml::from_str(&text);
+            assert!(parsed.is_ok(), "{key} = {example}: {parsed:?}");
+        }
+    }
+
+    #[test]
     fn unknown_keys_are_refused_with_the_key_named() {
-        let e = JobConfig::parse("[beam]\npowr_w = 10\n").unwrap_err().to_string();
+        let e = JobConfig::parse("[beam]\npowr_w = 10\n")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("powr_w"), "{e}");
         let e = JobConfig::parse("[bem]\n").unwrap_err().to_string();
         assert!(e.contains("bem"), "{e}");
@@ -227,7 +777,10 @@ mod tests {
     #[test]
     fn out_of_range_values_are_refused_with_the_key_named() {
         for (text, key) in [
-            ("[galvo]\nmark_speed_mm_per_s = -5\n", "galvo.mark_speed_mm_per_s"),
+            (
+                "[galvo]\nmark_speed_mm_per_s = -5\n",
+                "galvo.mark_speed_mm_per_s",
+            ),
             ("[galvo]\njump_delay_us = nan\n", "galvo.jump_delay_us"),
             ("[cell]\ncnc = \"localhost\"\n", "cell.cnc"),
             ("[cell]\nlaser_profile = \"acme\"\n", "cell.laser_profile"),
@@ -236,7 +789,10 @@ mod tests {
             let e = format!("{:#}", JobConfig::parse(text).unwrap_err());
             assert!(e.contains(key), "{text}: {e}");
         }
-        let e = format!("{:#}", JobConfig::parse("[beam]\npower_w = -1\n").unwrap_err());
+        let e = format!(
+            "{:#}",
+            JobConfig::parse("[beam]\npower_w = -1\n").unwrap_err()
+        );
         assert!(e.contains("power_w"), "{e}");
     }
 }

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use crate::config::{JobConfig, TEMPLATE};
+use crate::config::{JobConfig, dump_default};
 
 /// Arguments of `trimctl config`.
 #[derive(clap::Args, Debug)]
@@ -25,7 +25,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         None => {
             // --dump is the default action.
             let _ = args.dump;
-            print!("{TEMPLATE}");
+            print!("{}", dump_default());
         }
     }
     Ok(())

@@ -12,7 +12,7 @@ use crate::errors::value_error;
 pub type Array<'py> = Bound<'py, PyArray2<f64>>;
 
 /// Reads an `(N, cols)` float64 array into rows, refusing another dtype, shape or any NaN/inf.
-fn rows<const C: usize>(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<Vec<[f64; C]>> {
+pub fn rows<const C: usize>(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<Vec<[f64; C]>> {
     let array = obj.cast::<PyArray2<f64>>().map_err(|_| {
         let what = describe(obj);
         value_error(

@@ -14,6 +14,7 @@ use pyo3::create_exception;
 use pyo3::exceptions::{PyException, PyValueError};
 use pyo3::prelude::*;
 use trim_geom::GeomError;
+use trim_register::RegisterError;
 
 create_exception!(
     trimctl,
@@ -69,5 +70,17 @@ pub fn geom_error(e: GeomError) -> PyErr {
             FileFormatError::new_err(e.to_string())
         }
         other => PyValueError::new_err(other.to_string()),
+    }
+}
+
+/// Maps a registration error: bad settings and values to `ValueError`, file problems to
+/// `FileFormatError`, the rest to `RegistrationError`.
+pub fn register_error(e: RegisterError) -> PyErr {
+    match e {
+        RegisterError::Geom(g) => geom_error(g),
+        RegisterError::InvalidSetting { .. }
+        | RegisterError::NonFinite { .. }
+        | RegisterError::LengthMismatch { .. } => PyValueError::new_err(e.to_string()),
+        other => RegistrationError::new_err(other.to_string()),
     }
 }

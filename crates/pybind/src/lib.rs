@@ -8,6 +8,8 @@ mod arrays;
 mod cloud;
 mod errors;
 mod gil;
+mod path;
+mod register;
 
 use pyo3::prelude::*;
 
@@ -18,5 +20,13 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_function(wrap_pyfunction!(cloud::estimate_normals, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::voxel_downsample, m)?)?;
+    m.add_class::<path::PyPath>()?;
+    m.add_function(wrap_pyfunction!(path::read_points, m)?)?;
+    m.add_function(wrap_pyfunction!(path::write_points, m)?)?;
+    m.add_function(wrap_pyfunction!(path::read_path, m)?)?;
+    m.add_function(wrap_pyfunction!(path::write_path, m)?)?;
+    m.add_class::<register::IcpResult>()?;
+    m.add_function(wrap_pyfunction!(register::icp, m)?)?;
+    m.add_function(wrap_pyfunction!(register::umeyama, m)?)?;
     Ok(())
 }

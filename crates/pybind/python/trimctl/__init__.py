@@ -8,22 +8,38 @@ argument shape, dtype or a non-finite value raises :class:`ValueError` naming th
 
 from ._native import (
     FileFormatError,
+    IcpResult,
     InternalError,
+    Path,
     PlanningError,
     RegistrationError,
     TrimError,
     __version__,
     estimate_normals,
+    icp,
+    read_path,
+    read_points,
+    umeyama,
     voxel_downsample,
+    write_path,
+    write_points,
 )
 
 __all__ = [
     "FileFormatError",
+    "IcpResult",
     "InternalError",
+    "Path",
     "PlanningError",
     "RegistrationError",
     "TrimError",
     "__version__",
     "estimate_normals",
+    "icp",
+    "read_path",
+    "read_points",
+    "umeyama",
     "voxel_downsample",
+    "write_path",
+    "write_points",
 ]

@@ -1,4 +1,5 @@
-from typing import Optional, Sequence, Tuple
+import os
+from typing import List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -23,3 +24,50 @@ def estimate_normals(
 def voxel_downsample(
     points: Array, *, voxel: float, normals: Optional[Array] = None
 ) -> Tuple[Array, Optional[Array]]: ...
+
+class IcpResult:
+    transform: Array
+    scale: float
+    rmse: float
+    fitness: float
+    correspondences: int
+    iterations: int
+    converged: bool
+    eigenvalues: npt.NDArray[np.float64]
+
+def icp(
+    source: Array,
+    target: Array,
+    *,
+    method: str = "point_to_plane",
+    scale: bool = False,
+    max_distance: float = 1.0,
+    max_iterations: int = 50,
+    init: Optional[Array] = None,
+    target_normals: Optional[Array] = None,
+    kernel: Optional[Tuple[str, float]] = None,
+    trim: float = 0.0,
+) -> IcpResult: ...
+def umeyama(a: Array, b: Array, *, scale: bool = True) -> Tuple[Array, float, float]: ...
+
+PathLike = Union[str, os.PathLike]
+
+class Path:
+    def __init__(self, ids: npt.ArrayLike, points: Array, features: Array) -> None: ...
+    @property
+    def ids(self) -> npt.NDArray[np.int64]: ...
+    @property
+    def points(self) -> Array: ...
+    @property
+    def features(self) -> Array: ...
+    @property
+    def contour_ids(self) -> List[int]: ...
+    @property
+    def num_points(self) -> int: ...
+    def contour(self, id: int) -> Tuple[Array, Array]: ...
+    def __len__(self) -> int: ...
+
+def read_points(path: PathLike) -> Tuple[Array, Optional[Array]]: ...
+def write_points(path: PathLike, points: Array, *, normals: Optional[Array] = None) -> None: ...
+def read_path(path: PathLike) -> Path: ...
+def write_path(path: PathLike, trim_path: Path) -> None: ...

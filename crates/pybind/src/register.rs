@@ -1,0 +1,193 @@
+//! Registration bindings: ICP and the Umeyama similarity fit.
+
+use nalgebra::Matrix4;
+use numpy::{PyArray1, PyArray2};
+use pyo3::prelude::*;
+use trim_geom::PointCloud;
+use trim_geom::math::{Similarity3, Vector3};
+use trim_geom::normals::{Orientation, estimate_normals};
+use trim_geom::transform::{similarity_from_matrix, to_matrix};
+use trim_register::{IcpMethod, IcpSettings, IcpTarget, RegisterError, RobustKernel};
+
+use crate::arrays;
+use crate::errors::{geom_error, register_error, value_error};
+use crate::gil::run_detached;
+
+/// Neighbours used to estimate target normals for point-to-plane ICP when none are given.
+pub const DEFAULT_NORMAL_NEIGHBOURS: usize = 16;
+
+/// A 4×4 homogeneous matrix as a numpy array.
+pub fn matrix_to_numpy<'py>(py: Python<'py>, m: &Matrix4<f64>) -> Bound<'py, PyArray2<f64>> {
+    let rows = (0..4).map(|r| [m[(r, 0)], m[(r, 1)], m[(r, 2)], m[(r, 3)]]);
+    arrays::from_rows(py, rows.collect::<Vec<_>>().into_iter())
+}
+
+/// A similarity from a 4×4 numpy array (checked: finite, proper scaled rotation).
+pub fn similarity_from_numpy(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<Similarity3> {
+    let rows = arrays::rows::<4>(name, obj)?;
+    if rows.len() != 4 {
+        return Err(value_error(
+            name,
+            format!("expected shape (4, 4), got ({}, 4)", rows.len()),
+        ));
+    }
+    let m = Matrix4::from_fn(|r, c| rows[r][c]);
+    similarity_from_matrix(&m).map_err(|e| value_error(name, e))
+}
+
+/// The result of [`icp`].
+#[pyclass(module = "trimctl", frozen, get_all)]
+pub struct IcpResult {
+    /// The 4×4 `target_from_source` transform (scale included).
+    pub transform: Py<PyArray2<f64>>,
+    /// The scale (1.0 for a rigid fit).
+    pub scale: f64,
+    /// RMS residual over the final correspondences, mm.
+    pub rmse: f64,
+    /// Fraction of source points with a correspondence.
+    pub fitness: f64,
+    /// Number of final correspondences.
+    pub correspondences: usize,
+    /// Iterations run.
+    pub iterations: usize,
+    /// Whether ICP met its convergence test before the iteration cap.
+    pub converged: bool,
+    /// Eigenvalues (ascending) of the final normal matrix: small ones mark directions the data
+    /// does not fix.
+    pub eigenvalues: Py<PyArray1<f64>>,
+}
+
+#[pymethods]
+impl IcpResult {
+    fn __repr__(&self) -> String {
+        format!(
+            "IcpResult(scale={:.9}, rmse={:.6}, fitness={:.4}, iterations={}, converged={})",
+            self.scale, self.rmse, self.fitness, self.iterations, self.converged
+        )
+    }
+}
+
+fn parse_method(method: &str) -> PyResult<IcpMethod> {
+    match method {
+        "point_to_plane" => Ok(IcpMethod::PointToPlane),
+        "point_to_point" => Ok(IcpMethod::PointToPoint),
+        other => Err(value_error(
+            "method",
+            format!("expected \"point_to_plane\" or \"point_to_point\", got {other:?}"),
+        )),
+    }
+}
+
+fn parse_kernel(kernel: Option<(&str, f64)>) -> PyResult<RobustKernel> {
+    match kernel {
+        None => Ok(RobustKernel::None),
+        Some(("huber", k)) => Ok(RobustKernel::Huber { k_mm: k }),
+        Some(("tukey", k)) => Ok(RobustKernel::Tukey { c_mm: k }),
+        Some((other, _)) => Err(value_error(
+            "kernel",
+            format!("expected (\"huber\" | \"tukey\", threshold_mm), got {other:?}"),
+        )),
+    }
+}
+
+/// ICP of `source` onto `target` ((N, 3) float64, mm). Point-to-plane uses `target_normals`,
+/// or estimates them from 16 neighbours when not given. Returns an [`IcpResult`].
+#[pyfunction]
+#[pyo3(signature = (
+    source, target, *, method = "point_to_plane", scale = false, max_distance = 1.0,
+    max_iterations = 50, init = None, target_normals = None, kernel = None, trim = 0.0
+))]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "mirrors the Python keyword-only signature"
+)]
+pub fn icp(
+    py: Python<'_>,
+    source: &Bound<'_, PyAny>,
+    target: &Bound<'_, PyAny>,
+    method: &str,
+    scale: bool,
+    max_distance: f64,
+    max_iterations: usize,
+    init: Option<&Bound<'_, PyAny>>,
+    target_normals: Option<&Bound<'_, PyAny>>,
+    kernel: Option<(String, f64)>,
+    trim: f64,
+) -> PyResult<IcpResult> {
+    let method = parse_method(method)?;
+    let kernel = parse_kernel(kernel.as_ref().map(|(n, k)| (n.as_str(), *k)))?;
+    let source = PointCloud::new(arrays::points("source", source)?).map_err(geom_error)?;
+    let target_points = arrays::points("target", target)?;
+    let normals = target_normals
+        .map(|n| arrays::vectors("target_normals", n))
+        .transpose()?;
+    let initial = match init {
+        Some(m) => similarity_from_numpy("init", m)?,
+        None => Similarity3::identity(),
+    };
+    let settings = IcpSettings {
+        method,
+        with_scale: scale,
+        max_correspondence_distance_mm: max_distance,
+        max_iterations,
+        kernel,
+        trim_fraction: trim,
+        ..IcpSettings::default()
+    };
+    settings.validate().map_err(register_error)?;
+    let result = run_detached(py, move || -> Result<_, RegisterError> {
+        let target = match (normals, method) {
+            (Some(n), _) => PointCloud::with_normals(target_points, n)?,
+            (None, IcpMethod::PointToPlane) => {
+                let n = estimate_normals(
+                    &target_points,
+                    DEFAULT_NORMAL_NEIGHBOURS,
+                    Orientation::AlongReference(Vector3::z()),
+                )?;
+                PointCloud::with_normals(target_points, n)?
+            }
+            (None, IcpMethod::PointToPoint) => PointCloud::new(target_points)?,
+        };
+        let target = IcpTarget::new(target)?;
+        trim_register::icp(&source, &target, &initial, &settings)
+    })?
+    .map_err(register_error)?;
+    Ok(IcpResult {
+        transform: matrix_to_numpy(py, &to_matrix(&result.target_from_source)).unbind(),
+        scale: result.scale,
+        rmse: result.rmse_mm,
+        fitness: result.fitness,
+        correspondences: result.correspondences,
+        iterations: result.iterations,
+        converged: result.converged,
+        eigenvalues: PyArray1::from_vec(py, result.eigenvalues).unbind(),
+    })
+}
+
+/// The closed-form similarity (Umeyama) that maps the rows of `a` onto the rows of `b`. Returns
+/// `(transform, scale, rmse)`: the 4×4 `b_from_a`, its scale, and the RMS residual (mm).
+#[pyfunction]
+#[pyo3(signature = (a, b, *, scale = true))]
+pub fn umeyama<'py>(
+    py: Python<'py>,
+    a: &Bound<'py, PyAny>,
+    b: &Bound<'py, PyAny>,
+    scale: bool,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, f64, f64)> {
+    let a = arrays::points("a", a)?;
+    let b = arrays::points("b", b)?;
+    if a.len() != b.len() {
+        return Err(value_error(
+            "b",
+            format!("has {} rows, a has {}: rows must pair up", b.len(), a.len()),
+        ));
+    }
+    let fit =
+        run_detached(py, move || trim_register::umeyama(&a, &b, scale))?.map_err(register_error)?;
+    let m = to_matrix(&fit.target_from_source);
+    Ok((
+        matrix_to_numpy(py, &m),
+        fit.target_from_source.scaling(),
+        fit.rms_mm,
+    ))
+}
