@@ -25,6 +25,7 @@ use std::path::Path as FsPath;
 
 use crate::cloud::PointCloud;
 use crate::error::{GeomError, Location, Result};
+use crate::math::Vector3;
 use crate::mesh::Mesh;
 use crate::path::Path;
 
@@ -108,6 +109,27 @@ fn in_file(name: &FsPath, e: GeomError) -> GeomError {
         | GeomError::UnsupportedFormat { .. }) => e,
         other => GeomError::parse(name, Location::End, other.to_string()),
     }
+}
+
+/// The unit vector along `v` (a normal or feature vector read from a file), or `None` when a
+/// component is not finite or the length is below `min_norm`. The vector is scaled by its largest
+/// component first, so components near `f64::MAX` do not overflow the length (a plain
+/// `v / v.norm()` would divide by infinity and return a zero vector).
+fn unit_or_none(v: &Vector3, min_norm: f64) -> Option<Vector3> {
+    if !v.iter().all(|c| c.is_finite()) {
+        return None;
+    }
+    let largest = v.amax();
+    if largest == 0.0 {
+        return None;
+    }
+    let scaled = v / largest;
+    let scaled_norm = scaled.norm();
+    // The true length, largest × scaled_norm, may overflow to infinity: that is long enough.
+    if largest * scaled_norm < min_norm {
+        return None;
+    }
+    Some(scaled / scaled_norm)
 }
 
 fn read_file(path: &FsPath) -> Result<Vec<u8>> {
@@ -291,6 +313,19 @@ pub fn encode_path(trim_path: &Path) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn unit_or_none_survives_huge_and_refuses_zero_or_tiny() {
+        let huge = unit_or_none(&Vector3::new(0.0, 1e308, 1e308), 1e-12).unwrap();
+        assert!((huge - Vector3::new(0.0, 1.0, 1.0).normalize()).norm() < 1e-15);
+        assert!(unit_or_none(&Vector3::zeros(), 1e-12).is_none());
+        assert!(unit_or_none(&Vector3::new(1e-13, 0.0, 0.0), 1e-12).is_none());
+        assert!(unit_or_none(&Vector3::new(f64::NAN, 1.0, 0.0), 1e-12).is_none());
+        assert_eq!(
+            unit_or_none(&Vector3::new(0.0, -3.0, 0.0), 1e-12),
+            Some(-Vector3::y())
+        );
+    }
 
     #[test]
     fn dispatch_refuses_unknown_and_stl_as_points() {

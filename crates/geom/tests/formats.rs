@@ -637,3 +637,35 @@ fn file_errors_name_the_path_on_disk() {
     let e = read_points(&obj).unwrap_err().to_string();
     assert!(e.contains("unknown extension .obj"), "{e}");
 }
+
+/// Found by fuzzing (xyz and ply targets, 60 s each): a normal with components near `f64::MAX`
+/// has an infinite length, and dividing by it gave a zero "unit" normal that no writer could
+/// write back. Readers now scale by the largest component before normalising.
+#[test]
+fn huge_normals_and_features_normalise_instead_of_vanishing() {
+    let c = read_points_from_bytes(b"1 2 3 0 1e308 -1e308\n", FsPath::new("h.xyz")).unwrap();
+    let expected = Vector3::new(0.0, 1.0, -1.0).normalize();
+    assert!((c.normals().unwrap()[0] - expected).norm() < NORMAL_TOL);
+    let back = read_points_from_bytes(
+        &encode_ply(&c, PlyEncoding::BinaryBigEndian, PlyScalar::Double),
+        FsPath::new("h.ply"),
+    )
+    .unwrap();
+    assert!((back.normals().unwrap()[0] - expected).norm() < NORMAL_TOL);
+    let p = formats::read_path_from_bytes(
+        b"contour,x,y,z,u,v,w\n1,0,0,0,1e308,1e308,0\n1,1,0,0,1e308,1e308,0\n",
+        FsPath::new("h.csv"),
+    )
+    .unwrap();
+    let f = Vector3::new(1.0, 1.0, 0.0).normalize();
+    assert!((p.contours()[0].features()[0] - f).norm() < NORMAL_TOL);
+    assert_starts(
+        &formats::read_path_from_bytes(
+            b"contour,x,y,z,u,v,w\n1,0,0,0,0,0,0\n1,1,0,0,0,0,1\n",
+            FsPath::new("z.csv"),
+        )
+        .unwrap_err()
+        .to_string(),
+        "z.csv: line 2: contour 1: the feature vector (u, v, w) is zero",
+    );
+}

@@ -8,7 +8,7 @@ use std::path::Path as FsPath;
 use super::text::{Lines, parse_finite, truncate, utf8};
 use crate::error::{GeomError, Location, Result};
 use crate::math::{Point3, Vector3};
-use crate::path::{Contour, ContourId, Path};
+use crate::path::{Contour, ContourId, MIN_FEATURE_NORM, Path};
 
 /// The required columns, in the order they are written.
 const COLUMNS: [&str; 7] = ["contour", "x", "y", "z", "u", "v", "w"];
@@ -175,7 +175,15 @@ pub(super) fn parse(bytes: &[u8], name: &FsPath) -> Result<Path> {
         if let Some(o) = open.as_mut() {
             o.last_line = line_no;
             o.points.push(Point3::new(v[0], v[1], v[2]));
-            o.features.push(Vector3::new(v[3], v[4], v[5]));
+            let feature = Vector3::new(v[3], v[4], v[5]);
+            let unit = super::unit_or_none(&feature, MIN_FEATURE_NORM).ok_or_else(|| {
+                GeomError::parse(
+                    name,
+                    at,
+                    format!("contour {id}: the feature vector (u, v, w) is zero"),
+                )
+            })?;
+            o.features.push(unit);
         }
     }
     match open {

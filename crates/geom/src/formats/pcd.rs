@@ -323,7 +323,7 @@ fn push_point(
     points.push(p);
     if has_normals {
         let n = Vector3::new(values[3], values[4], values[5]);
-        if !n.iter().all(|c| c.is_finite()) || n.norm() < MIN_NORMAL_NORM {
+        let Some(unit) = super::unit_or_none(&n, MIN_NORMAL_NORM) else {
             return Err(GeomError::parse(
                 name,
                 at,
@@ -332,8 +332,8 @@ fn push_point(
                     n.x, n.y, n.z
                 ),
             ));
-        }
-        normals.push(n);
+        };
+        normals.push(unit);
     }
     Ok(())
 }

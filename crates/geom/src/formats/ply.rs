@@ -697,7 +697,7 @@ fn parse_body<S: Source>(src: &mut S, header: &Header, name: &FsPath) -> Result<
                 points.push(p);
                 if has_normals {
                     let n = Vector3::new(slots[3], slots[4], slots[5]);
-                    if !n.iter().all(|c| c.is_finite()) || n.norm() < MIN_NORMAL_NORM {
+                    let Some(unit) = super::unit_or_none(&n, MIN_NORMAL_NORM) else {
                         return Err(GeomError::parse(
                             name,
                             src.at(index),
@@ -706,8 +706,8 @@ fn parse_body<S: Source>(src: &mut S, header: &Header, name: &FsPath) -> Result<
                                 n.x, n.y, n.z
                             ),
                         ));
-                    }
-                    normals.push(n);
+                    };
+                    normals.push(unit);
                 }
             }
         }

@@ -76,10 +76,10 @@ pub(super) fn parse(bytes: &[u8], name: &FsPath) -> Result<PointCloud> {
         points.push(Point3::new(values[0], values[1], values[2]));
         if columns == 6 {
             let n = Vector3::new(values[3], values[4], values[5]);
-            if n.norm() < crate::cloud::MIN_NORMAL_NORM {
+            let Some(unit) = super::unit_or_none(&n, crate::cloud::MIN_NORMAL_NORM) else {
                 return Err(GeomError::parse(name, at, "the normal (nx ny nz) is zero"));
-            }
-            normals.push(n);
+            };
+            normals.push(unit);
         }
     }
     let has_normals = layout.is_some_and(|(columns, _)| columns == 6);

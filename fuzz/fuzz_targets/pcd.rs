@@ -1,0 +1,6 @@
+//! PCD (ascii and binary).
+#![no_main]
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| {
+    trimctl_fuzz::check_points(data, "fuzz.pcd");
+});

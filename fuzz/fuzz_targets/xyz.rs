@@ -1,0 +1,6 @@
+//! XYZ text.
+#![no_main]
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| {
+    trimctl_fuzz::check_points(data, "fuzz.xyz");
+});
