@@ -217,16 +217,23 @@ impl Mesh {
             .expect("points are convex combinations of finite vertices; normals are non-degenerate")
     }
 
-    /// The unsigned distance (mm) from `p` to the surface.
+    /// The unsigned distance (mm) from `p` to the surface; NaN when `p` is not finite.
     #[must_use]
     pub fn distance(&self, p: &Point3) -> f64 {
         (self.closest_point(p).0 - p).norm()
     }
 
     /// The closest surface point to `p` and the unit normal of the triangle it lies on. On an edge
-    /// or vertex shared by several triangles, the normal is that of one of them.
+    /// or vertex shared by several triangles, the normal is that of one of them. A non-finite `p`
+    /// has no closest point: both are returned as NaN (parry would panic on it).
     #[must_use]
     pub fn closest_point(&self, p: &Point3) -> (Point3, Vector3) {
+        if !is_finite_point(p) {
+            return (
+                Point3::new(f64::NAN, f64::NAN, f64::NAN),
+                Vector3::new(f64::NAN, f64::NAN, f64::NAN),
+            );
+        }
         let (projection, feature) = self.surface.project_local_point_and_get_feature(p);
         let normal = match feature {
             parry3d_f64::shape::FeatureId::Face(s) => self
@@ -363,6 +370,13 @@ mod tests {
         assert!((n - Vector3::z()).norm() < 1e-12);
         assert!((m.distance(&Point3::new(0.5, 0.5, 0.5)) - 0.5).abs() < 1e-12);
         assert!((m.distance(&Point3::new(2.0, 2.0, 0.5)) - 2f64.sqrt()).abs() < 1e-12);
+        assert!(m.distance(&Point3::new(f64::NAN, 0.0, 0.0)).is_nan());
+        assert!(
+            m.closest_point(&Point3::new(0.0, f64::INFINITY, 0.0))
+                .1
+                .x
+                .is_nan()
+        );
         let (q, n) = m.closest_point(&Point3::new(-4.0, 0.5, 0.5));
         assert!((q - Point3::new(0.0, 0.5, 0.5)).norm() < 1e-12);
         assert!((n + Vector3::x()).norm() < 1e-12);
