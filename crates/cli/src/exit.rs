@@ -13,10 +13,6 @@ use std::process::ExitCode;
 
 /// Why a command ended without success.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[expect(
-    dead_code,
-    reason = "DeviceFault and Interrupted are raised by `trimctl run` (its issue)"
-)]
 pub enum Exit {
     /// Refused or bad input.
     Refused = 1,
@@ -38,7 +34,6 @@ pub struct Failure {
 
 impl Failure {
     /// Wraps an error with an exit code.
-    #[expect(dead_code, reason = "used by `trimctl run` (its issue)")]
     pub fn with_exit(exit: Exit, source: impl Into<anyhow::Error>) -> anyhow::Error {
         anyhow::Error::new(Failure {
             exit,

@@ -7,9 +7,11 @@ mod config_cmd;
 mod exit;
 mod info;
 mod plan;
+mod progress;
 mod register;
 mod run;
 mod sim;
+mod summary;
 mod synth;
 
 use std::process::ExitCode;

@@ -53,11 +53,7 @@ impl JobProgress {
                 z.set_position(index);
                 z.set_message(format!("zone {zone}"));
             }
-            None => tracing::info!(
-                "zone {zone} started ({}/{})",
-                index + 1,
-                self.zones_total
-            ),
+            None => tracing::info!("zone {zone} started ({}/{})", index + 1, self.zones_total),
         }
     }
 

@@ -1,0 +1,193 @@
+//! What `trimctl run` (and `register`, `plan`) print for people: the registration quality with
+//! the worst contours, the zone table (the paper's Table 1), the time estimate, the execution
+//! result, and the run report.
+
+use std::fmt::Write as _;
+
+use trim_io::executor::RunSummary;
+use trim_plan::Job;
+use trim_plan::planner::PlanOutput;
+use trim_register::regional::QualityReport;
+
+use crate::config::JobConfig;
+
+/// How many of the worst contours the registration summary lists.
+pub const WORST_CONTOURS: usize = 5;
+
+/// Registration quality: global figures and the worst contours by residual.
+#[must_use]
+pub fn registration(report: &QualityReport) -> String {
+    let mut s = String::new();
+    let g = &report.global;
+    let _ = writeln!(
+        s,
+        "registration: scale {:.5}, coarse rmse {:.1} µm, field rmse {}, overlap {:.0} %, {} of {} contours untrustworthy",
+        g.scale,
+        g.coarse_rmse_mm * 1e3,
+        g.field_rmse_mm
+            .map_or("-".to_string(), |r| format!("{:.1} µm", r * 1e3)),
+        g.overlap * 100.0,
+        g.untrustworthy,
+        report.contours.len()
+    );
+    let mut worst: Vec<_> = report.contours.iter().collect();
+    worst.sort_by(|a, b| b.residual_rms_mm.total_cmp(&a.residual_rms_mm));
+    let _ = writeln!(
+        s,
+        "  worst contours:  id  residual µm  coverage %  degeneracy  flags"
+    );
+    for c in worst.iter().take(WORST_CONTOURS) {
+        let flags: Vec<String> = c.flags.iter().map(|f| format!("{f:?}")).collect();
+        let _ = writeln!(
+            s,
+            "  {:>17}  {:>11.1}  {:>10.0}  {:>10.3}  {}",
+            c.id,
+            c.residual_rms_mm * 1e3,
+            c.coverage * 100.0,
+            c.degeneracy_ratio,
+            if flags.is_empty() {
+                "-".into()
+            } else {
+                flags.join(",")
+            }
+        );
+    }
+    s
+}
+
+/// The zone table (paper Table 1 plus layers and lens incidence) and the time estimate.
+#[must_use]
+pub fn plan(plan: &PlanOutput) -> String {
+    let job = &plan.job;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "plan: {} zones (k = {}{}), {} layers, ΔH = {:.3} mm, focus ±{:.3} mm",
+        job.zones.len(),
+        plan.k,
+        if plan.automatic_k { ", automatic" } else { "" },
+        job.zones.iter().map(|z| z.layers.len()).sum::<usize>(),
+        job.layer_step_mm,
+        job.focus_half_length_mm
+    );
+    s.push_str(&zone_table(plan));
+    let e = &job.estimate;
+    let _ = writeln!(
+        s,
+        "time estimate: {:.1} s (marking {:.1} s, jumps {:.1} s, machine moves {:.1} s)",
+        e.total_s, e.marking_s, e.jumping_s, e.motion_s
+    );
+    let v = &job.validation;
+    let _ = writeln!(
+        s,
+        "validation: {} (focus deviation ≤ {:.3} mm, incidence ≤ {:.2}°, field |xy| ≤ {:.1} mm, round trip ≤ {:.2e} mm{})",
+        if v.passed { "passed" } else { "FAILED" },
+        v.max_focus_deviation_mm,
+        v.max_incidence_deg,
+        v.max_field_abs_mm,
+        v.max_round_trip_error_mm,
+        if v.violations.is_empty() {
+            String::new()
+        } else {
+            format!(", {} violations", v.violations.len())
+        }
+    );
+    s
+}
+
+/// The zone table alone.
+#[must_use]
+pub fn zone_table(plan: &PlanOutput) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "  zone  centre (x, y, z, u, v, w)                                  pairwise°  incidence°  +lens°  layers  contours"
+    );
+    for r in &plan.table {
+        let c = r.centre;
+        let _ = writeln!(
+            s,
+            "  {:>4}  ({:>8.3}, {:>8.3}, {:>8.3}, {:>6.3}, {:>6.3}, {:>6.3})  {:>9.3}  {:>10.3}  {:>6.3}  {:>6}  {}",
+            r.zone,
+            c[0],
+            c[1],
+            c[2],
+            c[3],
+            c[4],
+            c[5],
+            r.max_pairwise_deg,
+            r.max_incidence_deg,
+            r.max_incidence_with_lens_deg,
+            r.layers,
+            r.contours.len()
+        );
+    }
+    s
+}
+
+/// The execution result against the estimate.
+#[must_use]
+pub fn execution(run: &RunSummary, job: &Job) -> String {
+    let overhead: Vec<f64> = run.layers.iter().map(|l| l.overhead_s).collect();
+    let mean_overhead = if overhead.is_empty() {
+        0.0
+    } else {
+        overhead.iter().sum::<f64>() / overhead.len() as f64
+    };
+    format!(
+        "executed: {} layers marked, {} skipped (finished before), {} vectors; wall {:.1} s; galvo time {:.2} s simulated vs {:.2} s estimated; executor overhead {:.1} ms per layer (mean); job estimate {:.1} s\n",
+        run.layers_marked,
+        run.layers_skipped,
+        run.vectors_marked,
+        run.wall_s,
+        run.galvo_modelled_s,
+        run.galvo_estimate_s,
+        mean_overhead * 1e3,
+        job.estimate.total_s
+    )
+}
+
+/// The run report (markdown).
+#[must_use]
+pub fn report_markdown(
+    config: &JobConfig,
+    description: &str,
+    registration_report: &QualityReport,
+    plan_out: &PlanOutput,
+    run: Option<&RunSummary>,
+    stopped: Option<&str>,
+    timings: &[(&str, f64)],
+) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# trimctl run report\n");
+    let _ = writeln!(s, "- part: {description}");
+    let _ = writeln!(
+        s,
+        "- cell: cnc {}, galvo {}, laser {} ({})",
+        config.cell.cnc, config.cell.galvo, config.cell.laser, config.cell.laser_profile
+    );
+    let outcome = match (run, stopped) {
+        (Some(_), _) => "finished".to_string(),
+        (None, Some(why)) => format!("stopped: {why}"),
+        (None, None) => "not executed (dry run)".to_string(),
+    };
+    let _ = writeln!(s, "- outcome: {outcome}\n");
+    let _ = writeln!(s, "## Stage timings\n\n| stage | wall s |\n|---|---|");
+    for (name, t) in timings {
+        let _ = writeln!(s, "| {name} | {t:.3} |");
+    }
+    let _ = writeln!(
+        s,
+        "\n## Registration\n\n```\n{}```",
+        registration(registration_report)
+    );
+    let _ = writeln!(s, "\n## Plan\n\n```\n{}```", plan(plan_out));
+    if let Some(r) = run {
+        let _ = writeln!(
+            s,
+            "\n## Execution\n\n```\n{}```",
+            execution(r, &plan_out.job)
+        );
+    }
+    s
+}
