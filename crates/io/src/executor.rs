@@ -258,6 +258,9 @@ pub struct ExecOptions {
     pub timeouts: Timeouts,
     /// Laser power to set before the first layer (%), if any.
     pub laser_power_pct: Option<f64>,
+    /// How often the laser's faults are checked while a list runs (also once right after
+    /// `EXECUTE`).
+    pub laser_poll: Duration,
 }
 
 impl Default for ExecOptions {
@@ -265,6 +268,7 @@ impl Default for ExecOptions {
         ExecOptions {
             timeouts: Timeouts::default(),
             laser_power_pct: None,
+            laser_poll: Duration::from_millis(LASER_POLL_MS),
         }
     }
 }
@@ -573,7 +577,7 @@ impl Executor {
             let mut last_laser_check: Option<Instant> = None;
             let expected_marks = n - first;
             let done_status = loop {
-                if last_laser_check.is_none_or(|l| l.elapsed() >= Duration::from_millis(LASER_POLL_MS)) {
+                if last_laser_check.is_none_or(|l| l.elapsed() >= self.options.laser_poll) {
                     let queries = u32::try_from(self.cell.laser.profile().queries.len().max(1)).unwrap_or(1);
                     step!(Phase::WaitDone, true, Self::guard(&c, t.laser_reply * queries, Device::Laser, "status", self.cell.laser.check()).await);
                     last_laser_check = Some(Instant::now());

@@ -73,6 +73,7 @@ pub struct Recorder {
     channels: HashMap<String, u16>,
     sequence: u32,
     messages: u64,
+    per_topic: BTreeMap<String, u64>,
 }
 
 /// A recorder shared between the executor and the device taps.
@@ -121,6 +122,7 @@ impl Recorder {
             channels: HashMap::new(),
             sequence: 0,
             messages: 0,
+            per_topic: BTreeMap::new(),
         })
     }
 
@@ -161,6 +163,7 @@ impl Recorder {
             &data,
         )?;
         self.messages += 1;
+        *self.per_topic.entry(topic.to_owned()).or_default() += 1;
         Ok(())
     }
 
@@ -168,6 +171,12 @@ impl Recorder {
     #[must_use]
     pub fn messages(&self) -> u64 {
         self.messages
+    }
+
+    /// Messages written so far, per topic.
+    #[must_use]
+    pub fn messages_per_topic(&self) -> BTreeMap<String, u64> {
+        self.per_topic.clone()
     }
 
     /// A point cloud (mm) in the work-piece frame as foxglove.PointCloud (float64 x, y, z).

@@ -192,15 +192,6 @@ fn serve(fd: &OwnedFd, shared: &Shared, stop: &AtomicBool) {
     let mut pending: Vec<u8> = Vec::new();
     let mut buf = [0_u8; 512];
     while !stop.load(Ordering::Relaxed) {
-        if shared.faults.stalled() {
-            // Hung: nothing is read until the faults are cleared; then the backlog is dropped.
-            std::thread::sleep(Duration::from_millis(u64::from(POLL_MS)));
-            if !shared.faults.stalled() {
-                pending.clear();
-                while matches!(read_some(fd, &mut buf), Ok(n) if n > 0) {}
-            }
-            continue;
-        }
         let n = match read_some(fd, &mut buf) {
             Ok(n) => n,
             Err(_) => {
@@ -208,8 +199,9 @@ fn serve(fd: &OwnedFd, shared: &Shared, stop: &AtomicBool) {
                 continue;
             }
         };
-        if shared.faults.link_down() {
-            // Cable pulled: everything is lost until the faults are cleared.
+        // Checked after the read: bytes that arrive once the faults are cleared are answered.
+        if shared.faults.stalled() || shared.faults.link_down() {
+            // Hung, or the cable pulled: nothing is answered, what arrives is lost.
             pending.clear();
             continue;
         }

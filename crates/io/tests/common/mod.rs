@@ -119,10 +119,15 @@ pub fn assert_marked_exactly_once(job: &Job, marks: &[MarkRecord]) -> usize {
     marks.iter().filter(|m| m.lit == Lit::Partial).count()
 }
 
-/// Starts the simulated cell.
+/// Starts the simulated cell (galvo in real time, CNC 10× faster).
 pub async fn sim_cell(profile: &str) -> SimCell {
+    sim_cell_scaled(profile, 1.0).await
+}
+
+/// Starts the simulated cell with the galvo's clock slowed `galvo_time_scale` times.
+pub async fn sim_cell_scaled(profile: &str, galvo_time_scale: f64) -> SimCell {
     let mut o = SimOptions::new(Profile::builtin(profile).expect("profile"));
-    o.galvo_time_scale = 1.0;
+    o.galvo_time_scale = galvo_time_scale;
     o.cnc_time_scale = 0.1;
     SimCell::start(o).await.expect("simulators")
 }

@@ -1,0 +1,126 @@
+"""The run record (MCAP) opens in the official Python reader with the expected channels, schemas
+and message counts.
+
+The record is written by `cargo run -q -p trim-io --example write_record -- OUT.mcap`: a small
+job executed on the in-process simulators, with clouds and paths. The example prints what it
+wrote per topic; this reader counts independently.
+"""
+
+import base64
+import json
+import pathlib
+import struct
+import subprocess
+
+import pytest
+from mcap.reader import make_reader
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+
+FOXGLOVE_TOPICS = {
+    "/scan": "foxglove.PointCloud",
+    "/cad": "foxglove.PointCloud",
+    "/template": "foxglove.SceneUpdate",
+    "/registered": "foxglove.SceneUpdate",
+    "/tf": "foxglove.FrameTransform",
+    "/log": "foxglove.Log",
+}
+OWN_TOPICS = {
+    "/layer": "trimctl.Layer",
+    "/device/galvo": "trimctl.DeviceIo",
+    "/device/laser": "trimctl.DeviceIo",
+    "/device/cnc": "trimctl.DeviceIo",
+}
+# The example's job: 2 zones x 2 layers.
+ZONES, LAYERS = 2, 2
+
+
+@pytest.fixture(scope="module")
+def record(tmp_path_factory):
+    out = tmp_path_factory.mktemp("record") / "run.mcap"
+    proc = subprocess.run(
+        ["cargo", "run", "-q", "-p", "trim-io", "--example", "write_record", "--", str(out)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=1800,
+    )
+    assert proc.returncode == 0, proc.stderr
+    return out, json.loads(proc.stdout)
+
+
+def read_all(path):
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        messages = [(schema, channel, message) for schema, channel, message in reader.iter_messages()]
+    return summary, messages
+
+
+def test_channels_schemas_and_counts(record):
+    path, written = record
+    summary, messages = read_all(path)
+    topics = {c.topic: c for c in summary.channels.values()}
+    assert set(topics) == set(FOXGLOVE_TOPICS) | set(OWN_TOPICS)
+    for topic, name in {**FOXGLOVE_TOPICS, **OWN_TOPICS}.items():
+        channel = topics[topic]
+        schema = summary.schemas[channel.schema_id]
+        assert schema.name == name
+        assert schema.encoding == "jsonschema"
+        assert channel.message_encoding == "json"
+        assert json.loads(schema.data)["title"] == name
+    counts = {}
+    for _, channel, _ in messages:
+        counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    assert counts == written["messages_per_topic"]
+    assert summary.statistics.message_count == len(messages)
+    assert counts["/scan"] == counts["/cad"] == 1
+    assert counts["/template"] == counts["/registered"] == 1
+    assert counts["/tf"] == ZONES
+    # Per layer: started, done.
+    assert counts["/layer"] == 2 * ZONES * LAYERS
+    assert written["layers_marked"] == ZONES * LAYERS
+    for device in ("galvo", "laser", "cnc"):
+        assert counts[f"/device/{device}"] >= 2 * ZONES * LAYERS
+
+
+def test_messages_decode_as_their_schemas_say(record):
+    path, written = record
+    _, messages = read_all(path)
+    by_topic = {}
+    for _, channel, message in messages:
+        by_topic.setdefault(channel.topic, []).append((message, json.loads(message.data)))
+
+    _, scan = by_topic["/scan"][0]
+    data = base64.b64decode(scan["data"])
+    assert scan["point_stride"] == 24
+    assert [f["name"] for f in scan["fields"]] == ["x", "y", "z"]
+    assert len(data) == 24 * written["cloud_points"]
+    x0, y0, z0 = struct.unpack_from("<3d", data, 0)
+    assert (x0, y0, z0) == (10.0, 0.0, 0.0)
+
+    _, tf = by_topic["/tf"][1]
+    assert tf["parent_frame_id"] == "workpiece" and tf["child_frame_id"] == "zone_1"
+    assert tf["translation"] == {"x": 10.0, "y": 0.0, "z": 0.0}
+    assert abs(tf["rotation"]["w"] - 1.0) < 1e-12
+
+    _, scene = by_topic["/registered"][0]
+    line = scene["entities"][0]["lines"][0]
+    assert line["type"] == 0 and len(line["points"]) == 3
+
+    states = [(m["zone"], m["layer"], m["state"]) for _, m in by_topic["/layer"]]
+    assert states[:2] == [(0, 0, "started"), (0, 0, "done")]
+    assert states[-1] == (1, 1, "done")
+
+    for device in ("galvo", "laser", "cnc"):
+        ios = [m for _, m in by_topic[f"/device/{device}"]]
+        assert {io["direction"] for io in ios} == {"command", "reply"}
+        assert all(io["device"] == device for io in ios)
+        times = [io["time_ns"] for io in ios]
+        assert times == sorted(times)
+    laser_commands = [io["text"] for _, io in by_topic["/device/laser"] if io["direction"] == "command"]
+    assert laser_commands.count("L=1") == ZONES * LAYERS
+
+    # Log times are message times.
+    for message, log in by_topic["/log"]:
+        assert message.log_time == log["timestamp"]["sec"] * 1_000_000_000 + log["timestamp"]["nsec"]
