@@ -272,13 +272,16 @@ async fn laser_faults_stall_garble_refuse_drop() {
     assert!(!sim.state().emission);
     faults.clear();
     faults.arm(Fault { kind: FaultKind::DropLink, trigger: Trigger::Command { name: "status".into(), nth: 1 } });
+    drop(c); // the port is opened exclusively (TIOCEXCL), as a real serial port
     let mut c = open(&sim, &profile);
     c.emission(true).await.unwrap().unwrap();
     assert!(matches!(c.check().await, Err(LaserError::Timeout { .. })));
     // The cable stays pulled until the faults are cleared.
+    drop(c);
     let mut c2 = open(&sim, &profile);
     assert!(matches!(c2.emission(false).await, Err(LaserError::Timeout { .. })));
     faults.clear();
+    drop(c2);
     let mut c3 = open(&sim, &profile);
     c3.emission(false).await.unwrap().unwrap();
 }
