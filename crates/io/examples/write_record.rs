@@ -13,7 +13,10 @@ use trim_io::executor::Executor;
 use trim_io::laser::Profile;
 use trim_io::record::{Recorder, device_tap};
 use trim_io::tap::now_ns;
-use trim_plan::job::{Frame, GalvoSettings, Job, JobSettings, Layer, Polyline, Pose, TimeEstimate, ValidationReport, Zone};
+use trim_plan::job::{
+    Frame, GalvoSettings, Job, JobSettings, Layer, Polyline, Pose, TimeEstimate, ValidationReport,
+    Zone,
+};
 
 /// Points in each synthetic cloud.
 const CLOUD_POINTS: usize = 500;
@@ -23,21 +26,34 @@ fn job() -> Job {
         .map(|z| Zone {
             id: z,
             origin: [10.0 * z as f64, 0.0, 0.0],
-            frame: Frame { x: [1.0, 0.0, 0.0], y: [0.0, 1.0, 0.0], z: [0.0, 0.0, 1.0] },
+            frame: Frame {
+                x: [1.0, 0.0, 0.0],
+                y: [0.0, 1.0, 0.0],
+                z: [0.0, 0.0, 1.0],
+            },
             contours: vec![z as i64],
             max_incidence_deg: 1.0,
             max_pairwise_deg: 1.0,
             layers: (0..2_usize)
                 .map(|m| {
                     let mut pose = BTreeMap::new();
-                    for (k, v) in [("x", 10.0 * z as f64), ("y", 0.0), ("z", -0.1 * m as f64), ("a", 5.0 * z as f64), ("c", 0.0)] {
+                    for (k, v) in [
+                        ("x", 10.0 * z as f64),
+                        ("y", 0.0),
+                        ("z", -0.1 * m as f64),
+                        ("a", 5.0 * z as f64),
+                        ("c", 0.0),
+                    ] {
                         pose.insert(k.to_owned(), v);
                     }
                     Layer {
                         index: m,
                         focus_point: [10.0 * z as f64, 0.0, -0.1 * m as f64],
                         pose: Pose(pose),
-                        polylines: vec![Polyline { contour: z as i64, points: vec![[-3.0, -1.0], [0.0, 2.0], [3.0, -1.0]] }],
+                        polylines: vec![Polyline {
+                            contour: z as i64,
+                            points: vec![[-3.0, -1.0], [0.0, 2.0], [3.0, -1.0]],
+                        }],
                     }
                 })
                 .collect(),
@@ -48,7 +64,12 @@ fn job() -> Job {
         layer_step_mm: 0.1,
         focus_half_length_mm: 0.4,
         zones,
-        settings: JobSettings { max_incidence_deg: 5.0, kinematics: "xyzac-trt".into(), galvo: GalvoSettings::default(), extra: serde_json::Value::Null },
+        settings: JobSettings {
+            max_incidence_deg: 5.0,
+            kinematics: "xyzac-trt".into(),
+            galvo: GalvoSettings::default(),
+            extra: serde_json::Value::Null,
+        },
         validation: ValidationReport::default(),
         estimate: TimeEstimate::default(),
     }
@@ -56,27 +77,55 @@ fn job() -> Job {
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let out = std::env::args().nth(1).ok_or("usage: write_record OUT.mcap")?;
+    let out = std::env::args()
+        .nth(1)
+        .ok_or("usage: write_record OUT.mcap")?;
     let job = job();
     let recorder = Recorder::create(std::path::Path::new(&out))?.shared();
     {
         let mut r = recorder.lock().map_err(|_| "poisoned")?;
         let t = now_ns();
-        let cloud = |s: f64| -> Vec<[f64; 3]> { (0..CLOUD_POINTS).map(|i| { let a = i as f64 * 0.1; [s * a.cos(), s * a.sin(), 0.01 * i as f64] }).collect() };
+        let cloud = |s: f64| -> Vec<[f64; 3]> {
+            (0..CLOUD_POINTS)
+                .map(|i| {
+                    let a = i as f64 * 0.1;
+                    [s * a.cos(), s * a.sin(), 0.01 * i as f64]
+                })
+                .collect()
+        };
         r.point_cloud("/scan", t, &cloud(10.0))?;
         r.point_cloud("/cad", t, &cloud(10.2))?;
-        let path = |dz: f64| -> Vec<(i64, Vec<[f64; 3]>)> { vec![(0, vec![[0.0, 0.0, dz], [5.0, 0.0, dz], [5.0, 5.0, dz]]), (1, vec![[10.0, 0.0, dz], [12.0, 3.0, dz]])] };
+        let path = |dz: f64| -> Vec<(i64, Vec<[f64; 3]>)> {
+            vec![
+                (0, vec![[0.0, 0.0, dz], [5.0, 0.0, dz], [5.0, 5.0, dz]]),
+                (1, vec![[10.0, 0.0, dz], [12.0, 3.0, dz]]),
+            ]
+        };
         r.paths("/template", t, &path(0.0), [0.2, 0.6, 1.0, 1.0])?;
         r.paths("/registered", t, &path(0.05), [1.0, 0.4, 0.1, 1.0])?;
     }
-    let sim = SimCell::start(SimOptions { cnc_time_scale: 0.05, ..SimOptions::new(Profile::builtin("monaco")?) }).await?;
-    let cell = Cell::connect(&sim.addresses(), &Timeouts::default(), device_tap(&recorder)).await?;
+    let sim = SimCell::start(SimOptions {
+        cnc_time_scale: 0.05,
+        ..SimOptions::new(Profile::builtin("monaco")?)
+    })
+    .await?;
+    let cell = Cell::connect(
+        &sim.addresses(),
+        &Timeouts::default(),
+        device_tap(&recorder),
+    )
+    .await?;
     let journal = format!("{out}.journal");
     let _ = std::fs::remove_file(&journal);
-    let summary = Executor::new(job, cell, &journal, Some(recorder.clone())).run(CancellationToken::new(), None).await?;
+    let summary = Executor::new(job, cell, &journal, Some(recorder.clone()))
+        .run(CancellationToken::new(), None)
+        .await?;
     // `run` consumed the cell (its taps included): the recorder is ours alone again.
     drop(sim);
-    let rec = Arc::try_unwrap(recorder).map_err(|_| "recorder still shared")?.into_inner().map_err(|_| "poisoned")?;
+    let rec = Arc::try_unwrap(recorder)
+        .map_err(|_| "recorder still shared")?
+        .into_inner()
+        .map_err(|_| "poisoned")?;
     let per_topic = rec.messages_per_topic();
     rec.finish()?;
     let report = serde_json::json!({

@@ -108,7 +108,11 @@ pub enum CellError {
 
 impl Cell {
     /// Connects to the three devices (galvo session with heartbeat, laser port, LinuxCNC session).
-    pub async fn connect(addrs: &CellAddresses, timeouts: &Timeouts, tap: Tap) -> Result<Cell, CellError> {
+    pub async fn connect(
+        addrs: &CellAddresses,
+        timeouts: &Timeouts,
+        tap: Tap,
+    ) -> Result<Cell, CellError> {
         let galvo = GalvoClient::connect(
             addrs.galvo,
             GalvoClientConfig {

@@ -289,7 +289,12 @@ type Step<T> = Result<T, StopCause>;
 impl Executor {
     /// An executor for `job` on `cell`, journaling to `journal_path`, recording to `recorder`.
     #[must_use]
-    pub fn new(job: Job, cell: Cell, journal_path: impl Into<PathBuf>, recorder: Option<SharedRecorder>) -> Executor {
+    pub fn new(
+        job: Job,
+        cell: Cell,
+        journal_path: impl Into<PathBuf>,
+        recorder: Option<SharedRecorder>,
+    ) -> Executor {
         Executor {
             job,
             cell,
@@ -309,7 +314,11 @@ impl Executor {
     }
 
     /// Runs the job from the start (the journal must not exist).
-    pub async fn run(mut self, cancel: CancellationToken, progress: Option<UnboundedSender<Progress>>) -> Result<RunSummary, ExecError> {
+    pub async fn run(
+        mut self,
+        cancel: CancellationToken,
+        progress: Option<UnboundedSender<Progress>>,
+    ) -> Result<RunSummary, ExecError> {
         self.cancel = cancel;
         self.progress = progress;
         self.check_job()?;
@@ -319,7 +328,11 @@ impl Executor {
 
     /// Continues a stopped run: skips finished layers, continues the cut layer from the first
     /// vector not marked, never marks a vector twice.
-    pub async fn resume(mut self, cancel: CancellationToken, progress: Option<UnboundedSender<Progress>>) -> Result<RunSummary, ExecError> {
+    pub async fn resume(
+        mut self,
+        cancel: CancellationToken,
+        progress: Option<UnboundedSender<Progress>>,
+    ) -> Result<RunSummary, ExecError> {
         self.cancel = cancel;
         self.progress = progress;
         self.check_job()?;
@@ -329,7 +342,8 @@ impl Executor {
 
     fn check_job(&self) -> Result<(), ExecError> {
         for (key, _, layer) in self.job.layers() {
-            layer_list(layer, &self.job.settings.galvo, 0).map_err(|e| ExecError::Job(format!("{key}: {e}")))?;
+            layer_list(layer, &self.job.settings.galvo, 0)
+                .map_err(|e| ExecError::Job(format!("{key}: {e}")))?;
         }
         Ok(())
     }
@@ -387,22 +401,68 @@ impl Executor {
     }
 
     async fn galvo_status(&self) -> Step<StatusBlock> {
-        Self::guard(&self.cancel, self.galvo_timeout(), Device::Galvo, "STATUS", self.cell.galvo.status()).await
+        Self::guard(
+            &self.cancel,
+            self.galvo_timeout(),
+            Device::Galvo,
+            "STATUS",
+            self.cell.galvo.status(),
+        )
+        .await
     }
 
     async fn prepare(&mut self) -> Step<()> {
-        let (c, gt, lt) = (self.cancel.clone(), self.galvo_timeout(), self.options.timeouts.laser_reply);
-        Self::guard(&c, lt, Device::Laser, "emission off", self.cell.laser.emission(false)).await?;
-        Self::guard(&c, gt, Device::Galvo, "RESET_ERROR", self.cell.galvo.reset_error()).await?;
-        Self::guard(&c, gt, Device::Galvo, "LASER_SIGNALS on", self.cell.galvo.laser_signals(true)).await?;
+        let (c, gt, lt) = (
+            self.cancel.clone(),
+            self.galvo_timeout(),
+            self.options.timeouts.laser_reply,
+        );
+        Self::guard(
+            &c,
+            lt,
+            Device::Laser,
+            "emission off",
+            self.cell.laser.emission(false),
+        )
+        .await?;
+        Self::guard(
+            &c,
+            gt,
+            Device::Galvo,
+            "RESET_ERROR",
+            self.cell.galvo.reset_error(),
+        )
+        .await?;
+        Self::guard(
+            &c,
+            gt,
+            Device::Galvo,
+            "LASER_SIGNALS on",
+            self.cell.galvo.laser_signals(true),
+        )
+        .await?;
         let queries = self.cell.laser.profile().queries.len().max(1);
         let lt_all = lt * u32::try_from(queries).unwrap_or(1);
         Self::guard(&c, lt_all, Device::Laser, "status", self.cell.laser.check()).await?;
         if let Some(p) = self.options.laser_power_pct {
-            Self::guard(&c, lt, Device::Laser, "set power", self.cell.laser.set_power_pct(p)).await?;
+            Self::guard(
+                &c,
+                lt,
+                Device::Laser,
+                "set power",
+                self.cell.laser.set_power_pct(p),
+            )
+            .await?;
         }
         let enable_timeout = self.options.timeouts.cnc_motion;
-        Self::guard(&c, enable_timeout, Device::Cnc, "enable", self.cell.cnc.enable()).await?;
+        Self::guard(
+            &c,
+            enable_timeout,
+            Device::Cnc,
+            "enable",
+            self.cell.cnc.enable(),
+        )
+        .await?;
         Ok(())
     }
 
@@ -418,10 +478,16 @@ impl Executor {
         let laser_off_s = t0.elapsed().as_secs_f64();
         let laser_off_ok = matches!(laser, Ok(Ok(Ok(()))));
         let galvo_signals_off_ok = matches!(galvo, Ok(Ok(Ok(()))));
-        let galvo_stop_ok = matches!(tokio::time::timeout(step, cell.galvo.stop()).await, Ok(Ok(Ok(()))));
+        let galvo_stop_ok = matches!(
+            tokio::time::timeout(step, cell.galvo.stop()).await,
+            Ok(Ok(Ok(())))
+        );
         // A stop on a fresh CNC session may need a connect: allow it the reply timeout too.
         let cnc_step = step + self.options.timeouts.cnc_reply;
-        let cnc_abort_ok = matches!(tokio::time::timeout(cnc_step, cell.cnc.abort()).await, Ok(Ok(Ok(()))));
+        let cnc_abort_ok = matches!(
+            tokio::time::timeout(cnc_step, cell.cnc.abort()).await,
+            Ok(Ok(Ok(())))
+        );
         let report = ShutdownReport {
             laser_off_ok,
             galvo_signals_off_ok,
@@ -435,8 +501,17 @@ impl Executor {
     }
 
     /// Where the cut layer continues: the first vector the galvo did not mark.
-    async fn resume_point(&self, state: &JournalState) -> Result<Option<(LayerKey, u32)>, ExecError> {
-        let Some(Entry::LayerBegin { key, first_vector, tag, .. }) = &state.open_begin else {
+    async fn resume_point(
+        &self,
+        state: &JournalState,
+    ) -> Result<Option<(LayerKey, u32)>, ExecError> {
+        let Some(Entry::LayerBegin {
+            key,
+            first_vector,
+            tag,
+            ..
+        }) = &state.open_begin
+        else {
             return Ok(None);
         };
         let cut = match &state.open_cut {
@@ -447,13 +522,17 @@ impl Executor {
         let done = match status {
             Some(s) if s.list != NO_LIST && s.tag == *tag => first_vector + s.marks_done,
             // The controller's last list is an earlier one of this run: this one never ran.
-            Some(s) if s.list != NO_LIST && s.tag >> 16 == tag >> 16 && s.tag < *tag => cut.unwrap_or(*first_vector),
+            Some(s) if s.list != NO_LIST && s.tag >> 16 == tag >> 16 && s.tag < *tag => {
+                cut.unwrap_or(*first_vector)
+            }
             _ => match cut {
                 Some(v) => v,
                 None => {
                     return Err(ExecError::ResumeUnknown {
                         key: *key,
-                        reason: format!("the galvo does not report list tag {tag} (status {status:?}) and the journal has no count"),
+                        reason: format!(
+                            "the galvo does not report list tag {tag} (status {status:?}) and the journal has no count"
+                        ),
                     });
                 }
             },
@@ -461,11 +540,22 @@ impl Executor {
         Ok(Some((*key, done)))
     }
 
-    #[expect(clippy::too_many_lines, reason = "the state machine reads best as one sequence of phases")]
-    async fn execute(mut self, mut journal: Journal, state: JournalState) -> Result<RunSummary, ExecError> {
+    #[expect(
+        clippy::too_many_lines,
+        reason = "the state machine reads best as one sequence of phases"
+    )]
+    async fn execute(
+        mut self,
+        mut journal: Journal,
+        state: JournalState,
+    ) -> Result<RunSummary, ExecError> {
         let started = Instant::now();
         let total_layers = self.job.layers().count();
-        let vectors_total: u64 = self.job.layers().map(|(_, _, l)| u64::from(vector_count(l))).sum();
+        let vectors_total: u64 = self
+            .job
+            .layers()
+            .map(|(_, _, l)| u64::from(vector_count(l)))
+            .sum();
         let finished: BTreeSet<LayerKey> = state.finished.clone();
         self.emit(Progress::Started {
             layers: total_layers,
@@ -478,10 +568,26 @@ impl Executor {
                 tracing::warn!(error = %e, "record: zone frames lost");
             }
         }
-        self.log(LogLevel::Info, &format!("run starts: {total_layers} layers, {} finished before", finished.len()));
+        self.log(
+            LogLevel::Info,
+            &format!(
+                "run starts: {total_layers} layers, {} finished before",
+                finished.len()
+            ),
+        );
 
         if let Err(cause) = self.prepare().await {
-            return Err(self.stop(&mut journal, cause, None, Phase::Prepare, None, 0, finished.len()).await);
+            return Err(self
+                .stop(
+                    &mut journal,
+                    cause,
+                    None,
+                    Phase::Prepare,
+                    None,
+                    0,
+                    finished.len(),
+                )
+                .await);
         }
         let resumed_from = self.resume_point(&state).await?;
         let elapsed0 = self.galvo_status().await.map(|s| s.elapsed_ns).unwrap_or(0);
@@ -498,10 +604,19 @@ impl Executor {
         };
         let mut finished_count = finished.len();
         let mut list_buf = 0_u8;
-        let layers: Vec<(usize, LayerKey)> = self.job.layers().enumerate().map(|(i, (k, _, _))| (i, k)).collect();
+        let layers: Vec<(usize, LayerKey)> = self
+            .job
+            .layers()
+            .enumerate()
+            .map(|(i, (k, _, _))| (i, k))
+            .collect();
         for (index, key) in layers {
             let (pose, layer) = {
-                let (_, _, l) = self.job.layers().nth(index).unwrap_or_else(|| unreachable!("index from the same iterator"));
+                let (_, _, l) = self
+                    .job
+                    .layers()
+                    .nth(index)
+                    .unwrap_or_else(|| unreachable!("index from the same iterator"));
                 (l.pose.clone(), l.clone())
             };
             let n = vector_count(&layer);
@@ -528,7 +643,11 @@ impl Executor {
             }
             let c = self.cancel.clone();
             let t = self.options.timeouts;
-            let phase_of = |p: Phase| Progress::Phase { key, index, phase: p };
+            let phase_of = |p: Phase| Progress::Phase {
+                key,
+                index,
+                phase: p,
+            };
 
             // On failure: how far the layer got, then the way down (see `stop`).
             macro_rules! step {
@@ -544,7 +663,17 @@ impl Executor {
                             } else {
                                 None
                             };
-                            return Err(self.stop(&mut journal, cause, Some(key), $phase, done, n, finished_count).await);
+                            return Err(self
+                                .stop(
+                                    &mut journal,
+                                    cause,
+                                    Some(key),
+                                    $phase,
+                                    done,
+                                    n,
+                                    finished_count,
+                                )
+                                .await);
                         }
                     }
                 };
@@ -552,51 +681,163 @@ impl Executor {
 
             self.emit(phase_of(Phase::Move));
             self.record_layer(key, "started", first, n, false);
-            step!(Phase::Move, false, Self::guard(&c, t.cnc_reply, Device::Cnc, "move", self.cell.cnc.start_move(&pose)).await);
+            step!(
+                Phase::Move,
+                false,
+                Self::guard(
+                    &c,
+                    t.cnc_reply,
+                    Device::Cnc,
+                    "move",
+                    self.cell.cnc.start_move(&pose)
+                )
+                .await
+            );
             self.emit(phase_of(Phase::WaitInPosition));
-            step!(Phase::WaitInPosition, false, Self::guard(&c, t.cnc_motion + Duration::from_secs(1), Device::Cnc, "wait in position", self.cell.cnc.wait_in_position(t.cnc_motion)).await);
+            step!(
+                Phase::WaitInPosition,
+                false,
+                Self::guard(
+                    &c,
+                    t.cnc_motion + Duration::from_secs(1),
+                    Device::Cnc,
+                    "wait in position",
+                    self.cell.cnc.wait_in_position(t.cnc_motion)
+                )
+                .await
+            );
             let motion_s = t_layer.elapsed().as_secs_f64();
 
             self.emit(phase_of(Phase::LoadList));
-            let commands = layer_list(&layer, &settings, first).map_err(|e| ExecError::Job(format!("{key}: {e}")))?;
+            let commands = layer_list(&layer, &settings, first)
+                .map_err(|e| ExecError::Job(format!("{key}: {e}")))?;
             let modelled_list_s = list_time_s(&commands);
             let tag = journal.next_tag();
-            journal.append(&Entry::LayerBegin { key, first_vector: first, vectors: n, tag })?;
-            let frames = u32::try_from(commands.len().div_ceil(crate::galvo::client::COMMANDS_PER_FRAME)).unwrap_or(u32::MAX).max(1);
-            step!(Phase::LoadList, true, Self::guard(&c, self.galvo_timeout() * frames, Device::Galvo, "LOAD_LIST", self.cell.galvo.load_list(list_buf, tag, &commands)).await);
+            journal.append(&Entry::LayerBegin {
+                key,
+                first_vector: first,
+                vectors: n,
+                tag,
+            })?;
+            let frames = u32::try_from(
+                commands
+                    .len()
+                    .div_ceil(crate::galvo::client::COMMANDS_PER_FRAME),
+            )
+            .unwrap_or(u32::MAX)
+            .max(1);
+            step!(
+                Phase::LoadList,
+                true,
+                Self::guard(
+                    &c,
+                    self.galvo_timeout() * frames,
+                    Device::Galvo,
+                    "LOAD_LIST",
+                    self.cell.galvo.load_list(list_buf, tag, &commands)
+                )
+                .await
+            );
 
             self.emit(phase_of(Phase::EnableEmission));
-            step!(Phase::EnableEmission, true, Self::guard(&c, t.laser_reply, Device::Laser, "emission on", self.cell.laser.emission(true)).await);
+            step!(
+                Phase::EnableEmission,
+                true,
+                Self::guard(
+                    &c,
+                    t.laser_reply,
+                    Device::Laser,
+                    "emission on",
+                    self.cell.laser.emission(true)
+                )
+                .await
+            );
 
             self.emit(phase_of(Phase::Execute));
             let t_exec = Instant::now();
-            step!(Phase::Execute, true, Self::guard(&c, self.galvo_timeout(), Device::Galvo, "EXECUTE", self.cell.galvo.execute(list_buf)).await);
+            step!(
+                Phase::Execute,
+                true,
+                Self::guard(
+                    &c,
+                    self.galvo_timeout(),
+                    Device::Galvo,
+                    "EXECUTE",
+                    self.cell.galvo.execute(list_buf)
+                )
+                .await
+            );
 
             self.emit(phase_of(Phase::WaitDone));
-            let deadline = t_exec + Duration::from_secs_f64(modelled_list_s * t.list_time_factor) + t.list_time_margin;
+            let deadline = t_exec
+                + Duration::from_secs_f64(modelled_list_s * t.list_time_factor)
+                + t.list_time_margin;
             let mut last_laser_check: Option<Instant> = None;
             let expected_marks = n - first;
             let done_status = loop {
                 if last_laser_check.is_none_or(|l| l.elapsed() >= self.options.laser_poll) {
-                    let queries = u32::try_from(self.cell.laser.profile().queries.len().max(1)).unwrap_or(1);
-                    step!(Phase::WaitDone, true, Self::guard(&c, t.laser_reply * queries, Device::Laser, "status", self.cell.laser.check()).await);
+                    let queries =
+                        u32::try_from(self.cell.laser.profile().queries.len().max(1)).unwrap_or(1);
+                    step!(
+                        Phase::WaitDone,
+                        true,
+                        Self::guard(
+                            &c,
+                            t.laser_reply * queries,
+                            Device::Laser,
+                            "status",
+                            self.cell.laser.check()
+                        )
+                        .await
+                    );
                     last_laser_check = Some(Instant::now());
                 }
                 let s = step!(Phase::WaitDone, true, self.galvo_status().await);
-                let lost = |m: String| StopCause::Fault { device: Device::Galvo, message: m };
+                let lost = |m: String| StopCause::Fault {
+                    device: Device::Galvo,
+                    message: m,
+                };
                 if s.tag != tag || s.list != list_buf {
-                    step!(Phase::WaitDone, true, Err::<(), _>(lost(format!("the galvo reports list {} tag {}, not list {list_buf} tag {tag}", s.list, s.tag))));
+                    step!(
+                        Phase::WaitDone,
+                        true,
+                        Err::<(), _>(lost(format!(
+                            "the galvo reports list {} tag {}, not list {list_buf} tag {tag}",
+                            s.list, s.tag
+                        )))
+                    );
                 }
-                self.emit(Progress::Vectors { key, done: first + s.marks_done, total: n });
+                self.emit(Progress::Vectors {
+                    key,
+                    done: first + s.marks_done,
+                    total: n,
+                });
                 match s.state {
                     ControllerState::Executing => {}
                     ControllerState::Idle => break s,
                     other => {
-                        step!(Phase::WaitDone, true, Err::<(), _>(lost(format!("the galvo stopped the list: {other:?}, error code {}", s.last_error))));
+                        step!(
+                            Phase::WaitDone,
+                            true,
+                            Err::<(), _>(lost(format!(
+                                "the galvo stopped the list: {other:?}, error code {}",
+                                s.last_error
+                            )))
+                        );
                     }
                 }
                 if Instant::now() > deadline {
-                    step!(Phase::WaitDone, true, Err::<(), _>(StopCause::Link { device: Device::Galvo, message: format!("list not done within {:.3} s", (deadline - t_exec).as_secs_f64()) }));
+                    step!(
+                        Phase::WaitDone,
+                        true,
+                        Err::<(), _>(StopCause::Link {
+                            device: Device::Galvo,
+                            message: format!(
+                                "list not done within {:.3} s",
+                                (deadline - t_exec).as_secs_f64()
+                            )
+                        })
+                    );
                 }
                 tokio::select! {
                     () = c.cancelled() => { step!(Phase::WaitDone, true, Err::<(), _>(StopCause::Cancelled)); }
@@ -604,15 +845,37 @@ impl Executor {
                 }
             };
             let list_s = t_exec.elapsed().as_secs_f64();
-            if done_status.marks_done != expected_marks || done_status.commands_done as usize != commands.len() {
-                step!(Phase::WaitDone, true, Err::<(), _>(StopCause::Fault {
-                    device: Device::Galvo,
-                    message: format!("list ended with {} of {expected_marks} vectors marked with light ({} of {} commands)", done_status.marks_done, done_status.commands_done, commands.len()),
-                }));
+            if done_status.marks_done != expected_marks
+                || done_status.commands_done as usize != commands.len()
+            {
+                step!(
+                    Phase::WaitDone,
+                    true,
+                    Err::<(), _>(StopCause::Fault {
+                        device: Device::Galvo,
+                        message: format!(
+                            "list ended with {} of {expected_marks} vectors marked with light ({} of {} commands)",
+                            done_status.marks_done,
+                            done_status.commands_done,
+                            commands.len()
+                        ),
+                    })
+                );
             }
 
             self.emit(phase_of(Phase::GateOff));
-            step!(Phase::GateOff, true, Self::guard(&c, t.laser_reply, Device::Laser, "emission off", self.cell.laser.emission(false)).await);
+            step!(
+                Phase::GateOff,
+                true,
+                Self::guard(
+                    &c,
+                    t.laser_reply,
+                    Device::Laser,
+                    "emission off",
+                    self.cell.laser.emission(false)
+                )
+                .await
+            );
 
             self.emit(phase_of(Phase::Journal));
             journal.append(&Entry::LayerDone { key, vectors: n })?;
@@ -636,16 +899,37 @@ impl Executor {
             });
             list_buf ^= 1;
         }
-        let elapsed1 = self.galvo_status().await.map(|s| s.elapsed_ns).unwrap_or(elapsed0);
+        let elapsed1 = self
+            .galvo_status()
+            .await
+            .map(|s| s.elapsed_ns)
+            .unwrap_or(elapsed0);
         summary.galvo_modelled_s = elapsed1.saturating_sub(elapsed0) as f64 * 1e-9;
         let (c, gt) = (self.cancel.clone(), self.galvo_timeout());
-        if let Err(cause) = Self::guard(&c, gt, Device::Galvo, "LASER_SIGNALS off", self.cell.galvo.laser_signals(false)).await {
+        if let Err(cause) = Self::guard(
+            &c,
+            gt,
+            Device::Galvo,
+            "LASER_SIGNALS off",
+            self.cell.galvo.laser_signals(false),
+        )
+        .await
+        {
             tracing::warn!(%cause, "executor: laser signals off at the end failed");
         }
         summary.wall_s = started.elapsed().as_secs_f64();
-        self.log(LogLevel::Info, &format!("run finished: {} layers marked, {} skipped", summary.layers_marked, summary.layers_skipped));
+        self.log(
+            LogLevel::Info,
+            &format!(
+                "run finished: {} layers marked, {} skipped",
+                summary.layers_marked, summary.layers_skipped
+            ),
+        );
         if let Some(r) = &self.recorder {
-            let _ = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner).flush();
+            let _ = r
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .flush();
         }
         Ok(summary)
     }
@@ -661,7 +945,10 @@ impl Executor {
         }
     }
 
-    #[expect(clippy::too_many_arguments, reason = "the cut layer's whole description, once")]
+    #[expect(
+        clippy::too_many_arguments,
+        reason = "the cut layer's whole description, once"
+    )]
     async fn stop(
         &mut self,
         journal: &mut Journal,
@@ -677,14 +964,24 @@ impl Executor {
         if let Some(key) = key
             && phase >= Phase::LoadList
         {
-            if let Err(e) = journal.append(&Entry::LayerCut { key, vectors_done, reason: cause.to_string() }) {
+            if let Err(e) = journal.append(&Entry::LayerCut {
+                key,
+                vectors_done,
+                reason: cause.to_string(),
+            }) {
                 tracing::error!(error = %e, "journal: cut entry lost");
             }
             self.record_layer(key, "cut", vectors_done.unwrap_or(0), vectors, true);
         }
-        self.log(LogLevel::Error, &format!("run stopped at {phase:?}: {cause}"));
+        self.log(
+            LogLevel::Error,
+            &format!("run stopped at {phase:?}: {cause}"),
+        );
         if let Some(r) = &self.recorder {
-            let _ = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner).flush();
+            let _ = r
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .flush();
         }
         ExecError::Stopped(Box::new(Stopped {
             cause,

@@ -248,7 +248,10 @@ impl Journal {
                 expected: digest,
             });
         }
-        let file = OpenOptions::new().append(true).open(path).map_err(io(path))?;
+        let file = OpenOptions::new()
+            .append(true)
+            .open(path)
+            .map_err(io(path))?;
         if st.torn_tail {
             // The only change to written bytes: a torn last line (a crash mid-write) is cut off.
             file.set_len(st.good_len).map_err(io(path))?;
@@ -290,7 +293,9 @@ impl Journal {
             source: std::io::Error::other(e),
         })?;
         line.push('\n');
-        self.file.write_all(line.as_bytes()).map_err(io(&self.path))?;
+        self.file
+            .write_all(line.as_bytes())
+            .map_err(io(&self.path))?;
         self.file.sync_data().map_err(io(&self.path))?;
         Ok(())
     }
@@ -333,32 +338,80 @@ mod tests {
         {
             let mut j = Journal::create(&path, &j0).unwrap();
             let tag = j.next_tag();
-            j.append(&Entry::LayerBegin { key: k, first_vector: 0, vectors: 5, tag }).unwrap();
+            j.append(&Entry::LayerBegin {
+                key: k,
+                first_vector: 0,
+                vectors: 5,
+                tag,
+            })
+            .unwrap();
             j.append(&Entry::LayerDone { key: k, vectors: 5 }).unwrap();
             let k2 = LayerKey { zone: 1, layer: 0 };
             let tag = j.next_tag();
-            j.append(&Entry::LayerBegin { key: k2, first_vector: 0, vectors: 3, tag }).unwrap();
-            j.append(&Entry::LayerCut { key: k2, vectors_done: Some(2), reason: "test".into() }).unwrap();
+            j.append(&Entry::LayerBegin {
+                key: k2,
+                first_vector: 0,
+                vectors: 3,
+                tag,
+            })
+            .unwrap();
+            j.append(&Entry::LayerCut {
+                key: k2,
+                vectors_done: Some(2),
+                reason: "test".into(),
+            })
+            .unwrap();
         }
-        assert!(matches!(Journal::create(&path, &j0), Err(JournalError::Exists(_))));
+        assert!(matches!(
+            Journal::create(&path, &j0),
+            Err(JournalError::Exists(_))
+        ));
         // A crash mid-write.
-        std::fs::OpenOptions::new().append(true).open(&path).unwrap().write_all(b"{\"kind\":\"layer_do").unwrap();
+        std::fs::OpenOptions::new()
+            .append(true)
+            .open(&path)
+            .unwrap()
+            .write_all(b"{\"kind\":\"layer_do")
+            .unwrap();
         let (mut j, st) = Journal::resume(&path, &j0).unwrap();
         assert!(st.torn_tail);
         assert_eq!(st.finished.iter().copied().collect::<Vec<_>>(), vec![k]);
-        assert!(matches!(st.open_begin, Some(Entry::LayerBegin { first_vector: 0, vectors: 3, .. })));
-        assert!(matches!(st.open_cut, Some(Entry::LayerCut { vectors_done: Some(2), .. })));
+        assert!(matches!(
+            st.open_begin,
+            Some(Entry::LayerBegin {
+                first_vector: 0,
+                vectors: 3,
+                ..
+            })
+        ));
+        assert!(matches!(
+            st.open_cut,
+            Some(Entry::LayerCut {
+                vectors_done: Some(2),
+                ..
+            })
+        ));
         assert_eq!(st.begins, 2);
         assert_eq!(j.next_tag() & 0xFFFF, 3);
-        j.append(&Entry::LayerDone { key: LayerKey { zone: 1, layer: 0 }, vectors: 3 }).unwrap();
+        j.append(&Entry::LayerDone {
+            key: LayerKey { zone: 1, layer: 0 },
+            vectors: 3,
+        })
+        .unwrap();
         let st = read(&path).unwrap();
         assert!(!st.torn_tail);
         assert_eq!(st.finished.len(), 2);
         assert!(st.open_begin.is_none());
         let mut other = job();
         other.layer_step_mm = 0.2;
-        assert!(matches!(Journal::resume(&path, &other), Err(JournalError::OtherJob { .. })));
-        assert!(matches!(Journal::resume(&dir.path().join("none"), &j0), Err(JournalError::Missing(_))));
+        assert!(matches!(
+            Journal::resume(&path, &other),
+            Err(JournalError::OtherJob { .. })
+        ));
+        assert!(matches!(
+            Journal::resume(&dir.path().join("none"), &j0),
+            Err(JournalError::Missing(_))
+        ));
     }
 
     #[test]

@@ -132,24 +132,40 @@ impl Recorder {
         Arc::new(Mutex::new(self))
     }
 
-    fn channel(&mut self, topic: &str, schema_name: &'static str, schema: &'static str) -> Result<u16, RecordError> {
+    fn channel(
+        &mut self,
+        topic: &str,
+        schema_name: &'static str,
+        schema: &'static str,
+    ) -> Result<u16, RecordError> {
         if let Some(&id) = self.channels.get(topic) {
             return Ok(id);
         }
         let schema_id = match self.schemas.get(schema_name) {
             Some(&id) => id,
             None => {
-                let id = self.writer.add_schema(schema_name, "jsonschema", schema.as_bytes())?;
+                let id = self
+                    .writer
+                    .add_schema(schema_name, "jsonschema", schema.as_bytes())?;
                 self.schemas.insert(schema_name, id);
                 id
             }
         };
-        let id = self.writer.add_channel(schema_id, topic, "json", &BTreeMap::new())?;
+        let id = self
+            .writer
+            .add_channel(schema_id, topic, "json", &BTreeMap::new())?;
         self.channels.insert(topic.to_owned(), id);
         Ok(id)
     }
 
-    fn write(&mut self, topic: &str, schema_name: &'static str, schema: &'static str, t_ns: u64, msg: &Value) -> Result<(), RecordError> {
+    fn write(
+        &mut self,
+        topic: &str,
+        schema_name: &'static str,
+        schema: &'static str,
+        t_ns: u64,
+        msg: &Value,
+    ) -> Result<(), RecordError> {
         let channel_id = self.channel(topic, schema_name, schema)?;
         self.sequence = self.sequence.wrapping_add(1);
         let data = serde_json::to_vec(msg).unwrap_or_default();
@@ -180,7 +196,12 @@ impl Recorder {
     }
 
     /// A point cloud (mm) in the work-piece frame as foxglove.PointCloud (float64 x, y, z).
-    pub fn point_cloud(&mut self, topic: &str, t_ns: u64, points_mm: &[[f64; 3]]) -> Result<(), RecordError> {
+    pub fn point_cloud(
+        &mut self,
+        topic: &str,
+        t_ns: u64,
+        points_mm: &[[f64; 3]],
+    ) -> Result<(), RecordError> {
         let mut data = Vec::with_capacity(points_mm.len() * 24);
         for p in points_mm {
             for v in p {
@@ -203,7 +224,13 @@ impl Recorder {
     }
 
     /// Paths (mm, work-piece frame) as foxglove.SceneUpdate line strips, one entity per contour.
-    pub fn paths(&mut self, topic: &str, t_ns: u64, contours: &[(i64, Vec<[f64; 3]>)], rgba: [f64; 4]) -> Result<(), RecordError> {
+    pub fn paths(
+        &mut self,
+        topic: &str,
+        t_ns: u64,
+        contours: &[(i64, Vec<[f64; 3]>)],
+        rgba: [f64; 4],
+    ) -> Result<(), RecordError> {
         let entities: Vec<Value> = contours
             .iter()
             .map(|(id, pts)| {
@@ -229,7 +256,13 @@ impl Recorder {
             })
             .collect();
         let msg = json!({"deletions": [], "entities": entities});
-        self.write(topic, "foxglove.SceneUpdate", SCENE_UPDATE_SCHEMA, t_ns, &msg)
+        self.write(
+            topic,
+            "foxglove.SceneUpdate",
+            SCENE_UPDATE_SCHEMA,
+            t_ns,
+            &msg,
+        )
     }
 
     /// Every zone frame of the job as foxglove.FrameTransform (`workpiece` → `zone_<id>`).
@@ -243,13 +276,27 @@ impl Recorder {
                 "translation": {"x": z.origin[0], "y": z.origin[1], "z": z.origin[2]},
                 "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
             });
-            self.write("/tf", "foxglove.FrameTransform", FRAME_TRANSFORM_SCHEMA, t_ns, &msg)?;
+            self.write(
+                "/tf",
+                "foxglove.FrameTransform",
+                FRAME_TRANSFORM_SCHEMA,
+                t_ns,
+                &msg,
+            )?;
         }
         Ok(())
     }
 
     /// The current layer and its state ("started", "done", "cut", "skipped").
-    pub fn layer(&mut self, t_ns: u64, key: LayerKey, state: &str, vectors_done: u32, vectors: u32, job: &Job) -> Result<(), RecordError> {
+    pub fn layer(
+        &mut self,
+        t_ns: u64,
+        key: LayerKey,
+        state: &str,
+        vectors_done: u32,
+        vectors: u32,
+        job: &Job,
+    ) -> Result<(), RecordError> {
         let layer = job
             .zones
             .iter()
@@ -284,7 +331,13 @@ impl Recorder {
     pub fn device(&mut self, io: &DeviceIo) -> Result<(), RecordError> {
         let msg = serde_json::to_value(io).unwrap_or(Value::Null);
         let topic = format!("/device/{}", io.device.name());
-        self.write(&topic, "trimctl.DeviceIo", DEVICE_IO_SCHEMA, io.time_ns, &msg)
+        self.write(
+            &topic,
+            "trimctl.DeviceIo",
+            DEVICE_IO_SCHEMA,
+            io.time_ns,
+            &msg,
+        )
     }
 
     /// Closes the current chunk and flushes the file: everything so far survives a crash.
@@ -328,7 +381,15 @@ mod tests {
 
     #[test]
     fn base64_matches_rfc4648_vectors() {
-        for (raw, enc) in [("", ""), ("f", "Zg=="), ("fo", "Zm8="), ("foo", "Zm9v"), ("foob", "Zm9vYg=="), ("fooba", "Zm9vYmE="), ("foobar", "Zm9vYmFy")] {
+        for (raw, enc) in [
+            ("", ""),
+            ("f", "Zg=="),
+            ("fo", "Zm8="),
+            ("foo", "Zm9v"),
+            ("foob", "Zm9vYg=="),
+            ("fooba", "Zm9vYmE="),
+            ("foobar", "Zm9vYmFy"),
+        ] {
             assert_eq!(base64(raw.as_bytes()), enc);
         }
     }
@@ -337,7 +398,10 @@ mod tests {
     fn quaternion_of_a_quarter_turn_about_z() {
         let q = quaternion_from_axes([0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
         let h = std::f64::consts::FRAC_1_SQRT_2;
-        assert!((q[2] - h).abs() < 1e-12 && (q[3] - h).abs() < 1e-12, "{q:?}");
+        assert!(
+            (q[2] - h).abs() < 1e-12 && (q[3] - h).abs() < 1e-12,
+            "{q:?}"
+        );
     }
 
     #[test]
@@ -348,7 +412,12 @@ mod tests {
         let mut ends = Vec::new();
         for batch in 0..8_u64 {
             for i in 0..25_u64 {
-                rec.log(batch * 1000 + i, LogLevel::Info, &format!("batch {batch} message {i}")).unwrap();
+                rec.log(
+                    batch * 1000 + i,
+                    LogLevel::Info,
+                    &format!("batch {batch} message {i}"),
+                )
+                .unwrap();
             }
             rec.flush().unwrap();
             ends.push(std::fs::metadata(&path).unwrap().len());
@@ -357,7 +426,9 @@ mod tests {
         let full = std::fs::read(&path).unwrap();
         let count = |bytes: &[u8]| {
             let mut n = 0;
-            let Ok(stream) = mcap::MessageStream::new(bytes) else { return 0 };
+            let Ok(stream) = mcap::MessageStream::new(bytes) else {
+                return 0;
+            };
             for m in stream {
                 if m.is_err() {
                     break;

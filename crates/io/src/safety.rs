@@ -79,7 +79,9 @@ impl SafetyMonitor {
 
     fn lock(&self) -> MutexGuard<'_, State> {
         // A panic while holding the lock leaves plain data behind; keep using it.
-        self.inner.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+        self.inner
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// Reports a state change and checks the invariants.
@@ -108,7 +110,13 @@ impl SafetyMonitor {
         if light && !s.galvo_executing {
             broken.push("light on while the galvo is idle".to_owned());
         }
-        if s.emission == Some(true) && s.cnc_moving && matches!(event, CellEvent::CncMoving(true) | CellEvent::Emission(true)) {
+        if s.emission == Some(true)
+            && s.cnc_moving
+            && matches!(
+                event,
+                CellEvent::CncMoving(true) | CellEvent::Emission(true)
+            )
+        {
             broken.push("laser emission enabled while the CNC moves".to_owned());
         }
         for what in broken {
@@ -243,8 +251,16 @@ mod tests {
         let v = m.violations();
         assert_eq!(v.len(), 3, "{v:?}");
         assert_eq!(v[0].what, "laser emission enabled while the CNC moves");
-        assert!(v[1..].iter().any(|x| x.what == "light on while the galvo is idle"));
-        assert!(v[1..].iter().any(|x| x.what == "light on while the CNC moves"));
+        assert!(
+            v[1..]
+                .iter()
+                .any(|x| x.what == "light on while the galvo is idle")
+        );
+        assert!(
+            v[1..]
+                .iter()
+                .any(|x| x.what == "light on while the CNC moves")
+        );
     }
 
     #[test]

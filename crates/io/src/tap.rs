@@ -63,7 +63,11 @@ pub struct Tap(Option<Arc<dyn Fn(DeviceIo) + Send + Sync>>);
 
 impl std::fmt::Debug for Tap {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(if self.0.is_some() { "Tap(on)" } else { "Tap(off)" })
+        f.write_str(if self.0.is_some() {
+            "Tap(on)"
+        } else {
+            "Tap(off)"
+        })
     }
 }
 

@@ -6,7 +6,9 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{assert_marked_exactly_once, connect, demo_job, sim_cell, sim_cell_scaled, test_timeouts};
+use common::{
+    assert_marked_exactly_once, connect, demo_job, sim_cell, sim_cell_scaled, test_timeouts,
+};
 use tokio_util::sync::CancellationToken;
 use trim_io::cell::SimCell;
 use trim_io::executor::{ExecError, ExecOptions, Executor, Phase, Progress, RunSummary};
@@ -34,7 +36,12 @@ fn options() -> ExecOptions {
     }
 }
 
-async fn run_fresh(sim: &SimCell, job: &Job, journal: &std::path::Path, cancel: CancellationToken) -> Result<RunSummary, ExecError> {
+async fn run_fresh(
+    sim: &SimCell,
+    job: &Job,
+    journal: &std::path::Path,
+    cancel: CancellationToken,
+) -> Result<RunSummary, ExecError> {
     let cell = connect(sim, Tap::none()).await;
     Executor::new(job.clone(), cell, journal, None)
         .with_options(options())
@@ -57,33 +64,60 @@ async fn whole_job_marks_every_vector_once_with_both_laser_profiles() {
         let sim = sim_cell(profile).await;
         let job = demo_job(3);
         let dir = tempfile::tempdir().unwrap();
-        let rec = Recorder::create(&dir.path().join("run.mcap")).unwrap().shared();
+        let rec = Recorder::create(&dir.path().join("run.mcap"))
+            .unwrap()
+            .shared();
         let cell = connect(&sim, device_tap(&rec)).await;
         let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
-        let summary = Executor::new(job.clone(), cell, dir.path().join("run.journal"), Some(rec.clone()))
-            .with_options(options())
-            .run(CancellationToken::new(), Some(tx))
-            .await
-            .unwrap_or_else(|e| panic!("{profile}: {e}"));
+        let summary = Executor::new(
+            job.clone(),
+            cell,
+            dir.path().join("run.journal"),
+            Some(rec.clone()),
+        )
+        .with_options(options())
+        .run(CancellationToken::new(), Some(tx))
+        .await
+        .unwrap_or_else(|e| panic!("{profile}: {e}"));
         assert_eq!(summary.layers_marked, 6);
         assert_eq!(summary.vectors_marked, 30);
         assert_eq!(assert_marked_exactly_once(&job, &sim.galvo.marks()), 0);
-        assert!(sim.monitor.violations().is_empty(), "{:?}", sim.monitor.violations());
+        assert!(
+            sim.monitor.violations().is_empty(),
+            "{:?}",
+            sim.monitor.violations()
+        );
         assert!(!sim.laser.state().emission, "emission left on");
         assert!((sim.laser.state().power_pct - 80.0).abs() < 1e-9);
         let st = journal::read(&dir.path().join("run.journal")).unwrap();
         assert_eq!(st.finished.len(), 6);
 
         // Time: the simulator's modelled clock against the estimate from the polylines.
-        let rel = (summary.galvo_modelled_s - summary.galvo_estimate_s).abs() / summary.galvo_estimate_s;
-        assert!(rel < ESTIMATE_REL_TOLERANCE, "modelled {} s vs estimate {} s", summary.galvo_modelled_s, summary.galvo_estimate_s);
+        let rel =
+            (summary.galvo_modelled_s - summary.galvo_estimate_s).abs() / summary.galvo_estimate_s;
+        assert!(
+            rel < ESTIMATE_REL_TOLERANCE,
+            "modelled {} s vs estimate {} s",
+            summary.galvo_modelled_s,
+            summary.galvo_estimate_s
+        );
         let overhead: Vec<f64> = summary.layers.iter().map(|l| l.overhead_s * 1e3).collect();
         let mean = overhead.iter().sum::<f64>() / overhead.len() as f64;
         let max = overhead.iter().copied().fold(0.0, f64::max);
-        let list_ratio: Vec<f64> = summary.layers.iter().map(|l| l.list_s / l.modelled_s).collect();
+        let list_ratio: Vec<f64> = summary
+            .layers
+            .iter()
+            .map(|l| l.list_s / l.modelled_s)
+            .collect();
         eprintln!(
             "[{profile}] galvo modelled {:.6} s, estimate {:.6} s (rel {rel:.2e}); per-layer overhead mean {mean:.1} ms max {max:.1} ms; list wall/modelled {:?}; wall {:.2} s",
-            summary.galvo_modelled_s, summary.galvo_estimate_s, list_ratio.iter().map(|r| format!("{r:.2}")).collect::<Vec<_>>(), summary.wall_s
+            summary.galvo_modelled_s,
+            summary.galvo_estimate_s,
+            list_ratio
+                .iter()
+                .map(|r| format!("{r:.2}"))
+                .collect::<Vec<_>>(),
+            summary.wall_s
         );
 
         // Progress events: every layer done in order, vectors counted up to the layer size.
@@ -91,20 +125,47 @@ async fn whole_job_marks_every_vector_once_with_both_laser_profiles() {
         while let Ok(e) = rx.try_recv() {
             events.push(e);
         }
-        let done: Vec<usize> = events.iter().filter_map(|e| match e { Progress::LayerDone { index, .. } => Some(*index), _ => None }).collect();
+        let done: Vec<usize> = events
+            .iter()
+            .filter_map(|e| match e {
+                Progress::LayerDone { index, .. } => Some(*index),
+                _ => None,
+            })
+            .collect();
         assert_eq!(done, vec![0, 1, 2, 3, 4, 5]);
-        assert!(events.iter().any(|e| matches!(e, Progress::Vectors { done: 5, total: 5, .. })));
+        assert!(events.iter().any(|e| matches!(
+            e,
+            Progress::Vectors {
+                done: 5,
+                total: 5,
+                ..
+            }
+        )));
 
         // The record holds every device's traffic.
-        let rec = std::sync::Arc::try_unwrap(rec).ok().expect("the executor dropped its handle").into_inner().unwrap();
+        let rec = std::sync::Arc::try_unwrap(rec)
+            .ok()
+            .expect("the executor dropped its handle")
+            .into_inner()
+            .unwrap();
         rec.finish().unwrap();
         let bytes = std::fs::read(dir.path().join("run.mcap")).unwrap();
         let mut topics = std::collections::BTreeMap::<String, usize>::new();
         for m in mcap::MessageStream::new(&bytes).unwrap() {
             *topics.entry(m.unwrap().channel.topic.clone()).or_default() += 1;
         }
-        for t in ["/device/galvo", "/device/laser", "/device/cnc", "/layer", "/tf", "/log"] {
-            assert!(topics.get(t).copied().unwrap_or(0) > 0, "{profile}: no {t} in {topics:?}");
+        for t in [
+            "/device/galvo",
+            "/device/laser",
+            "/device/cnc",
+            "/layer",
+            "/tf",
+            "/log",
+        ] {
+            assert!(
+                topics.get(t).copied().unwrap_or(0) > 0,
+                "{profile}: no {t} in {topics:?}"
+            );
         }
         assert_eq!(topics["/tf"], 2);
     }
@@ -139,23 +200,39 @@ async fn cancel_mid_layer_turns_the_laser_off_and_resume_finishes_without_remark
         .await
         .expect_err("cancelled");
     let cancelled_at = watcher.await.unwrap();
-    let ExecError::Stopped(s) = err else { panic!("{err}") };
+    let ExecError::Stopped(s) = err else {
+        panic!("{err}")
+    };
     assert_eq!(s.cause, trim_io::executor::StopCause::Cancelled);
     assert_eq!(s.key, Some(target));
     assert_eq!(s.phase, Phase::WaitDone);
-    let done = s.vectors_done.expect("the galvo says how far the layer got");
+    let done = s
+        .vectors_done
+        .expect("the galvo says how far the layer got");
     assert!((2..5).contains(&done), "{done}");
-    let closed = sim.monitor.light_closed_since(cancelled_at).expect("light off");
+    let closed = sim
+        .monitor
+        .light_closed_since(cancelled_at)
+        .expect("light off");
     eprintln!(
         "cancel: light off {:.1} ms after the cancel; serial+galvo laser-off commands {:.1} ms; cut after {done} of 5 vectors",
         (closed - cancelled_at).as_secs_f64() * 1e3,
         s.shutdown.laser_off_s * 1e3
     );
     assert!(closed - cancelled_at < LASER_OFF_BOUND);
-    assert!(s.shutdown.laser_off_ok && s.shutdown.galvo_signals_off_ok && s.shutdown.galvo_stop_ok && s.shutdown.cnc_abort_ok, "{:?}", s.shutdown);
+    assert!(
+        s.shutdown.laser_off_ok
+            && s.shutdown.galvo_signals_off_ok
+            && s.shutdown.galvo_stop_ok
+            && s.shutdown.cnc_abort_ok,
+        "{:?}",
+        s.shutdown
+    );
     let st = journal::read(&path).unwrap();
     assert_eq!(st.finished.len(), 2);
-    assert!(matches!(st.open_cut, Some(journal::Entry::LayerCut { vectors_done: Some(v), .. }) if v == done));
+    assert!(
+        matches!(st.open_cut, Some(journal::Entry::LayerCut { vectors_done: Some(v), .. }) if v == done)
+    );
 
     let summary = resume(&sim, &job, &path).await;
     assert_eq!(summary.layers_skipped, 2);
@@ -163,12 +240,19 @@ async fn cancel_mid_layer_turns_the_laser_off_and_resume_finishes_without_remark
     assert_eq!(summary.resumed_from, Some((target, done)));
     let partial = assert_marked_exactly_once(&job, &sim.galvo.marks());
     assert!(partial <= 1, "{partial} partly marked vectors");
-    assert!(sim.monitor.violations().is_empty(), "{:?}", sim.monitor.violations());
+    assert!(
+        sim.monitor.violations().is_empty(),
+        "{:?}",
+        sim.monitor.violations()
+    );
     assert_eq!(journal::read(&path).unwrap().finished.len(), 4);
 
     // A third run is refused (journal exists) and a resume of a finished run marks nothing.
     let again = run_fresh(&sim, &job, &path, CancellationToken::new()).await;
-    assert!(matches!(again, Err(ExecError::Journal(journal::JournalError::Exists(_)))));
+    assert!(matches!(
+        again,
+        Err(ExecError::Journal(journal::JournalError::Exists(_)))
+    ));
     let before = sim.galvo.marks().len();
     let s = resume(&sim, &job, &path).await;
     assert_eq!((s.layers_marked, s.layers_skipped), (0, 4));
@@ -178,19 +262,55 @@ async fn cancel_mid_layer_turns_the_laser_off_and_resume_finishes_without_remark
 /// Where each device is hit in layer index 2 (zone 1, layer 0) of `demo_job(2)`: the trigger
 /// and the phase the executor must stop in. Arrival counts include the preparation's commands.
 fn matrix_cases() -> Vec<(Device, &'static str, Trigger, Phase)> {
-    let cmd = |name: &str, nth: u32| Trigger::Command { name: name.into(), nth };
+    let cmd = |name: &str, nth: u32| Trigger::Command {
+        name: name.into(),
+        nth,
+    };
     vec![
         // CNC: `set mdi M428` and its `set wait done` come first, in enable.
         (Device::Cnc, "move", cmd("mdi", 4), Phase::Move),
-        (Device::Cnc, "wait in position", cmd("wait", 4), Phase::WaitInPosition),
-        (Device::Galvo, "load list", cmd("LOAD_LIST", 3), Phase::LoadList),
+        (
+            Device::Cnc,
+            "wait in position",
+            cmd("wait", 4),
+            Phase::WaitInPosition,
+        ),
+        (
+            Device::Galvo,
+            "load list",
+            cmd("LOAD_LIST", 3),
+            Phase::LoadList,
+        ),
         (Device::Galvo, "execute", cmd("EXECUTE", 3), Phase::Execute),
-        (Device::Galvo, "mid-list", Trigger::AfterMarks { marks: 2, nth_list: 3 }, Phase::WaitDone),
-        (Device::Laser, "enable emission", cmd("emission_on", 3), Phase::EnableEmission),
+        (
+            Device::Galvo,
+            "mid-list",
+            Trigger::AfterMarks {
+                marks: 2,
+                nth_list: 3,
+            },
+            Phase::WaitDone,
+        ),
+        (
+            Device::Laser,
+            "enable emission",
+            cmd("emission_on", 3),
+            Phase::EnableEmission,
+        ),
         // The laser's fault check right after EXECUTE (preparation checks once).
-        (Device::Laser, "fault check mid-list", cmd("faults", 4), Phase::WaitDone),
+        (
+            Device::Laser,
+            "fault check mid-list",
+            cmd("faults", 4),
+            Phase::WaitDone,
+        ),
         // Preparation switches emission off once.
-        (Device::Laser, "gate off", cmd("emission_off", 4), Phase::GateOff),
+        (
+            Device::Laser,
+            "gate off",
+            cmd("emission_off", 4),
+            Phase::GateOff,
+        ),
     ]
 }
 
@@ -207,7 +327,10 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
             // fault mid-list meets the light on and the measured latency is that of the way down,
             // not of the list ending by itself.
             let sim = sim_cell_scaled("monaco", MATRIX_GALVO_TIME_SCALE).await;
-            let fault = Fault { kind, trigger: trigger.clone() };
+            let fault = Fault {
+                kind,
+                trigger: trigger.clone(),
+            };
             match device {
                 Device::Galvo => sim.galvo.faults().arm(fault),
                 Device::Laser => sim.laser.faults().arm(fault),
@@ -216,8 +339,12 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
             let dir = tempfile::tempdir().unwrap();
             let path = dir.path().join("run.journal");
             let t_run = Instant::now();
-            let err = run_fresh(&sim, &job, &path, CancellationToken::new()).await.expect_err(&label);
-            let ExecError::Stopped(s) = err else { panic!("{label}: {err}") };
+            let err = run_fresh(&sim, &job, &path, CancellationToken::new())
+                .await
+                .expect_err(&label);
+            let ExecError::Stopped(s) = err else {
+                panic!("{label}: {err}")
+            };
             let fired = match device {
                 Device::Galvo => sim.galvo.faults().fired(),
                 Device::Laser => sim.laser.faults().fired(),
@@ -230,12 +357,22 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
             let detected_at = s.detected_at.expect("detection time");
 
             // The laser is off (light path closed) within the bound of the injection.
-            let closed = sim.monitor.light_closed_since(injected_at).unwrap_or_else(|| panic!("{label}: light still on"));
+            let closed = sim
+                .monitor
+                .light_closed_since(injected_at)
+                .unwrap_or_else(|| panic!("{label}: light still on"));
             let from_injection = closed.saturating_duration_since(injected_at);
             let from_detection = closed.saturating_duration_since(detected_at);
-            assert!(from_injection < LASER_OFF_BOUND, "{label}: light off {from_injection:?} after the fault");
+            assert!(
+                from_injection < LASER_OFF_BOUND,
+                "{label}: light off {from_injection:?} after the fault"
+            );
             assert!(!sim.monitor.light(), "{label}");
-            assert!(sim.monitor.violations().is_empty(), "{label}: {:?}", sim.monitor.violations());
+            assert!(
+                sim.monitor.violations().is_empty(),
+                "{label}: {:?}",
+                sim.monitor.violations()
+            );
 
             // The journal is intact: every line parses, the two layers before are finished.
             let st = journal::read(&path).unwrap_or_else(|e| panic!("{label}: {e}"));
@@ -249,7 +386,11 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
             assert_eq!(summary.layers_skipped, 2, "{label}");
             let partial = assert_marked_exactly_once(&job, &sim.galvo.marks());
             assert!(partial <= 1, "{label}: {partial} partly marked vectors");
-            assert!(sim.monitor.violations().is_empty(), "{label}: {:?}", sim.monitor.violations());
+            assert!(
+                sim.monitor.violations().is_empty(),
+                "{label}: {:?}",
+                sim.monitor.violations()
+            );
             assert_eq!(journal::read(&path).unwrap().finished.len(), 4, "{label}");
             table.push(format!(
                 "{label:<40} detected {:>6.0} ms after injection; light off {:>6.1} ms after injection, {:>6.1} ms after detection; laser-off cmds {:>5.1} ms (serial ok {}, galvo ok {}); cut at {:?}/{}; partial {partial}; {:.2} s",
@@ -265,6 +406,10 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
             ));
         }
     }
-    eprintln!("fault matrix ({} cases):\n{}", table.len(), table.join("\n"));
+    eprintln!(
+        "fault matrix ({} cases):\n{}",
+        table.len(),
+        table.join("\n")
+    );
     assert_eq!(table.len(), 32);
 }

@@ -13,7 +13,9 @@ use trim_geom::{Point3, UnitVector3, Vector3};
 use trim_io::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
 use trim_io::cnc::{Cnc, CncFault};
 use trim_io::tap::Tap;
-use trim_plan::kinematics::{AxisPose, KinematicsKind, MachineSettings, forward, inverse, joints_of};
+use trim_plan::kinematics::{
+    AxisPose, KinematicsKind, MachineSettings, forward, inverse, joints_of,
+};
 
 /// The port the test's LinuxCNC listens on (not the default 5007, to stay clear of a user's).
 const PORT: u16 = 5017;
@@ -33,7 +35,10 @@ struct Instance;
 impl Instance {
     fn start() -> Instance {
         // A leftover instance from an earlier, aborted test run is stopped first.
-        let _ = Command::new(script()).env("TRIMCTL_LINUXCNC_RUN", run_dir()).arg("stop").status();
+        let _ = Command::new(script())
+            .env("TRIMCTL_LINUXCNC_RUN", run_dir())
+            .arg("stop")
+            .status();
         let t = Instant::now();
         let out = Command::new(script())
             .env("TRIMCTL_LINUXCNC_RUN", run_dir())
@@ -59,7 +64,10 @@ impl Drop for Instance {
             .arg("stop")
             .status()
             .is_ok_and(|s| s.success());
-        eprintln!("linuxcnc stopped ({ok}) in {:.2} s", t.elapsed().as_secs_f64());
+        eprintln!(
+            "linuxcnc stopped ({ok}) in {:.2} s",
+            t.elapsed().as_secs_f64()
+        );
     }
 }
 
@@ -120,19 +128,28 @@ async fn real_linuxcnc_takes_planned_five_axis_poses() {
         .expect("link")
         .expect("session");
     cnc.enable().await.expect("link").expect("enable");
-    eprintln!("connect + enable (estop off, machine on, home, M428): {:.2} s", t.elapsed().as_secs_f64());
+    eprintln!(
+        "connect + enable (estop off, machine on, home, M428): {:.2} s",
+        t.elapsed().as_secs_f64()
+    );
 
     let m = MachineSettings::default();
     assert_eq!(m.kinematics, KinematicsKind::XyzacTrt);
     for (point, dir, pose) in planned_poses(&m) {
         // The planner's pose puts the focus on the point with the beam along the direction.
         let (focus, beam) = forward(&m, &pose);
-        assert!((focus - point).norm() < FOCUS_TOLERANCE_MM, "{focus:?} vs {point:?}");
+        assert!(
+            (focus - point).norm() < FOCUS_TOLERANCE_MM,
+            "{focus:?} vs {point:?}"
+        );
         assert!((beam.into_inner() - dir.into_inner()).norm() < 1e-9);
 
         let job_pose = pose.to_job_pose(KinematicsKind::XyzacTrt);
         let t = Instant::now();
-        cnc.start_move(&job_pose).await.expect("link").expect("move accepted");
+        cnc.start_move(&job_pose)
+            .await
+            .expect("link")
+            .expect("move accepted");
         let reached = cnc
             .wait_in_position(MOTION_TIMEOUT)
             .await
@@ -142,7 +159,10 @@ async fn real_linuxcnc_takes_planned_five_axis_poses() {
         // Commanded world = reached world (LinuxCNC with M428 reports the tool tip).
         for (axis, commanded) in &job_pose.0 {
             let got = reached.world.axis(axis).unwrap();
-            assert!((got - commanded).abs() < POSITION_TOLERANCE, "{axis}: {got} vs {commanded}");
+            assert!(
+                (got - commanded).abs() < POSITION_TOLERANCE,
+                "{axis}: {got} vs {commanded}"
+            );
         }
         // Joints = the planner's inverse kinematics, and they differ from world under TCP
         // kinematics once the table tilts.
@@ -161,14 +181,20 @@ async fn real_linuxcnc_takes_planned_five_axis_poses() {
             .map(|i| (reached.joints[i] - pose.linear_mm[i]).abs())
             .fold(0.0, f64::max);
         if pose.tilt_deg.abs() > 1.0 {
-            assert!(joint_world_gap > 0.1, "joints equal world under TCP kinematics: {reached:?}");
+            assert!(
+                joint_world_gap > 0.1,
+                "joints equal world under TCP kinematics: {reached:?}"
+            );
         }
     }
 
     // A move beyond the limits is refused with LinuxCNC's own messages.
     let mut too_far = trim_plan::job::Pose::default();
     too_far.0.insert("x".into(), 500.0);
-    cnc.start_move(&too_far).await.expect("link").expect("received");
+    cnc.start_move(&too_far)
+        .await
+        .expect("link")
+        .expect("received");
     let refused = cnc.wait_in_position(MOTION_TIMEOUT).await.expect("link");
     match refused {
         Err(CncFault::Refused { errors, .. }) => {

@@ -83,7 +83,10 @@ pub struct LinuxCnc {
 pub fn split_lines(buf: &mut BytesMut, out: &mut VecDeque<String>) {
     while let Some(pos) = buf.iter().position(|&b| b == b'\r' || b == b'\n') {
         let line = buf.split_to(pos);
-        let skip = buf.iter().take_while(|&&b| b == b'\r' || b == b'\n').count();
+        let skip = buf
+            .iter()
+            .take_while(|&&b| b == b'\r' || b == b'\n')
+            .count();
         let _ = buf.split_to(skip);
         if !line.is_empty() {
             out.push_back(String::from_utf8_lossy(&line).into_owned());
@@ -135,22 +138,27 @@ impl LinuxCnc {
     /// Connects and opens a controlling session (hello, echo off, verbose on, enable,
     /// set_wait received, errors drained). Does not change the machine state: see
     /// [`Cnc::enable`].
-    pub async fn connect(addr: SocketAddr, config: LinuxCncConfig, tap: Tap) -> CncResult<LinuxCnc> {
-        let stream = match tokio::time::timeout(config.connect_timeout, TcpStream::connect(addr)).await {
-            Ok(Ok(s)) => s,
-            Ok(Err(e)) => {
-                return Err(CncError::Connect {
-                    addr: addr.to_string(),
-                    reason: e.to_string(),
-                });
-            }
-            Err(_) => {
-                return Err(CncError::Connect {
-                    addr: addr.to_string(),
-                    reason: "timed out".into(),
-                });
-            }
-        };
+    pub async fn connect(
+        addr: SocketAddr,
+        config: LinuxCncConfig,
+        tap: Tap,
+    ) -> CncResult<LinuxCnc> {
+        let stream =
+            match tokio::time::timeout(config.connect_timeout, TcpStream::connect(addr)).await {
+                Ok(Ok(s)) => s,
+                Ok(Err(e)) => {
+                    return Err(CncError::Connect {
+                        addr: addr.to_string(),
+                        reason: e.to_string(),
+                    });
+                }
+                Err(_) => {
+                    return Err(CncError::Connect {
+                        addr: addr.to_string(),
+                        reason: "timed out".into(),
+                    });
+                }
+            };
         let _ = stream.set_nodelay(true);
         let mut c = LinuxCnc {
             stream,
@@ -198,7 +206,11 @@ impl LinuxCnc {
         Ok(Ok(c))
     }
 
-    async fn read_line(&mut self, command: &str, deadline: tokio::time::Instant) -> Result<String, CncError> {
+    async fn read_line(
+        &mut self,
+        command: &str,
+        deadline: tokio::time::Instant,
+    ) -> Result<String, CncError> {
         loop {
             if let Some(l) = self.lines.pop_front() {
                 return Ok(l);
@@ -232,7 +244,11 @@ impl LinuxCnc {
     }
 
     /// Sends one line and returns one reply line; `timeout` defaults to the reply timeout.
-    async fn exchange(&mut self, command: &str, timeout: Option<Duration>) -> Result<String, CncError> {
+    async fn exchange(
+        &mut self,
+        command: &str,
+        timeout: Option<Duration>,
+    ) -> Result<String, CncError> {
         if let Some(reason) = &self.broken {
             return Err(CncError::LinkLost {
                 command: command.to_owned(),
@@ -251,7 +267,8 @@ impl LinuxCnc {
         let deadline = tokio::time::Instant::now() + timeout;
         self.lines.clear();
         self.in_flight = true;
-        self.tap.record(Device::Cnc, Direction::Command, || command.to_owned());
+        self.tap
+            .record(Device::Cnc, Direction::Command, || command.to_owned());
         let mut line = command.as_bytes().to_vec();
         line.extend_from_slice(b"\r\n");
         let result = match tokio::time::timeout_at(deadline, self.stream.write_all(&line)).await {
@@ -268,7 +285,8 @@ impl LinuxCnc {
         self.in_flight = false;
         match result {
             Ok(reply) => {
-                self.tap.record(Device::Cnc, Direction::Reply, || reply.clone());
+                self.tap
+                    .record(Device::Cnc, Direction::Reply, || reply.clone());
                 Ok(reply)
             }
             Err(mut e) => {
@@ -318,7 +336,11 @@ impl LinuxCnc {
     async fn get(&mut self, what: &str) -> Result<Vec<String>, CncError> {
         let command = format!("get {what}");
         let reply = self.exchange(&command, None).await?;
-        let key = what.split_whitespace().next().unwrap_or_default().to_uppercase();
+        let key = what
+            .split_whitespace()
+            .next()
+            .unwrap_or_default()
+            .to_uppercase();
         let mut words = reply.split_whitespace();
         if words.next() != Some(key.as_str()) {
             let e = CncError::BadReply { command, reply };
@@ -360,7 +382,11 @@ impl LinuxCnc {
             });
         };
         // B is padding on an A/C machine: keep it only when commanded.
-        if !self.commanded.as_ref().is_some_and(|p| p.axis("b").is_some()) {
+        if self
+            .commanded
+            .as_ref()
+            .is_none_or(|p| p.axis("b").is_none())
+        {
             world.0.remove("b");
         }
         let jw = self.get("joint_pos").await?;
@@ -424,7 +450,8 @@ impl LinuxCnc {
         if let Some(cmd) = &self.commanded {
             for (axis, &commanded) in &cmd.0 {
                 let actual = pos.world.axis(axis).unwrap_or(f64::NAN);
-                if !((actual - commanded).abs() <= IN_POSITION_TOLERANCE) {
+                let in_position = (actual - commanded).abs() <= IN_POSITION_TOLERANCE; // false for NaN
+                if !in_position {
                     return Ok(Err(CncFault::NotInPosition {
                         axis: axis.clone(),
                         actual,
@@ -443,10 +470,11 @@ impl LinuxCnc {
     /// fresh session.
     async fn stop_command(&mut self, command: &str) -> CncResult<()> {
         if self.in_flight || self.broken.is_some() {
-            let mut fresh = match LinuxCnc::connect(self.addr, self.config.clone(), self.tap.clone()).await? {
-                Ok(c) => c,
-                Err(f) => return Ok(Err(f)),
-            };
+            let mut fresh =
+                match LinuxCnc::connect(self.addr, self.config.clone(), self.tap.clone()).await? {
+                    Ok(c) => c,
+                    Err(f) => return Ok(Err(f)),
+                };
             return fresh.set(command, None).await;
         }
         self.set(command, None).await
@@ -506,7 +534,13 @@ mod tests {
     #[test]
     fn g0_lines_take_axes_in_gcode_order() {
         let mut p = Pose::default();
-        for (k, v) in [("c", 30.0), ("a", 15.0), ("z", -5.0), ("x", 10.0), ("y", 20.0)] {
+        for (k, v) in [
+            ("c", 30.0),
+            ("a", 15.0),
+            ("z", -5.0),
+            ("x", 10.0),
+            ("y", 20.0),
+        ] {
             p.0.insert(k.into(), v);
         }
         assert_eq!(
@@ -520,7 +554,9 @@ mod tests {
 
     #[test]
     fn abs_act_pos_parses_six_values() {
-        let p = parse_abs_pos("ABS_ACT_POS 10.000000 20.000000 -5.000000 15.000000 0.000000 30.000000").unwrap();
+        let p =
+            parse_abs_pos("ABS_ACT_POS 10.000000 20.000000 -5.000000 15.000000 0.000000 30.000000")
+                .unwrap();
         assert_eq!(p.axis("c"), Some(30.0));
         assert_eq!(p.axis("b"), Some(0.0));
         assert!(parse_abs_pos("ABS_ACT_POS 1 2 3").is_none());

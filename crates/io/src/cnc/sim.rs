@@ -78,7 +78,9 @@ struct Shared {
 
 impl Shared {
     fn m(&self) -> MutexGuard<'_, Machine> {
-        self.m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+        self.m
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 }
 
@@ -92,7 +94,13 @@ pub struct CncSim {
 impl Drop for CncSim {
     fn drop(&mut self) {
         self.accept.abort();
-        for c in self.shared.conns.lock().unwrap_or_else(std::sync::PoisonError::into_inner).drain(..) {
+        for c in self
+            .shared
+            .conns
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .drain(..)
+        {
             c.abort();
         }
     }
@@ -133,12 +141,19 @@ impl CncSim {
         let accept = tokio::spawn(async move {
             while let Ok((stream, _)) = listener.accept().await {
                 let t = tokio::spawn(serve(stream, s.clone()));
-                let mut conns = s.conns.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+                let mut conns = s
+                    .conns
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner);
                 conns.retain(|c| !c.is_finished());
                 conns.push(t);
             }
         });
-        Ok(CncSim { addr, shared, accept })
+        Ok(CncSim {
+            addr,
+            shared,
+            accept,
+        })
     }
 
     /// The address it listens on.
@@ -213,9 +228,18 @@ async fn serve(mut stream: TcpStream, shared: Arc<Shared>) {
                 }
                 Some(FaultKind::Refuse) => {
                     if line.starts_with("set") {
-                        let w = line.split_whitespace().nth(1).unwrap_or_default().to_uppercase();
-                        shared.m().errors.push_back("refused (fault injection)".into());
-                        let _ = stream.write_all(format!("SET {w} NAK\n\r").as_bytes()).await;
+                        let w = line
+                            .split_whitespace()
+                            .nth(1)
+                            .unwrap_or_default()
+                            .to_uppercase();
+                        shared
+                            .m()
+                            .errors
+                            .push_back("refused (fault injection)".into());
+                        let _ = stream
+                            .write_all(format!("SET {w} NAK\n\r").as_bytes())
+                            .await;
                     } else {
                         let _ = stream.write_all(b"NAK\r\n").await;
                     }
@@ -226,7 +250,11 @@ async fn serve(mut stream: TcpStream, shared: Arc<Shared>) {
             let reply = handle(&shared, &mut session, &line).await;
             match reply {
                 Reply::Get(r) => {
-                    if stream.write_all(format!("{r}\r\n").as_bytes()).await.is_err() {
+                    if stream
+                        .write_all(format!("{r}\r\n").as_bytes())
+                        .await
+                        .is_err()
+                    {
                         return;
                     }
                 }
@@ -331,12 +359,18 @@ fn get(shared: &Arc<Shared>, args: &[&str]) -> String {
         }
         "joint_pos" => {
             let p = m.pos;
-            format!("JOINT_POS {:.6} {:.6} {:.6} {:.6} {:.6} 0.000000", p[0], p[1], p[2], p[3], p[5])
+            format!(
+                "JOINT_POS {:.6} {:.6} {:.6} {:.6} {:.6} 0.000000",
+                p[0], p[1], p[2], p[3], p[5]
+            )
         }
         "estop" => format!("ESTOP {}", if m.estop { "ON" } else { "OFF" }),
         "machine" => format!("MACHINE {}", if m.on { "ON" } else { "OFF" }),
         "mode" => format!("MODE {}", m.mode),
-        "program_status" => format!("PROGRAM_STATUS {}", if m.moving { "RUNNING" } else { "IDLE" }),
+        "program_status" => format!(
+            "PROGRAM_STATUS {}",
+            if m.moving { "RUNNING" } else { "IDLE" }
+        ),
         other => format!("{} NAK", other.to_uppercase()),
     }
 }
@@ -378,7 +412,8 @@ async fn set(shared: &Arc<Shared>, s: &mut Session, args: &[&str]) -> bool {
             let on = arg(1) == "on";
             let mut m = shared.m();
             if on && m.estop {
-                m.errors.push_back("can't turn machine on while in estop".into());
+                m.errors
+                    .push_back("can't turn machine on while in estop".into());
                 return false;
             }
             m.on = on;
@@ -406,17 +441,15 @@ async fn set(shared: &Arc<Shared>, s: &mut Session, args: &[&str]) -> bool {
             stop_motion(shared, &mut m);
             true
         }
-        "wait" => {
-            loop {
-                {
-                    let m = shared.m();
-                    if !m.moving {
-                        return !m.last_failed;
-                    }
+        "wait" => loop {
+            {
+                let m = shared.m();
+                if !m.moving {
+                    return !m.last_failed;
                 }
-                tokio::time::sleep(Duration::from_millis(MOTION_TICK_MS)).await;
             }
-        }
+            tokio::time::sleep(Duration::from_millis(MOTION_TICK_MS)).await;
+        },
         "mdi" => {
             let code = args[1..].join(" ");
             mdi(shared, &code)
@@ -437,7 +470,8 @@ fn stop_motion(shared: &Arc<Shared>, m: &mut Machine) {
 fn mdi(shared: &Arc<Shared>, code: &str) -> bool {
     let mut m = shared.m();
     if !m.on || !m.homed || m.mode != "MDI" {
-        m.errors.push_back("MDI needs the machine on, homed, in MDI mode".into());
+        m.errors
+            .push_back("MDI needs the machine on, homed, in MDI mode".into());
         m.last_failed = true;
         return false;
     }
@@ -481,12 +515,17 @@ fn mdi(shared: &Arc<Shared>, code: &str) -> bool {
     for i in 0..6 {
         let (lo, hi) = shared.config.limits[i];
         if target[i] < lo - 1e-9 || target[i] > hi + 1e-9 {
-            let side = if target[i] > hi { "positive" } else { "negative" };
+            let side = if target[i] > hi {
+                "positive"
+            } else {
+                "negative"
+            };
             m.errors.push_back(format!(
                 "Linear move on line 0 would exceed {}'s {side} limit",
                 AXIS_LETTERS[i]
             ));
-            m.errors.push_back("invalid params in linear command".into());
+            m.errors
+                .push_back("invalid params in linear command".into());
             m.last_failed = true;
             return true;
         }
@@ -494,7 +533,11 @@ fn mdi(shared: &Arc<Shared>, code: &str) -> bool {
     let from = m.pos;
     let mut duration_s: f64 = 0.0;
     for i in 0..6 {
-        let v = if i < 3 { shared.config.max_linear_mm_per_s } else { shared.config.max_rotary_deg_per_s };
+        let v = if i < 3 {
+            shared.config.max_linear_mm_per_s
+        } else {
+            shared.config.max_rotary_deg_per_s
+        };
         duration_s = duration_s.max((target[i] - from[i]).abs() / v);
     }
     m.motion_id += 1;
@@ -510,7 +553,11 @@ fn mdi(shared: &Arc<Shared>, code: &str) -> bool {
     tokio::spawn(async move {
         let start = Instant::now();
         loop {
-            let t = if real.is_zero() { 1.0 } else { (start.elapsed().as_secs_f64() / real.as_secs_f64()).min(1.0) };
+            let t = if real.is_zero() {
+                1.0
+            } else {
+                (start.elapsed().as_secs_f64() / real.as_secs_f64()).min(1.0)
+            };
             {
                 let mut m = shared.m();
                 if m.motion_id != id {

@@ -12,8 +12,8 @@ use tokio::task::JoinHandle;
 use tokio_util::codec::Framed;
 
 use super::protocol::{
-    Frame, FrameCodec, ListCommand, MAX_PAYLOAD_LEN, Request, StatusBlock, StatusCode,
-    split_reply, type_name,
+    Frame, FrameCodec, ListCommand, MAX_PAYLOAD_LEN, Request, StatusBlock, StatusCode, split_reply,
+    type_name,
 };
 use crate::tap::{Device, Direction, Tap};
 
@@ -140,7 +140,9 @@ impl GalvoClient {
         config: GalvoClientConfig,
         tap: Tap,
     ) -> GalvoResult<GalvoClient> {
-        let stream = match tokio::time::timeout(config.connect_timeout, TcpStream::connect(addr)).await {
+        let stream = match tokio::time::timeout(config.connect_timeout, TcpStream::connect(addr))
+            .await
+        {
             Ok(Ok(s)) => s,
             Ok(Err(e)) => {
                 return Err(GalvoError::Connect {
@@ -195,10 +197,12 @@ impl GalvoClient {
     /// `STATUS`.
     pub async fn status(&self) -> GalvoResult<StatusBlock> {
         Ok(match self.request(Request::Status).await? {
-            Ok(data) => Ok(StatusBlock::decode(&data).map_err(|reason| GalvoError::Garbled {
-                request: "STATUS",
-                reason,
-            })?),
+            Ok(data) => Ok(
+                StatusBlock::decode(&data).map_err(|reason| GalvoError::Garbled {
+                    request: "STATUS",
+                    reason,
+                })?,
+            ),
             Err(f) => Err(f),
         })
     }
@@ -301,14 +305,20 @@ async fn exchange(
         tap.record(Device::Galvo, Direction::Command, || {
             describe_request(req, sequence, attempt)
         });
-        let sent = tokio::time::timeout(config.reply_timeout, conn.framed.send(frame.clone())).await;
+        let sent =
+            tokio::time::timeout(config.reply_timeout, conn.framed.send(frame.clone())).await;
         conn.last_tx = Instant::now();
         match sent {
             Ok(Ok(())) => {}
-            Ok(Err(e)) => return Err(broken(conn, GalvoError::LinkLost {
-                request: name,
-                reason: e.to_string(),
-            })),
+            Ok(Err(e)) => {
+                return Err(broken(
+                    conn,
+                    GalvoError::LinkLost {
+                        request: name,
+                        reason: e.to_string(),
+                    },
+                ));
+            }
             Err(_) => continue,
         }
         let deadline = tokio::time::Instant::now() + config.reply_timeout;
@@ -316,37 +326,45 @@ async fn exchange(
             match tokio::time::timeout_at(deadline, conn.framed.next()).await {
                 Err(_) => break, // timed out: resend
                 Ok(None) => {
-                    return Err(broken(conn, GalvoError::LinkLost {
-                        request: name,
-                        reason: "connection closed by the controller".into(),
-                    }));
+                    return Err(broken(
+                        conn,
+                        GalvoError::LinkLost {
+                            request: name,
+                            reason: "connection closed by the controller".into(),
+                        },
+                    ));
                 }
                 Ok(Some(Err(e))) => {
-                    return Err(broken(conn, GalvoError::Garbled {
-                        request: name,
-                        reason: e.to_string(),
-                    }));
+                    return Err(broken(
+                        conn,
+                        GalvoError::Garbled {
+                            request: name,
+                            reason: e.to_string(),
+                        },
+                    ));
                 }
                 Ok(Some(Ok(reply))) => {
                     if reply.sequence != sequence {
                         continue; // a late reply to an earlier request
                     }
                     if reply.frame_type != frame.frame_type | super::protocol::REPLY_BIT {
-                        return Err(broken(conn, GalvoError::Garbled {
-                            request: name,
-                            reason: format!(
-                                "reply type {:#06x} ({}) to a {name}",
-                                reply.frame_type,
-                                type_name(reply.frame_type)
-                            ),
-                        }));
+                        return Err(broken(
+                            conn,
+                            GalvoError::Garbled {
+                                request: name,
+                                reason: format!(
+                                    "reply type {:#06x} ({}) to a {name}",
+                                    reply.frame_type,
+                                    type_name(reply.frame_type)
+                                ),
+                            },
+                        ));
                     }
-                    let (code, rest) = split_reply(&reply.payload).map_err(|reason| {
-                        GalvoError::Garbled {
+                    let (code, rest) =
+                        split_reply(&reply.payload).map_err(|reason| GalvoError::Garbled {
                             request: name,
                             reason,
-                        }
-                    })?;
+                        })?;
                     tap.record(Device::Galvo, Direction::Reply, || {
                         format!("{name} #{sequence} -> {code:?} ({} bytes)", rest.len())
                     });
@@ -363,11 +381,14 @@ async fn exchange(
             }
         }
     }
-    Err(broken(conn, GalvoError::Timeout {
-        request: name,
-        timeout_ms: u64::try_from(config.reply_timeout.as_millis()).unwrap_or(u64::MAX),
-        attempts,
-    }))
+    Err(broken(
+        conn,
+        GalvoError::Timeout {
+            request: name,
+            timeout_ms: u64::try_from(config.reply_timeout.as_millis()).unwrap_or(u64::MAX),
+            attempts,
+        },
+    ))
 }
 
 fn broken(conn: &mut Conn, e: GalvoError) -> GalvoError {
@@ -378,7 +399,11 @@ fn broken(conn: &mut Conn, e: GalvoError) -> GalvoError {
 fn describe_request(req: &Request, sequence: u32, attempt: u32) -> String {
     let resend = if attempt > 1 { " (resend)" } else { "" };
     match req {
-        Request::LoadList { list, tag, commands } => format!(
+        Request::LoadList {
+            list,
+            tag,
+            commands,
+        } => format!(
             "LOAD_LIST #{sequence}{resend} list={list} tag={tag} commands={}",
             commands.len()
         ),

@@ -40,6 +40,9 @@ pub fn mm_to_bits(xy_mm: [f64; 2], settings: &GalvoSettings) -> Option<[i32; 2]>
     Some(out)
 }
 
+/// One vector in bits: `(from, to)`.
+pub type VectorBits = ([i32; 2], [i32; 2]);
+
 /// The number of vectors of a layer.
 #[must_use]
 pub fn vector_count(layer: &Layer) -> u32 {
@@ -52,7 +55,10 @@ pub fn vector_count(layer: &Layer) -> u32 {
 }
 
 /// The layer's vectors in bits, `(from, to)`, in order.
-pub fn vectors_bits(layer: &Layer, settings: &GalvoSettings) -> Result<Vec<([i32; 2], [i32; 2])>, OutOfField> {
+pub fn vectors_bits(
+    layer: &Layer,
+    settings: &GalvoSettings,
+) -> Result<Vec<VectorBits>, OutOfField> {
     let mut out = Vec::new();
     for (pi, pl) in layer.polylines.iter().enumerate() {
         let pts = bits_of(pi, &pl.points, settings)?;
@@ -61,7 +67,11 @@ pub fn vectors_bits(layer: &Layer, settings: &GalvoSettings) -> Result<Vec<([i32
     Ok(out)
 }
 
-fn bits_of(pi: usize, pts: &[[f64; 2]], settings: &GalvoSettings) -> Result<Vec<[i32; 2]>, OutOfField> {
+fn bits_of(
+    pi: usize,
+    pts: &[[f64; 2]],
+    settings: &GalvoSettings,
+) -> Result<Vec<[i32; 2]>, OutOfField> {
     pts.iter()
         .enumerate()
         .map(|(i, p)| {
@@ -163,9 +173,27 @@ mod tests {
         let from1 = layer_list(&l, &s, 1).unwrap();
         assert_eq!(marks(&from1), 2);
         assert_eq!(from1[3], ListCommand::Jump { x: 10_000, y: 0 });
-        assert_eq!(from1[4], ListCommand::Mark { x: 10_000, y: 10_000 });
+        assert_eq!(
+            from1[4],
+            ListCommand::Mark {
+                x: 10_000,
+                y: 10_000
+            }
+        );
         let from2 = layer_list(&l, &s, 2).unwrap();
-        assert_eq!(from2[3..], [ListCommand::Jump { x: -20_000, y: -20_000 }, ListCommand::Mark { x: -20_000, y: -30_000 }]);
+        assert_eq!(
+            from2[3..],
+            [
+                ListCommand::Jump {
+                    x: -20_000,
+                    y: -20_000
+                },
+                ListCommand::Mark {
+                    x: -20_000,
+                    y: -30_000
+                }
+            ]
+        );
         assert_eq!(marks(&layer_list(&l, &s, 3).unwrap()), 0);
         assert_eq!(
             vectors_bits(&l, &s).unwrap()[2],

@@ -471,10 +471,18 @@ pub fn decode_list_commands(mut p: &[u8]) -> Result<Vec<ListCommand>, String> {
             0x03 => 16,
             0x05 => 12,
             0x06 => 4,
-            other => return Err(format!("unknown list opcode {other:#04x} at record {}", out.len())),
+            other => {
+                return Err(format!(
+                    "unknown list opcode {other:#04x} at record {}",
+                    out.len()
+                ));
+            }
         };
         if p.len() < len {
-            return Err(format!("list record {} (opcode {op:#04x}) is cut short", out.len()));
+            return Err(format!(
+                "list record {} (opcode {op:#04x}) is cut short",
+                out.len()
+            ));
         }
         out.push(match op {
             0x01 => ListCommand::Jump {
@@ -658,7 +666,10 @@ impl StatusBlock {
     /// Decodes the block.
     pub fn decode(mut p: &[u8]) -> Result<StatusBlock, String> {
         if p.len() != STATUS_BLOCK_LEN {
-            return Err(format!("status block of {} bytes, expected {STATUS_BLOCK_LEN}", p.len()));
+            return Err(format!(
+                "status block of {} bytes, expected {STATUS_BLOCK_LEN}",
+                p.len()
+            ));
         }
         let state_code = p.get_u8();
         let state = ControllerState::from_code(state_code)
@@ -835,8 +846,12 @@ mod tests {
             Err(FrameError::BadCrc { .. })
         ));
         let mut too_long = BytesMut::from(&good[..]);
-        too_long[10..14].copy_from_slice(&(u32::try_from(MAX_PAYLOAD_LEN).unwrap() + 1).to_le_bytes());
-        assert!(matches!(decode_frame(&mut too_long), Err(FrameError::TooLong(_))));
+        too_long[10..14]
+            .copy_from_slice(&(u32::try_from(MAX_PAYLOAD_LEN).unwrap() + 1).to_le_bytes());
+        assert!(matches!(
+            decode_frame(&mut too_long),
+            Err(FrameError::TooLong(_))
+        ));
         let mut flags = BytesMut::from(&good[..]);
         flags[3] = 0x81;
         assert_eq!(decode_frame(&mut flags), Err(FrameError::BadFlags(0x81)));

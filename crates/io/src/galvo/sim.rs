@@ -14,8 +14,8 @@ use tokio::task::JoinHandle;
 use tokio_util::codec::Framed;
 
 use super::protocol::{
-    ControllerState, Frame, FrameCodec, FrameError, ListCommand, NO_LIST, REPLY_CACHE_LEN,
-    Request, StatusBlock, StatusCode, decode_frame, reply_frame, type_name,
+    ControllerState, Frame, FrameCodec, FrameError, ListCommand, NO_LIST, REPLY_CACHE_LEN, Request,
+    StatusBlock, StatusCode, decode_frame, reply_frame, type_name,
 };
 use super::timing::ListClock;
 use crate::fault::{FaultKind, FaultSwitch};
@@ -336,7 +336,9 @@ async fn serve(stream: TcpStream, shared: Arc<Shared>) {
                 let mut buf = framed.read_buffer().clone();
                 let sequence = match decode_frame(&mut buf) {
                     Err(FrameError::UnsupportedVersion { sequence, .. }) => Some(sequence),
-                    _ if buf.len() >= 8 => Some(u32::from_le_bytes([buf[4], buf[5], buf[6], buf[7]])),
+                    _ if buf.len() >= 8 => {
+                        Some(u32::from_le_bytes([buf[4], buf[5], buf[6], buf[7]]))
+                    }
                     _ => None,
                 };
                 if let Some(sequence) = sequence {
@@ -347,7 +349,11 @@ async fn serve(stream: TcpStream, shared: Arc<Shared>) {
                         payload: Vec::new(),
                     };
                     let _ = framed
-                        .send(reply_frame(&req, StatusCode::BadFrame, e.to_string().as_bytes()))
+                        .send(reply_frame(
+                            &req,
+                            StatusCode::BadFrame,
+                            e.to_string().as_bytes(),
+                        ))
                         .await;
                 }
                 shared.trip("bad frame");
@@ -461,7 +467,10 @@ fn execute_request(shared: &Arc<Shared>, req: Request) -> Result<Vec<u8>, (Statu
                 return Err((StatusCode::ListBusy, format!("list {list} is executing")));
             }
             check_field(&commands, shared.config.half_field_bits)?;
-            check_capacity(c.lists[l].commands.len() + commands.len(), shared.config.list_capacity)?;
+            check_capacity(
+                c.lists[l].commands.len() + commands.len(),
+                shared.config.list_capacity,
+            )?;
             c.lists[l].commands.extend(commands);
             Ok(u32::try_from(c.lists[l].commands.len())
                 .unwrap_or(u32::MAX)
@@ -540,7 +549,10 @@ fn check_list(list: u8) -> Result<usize, (StatusCode, String)> {
 
 fn check_capacity(n: usize, cap: u32) -> Result<(), (StatusCode, String)> {
     if n > cap as usize {
-        return Err((StatusCode::BadPayload, format!("{n} commands over the list capacity {cap}")));
+        return Err((
+            StatusCode::BadPayload,
+            format!("{n} commands over the list capacity {cap}"),
+        ));
     }
     Ok(())
 }

@@ -111,7 +111,11 @@ impl ListClock {
 
     /// Closes an open mark run (at the end of a list); returns its closing time (ns).
     pub fn finish(&mut self) -> f64 {
-        if self.in_mark_run { self.end_run() } else { 0.0 }
+        if self.in_mark_run {
+            self.end_run()
+        } else {
+            0.0
+        }
     }
 
     fn end_run(&mut self) -> f64 {
@@ -187,9 +191,18 @@ mod tests {
                 mark_ns: 30_000,
                 polygon_ns: 10_000,
             },
-            ListCommand::Jump { x: 30_000, y: 40_000 }, // 5 mm: 5 ms + 0.2 ms
-            ListCommand::Mark { x: 40_000, y: 40_000 }, // 1 mm: 0.1 ms on + 10 ms
-            ListCommand::Mark { x: 40_000, y: 50_000 }, // 1 mm: 0.01 ms + 10 ms
+            ListCommand::Jump {
+                x: 30_000,
+                y: 40_000,
+            }, // 5 mm: 5 ms + 0.2 ms
+            ListCommand::Mark {
+                x: 40_000,
+                y: 40_000,
+            }, // 1 mm: 0.1 ms on + 10 ms
+            ListCommand::Mark {
+                x: 40_000,
+                y: 50_000,
+            }, // 1 mm: 0.01 ms + 10 ms
         ];
         let expected_s = 5e-3 + 0.2e-3 + 0.1e-3 + 10e-3 + 0.01e-3 + 10e-3 + 0.05e-3 + 0.03e-3;
         assert!((list_time_s(&cmds) - expected_s).abs() < 1e-12);
@@ -209,7 +222,10 @@ mod tests {
             points: vec![[3.0, 4.0], [4.0, 4.0], [4.0, 5.0]],
         };
         let (m, j) = polylines_time_s(&[pl], &settings);
-        assert!((m + j - expected_s).abs() < 1e-12, "{m} + {j} vs {expected_s}");
+        assert!(
+            (m + j - expected_s).abs() < 1e-12,
+            "{m} + {j} vs {expected_s}"
+        );
         assert!((j - 5.2e-3).abs() < 1e-12);
     }
 }

@@ -145,7 +145,12 @@ pub struct LaserClient {
 
 impl LaserClient {
     /// Opens the serial device at `path` with the profile's line settings (8N1).
-    pub fn open(path: &str, profile: Profile, reply_timeout: Duration, tap: Tap) -> Result<LaserClient, LaserError> {
+    pub fn open(
+        path: &str,
+        profile: Profile,
+        reply_timeout: Duration,
+        tap: Tap,
+    ) -> Result<LaserClient, LaserError> {
         let stream = tokio_serial::new(path, profile.baud)
             .data_bits(tokio_serial::DataBits::Eight)
             .parity(tokio_serial::Parity::None)
@@ -182,16 +187,32 @@ impl LaserClient {
         }
         // Drop stale bytes (a late reply to a timed-out command) before sending.
         self.port.read_buffer_mut().clear();
-        self.tap.record(Device::Laser, Direction::Command, || line.clone());
+        self.tap
+            .record(Device::Laser, Direction::Command, || line.clone());
         let timeout_ms = u64::try_from(self.reply_timeout.as_millis()).unwrap_or(u64::MAX);
         let deadline = tokio::time::Instant::now() + self.reply_timeout;
         match tokio::time::timeout_at(deadline, self.port.send(line.clone())).await {
             Ok(Ok(())) => {}
-            Ok(Err(e)) => return Err(self.broken(LaserError::LinkLost { command: line, reason: e.to_string() })),
-            Err(_) => return Err(self.broken(LaserError::Timeout { command: line, timeout_ms })),
+            Ok(Err(e)) => {
+                return Err(self.broken(LaserError::LinkLost {
+                    command: line,
+                    reason: e.to_string(),
+                }));
+            }
+            Err(_) => {
+                return Err(self.broken(LaserError::Timeout {
+                    command: line,
+                    timeout_ms,
+                }));
+            }
         }
         let reply = match tokio::time::timeout_at(deadline, self.port.next()).await {
-            Err(_) => return Err(self.broken(LaserError::Timeout { command: line, timeout_ms })),
+            Err(_) => {
+                return Err(self.broken(LaserError::Timeout {
+                    command: line,
+                    timeout_ms,
+                }));
+            }
             Ok(None) => {
                 return Err(self.broken(LaserError::LinkLost {
                     command: line,
@@ -207,9 +228,13 @@ impl LaserClient {
             }
             Ok(Some(Ok(r))) => r,
         };
-        self.tap.record(Device::Laser, Direction::Reply, || reply.clone());
+        self.tap
+            .record(Device::Laser, Direction::Reply, || reply.clone());
         if self.profile.is_error_reply(&reply) {
-            return Ok(Err(LaserFault::Refused { command: line, reply }));
+            return Ok(Err(LaserFault::Refused {
+                command: line,
+                reply,
+            }));
         }
         Ok(Ok(reply))
     }
@@ -253,8 +278,15 @@ impl LaserClient {
 
     /// Enables or disables emission.
     pub async fn emission(&mut self, on: bool) -> LaserResult<()> {
-        self.command(if on { ops::EMISSION_ON } else { ops::EMISSION_OFF }, None)
-            .await
+        self.command(
+            if on {
+                ops::EMISSION_ON
+            } else {
+                ops::EMISSION_OFF
+            },
+            None,
+        )
+        .await
     }
 
     /// Sets the power (percent).

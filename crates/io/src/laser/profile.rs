@@ -162,8 +162,14 @@ impl Profile {
         if p.terminator.is_empty() {
             return Err(invalid("the terminator is empty".into()));
         }
-        if !p.queries.values().any(|q| matches!(q.kind, QueryKind::FaultCodes | QueryKind::StatusBits)) {
-            return Err(invalid("no query decodes faults (fault-codes or status-bits)".into()));
+        if !p
+            .queries
+            .values()
+            .any(|q| matches!(q.kind, QueryKind::FaultCodes | QueryKind::StatusBits))
+        {
+            return Err(invalid(
+                "no query decodes faults (fault-codes or status-bits)".into(),
+            ));
         }
         for (name, e) in &p.commands {
             if e.send.matches(VALUE).count() > 1 || e.reply.matches(VALUE).count() > 1 {
@@ -172,7 +178,9 @@ impl Profile {
         }
         for (name, q) in &p.queries {
             if q.reply.matches(VALUE).count() != 1 {
-                return Err(invalid(format!("query {name}: the reply needs one {VALUE}")));
+                return Err(invalid(format!(
+                    "query {name}: the reply needs one {VALUE}"
+                )));
             }
         }
         Ok(p)
@@ -190,16 +198,28 @@ impl Profile {
     /// Whether a reply line is a refusal.
     #[must_use]
     pub fn is_error_reply(&self, line: &str) -> bool {
-        self.error_prefixes.iter().any(|p| line.starts_with(p.as_str()))
+        self.error_prefixes
+            .iter()
+            .any(|p| line.starts_with(p.as_str()))
     }
 
     /// Decodes a query's value into the status.
-    pub fn decode_query(&self, kind: QueryKind, value: &str, into: &mut LaserStatus) -> Result<(), String> {
+    pub fn decode_query(
+        &self,
+        kind: QueryKind,
+        value: &str,
+        into: &mut LaserStatus,
+    ) -> Result<(), String> {
         let value = value.trim();
         match kind {
             QueryKind::FaultCodes => {
                 for code in value.split(',').map(str::trim) {
-                    if code.is_empty() || code.parse::<u32>().map_err(|e| format!("fault code {code:?}: {e}"))? == 0 {
+                    if code.is_empty()
+                        || code
+                            .parse::<u32>()
+                            .map_err(|e| format!("fault code {code:?}: {e}"))?
+                            == 0
+                    {
                         continue;
                     }
                     let text = self
@@ -221,7 +241,9 @@ impl Profile {
                 for b in &self.status_bits {
                     let set = b.bit < 64 && word & (1 << b.bit) != 0;
                     match b.meaning {
-                        BitMeaning::Fault if set => into.faults.push(format!("bit {}: {}", b.bit, b.name)),
+                        BitMeaning::Fault if set => {
+                            into.faults.push(format!("bit {}: {}", b.bit, b.name))
+                        }
                         BitMeaning::Emission => emission |= set,
                         BitMeaning::Key => key = Some(set),
                         _ => {}
@@ -272,7 +294,11 @@ pub fn capture<'a>(template: &str, line: &'a str) -> Option<&'a str> {
 pub fn format_value(v: f64) -> String {
     let s = format!("{v:.3}");
     let s = s.trim_end_matches('0').trim_end_matches('.');
-    if s.is_empty() || s == "-" { "0".to_owned() } else { s.to_owned() }
+    if s.is_empty() || s == "-" {
+        "0".to_owned()
+    } else {
+        s.to_owned()
+    }
 }
 
 #[cfg(test)]
@@ -288,7 +314,10 @@ mod tests {
         let i = Profile::builtin("ipg").unwrap();
         assert_eq!((i.baud, i.terminator.as_str()), (57600, "\r"));
         assert_eq!(i.commands["emission_off"].send, "EMOFF");
-        assert!(matches!(Profile::builtin("x"), Err(ProfileError::Unknown(_))));
+        assert!(matches!(
+            Profile::builtin("x"),
+            Err(ProfileError::Unknown(_))
+        ));
     }
 
     #[test]
@@ -317,13 +346,21 @@ mod tests {
         let mut s = LaserStatus::default();
         m.decode_query(QueryKind::FaultCodes, "0", &mut s).unwrap();
         assert!(s.faults.is_empty());
-        m.decode_query(QueryKind::FaultCodes, "3,99", &mut s).unwrap();
-        assert_eq!(s.faults, vec!["3: pump diode over temperature", "99: unknown fault"]);
+        m.decode_query(QueryKind::FaultCodes, "3,99", &mut s)
+            .unwrap();
+        assert_eq!(
+            s.faults,
+            vec!["3: pump diode over temperature", "99: unknown fault"]
+        );
         assert!(m.decode_query(QueryKind::FaultCodes, "x", &mut s).is_err());
         let i = Profile::builtin("ipg").unwrap();
         let mut s = LaserStatus::default();
-        i.decode_query(QueryKind::StatusBits, &((1u64 << 2) | (1 << 3) | (1 << 19)).to_string(), &mut s)
-            .unwrap();
+        i.decode_query(
+            QueryKind::StatusBits,
+            &((1u64 << 2) | (1 << 3) | (1 << 19)).to_string(),
+            &mut s,
+        )
+        .unwrap();
         assert_eq!(s.emission, Some(true));
         assert_eq!(s.key_on, Some(true));
         assert_eq!(s.faults, vec!["bit 3: high back reflection"]);

@@ -90,18 +90,40 @@ pub enum LaserSimError {
 
 impl LaserSim {
     /// Opens a pty and starts answering on it (key on, no faults, emission off).
-    pub fn start(profile: Profile, monitor: SafetyMonitor, faults: FaultSwitch) -> Result<LaserSim, LaserSimError> {
-        let pty = nix::pty::openpty(None, None).map_err(|errno| LaserSimError::Pty { what: "openpty", errno })?;
-        let mut t = tcgetattr(&pty.slave).map_err(|errno| LaserSimError::Pty { what: "tcgetattr", errno })?;
+    pub fn start(
+        profile: Profile,
+        monitor: SafetyMonitor,
+        faults: FaultSwitch,
+    ) -> Result<LaserSim, LaserSimError> {
+        let pty = nix::pty::openpty(None, None).map_err(|errno| LaserSimError::Pty {
+            what: "openpty",
+            errno,
+        })?;
+        let mut t = tcgetattr(&pty.slave).map_err(|errno| LaserSimError::Pty {
+            what: "tcgetattr",
+            errno,
+        })?;
         cfmakeraw(&mut t);
-        tcsetattr(&pty.slave, SetArg::TCSANOW, &t).map_err(|errno| LaserSimError::Pty { what: "tcsetattr", errno })?;
-        let path = nix::unistd::ttyname(&pty.slave).map_err(|errno| LaserSimError::Pty { what: "ttyname", errno })?;
-        let flags = fcntl(&pty.master, FcntlArg::F_GETFL).map_err(|errno| LaserSimError::Pty { what: "fcntl", errno })?;
+        tcsetattr(&pty.slave, SetArg::TCSANOW, &t).map_err(|errno| LaserSimError::Pty {
+            what: "tcsetattr",
+            errno,
+        })?;
+        let path = nix::unistd::ttyname(&pty.slave).map_err(|errno| LaserSimError::Pty {
+            what: "ttyname",
+            errno,
+        })?;
+        let flags = fcntl(&pty.master, FcntlArg::F_GETFL).map_err(|errno| LaserSimError::Pty {
+            what: "fcntl",
+            errno,
+        })?;
         fcntl(
             &pty.master,
             FcntlArg::F_SETFL(OFlag::from_bits_truncate(flags) | OFlag::O_NONBLOCK),
         )
-        .map_err(|errno| LaserSimError::Pty { what: "fcntl", errno })?;
+        .map_err(|errno| LaserSimError::Pty {
+            what: "fcntl",
+            errno,
+        })?;
         let master = pty.master;
         monitor.report(CellEvent::Emission(false));
         let shared = Arc::new(Shared {
@@ -206,9 +228,14 @@ fn serve(fd: &OwnedFd, shared: &Shared, stop: &AtomicBool) {
             continue;
         }
         pending.extend_from_slice(&buf[..n]);
-        while let Some(pos) = pending.windows(term.len()).position(|w| w == term.as_slice()) {
+        while let Some(pos) = pending
+            .windows(term.len())
+            .position(|w| w == term.as_slice())
+        {
             let line: Vec<u8> = pending.drain(..pos + term.len()).take(pos).collect();
-            let line = String::from_utf8_lossy(&line).trim_start_matches(['\r', '\n']).to_owned();
+            let line = String::from_utf8_lossy(&line)
+                .trim_start_matches(['\r', '\n'])
+                .to_owned();
             if line.is_empty() {
                 continue;
             }
@@ -225,7 +252,9 @@ fn serve(fd: &OwnedFd, shared: &Shared, stop: &AtomicBool) {
                     break;
                 }
                 Some(FaultKind::Garble) => GARBLE_BYTES.to_vec(),
-                Some(FaultKind::Refuse) => format!("{}: refused", shared.profile.error_prefixes[0]).into_bytes(),
+                Some(FaultKind::Refuse) => {
+                    format!("{}: refused", shared.profile.error_prefixes[0]).into_bytes()
+                }
                 None => answer(shared, &line).into_bytes(),
             };
             reply.extend_from_slice(&term);
@@ -285,11 +314,9 @@ fn answer(shared: &Shared, line: &str) -> String {
                     shared.monitor.report(CellEvent::Emission(true));
                 }
             }
-            ops::EMISSION_OFF => {
-                if s.emission {
-                    s.emission = false;
-                    shared.monitor.report(CellEvent::Emission(false));
-                }
+            ops::EMISSION_OFF if s.emission => {
+                s.emission = false;
+                shared.monitor.report(CellEvent::Emission(false));
             }
             ops::SET_POWER_PCT => {
                 let v = value.unwrap_or(0.0);
@@ -315,7 +342,11 @@ fn answer(shared: &Shared, line: &str) -> String {
                 if s.faults.is_empty() {
                     "0".to_owned()
                 } else {
-                    s.faults.iter().map(u32::to_string).collect::<Vec<_>>().join(",")
+                    s.faults
+                        .iter()
+                        .map(u32::to_string)
+                        .collect::<Vec<_>>()
+                        .join(",")
                 }
             }
             QueryKind::Key => u8::from(s.key_on).to_string(),

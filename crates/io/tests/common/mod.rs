@@ -9,7 +9,8 @@ use trim_io::galvo::{Lit, MarkRecord};
 use trim_io::laser::Profile;
 use trim_io::tap::Tap;
 use trim_plan::job::{
-    Frame, GalvoSettings, Job, JobSettings, Layer, Polyline, Pose, TimeEstimate, ValidationReport, Zone,
+    Frame, GalvoSettings, Job, JobSettings, Layer, Polyline, Pose, TimeEstimate, ValidationReport,
+    Zone,
 };
 
 /// Timeouts for tests: short device timeouts so faults resolve fast, still far above the
@@ -53,7 +54,12 @@ pub fn demo_job(layers: usize) -> Job {
                     polylines: vec![
                         Polyline {
                             contour: 1 + zid as i64,
-                            points: vec![[-4.0 * s, -2.0], [-2.0 * s, 2.0], [0.0, -2.0], [2.0 * s, 2.0]],
+                            points: vec![
+                                [-4.0 * s, -2.0],
+                                [-2.0 * s, 2.0],
+                                [0.0, -2.0],
+                                [2.0 * s, 2.0],
+                            ],
                         },
                         Polyline {
                             contour: 10 + zid as i64,
@@ -134,5 +140,7 @@ pub async fn sim_cell_scaled(profile: &str, galvo_time_scale: f64) -> SimCell {
 
 /// Connects a cell to the simulators.
 pub async fn connect(sim: &SimCell, tap: Tap) -> Cell {
-    Cell::connect(&sim.addresses(), &test_timeouts(), tap).await.expect("connect")
+    Cell::connect(&sim.addresses(), &test_timeouts(), tap)
+        .await
+        .expect("connect")
 }
