@@ -4,6 +4,8 @@
 //!
 //! Everything runs in one test function: LinuxCNC is one instance per machine.
 
+mod common;
+
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::Command;
@@ -11,7 +13,10 @@ use std::time::{Duration, Instant};
 
 use trim_geom::{Point3, UnitVector3, Vector3};
 use trim_io::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
+use tokio_util::sync::CancellationToken;
+use trim_io::cell::{Cell, Timeouts};
 use trim_io::cnc::{Cnc, CncFault};
+use trim_io::executor::{ExecOptions, Executor};
 use trim_io::tap::Tap;
 use trim_plan::kinematics::{
     AxisPose, KinematicsKind, MachineSettings, forward, inverse, joints_of,
@@ -116,7 +121,7 @@ fn planned_poses(m: &MachineSettings) -> Vec<(Point3, UnitVector3, AxisPose)> {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn real_linuxcnc_takes_planned_five_axis_poses() {
+async fn real_linuxcnc_takes_planned_poses_and_runs_a_whole_job() {
     if !linuxcnc_available() {
         return;
     }
@@ -205,4 +210,33 @@ async fn real_linuxcnc_takes_planned_five_axis_poses() {
     cnc.abort().await.expect("link").expect("abort");
     assert!(cnc.errors().await.expect("link").expect("errors").len() < 64);
     cnc.estop().await.expect("link").expect("estop");
+    drop(cnc);
+
+    // A whole job end to end: the real LinuxCNC with the galvo and laser simulators.
+    let job = common::demo_job(2);
+    let sim = common::sim_cell("monaco").await;
+    let mut addrs = sim.addresses();
+    addrs.cnc = addr;
+    let timeouts = Timeouts { cnc_motion: MOTION_TIMEOUT, cnc_reply: Duration::from_secs(5), ..common::test_timeouts() };
+    let cell = Cell::connect(&addrs, &timeouts, Tap::none()).await.expect("cell");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let t = Instant::now();
+    let summary = Executor::new(job.clone(), cell, dir.path().join("run.journal"), None)
+        .with_options(ExecOptions { timeouts, ..ExecOptions::default() })
+        .run(CancellationToken::new(), None)
+        .await
+        .unwrap_or_else(|e| panic!("job on the real LinuxCNC: {e}"));
+    assert_eq!(summary.layers_marked, 4);
+    assert_eq!(common::assert_marked_exactly_once(&job, &sim.galvo.marks()), 0);
+    assert!(sim.monitor.violations().is_empty(), "{:?}", sim.monitor.violations());
+    let motion: f64 = summary.layers.iter().map(|l| l.motion_s).sum();
+    let overhead: Vec<f64> = summary.layers.iter().map(|l| l.overhead_s * 1e3).collect();
+    eprintln!(
+        "job on real LinuxCNC: {:.2} s wall ({motion:.2} s move + wait in position), galvo modelled {:.4} s vs estimate {:.4} s, per-layer overhead {overhead:.1?} ms",
+        t.elapsed().as_secs_f64(),
+        summary.galvo_modelled_s,
+        summary.galvo_estimate_s
+    );
+    // The simulators' other helpers are for the executor tests.
+    let _ = (common::sim_cell_scaled, common::connect);
 }
