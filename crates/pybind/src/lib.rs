@@ -10,6 +10,7 @@ mod errors;
 mod gil;
 mod path;
 mod register;
+mod workflow;
 
 use pyo3::prelude::*;
 
@@ -28,5 +29,9 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<register::IcpResult>()?;
     m.add_function(wrap_pyfunction!(register::icp, m)?)?;
     m.add_function(wrap_pyfunction!(register::umeyama, m)?)?;
+    m.add_function(wrap_pyfunction!(workflow::synth_case, m)?)?;
+    m.add_function(wrap_pyfunction!(workflow::register_path, m)?)?;
+    m.add_function(wrap_pyfunction!(workflow::beam_report, m)?)?;
+    m.add_function(wrap_pyfunction!(workflow::plan_path, m)?)?;
     Ok(())
 }

@@ -25,7 +25,28 @@ from ._native import (
     write_points,
 )
 
+from ._workflow import (
+    Beam,
+    DemoCase,
+    Layer,
+    Plan,
+    Registration,
+    Zone,
+    plan,
+    register_path,
+    synth,
+)
+
 __all__ = [
+    "Beam",
+    "DemoCase",
+    "Layer",
+    "Plan",
+    "Registration",
+    "Zone",
+    "plan",
+    "register_path",
+    "synth",
     "FileFormatError",
     "IcpResult",
     "InternalError",

@@ -1,0 +1,267 @@
+"""The scripting workflow: demo case, path registration, beam figures and planning.
+
+Settings use the job.toml keys (``trimctl config --dump``): a dict here and a table there mean
+the same thing, and an unknown or out-of-range key raises ``ValueError`` naming it.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+
+from . import _native
+from ._native import Path
+
+__all__ = [
+    "Beam",
+    "DemoCase",
+    "Layer",
+    "Plan",
+    "Registration",
+    "Zone",
+    "plan",
+    "register_path",
+    "synth",
+]
+
+
+def _kw(settings: Optional[Mapping[str, Any]], **given: Any) -> Dict[str, Any]:
+    """Merges keyword options (None = not given) over a settings mapping."""
+    out: Dict[str, Any] = dict(settings or {})
+    out.update({k: v for k, v in given.items() if v is not None})
+    return out
+
+
+class Beam:
+    """The laser and lens (paper §2.1–2.2); defaults are the paper's cell.
+
+    Keyword arguments are the ``[beam]`` keys of job.toml (``power_w``, ``repetition_rate_hz``,
+    ``wavelength_nm``, ``m_squared``, ``focal_length_mm``, ``beam_diameter_mm``,
+    ``fluence_tolerance``, ``fluence_threshold_ratio``, ``incidence_deg``,
+    ``line_width_tolerance``). The derived figures are attributes named as the keys of
+    ``trimctl beam``: ``pulse_energy_uj``, ``waist_radius_um``, ``rayleigh_length_mm``,
+    ``peak_fluence_j_per_cm2``, ``focus_half_length_mm``, ``spot_ratio_min``,
+    ``spot_ratio_max``, ``max_incidence_for_line_width_deg``.
+    """
+
+    def __init__(self, **settings: float) -> None:
+        self.settings: Dict[str, float] = dict(settings)
+        self._report: Dict[str, float] = json.loads(_native.beam_report(json.dumps(settings)))
+        for key, value in self._report.items():
+            setattr(self, key, value)
+
+    def report(self) -> Dict[str, float]:
+        """The derived figures as a dict (what ``trimctl beam`` prints)."""
+        return dict(self._report)
+
+    def __repr__(self) -> str:
+        return f"Beam({self.settings}) -> {self._report}"
+
+
+@dataclass(frozen=True)
+class Layer:
+    """One layer: focus point (mm), machine pose (axis → mm or degrees), galvo polylines."""
+
+    index: int
+    focus_point: np.ndarray
+    pose: Dict[str, float]
+    polylines: List[Tuple[int, np.ndarray]]
+    """(contour id, (n, 2) galvo millimetres) per polyline."""
+
+
+@dataclass(frozen=True)
+class Zone:
+    """One zone: origin (mm), frame (3 × 3, rows X, Y, Z in work-piece coordinates), layers."""
+
+    id: int
+    origin: np.ndarray
+    frame: np.ndarray
+    contours: List[int]
+    max_incidence_deg: float
+    max_pairwise_deg: float
+    layers: List[Layer]
+
+    @property
+    def axis(self) -> np.ndarray:
+        """The zone axis (the beam direction toward the lens)."""
+        return self.frame[2]
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A planned job. ``to_json()`` is the Job of DESIGN.md, the same as ``trimctl plan``."""
+
+    job: Dict[str, Any]
+    table: List[Dict[str, Any]] = field(default_factory=list)
+    k: Optional[int] = None
+    automatic_k: Optional[bool] = None
+
+    @property
+    def zones(self) -> List[Zone]:
+        zones = []
+        for z in self.job["zones"]:
+            layers = [
+                Layer(
+                    index=l["index"],
+                    focus_point=np.asarray(l["focus_point"], dtype=np.float64),
+                    pose=dict(l["pose"]),
+                    polylines=[
+                        (p["contour"], np.asarray(p["points"], dtype=np.float64).reshape(-1, 2))
+                        for p in l["polylines"]
+                    ],
+                )
+                for l in z["layers"]
+            ]
+            f = z["frame"]
+            zones.append(
+                Zone(
+                    id=z["id"],
+                    origin=np.asarray(z["origin"], dtype=np.float64),
+                    frame=np.array([f["x"], f["y"], f["z"]], dtype=np.float64),
+                    contours=list(z["contours"]),
+                    max_incidence_deg=z["max_incidence_deg"],
+                    max_pairwise_deg=z["max_pairwise_deg"],
+                    layers=layers,
+                )
+            )
+        return zones
+
+    @property
+    def layer_step_mm(self) -> float:
+        return float(self.job["layer_step_mm"])
+
+    @property
+    def focus_half_length_mm(self) -> float:
+        return float(self.job["focus_half_length_mm"])
+
+    @property
+    def validation(self) -> Dict[str, Any]:
+        return dict(self.job["validation"])
+
+    @property
+    def estimate(self) -> Dict[str, Any]:
+        return dict(self.job["estimate"])
+
+    def galvo_to_workpiece(self, zone: Zone, layer: Layer, xy: np.ndarray) -> np.ndarray:
+        """Maps (n, 2) galvo points of a layer back to the work-piece frame (on the focal
+        plane): ``P = focus_point + x·X + y·Y``."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        return layer.focus_point + xy[:, :1] * zone.frame[0] + xy[:, 1:2] * zone.frame[1]
+
+    def to_json(self) -> str:
+        return json.dumps(self.job, indent=2)
+
+    @classmethod
+    def from_json(cls, text: str) -> "Plan":
+        job = json.loads(text)
+        if job.get("version") != 1:
+            raise ValueError(f"job: version {job.get('version')!r} is not supported (expected 1)")
+        return cls(job=job)
+
+
+def plan(
+    path: Path,
+    *,
+    beam: Optional[Beam] = None,
+    max_incidence_deg: float = 5.0,
+    layer_step: Optional[float] = None,
+    field: Sequence[float] = (100.0, 100.0),
+    kinematics: str = "xyzac-trt",
+    k: Optional[int] = None,
+    settings: Optional[Mapping[str, Any]] = None,
+) -> Plan:
+    """Plans zones, layers, galvo polylines and machine poses for a (registered) path.
+
+    ``settings`` takes any planner key of job.toml (``zoning``, ``layers``, ``field``,
+    ``machine``, ``galvo`` tables); the keyword options override it.
+    """
+    s = _kw(settings, max_incidence_deg=max_incidence_deg)
+    if beam is not None:
+        s["beam"] = beam.settings
+    if layer_step is not None:
+        s.setdefault("layers", {})["step_mm"] = layer_step
+    if k is not None:
+        s.setdefault("zoning", {})["k"] = k
+    s.setdefault("galvo", {})["field_mm"] = [float(field[0]), float(field[1])]
+    s.setdefault("machine", {})["kinematics"] = kinematics
+    job, table, meta = _native.plan_path(path, json.dumps(s))
+    m = json.loads(meta)
+    return Plan(job=json.loads(job), table=json.loads(table), k=m["k"], automatic_k=m["automatic_k"])
+
+
+@dataclass(frozen=True)
+class Registration:
+    """A registered path, its per-contour quality report and the coarse ``scan_from_cad``."""
+
+    path: Path
+    report: Dict[str, Any]
+    scan_from_cad: np.ndarray
+
+    @property
+    def contours(self) -> List[Dict[str, Any]]:
+        """Per-contour quality: residual, coverage, degeneracy, flags, trustworthy."""
+        return list(self.report["contours"])
+
+    @property
+    def untrustworthy(self) -> List[int]:
+        return [c["id"] for c in self.report["contours"] if not c["trustworthy"]]
+
+
+def register_path(
+    cad: np.ndarray,
+    scan: np.ndarray,
+    path: Path,
+    *,
+    cad_normals: np.ndarray,
+    scan_normals: Optional[np.ndarray] = None,
+    init: Optional[np.ndarray] = None,
+    mode: str = "regional",
+    settings: Optional[Mapping[str, Any]] = None,
+) -> Registration:
+    """Registers the CAM ``path`` (CAD frame) onto the ``scan``: coarse similarity from the
+    fixture pose ``init`` (4 × 4 ``scan_from_cad``, default identity), then the deformation
+    field. ``cad`` are CAD points (N, 3) with outward ``cad_normals``. ``settings`` takes the
+    ``[register]`` keys of job.toml.
+    """
+    s = _kw(settings, mode=mode)
+    registered, report, scan_from_cad = _native.register_path(
+        cad, cad_normals, scan, path, init, json.dumps(s), scan_normals
+    )
+    return Registration(path=registered, report=json.loads(report), scan_from_cad=scan_from_cad)
+
+
+@dataclass(frozen=True)
+class DemoCase:
+    """A synthetic ceramic-core case: CAD (mesh and points with normals), template path, a scan
+    of the deformed re-posed part, and the ground-truth registered path."""
+
+    cad_points: np.ndarray
+    cad_normals: np.ndarray
+    cad_vertices: np.ndarray
+    cad_triangles: np.ndarray
+    path: Path
+    scan: np.ndarray
+    truth: Path
+    scan_from_cad_nominal: np.ndarray
+    scan_from_cad_true: np.ndarray
+
+
+def synth(seed: int = 1, **params: Any) -> DemoCase:
+    """Generates the demo case (``trimctl synth``). Options: ``sag_mm``, ``twist_deg``,
+    ``scale_range``, ``noise_mm``, ``scan_points``, ``cad_points``, ``pose_deg``, ``pose_mm``,
+    ``outlier_fraction``, ``dropouts``, ``scanner_tilt_deg``."""
+    d = _native.synth_case(json.dumps({"seed": seed, **params}))
+    return DemoCase(
+        cad_points=d["cad_points"],
+        cad_normals=d["cad_normals"],
+        cad_vertices=d["cad_vertices"],
+        cad_triangles=d["cad_triangles"].astype(np.int64),
+        path=d["path"],
+        scan=d["scan"],
+        truth=d["truth"],
+        scan_from_cad_nominal=d["scan_from_cad_nominal"],
+        scan_from_cad_true=d["scan_from_cad_true"],
+    )

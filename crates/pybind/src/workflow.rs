@@ -1,0 +1,143 @@
+//! The scripting workflow: the synthetic demo case, path registration, beam figures and the
+//! planner. Settings cross the boundary as JSON objects with the job.toml keys (so a Python
+//! dict and a job.toml table mean the same), geometry as numpy arrays.
+
+use numpy::PyArray2;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use trim_geom::PointCloud;
+use trim_geom::synth::{SynthParams, generate};
+use trim_plan::planner::{PlanSettings, plan_with_report};
+use trim_plan::{Beam, PlanError};
+use trim_register::regional::{RegisterSettings, register};
+
+use crate::arrays;
+use crate::errors::{PlanningError, geom_error, register_error, value_error};
+use crate::gil::run_detached;
+use crate::path::{PyPath, cloud_to_numpy};
+use crate::register::{matrix_to_numpy, similarity_from_numpy};
+
+/// Parses settings JSON into `T`, naming the offending key in a `ValueError`.
+fn settings_from_json<T: serde::de::DeserializeOwned>(what: &str, json: &str) -> PyResult<T> {
+    serde_json::from_str(json).map_err(|e| value_error(what, e))
+}
+
+/// Maps a planning error: bad settings to `ValueError`, the rest to `PlanningError`.
+fn plan_error(e: PlanError) -> PyErr {
+    match e {
+        PlanError::InvalidSetting { .. } => value_error("settings", e),
+        other => PlanningError::new_err(other.to_string()),
+    }
+}
+
+/// Generates the synthetic ceramic-core case. `params_json`: the `SynthParams` keys.
+/// Returns a dict of numpy arrays, Paths and the nominal fixture pose.
+#[pyfunction]
+pub fn synth_case<'py>(py: Python<'py>, params_json: &str) -> PyResult<Bound<'py, PyDict>> {
+    let params: SynthParams = settings_from_json("synth", params_json)?;
+    params.validate().map_err(geom_error)?;
+    let case = run_detached(py, move || generate(&params))?.map_err(geom_error)?;
+    let d = PyDict::new(py);
+    let (cad, cad_normals) = cloud_to_numpy(py, &case.cad_points);
+    d.set_item("cad_points", cad)?;
+    d.set_item("cad_normals", cad_normals)?;
+    let (scan, scan_normals) = cloud_to_numpy(py, &case.scan);
+    d.set_item("scan", scan)?;
+    d.set_item("scan_normals", scan_normals)?;
+    d.set_item("cad_vertices", arrays::from_points(py, &case.cad_vertices))?;
+    let tris: Vec<[f64; 3]> = case
+        .cad_triangles
+        .iter()
+        .map(|t| [f64::from(t[0]), f64::from(t[1]), f64::from(t[2])])
+        .collect();
+    d.set_item("cad_triangles", arrays::from_rows(py, tris.into_iter()))?;
+    d.set_item("path", PyPath { inner: case.path })?;
+    d.set_item("truth", PyPath { inner: case.truth })?;
+    d.set_item(
+        "scan_from_cad_nominal",
+        matrix_to_numpy(py, &case.scan_from_cad_nominal.to_homogeneous()),
+    )?;
+    d.set_item(
+        "scan_from_cad_true",
+        matrix_to_numpy(py, &case.scan_from_cad_true.to_homogeneous()),
+    )?;
+    Ok(d)
+}
+
+/// Registers `path` (CAD frame) onto the scan. `cad` needs outward normals. Returns
+/// `(registered Path, quality report JSON, scan_from_cad 4×4)`.
+#[pyfunction]
+#[pyo3(signature = (cad, cad_normals, scan, path, init, settings_json, scan_normals = None))]
+#[expect(clippy::too_many_arguments, reason = "mirrors the Python wrapper's arguments")]
+pub fn register_path<'py>(
+    py: Python<'py>,
+    cad: &Bound<'py, PyAny>,
+    cad_normals: &Bound<'py, PyAny>,
+    scan: &Bound<'py, PyAny>,
+    path: PyPath,
+    init: Option<&Bound<'py, PyAny>>,
+    settings_json: &str,
+    scan_normals: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(PyPath, String, Bound<'py, PyArray2<f64>>)> {
+    let settings: RegisterSettings = settings_from_json("register settings", settings_json)?;
+    settings.validate().map_err(register_error)?;
+    let cad = PointCloud::with_normals(
+        arrays::points("cad", cad)?,
+        arrays::vectors("cad_normals", cad_normals)?,
+    )
+    .map_err(|e| value_error("cad_normals", e))?;
+    let scan_points = arrays::points("scan", scan)?;
+    let scan = match scan_normals {
+        Some(n) => PointCloud::with_normals(scan_points, arrays::vectors("scan_normals", n)?),
+        None => PointCloud::new(scan_points),
+    }
+    .map_err(|e| value_error("scan", e))?;
+    let initial = match init {
+        Some(m) => similarity_from_numpy("init", m)?,
+        None => trim_geom::Similarity3::identity(),
+    };
+    let inner = path.inner;
+    let registration = run_detached(py, move || register(&cad, &scan, &inner, &initial, &settings))?
+        .map_err(register_error)?;
+    let report = serde_json::to_string(&registration.report)
+        .map_err(|e| value_error("report", e))?;
+    Ok((
+        PyPath {
+            inner: registration.path,
+        },
+        report,
+        matrix_to_numpy(py, &registration.scan_from_cad.to_homogeneous()),
+    ))
+}
+
+/// The beam figures (the keys of `trimctl beam`) as JSON. `beam_json`: the `[beam]` keys.
+#[pyfunction]
+pub fn beam_report(beam_json: &str) -> PyResult<String> {
+    let beam: Beam = settings_from_json("beam", beam_json)?;
+    beam.validate().map_err(plan_error)?;
+    serde_json::to_string(&beam.report()).map_err(|e| value_error("beam", e))
+}
+
+/// Plans a job from a registered path. `settings_json`: the planner's job.toml keys
+/// (`max_incidence_deg`, `beam`, `zoning`, `layers`, `field`, `machine`, `galvo`). Returns
+/// `(job JSON, zone table JSON, {"k": .., "automatic_k": ..})` as JSON strings.
+#[pyfunction]
+pub fn plan_path(
+    py: Python<'_>,
+    path: PyPath,
+    settings_json: &str,
+) -> PyResult<(String, String, String)> {
+    let settings: PlanSettings = settings_from_json("plan settings", settings_json)?;
+    settings.validate().map_err(plan_error)?;
+    let out = run_detached(py, move || plan_with_report(&path.inner, &settings))?
+        .map_err(plan_error)?;
+    let job = out.job.to_json().map_err(|e| value_error("job", e))?;
+    let table = serde_json::to_string(&out.table).map_err(|e| value_error("table", e))?;
+    let meta = serde_json::json!({
+        "k": out.k,
+        "automatic_k": out.automatic_k,
+        "pieces": out.pieces,
+    })
+    .to_string();
+    Ok((job, table, meta))
+}
