@@ -31,6 +31,8 @@ pub struct Mesh {
     surface_to_triangle: Vec<u32>,
     /// Cumulative areas of the `surface` triangles (mm²), for sampling.
     cumulative_area_mm2: Vec<f64>,
+    /// The unit normal of each `surface` triangle.
+    surface_normals: Vec<Vector3>,
 }
 
 impl std::fmt::Debug for Mesh {
@@ -82,6 +84,7 @@ impl Mesh {
         let mut surface_indices = Vec::with_capacity(triangles.len());
         let mut surface_to_triangle = Vec::with_capacity(triangles.len());
         let mut cumulative_area_mm2 = Vec::with_capacity(triangles.len());
+        let mut surface_normals = Vec::with_capacity(triangles.len());
         let mut total_mm2 = 0.0;
         for (t, tri) in triangles.iter().enumerate() {
             let [a, b, c] = corners(&vertices, *tri).ok_or_else(|| {
@@ -105,9 +108,11 @@ impl Mesh {
                     index: t,
                 });
             }
-            if area_mm2 <= DEGENERATE_TRIANGLE_REL_AREA * longest_sq || area_mm2 == 0.0 {
+            let degenerate = area_mm2 <= DEGENERATE_TRIANGLE_REL_AREA * longest_sq;
+            let Some(normal) = unit_along(&cross).filter(|_| !degenerate && area_mm2 > 0.0) else {
                 continue;
-            }
+            };
+            surface_normals.push(normal);
             total_mm2 += area_mm2;
             surface_indices.push(*tri);
             // t < triangles.len(), checked above to fit in u32.
@@ -138,6 +143,7 @@ impl Mesh {
             surface,
             surface_to_triangle,
             cumulative_area_mm2,
+            surface_normals,
         })
     }
 
@@ -185,7 +191,7 @@ impl Mesh {
     #[must_use]
     pub fn face_normal(&self, t: usize) -> Option<Vector3> {
         let [a, b, c] = corners(&self.vertices, *self.triangles.get(t)?)?;
-        (b - a).cross(&(c - a)).try_normalize(0.0)
+        unit_along(&(b - a).cross(&(c - a)))
     }
 
     /// `n` points drawn uniformly over the surface (each triangle with probability proportional to
@@ -211,7 +217,7 @@ impl Mesh {
             let r2 = rng.random::<f64>();
             let p = a + (b - a) * (r1 * (1.0 - r2)) + (c - a) * (r1 * r2);
             points.push(p);
-            normals.push((b - a).cross(&(c - a)));
+            normals.push(self.surface_normals[s]);
         }
         PointCloud::with_normals(points, normals)
             .expect("points are convex combinations of finite vertices; normals are non-degenerate")
@@ -264,6 +270,18 @@ impl Mesh {
         }
         best.1
     }
+}
+
+/// The unit vector along `v`, or `None` for a zero or non-finite `v`. Scales by the largest
+/// component first, so neither tiny (sub-micrometre triangles, whose squared components
+/// underflow) nor huge components lose the direction.
+fn unit_along(v: &Vector3) -> Option<Vector3> {
+    let largest = v.amax();
+    if !(largest > 0.0 && largest.is_finite()) {
+        return None;
+    }
+    let scaled = v / largest;
+    Some(scaled / scaled.norm())
 }
 
 fn corners(vertices: &[Point3], tri: [u32; 3]) -> Option<[Point3; 3]> {
@@ -360,6 +378,26 @@ mod tests {
         for count in per_face {
             assert!((398..=602).contains(&count), "{per_face:?}");
         }
+    }
+
+    #[test]
+    fn tiny_triangles_sample_with_unit_normals() {
+        // A 1e-7 mm triangle: its cross product (~1e-14) is below PointCloud's zero-normal
+        // threshold unless normalised with care.
+        let m = Mesh::new(
+            vec![
+                Point3::new(5.0, 5.0, 5.0),
+                Point3::new(5.0 + 1e-7, 5.0, 5.0),
+                Point3::new(5.0, 5.0 + 1e-7, 5.0),
+            ],
+            vec![[0, 1, 2]],
+        )
+        .unwrap();
+        let s = m.sample_area_weighted(10, 1);
+        for n in s.normals().unwrap() {
+            assert!((n - Vector3::z()).norm() < 1e-9, "{n}");
+        }
+        assert!((m.face_normal(0).unwrap() - Vector3::z()).norm() < 1e-9);
     }
 
     #[test]
