@@ -2,7 +2,9 @@
 //! - an error names the file it was given;
 //! - a cloud that was read writes to binary PLY and reads back identical (the reader returned
 //!   only finite values, and the writer and reader agree);
-//! - a mesh or path that was read writes and reads back with the same counts.
+//! - a mesh that was read has a finite positive area, encodes to STL, samples with unit normals
+//!   and answers distance queries;
+//! - a path that was read writes and reads back with the same points.
 
 use std::path::Path as FsPath;
 
@@ -23,7 +25,8 @@ pub fn check_points(data: &[u8], name: &str) {
     let name = FsPath::new(name);
     match formats::read_points_from_bytes(data, name) {
         Ok(cloud) => {
-            let bytes = formats::encode_ply(&cloud, PlyEncoding::BinaryLittleEndian, PlyScalar::Double);
+            let bytes =
+                formats::encode_ply(&cloud, PlyEncoding::BinaryLittleEndian, PlyScalar::Double);
             let back = formats::read_points_from_bytes(&bytes, FsPath::new("again.ply"))
                 .expect("a cloud that was read must write and read back");
             assert_eq!(back.points(), cloud.points());
@@ -41,7 +44,12 @@ pub fn check_mesh(data: &[u8], name: &str) {
             assert!(mesh.area().is_finite() && mesh.area() > 0.0);
             let bytes = formats::encode_stl(&mesh).expect("fewer than 2^32 triangles");
             assert_eq!(bytes.len(), 84 + 50 * mesh.triangles().len());
-            // Distance queries on whatever the parser accepted must not panic either.
+            // Sampling and distance queries on whatever the parser accepted must not panic
+            // either, and sampled normals are unit.
+            let samples = mesh.sample_area_weighted(8, 0);
+            for n in samples.normals().expect("samples carry normals") {
+                assert!((n.norm() - 1.0).abs() < 1e-9, "normal {n}");
+            }
             let b = mesh.bounds();
             let d = mesh.distance(&b.center());
             assert!(d.is_finite() && d >= 0.0, "distance {d}");
