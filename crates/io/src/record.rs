@@ -64,6 +64,9 @@ pub enum RecordError {
     /// The MCAP writer failed.
     #[error("record: {0}")]
     Mcap(#[from] mcap::McapError),
+    /// A message came after [`Recorder::finish`].
+    #[error("record: the file is finished")]
+    Finished,
 }
 
 /// The MCAP writer with its channels.
@@ -74,6 +77,7 @@ pub struct Recorder {
     sequence: u32,
     messages: u64,
     per_topic: BTreeMap<String, u64>,
+    finished: bool,
 }
 
 /// A recorder shared between the executor and the device taps.
@@ -123,6 +127,7 @@ impl Recorder {
             sequence: 0,
             messages: 0,
             per_topic: BTreeMap::new(),
+            finished: false,
         })
     }
 
@@ -166,6 +171,9 @@ impl Recorder {
         t_ns: u64,
         msg: &Value,
     ) -> Result<(), RecordError> {
+        if self.finished {
+            return Err(RecordError::Finished);
+        }
         let channel_id = self.channel(topic, schema_name, schema)?;
         self.sequence = self.sequence.wrapping_add(1);
         let data = serde_json::to_vec(msg).unwrap_or_default();
@@ -342,12 +350,20 @@ impl Recorder {
 
     /// Closes the current chunk and flushes the file: everything so far survives a crash.
     pub fn flush(&mut self) -> Result<(), RecordError> {
+        if self.finished {
+            return Err(RecordError::Finished);
+        }
         self.writer.flush()?;
         Ok(())
     }
 
-    /// Writes the summary and closes the file.
-    pub fn finish(mut self) -> Result<(), RecordError> {
+    /// Writes the summary and the footer; later messages are refused with
+    /// [`RecordError::Finished`] (a device tap may outlive the run by a heartbeat).
+    pub fn finish(&mut self) -> Result<(), RecordError> {
+        if self.finished {
+            return Ok(());
+        }
+        self.finished = true;
         self.writer.finish()?;
         Ok(())
     }
@@ -409,6 +425,10 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("r.mcap");
         let mut rec = Recorder::create(&path).unwrap();
+        assert!(matches!(
+            Recorder::create(&dir.path().join("no/such/dir.mcap")),
+            Err(RecordError::Io { .. })
+        ));
         let mut ends = Vec::new();
         for batch in 0..8_u64 {
             for i in 0..25_u64 {
@@ -423,6 +443,10 @@ mod tests {
             ends.push(std::fs::metadata(&path).unwrap().len());
         }
         rec.finish().unwrap();
+        assert!(matches!(
+            rec.log(0, LogLevel::Info, "late"),
+            Err(RecordError::Finished)
+        ));
         let full = std::fs::read(&path).unwrap();
         let count = |bytes: &[u8]| {
             let mut n = 0;

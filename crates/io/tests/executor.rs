@@ -143,12 +143,7 @@ async fn whole_job_marks_every_vector_once_with_both_laser_profiles() {
         )));
 
         // The record holds every device's traffic.
-        let rec = std::sync::Arc::try_unwrap(rec)
-            .ok()
-            .expect("the executor dropped its handle")
-            .into_inner()
-            .unwrap();
-        rec.finish().unwrap();
+        rec.lock().unwrap().finish().unwrap();
         let bytes = std::fs::read(dir.path().join("run.mcap")).unwrap();
         let mut topics = std::collections::BTreeMap::<String, usize>::new();
         for m in mcap::MessageStream::new(&bytes).unwrap() {
@@ -412,4 +407,25 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
         table.join("\n")
     );
     assert_eq!(table.len(), 32);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_monitor_catches_emission_during_motion_in_the_simulated_cell() {
+    // Drive the devices in a wrong order by hand: the cell's monitor must see it.
+    let sim = sim_cell("ipg").await;
+    let mut cell = connect(&sim, Tap::none()).await;
+    cell.cnc.enable().await.unwrap().unwrap();
+    cell.laser.emission(true).await.unwrap().unwrap();
+    let mut pose = trim_plan::job::Pose::default();
+    pose.0.insert("x".into(), 20.0);
+    cell.cnc.start_move(&pose).await.unwrap().unwrap();
+    cell.cnc
+        .wait_in_position(Duration::from_secs(5))
+        .await
+        .unwrap()
+        .unwrap();
+    let v = sim.monitor.violations();
+    assert_eq!(v.len(), 1, "{v:?}");
+    assert_eq!(v[0].what, "laser emission enabled while the CNC moves");
+    cell.laser.emission(false).await.unwrap().unwrap();
 }

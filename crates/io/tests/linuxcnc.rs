@@ -11,10 +11,10 @@ use std::path::PathBuf;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use trim_geom::{Point3, UnitVector3, Vector3};
-use trim_io::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
 use tokio_util::sync::CancellationToken;
+use trim_geom::{Point3, UnitVector3, Vector3};
 use trim_io::cell::{Cell, Timeouts};
+use trim_io::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
 use trim_io::cnc::{Cnc, CncFault};
 use trim_io::executor::{ExecOptions, Executor};
 use trim_io::tap::Tap;
@@ -209,26 +209,102 @@ async fn real_linuxcnc_takes_planned_poses_and_runs_a_whole_job() {
     }
     cnc.abort().await.expect("link").expect("abort");
     assert!(cnc.errors().await.expect("link").expect("errors").len() < 64);
-    cnc.estop().await.expect("link").expect("estop");
-    drop(cnc);
+
+    // A stop while `set wait done` is pending (as on a cancel mid-move): linuxcncrsh reads a
+    // session's lines one by one, so the abort goes out on a fresh session, and motion stops short.
+    let mut long = trim_plan::job::Pose::default();
+    for (k, v) in [
+        ("x", -150.0),
+        ("y", 0.0),
+        ("z", 0.0),
+        ("a", 0.0),
+        ("c", 0.0),
+    ] {
+        long.0.insert(k.into(), v);
+    }
+    cnc.start_move(&long)
+        .await
+        .expect("link")
+        .expect("long move accepted");
+    let abandoned = tokio::time::timeout(
+        Duration::from_millis(800),
+        cnc.wait_in_position(MOTION_TIMEOUT),
+    )
+    .await;
+    assert!(
+        abandoned.is_err(),
+        "a 150 mm move at 20 mm/s cannot finish in 0.8 s"
+    );
+    let t = Instant::now();
+    cnc.abort()
+        .await
+        .expect("link")
+        .expect("abort on a fresh session");
+    eprintln!(
+        "abort during a pending wait: acknowledged in {:.0} ms",
+        t.elapsed().as_secs_f64() * 1e3
+    );
+    let mut probe = LinuxCnc::connect(addr, LinuxCncConfig::default(), Tap::none())
+        .await
+        .expect("link")
+        .expect("session");
+    // Motion decelerates (the sim's acceleration limit): wait for standstill, bounded.
+    let mut last = probe.positions().await.expect("link").expect("positions");
+    let stopped_at = loop {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        let p = probe.positions().await.expect("link").expect("positions");
+        let moved = (p.world.axis("x").unwrap() - last.world.axis("x").unwrap()).abs();
+        if moved < POSITION_TOLERANCE {
+            break p;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(10),
+            "still moving 10 s after the abort: {p:?}"
+        );
+        last = p;
+    };
+    eprintln!(
+        "abort: standstill {:.2} s after the abort was sent",
+        t.elapsed().as_secs_f64()
+    );
+    let x = stopped_at.world.axis("x").unwrap();
+    assert!(x > -140.0, "the move was not stopped short: x = {x}");
+    probe.estop().await.expect("link").expect("estop");
+    drop((cnc, probe));
 
     // A whole job end to end: the real LinuxCNC with the galvo and laser simulators.
     let job = common::demo_job(2);
     let sim = common::sim_cell("monaco").await;
     let mut addrs = sim.addresses();
     addrs.cnc = addr;
-    let timeouts = Timeouts { cnc_motion: MOTION_TIMEOUT, cnc_reply: Duration::from_secs(5), ..common::test_timeouts() };
-    let cell = Cell::connect(&addrs, &timeouts, Tap::none()).await.expect("cell");
+    let timeouts = Timeouts {
+        cnc_motion: MOTION_TIMEOUT,
+        cnc_reply: Duration::from_secs(5),
+        ..common::test_timeouts()
+    };
+    let cell = Cell::connect(&addrs, &timeouts, Tap::none())
+        .await
+        .expect("cell");
     let dir = tempfile::tempdir().expect("tempdir");
     let t = Instant::now();
     let summary = Executor::new(job.clone(), cell, dir.path().join("run.journal"), None)
-        .with_options(ExecOptions { timeouts, ..ExecOptions::default() })
+        .with_options(ExecOptions {
+            timeouts,
+            ..ExecOptions::default()
+        })
         .run(CancellationToken::new(), None)
         .await
         .unwrap_or_else(|e| panic!("job on the real LinuxCNC: {e}"));
     assert_eq!(summary.layers_marked, 4);
-    assert_eq!(common::assert_marked_exactly_once(&job, &sim.galvo.marks()), 0);
-    assert!(sim.monitor.violations().is_empty(), "{:?}", sim.monitor.violations());
+    assert_eq!(
+        common::assert_marked_exactly_once(&job, &sim.galvo.marks()),
+        0
+    );
+    assert!(
+        sim.monitor.violations().is_empty(),
+        "{:?}",
+        sim.monitor.violations()
+    );
     let motion: f64 = summary.layers.iter().map(|l| l.motion_s).sum();
     let overhead: Vec<f64> = summary.layers.iter().map(|l| l.overhead_s * 1e3).collect();
     eprintln!(

@@ -609,9 +609,6 @@ async fn run_list(shared: Arc<Shared>, commands: Vec<ListCommand>, tag: u32, run
                 shared.monitor.light_epoch()
             };
             sleep_ns(step.ns).await;
-            let Some(mut c) = still_running(&shared, run_id) else {
-                return;
-            };
             let after = shared.monitor.light_epoch();
             let lit = if before.on && after.on && after.offs == before.offs {
                 Lit::Full
@@ -620,22 +617,33 @@ async fn run_list(shared: Arc<Shared>, commands: Vec<ListCommand>, tag: u32, run
             } else {
                 Lit::Partial
             };
-            c.elapsed_ns += step.ns;
-            c.commands_done += 1;
-            if lit == Lit::Full {
-                c.marks_done += 1;
+            // The vector is recorded even when a stop or a trip cut it: light reached the part.
+            let mut c = shared.ctl();
+            let running = c.run_id == run_id && !c.stop_requested;
+            if running {
+                c.elapsed_ns += step.ns;
+                c.commands_done += 1;
+                if lit == Lit::Full {
+                    c.marks_done += 1;
+                }
             }
             drop(c);
-            shared
-                .marks
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .push(MarkRecord {
-                    tag,
-                    from_bits: from,
-                    to_bits: pos,
-                    lit,
-                });
+            if running || lit != Lit::Dry {
+                shared
+                    .marks
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
+                    .push(MarkRecord {
+                        tag,
+                        from_bits: from,
+                        to_bits: pos,
+                        lit: if running { lit } else { Lit::Partial },
+                    });
+            }
+            if !running {
+                let _ = still_running(&shared, run_id);
+                return;
+            }
             marks_in_list += 1;
             if let Some(kind) = shared.faults.on_marks(list_number, marks_in_list) {
                 inject_mid_list(&shared, kind);
