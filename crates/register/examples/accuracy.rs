@@ -29,12 +29,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 pose_deg,
                 pose_mm,
                 scan_points,
+                cad_points: std::env::var("TRIM_CAD_POINTS").map_or(Ok(200_000), |v| v.parse())?,
                 ..SynthParams::default()
             };
             let case = generate(&params)?;
+            let base: RegisterSettings = match std::env::var("TRIM_SETTINGS") {
+                Ok(json) => serde_json::from_str(&json)?,
+                Err(_) => RegisterSettings::default(),
+            };
             let settings = RegisterSettings {
                 scanner_viewpoint_mm: Some(case.scanner_in_scan.coords.into()),
-                ..RegisterSettings::default()
+                ..base
             };
             let t0 = Instant::now();
             let reg = register(&case.cad_points, &case.scan, &case.path, &case.scan_from_cad_nominal, &settings)?;
@@ -42,6 +47,26 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let e = path_errors(&reg.path, &case.truth, |_| true)?;
             if std::env::var_os("TRIM_DEBUG").is_some() {
                 eprintln!("timings {:?}", reg.report.timings_s);
+                for (name, range) in [("slots", 1..=4), ("holes", 5..=46), ("edges", 47..=52)] {
+                    let e = path_errors(&reg.path, &case.truth, |id| range.contains(&id))?;
+                    eprintln!("  {name}: cross P95 {:.1} max {:.1} pointwise P95 {:.1}", e.cross_edge_p95_mm * 1e3, e.cross_edge_max_mm * 1e3, e.pointwise_p95_mm * 1e3);
+                }
+                let rinv = case.scan_from_cad_true.inverse();
+                for (name, range) in [("slots", 1..=4), ("holes", 5..=46), ("edges", 47..=52)] {
+                    let mut sum = nalgebra::Vector3::zeros();
+                    let mut n = 0.0;
+                    for c in reg.path.contours().iter().filter(|c| range.contains(&c.id())) {
+                        let t = case.truth.get(c.id()).unwrap();
+                        for (p, q) in c.points().iter().zip(t.points()) {
+                            sum += rinv.isometry.rotation * (p - q);
+                            n += 1.0;
+                        }
+                    }
+                    eprintln!("  {name}: mean error (part frame) {:.1?} µm", (sum / n * 1e3).as_slice());
+                }
+                for c in reg.report.contours.iter().filter(|c| !c.trustworthy) {
+                    eprintln!("  flagged {c:?}");
+                }
             }
             println!(
                 "| {level} | {seed} | trimctl | {:.1} | {:.1} | {:.1} | {} | {t_ours:.2} |",
@@ -50,6 +75,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 e.pointwise_p95_mm * 1e3,
                 reg.report.global.untrustworthy
             );
+            if std::env::var_os("TRIM_NO_PAPER").is_some() {
+                continue;
+            }
             let t0 = Instant::now();
             match paper_method(&case.cad_points, &case.scan, &case.path, &case.scan_from_cad_nominal, &PaperSettings::default()) {
                 Ok(p) => {

@@ -23,6 +23,8 @@ pub struct Weights {
     pub value: [f64; SUPPORT],
     /// `∇Bₖ(x)`, per mm.
     pub gradient: [Vector3; SUPPORT],
+    /// The flat index of the grid cell: positions in one cell share `index`.
+    pub cell: usize,
 }
 
 /// A quadratic B-spline displacement field on an axis-aligned grid (frame of the points it is
@@ -32,6 +34,9 @@ pub struct BSplineField {
     origin: Point3,
     spacing_mm: f64,
     cells: [usize; 3],
+    /// Axes by increasing control-point count: the flat index runs fastest along `order[0]`,
+    /// so the normal matrix is banded with the smallest bandwidth.
+    order: [usize; 3],
     coefficients: Vec<Vector3>,
 }
 
@@ -50,10 +55,13 @@ impl BSplineField {
         let extent = max - min;
         let cells = [0, 1, 2].map(|a| ((extent[a] / spacing_mm).ceil() as usize).max(1));
         let n = (cells[0] + 2) * (cells[1] + 2) * (cells[2] + 2);
+        let mut order = [0, 1, 2];
+        order.sort_by_key(|&a| (cells[a], a));
         BSplineField {
             origin: *min,
             spacing_mm,
             cells,
+            order,
             coefficients: vec![Vector3::zeros(); n],
         }
     }
@@ -95,11 +103,22 @@ impl BSplineField {
         }
     }
 
-    /// The flat index of control point `(i, j, k)`.
+    /// The flat index of control point `(i, j, k)` (along x, y, z).
     #[must_use]
     pub fn flat(&self, i: usize, j: usize, k: usize) -> usize {
         let d = self.dims();
-        i + d[0] * (j + d[1] * k)
+        let ijk = [i, j, k];
+        let [a, b, c] = self.order;
+        ijk[a] + d[a] * (ijk[b] + d[b] * ijk[c])
+    }
+
+    /// The half-bandwidth of the normal matrix in unknowns (3 per control point): control
+    /// points sharing a cell differ by at most this in flat index, times 3, plus 2.
+    #[must_use]
+    pub fn bandwidth(&self) -> usize {
+        let d = self.dims();
+        let [a, b, _] = self.order;
+        3 * (2 + 2 * d[a] + 2 * d[a] * d[b]) + 2
     }
 
     /// The basis weights at `x` (outside the box the edge cells' polynomials extend).
@@ -121,6 +140,7 @@ impl BSplineField {
             index: [0; SUPPORT],
             value: [0.0; SUPPORT],
             gradient: [Vector3::zeros(); SUPPORT],
+            cell: cell[0] + self.cells[0] * (cell[1] + self.cells[1] * cell[2]),
         };
         let mut n = 0;
         for k in 0..3 {

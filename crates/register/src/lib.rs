@@ -26,3 +26,4 @@ pub mod regional;
 pub mod sampling;
 pub mod eval;
 pub mod paper;
+pub mod banded;
