@@ -23,8 +23,8 @@ pub mod kinematics;
 pub mod layer;
 pub mod order;
 pub mod piece;
-pub mod svg;
 pub mod planner;
+pub mod svg;
 pub mod testing;
 pub mod zoning;
 

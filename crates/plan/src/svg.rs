@@ -37,10 +37,8 @@ impl Bounds {
             hi: [f64::NEG_INFINITY; 2],
         };
         for p in points {
-            for k in 0..2 {
-                b.lo[k] = b.lo[k].min(p[k]);
-                b.hi[k] = b.hi[k].max(p[k]);
-            }
+            b.lo = [b.lo[0].min(p[0]), b.lo[1].min(p[1])];
+            b.hi = [b.hi[0].max(p[0]), b.hi[1].max(p[1])];
         }
         if !b.lo[0].is_finite() {
             b = Bounds {
@@ -53,7 +51,9 @@ impl Bounds {
 
     /// Maps a point into a square of `size` px at (`x0`, `y0`), y up, aspect kept.
     fn mapper(&self, x0: f64, y0: f64, size: f64) -> impl Fn([f64; 2]) -> (f64, f64) + use<> {
-        let span = (self.hi[0] - self.lo[0]).max(self.hi[1] - self.lo[1]).max(1e-9);
+        let span = (self.hi[0] - self.lo[0])
+            .max(self.hi[1] - self.lo[1])
+            .max(1e-9);
         let scale = (size - 2.0 * MARGIN_PX) / span;
         let (lo, hi) = (self.lo, self.hi);
         let cx = 0.5 * (lo[0] + hi[0]);
@@ -108,10 +108,17 @@ pub fn job_svg(job: &Job) -> String {
         out,
         r#"<rect width="{width}" height="{height}" fill="white"/>"#
     );
-    let views: [(&str, usize, usize); 2] = [("top view (X right, Y up)", 0, 1), ("side view (Y right, Z up)", 1, 2)];
+    let views: [(&str, usize, usize); 2] = [
+        ("top view (X right, Y up)", 0, 1),
+        ("side view (Y right, Z up)", 1, 2),
+    ];
     for (v, (title, a, b)) in views.iter().enumerate() {
         let x0 = v as f64 * VIEW_PX;
-        let bounds = Bounds::around(lines.iter().flat_map(|(_, pts)| pts.iter().map(|p| [p[*a], p[*b]])));
+        let bounds = Bounds::around(
+            lines
+                .iter()
+                .flat_map(|(_, pts)| pts.iter().map(|p| [p[*a], p[*b]])),
+        );
         let map = bounds.mapper(x0, 0.0, VIEW_PX);
         let _ = writeln!(
             out,
@@ -148,7 +155,10 @@ pub fn job_svg(job: &Job) -> String {
         let n = z.layers.len().max(1) as f64;
         for l in &z.layers {
             let lightness = 25.0 + 50.0 * l.index as f64 / n;
-            let colour = format!("hsl({:.1},70%,{lightness:.0}%)", (z.id as f64 * HUE_STEP_DEG) % 360.0);
+            let colour = format!(
+                "hsl({:.1},70%,{lightness:.0}%)",
+                (z.id as f64 * HUE_STEP_DEG) % 360.0
+            );
             for p in &l.polylines {
                 let px: Vec<(f64, f64)> = p.points.iter().map(|xy| map(*xy)).collect();
                 polyline(&mut out, &px, &colour, 1.0);

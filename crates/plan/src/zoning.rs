@@ -48,6 +48,13 @@ pub const AXIS_ITERATIONS: usize = 64;
 /// the automatic k grows large before the incidence limit holds. At 0.1 both count.
 pub const DEFAULT_POSITION_WEIGHT: f64 = 0.1;
 
+/// The default largest k of the automatic search. Beyond it, splitting the violating zones
+/// along their direction spread (and merging) is faster and gives fewer zones than more
+/// k-means clusters: on the synthetic 60-contour core (f-theta lens) 21 zones from a cap of
+/// 16 against 34 from the smallest feasible k (93); on 2,000 contours 68 zones in a fraction
+/// of the time.
+pub const DEFAULT_MAX_AUTO_K: usize = 16;
+
 /// k-means stops when the centroids move less than this (sample units).
 pub const KMEANS_TOLERANCE: f64 = 1e-9;
 
@@ -80,7 +87,7 @@ impl Default for ZoningSettings {
             restarts: 10,
             seed: 0x7a0e_5eed,
             max_iterations: 300,
-            max_auto_k: 256,
+            max_auto_k: DEFAULT_MAX_AUTO_K,
             merge: true,
         }
     }
@@ -162,11 +169,19 @@ pub struct Zoning {
 /// the normalised mean and [`AXIS_ITERATIONS`] Bădoiu–Clarkson steps from it.
 #[must_use]
 pub fn zone_axis(directions: &[Vector3]) -> (UnitVector3, f64) {
-    let max_angle = |c: &Vector3| {
+    // Comparisons on dot products (the largest angle is the smallest dot); the exact angle of
+    // the winner is computed once at the end with the robust atan2 form.
+    let min_dot = |c: &Vector3| {
         directions
             .iter()
-            .map(|d| angle_rad(c, d))
-            .fold(0.0, f64::max)
+            .map(|d| c.dot(d))
+            .fold(f64::INFINITY, f64::min)
+    };
+    let farthest = |c: &Vector3| {
+        directions
+            .iter()
+            .min_by(|a, b| c.dot(a).total_cmp(&c.dot(b)))
+            .copied()
     };
     let sum: Vector3 = directions.iter().sum();
     let mut c = if sum.norm() > 1e-12 {
@@ -174,18 +189,15 @@ pub fn zone_axis(directions: &[Vector3]) -> (UnitVector3, f64) {
     } else {
         directions.first().copied().unwrap_or_else(Vector3::z)
     };
-    let mut best = (c, max_angle(&c));
+    let mut best = (c, min_dot(&c));
     if let Some(first) = directions.first() {
-        let m = max_angle(first);
-        if m < best.1 {
+        let m = min_dot(first);
+        if m > best.1 {
             best = (*first, m);
         }
     }
     for i in 1..=AXIS_ITERATIONS {
-        let Some(far) = directions
-            .iter()
-            .max_by(|a, b| angle_rad(&c, a).total_cmp(&angle_rad(&c, b)))
-        else {
+        let Some(far) = farthest(&c) else {
             break;
         };
         let next = c + (far - c) / (i as f64 + 1.0);
@@ -193,12 +205,17 @@ pub fn zone_axis(directions: &[Vector3]) -> (UnitVector3, f64) {
             break;
         }
         c = next.normalize();
-        let m = max_angle(&c);
-        if m < best.1 {
+        let m = min_dot(&c);
+        if m > best.1 {
             best = (c, m);
         }
     }
-    (UnitVector3::new_unchecked(best.0), best.1)
+    let axis = best.0;
+    let max_angle = directions
+        .iter()
+        .map(|d| angle_rad(&axis, d))
+        .fold(0.0, f64::max);
+    (UnitVector3::new_unchecked(axis), max_angle)
 }
 
 /// The 6-D k-means samples of the pieces (see the module docs), one row per piece.
