@@ -576,11 +576,59 @@ pub struct SynthCase {
 }
 
 impl SynthCase {
+    /// The CAD as a mesh.
+    pub fn cad_mesh(&self) -> Result<crate::mesh::Mesh> {
+        crate::mesh::Mesh::new(self.cad_vertices.clone(), self.cad_triangles.clone())
+    }
+
+    /// Writes the case into `dir` (created if missing): `cad.stl`, `cad_points.ply` (with
+    /// normals), `path.csv`, `scan.ply`, `truth.csv`, and `case.json` (parameters, scanner
+    /// position and the true transforms, for tests and for `trimctl register --config`).
+    pub fn write_case(&self, dir: &std::path::Path) -> Result<()> {
+        use crate::formats::{PlyEncoding, write_path, write_ply, write_stl};
+        std::fs::create_dir_all(dir).map_err(|e| GeomError::io(dir, e))?;
+        write_stl(&dir.join("cad.stl"), &self.cad_mesh()?)?;
+        write_ply(&dir.join("cad_points.ply"), &self.cad_points, PlyEncoding::BinaryLittleEndian)?;
+        write_path(&dir.join("path.csv"), &self.path)?;
+        write_ply(&dir.join("scan.ply"), &self.scan, PlyEncoding::BinaryLittleEndian)?;
+        write_path(&dir.join("truth.csv"), &self.truth)?;
+        let m = |s: &Similarity3| {
+            let h = s.to_homogeneous();
+            [0, 1, 2, 3].map(|i| [0, 1, 2, 3].map(|j| h[(i, j)]))
+        };
+        let meta = CaseInfo {
+            params: self.params.clone(),
+            scanner_in_scan_mm: self.scanner_in_scan.coords.into(),
+            scan_from_cad_nominal: m(&self.scan_from_cad_nominal),
+            scan_from_cad_true: m(&self.scan_from_cad_true),
+            deformation: self.deformation,
+        };
+        let text = serde_json::to_string_pretty(&meta)
+            .map_err(|e| GeomError::invalid("case.json", e.to_string()))?;
+        let path = dir.join("case.json");
+        std::fs::write(&path, text).map_err(|e| GeomError::io(&path, e))
+    }
+
     /// The true scan-frame position of a CAD-frame point (deformation, then placement).
     #[must_use]
     pub fn scan_from_cad_point(&self, p_cad: &Point3) -> Point3 {
         self.scan_from_cad_true * self.deformation.apply(p_cad)
     }
+}
+
+/// What `case.json` holds.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CaseInfo {
+    /// The generator's parameters.
+    pub params: SynthParams,
+    /// The scanner position, scan frame, mm.
+    pub scanner_in_scan_mm: [f64; 3],
+    /// The fixture's nominal `scan_from_cad`, row-major 4×4.
+    pub scan_from_cad_nominal: [[f64; 4]; 4],
+    /// The true rigid placement of the deformed part, row-major 4×4.
+    pub scan_from_cad_true: [[f64; 4]; 4],
+    /// The deformation.
+    pub deformation: Deformation,
 }
 
 /// The top-face contours: one per cutout rim (closed), and the four outer edges, the long ones
@@ -843,6 +891,21 @@ mod tests {
         let downs = ns.iter().filter(|n| n.z < -0.9).count();
         let ratio = ups as f64 / downs as f64;
         assert!((ratio - 1.0).abs() < 0.05, "{ups} up, {downs} down");
+    }
+
+    #[test]
+    fn writes_a_case_that_reads_back() {
+        let case = generate(&small(6)).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        case.write_case(dir.path()).unwrap();
+        let scan = crate::formats::read_points(&dir.path().join("scan.ply")).unwrap();
+        assert_eq!(scan.len(), case.scan.len());
+        let truth = crate::formats::read_path(&dir.path().join("truth.csv")).unwrap();
+        assert_eq!(truth.len(), case.truth.len());
+        let mesh = crate::formats::read_mesh(&dir.path().join("cad.stl")).unwrap();
+        assert_eq!(mesh.triangles().len(), case.cad_triangles.len());
+        let info: CaseInfo = serde_json::from_str(&std::fs::read_to_string(dir.path().join("case.json")).unwrap()).unwrap();
+        assert_eq!(info.params, case.params);
     }
 
     #[test]
