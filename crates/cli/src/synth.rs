@@ -1,10 +1,65 @@
-//! `trimctl synth` (filled by its issue).
+//! `trimctl synth`: writes a synthetic ceramic-core-like test case (see `trim_geom::synth`).
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use trim_geom::synth::{SynthParams, generate};
 
 /// Arguments of `trimctl synth`.
 #[derive(clap::Args, Debug)]
-pub struct Args {}
+pub struct Args {
+    /// Output folder (created): cad.stl, cad_points.ply, path.csv, scan.ply, truth.csv, case.json.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Random seed.
+    #[arg(long, default_value_t = SynthParams::default().seed)]
+    pub seed: u64,
+    /// Bend: mid-length rise over the ends, mm.
+    #[arg(long = "sag", default_value_t = SynthParams::default().sag_mm)]
+    pub sag_mm: f64,
+    /// Twist about the long axis end to end, degrees.
+    #[arg(long = "twist", default_value_t = SynthParams::default().twist_deg)]
+    pub twist_deg: f64,
+    /// Per-axis scale drawn from [1 − R, 1 + R].
+    #[arg(long, default_value_t = SynthParams::default().scale_range)]
+    pub scale_range: f64,
+    /// Scan noise (standard deviation per coordinate), mm.
+    #[arg(long = "noise", default_value_t = SynthParams::default().noise_mm)]
+    pub noise_mm: f64,
+    /// Scan points.
+    #[arg(long, default_value_t = SynthParams::default().scan_points)]
+    pub scan_points: usize,
+    /// Fixture rotation error, degrees.
+    #[arg(long = "pose-deg", default_value_t = SynthParams::default().pose_deg)]
+    pub pose_deg: f64,
+    /// Fixture translation error, mm.
+    #[arg(long = "pose-mm", default_value_t = SynthParams::default().pose_mm)]
+    pub pose_mm: f64,
+}
 
 /// Runs the command.
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("`trimctl synth` is not built yet")
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let params = SynthParams {
+        seed: args.seed,
+        sag_mm: args.sag_mm,
+        twist_deg: args.twist_deg,
+        scale_range: args.scale_range,
+        noise_mm: args.noise_mm,
+        scan_points: args.scan_points,
+        pose_deg: args.pose_deg,
+        pose_mm: args.pose_mm,
+        ..SynthParams::default()
+    };
+    let case = generate(&params).context("generating the synthetic case")?;
+    case.write_case(&args.out)
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    println!(
+        "{}: {} contours, {} scan points, {} CAD points, {} CAD triangles",
+        args.out.display(),
+        case.path.len(),
+        case.scan.len(),
+        case.cad_points.len(),
+        case.cad_triangles.len()
+    );
+    Ok(())
 }

@@ -131,13 +131,13 @@ pub struct FieldSettings {
 impl Default for FieldSettings {
     fn default() -> Self {
         FieldSettings {
-            spacing_mm: 10.0,
+            spacing_mm: 20.0,
             voxel_mm: 0.4,
             iterations: 10,
             max_distance_start_mm: 1.5,
             max_distance_end_mm: 0.1,
             huber_mm: 0.02,
-            smoothness: 0.05,
+            smoothness: 0.1,
         }
     }
 }
@@ -240,58 +240,58 @@ impl RegisterSettings {
     pub fn validate(&self) -> Result<()> {
         if let Some(v) = self.scanner_viewpoint_mm {
             if !v.iter().all(|c| c.is_finite()) {
-                return Err(RegisterError::setting("register.scanner_viewpoint_mm", "must be finite"));
+                return Err(RegisterError::setting("scanner_viewpoint_mm", "must be finite"));
             }
         }
         let d = Vector3::from(self.view_direction);
         if !(d.iter().all(|c| c.is_finite()) && d.norm() > 0.0) {
-            return Err(RegisterError::setting("register.view_direction", "must be a finite non-zero vector"));
+            return Err(RegisterError::setting("view_direction", "must be a finite non-zero vector"));
         }
         if !(-1.0..=1.0).contains(&self.facing_min_cos) {
-            return Err(RegisterError::setting("register.facing_min_cos", "must be in [−1, 1]"));
+            return Err(RegisterError::setting("facing_min_cos", "must be in [−1, 1]"));
         }
         if self.cad_sample_points < 1000 {
-            return Err(RegisterError::setting("register.cad_sample_points", "must be at least 1000"));
+            return Err(RegisterError::setting("cad_sample_points", "must be at least 1000"));
         }
         if self.coarse.levels.is_empty() {
-            return Err(RegisterError::setting("register.coarse.levels", "needs at least one level"));
+            return Err(RegisterError::setting("coarse.levels", "needs at least one level"));
         }
         for (k, l) in self.coarse.levels.iter().enumerate() {
-            positive(&format!("register.coarse.levels[{k}].voxel_mm"), l.voxel_mm)?;
+            positive(&format!("coarse.levels[{k}].voxel_mm"), l.voxel_mm)?;
             positive(
-                &format!("register.coarse.levels[{k}].max_correspondence_distance_mm"),
+                &format!("coarse.levels[{k}].max_correspondence_distance_mm"),
                 l.max_correspondence_distance_mm,
             )?;
             if l.max_iterations == 0 {
                 return Err(RegisterError::setting(
-                    format!("register.coarse.levels[{k}].max_iterations"),
+                    format!("coarse.levels[{k}].max_iterations"),
                     "must be at least 1",
                 ));
             }
         }
-        positive("register.coarse.huber_fraction", self.coarse.huber_fraction)?;
-        positive("register.coarse.max_init_rotation_deg", self.coarse.max_init_rotation_deg)?;
+        positive("coarse.huber_fraction", self.coarse.huber_fraction)?;
+        positive("coarse.max_init_rotation_deg", self.coarse.max_init_rotation_deg)?;
         let f = &self.field;
-        positive("register.field.spacing_mm", f.spacing_mm)?;
-        positive("register.field.voxel_mm", f.voxel_mm)?;
-        positive("register.field.max_distance_start_mm", f.max_distance_start_mm)?;
-        positive("register.field.max_distance_end_mm", f.max_distance_end_mm)?;
-        positive("register.field.huber_mm", f.huber_mm)?;
+        positive("field.spacing_mm", f.spacing_mm)?;
+        positive("field.voxel_mm", f.voxel_mm)?;
+        positive("field.max_distance_start_mm", f.max_distance_start_mm)?;
+        positive("field.max_distance_end_mm", f.max_distance_end_mm)?;
+        positive("field.huber_mm", f.huber_mm)?;
         if !(f.smoothness.is_finite() && f.smoothness >= 0.0) {
-            return Err(RegisterError::setting("register.field.smoothness", "must be finite and ≥ 0"));
+            return Err(RegisterError::setting("field.smoothness", "must be finite and ≥ 0"));
         }
         if f.iterations == 0 {
-            return Err(RegisterError::setting("register.field.iterations", "must be at least 1"));
+            return Err(RegisterError::setting("field.iterations", "must be at least 1"));
         }
         let q = &self.quality;
-        positive("register.quality.coverage_radius_mm", q.coverage_radius_mm)?;
-        positive("register.quality.patch_radius_mm", q.patch_radius_mm)?;
-        positive("register.quality.max_residual_mm", q.max_residual_mm)?;
-        positive("register.quality.support_radius_mm", q.support_radius_mm)?;
-        positive("register.quality.overlap_distance_mm", q.overlap_distance_mm)?;
-        fraction("register.quality.min_coverage", q.min_coverage)?;
-        fraction("register.quality.min_degeneracy_ratio", q.min_degeneracy_ratio)?;
-        fraction("register.quality.min_overlap", q.min_overlap)?;
+        positive("quality.coverage_radius_mm", q.coverage_radius_mm)?;
+        positive("quality.patch_radius_mm", q.patch_radius_mm)?;
+        positive("quality.max_residual_mm", q.max_residual_mm)?;
+        positive("quality.support_radius_mm", q.support_radius_mm)?;
+        positive("quality.overlap_distance_mm", q.overlap_distance_mm)?;
+        fraction("quality.min_coverage", q.min_coverage)?;
+        fraction("quality.min_degeneracy_ratio", q.min_degeneracy_ratio)?;
+        fraction("quality.min_overlap", q.min_overlap)?;
         Ok(())
     }
 }
@@ -399,7 +399,7 @@ impl Registration {
 pub const MATCH_CANDIDATES: usize = 6;
 
 /// Neighbours used to estimate each CAD point's shape operator.
-pub const CURVATURE_NEIGHBOURS: usize = 8;
+pub const CURVATURE_NEIGHBOURS: usize = 6;
 
 /// The shape operator `S` of each CAD point (`n(c + t) ≈ n(c) + S t` for a tangential `t`),
 /// least squares over its [`CURVATURE_NEIGHBOURS`] nearest neighbours' normals. The residual
@@ -628,7 +628,7 @@ pub fn coarse_fit(
         iterations += r.iterations;
         result = Some(r);
     }
-    let mut r = result.ok_or_else(|| RegisterError::setting("register.coarse.levels", "needs at least one level"))?;
+    let mut r = result.ok_or_else(|| RegisterError::setting("coarse.levels", "needs at least one level"))?;
     r.iterations = iterations;
     Ok(r)
 }
@@ -792,9 +792,7 @@ fn fit_field(points: &[Point3], target: &IcpTarget, curvature: &[Matrix3<f64>], 
     for it in 0..settings.iterations {
         let t = (it as f64 / shrink_steps as f64).min(1.0);
         let max_d = settings.max_distance_start_mm * ratio.powf(t);
-        let t0 = Instant::now();
         let matched = match_points(points, target, curvature, Some(&field), max_d);
-        let t_match = t0.elapsed().as_secs_f64();
         let pairs: Vec<(Point3, Vector3, f64, f64)> = matched
             .iter()
             .filter_map(|m| m.map(|(_, c, n, _, r)| (c, n, r, kernel.weight(r))))
@@ -808,9 +806,7 @@ fn fit_field(points: &[Point3], target: &IcpTarget, curvature: &[Matrix3<f64>], 
                 max_distance_mm: max_d,
             });
         }
-        let t0 = Instant::now();
         let (mut h, mut g) = field_normal_equations(&field, &pairs);
-        let t_eq = t0.elapsed().as_secs_f64();
         // Smoothness: λ Σ |Σ cₘ δₘ|² per component, λ relative to the mean data weight.
         let mean_diag = h.diagonal().sum() / dim as f64;
         let lambda = settings.smoothness * mean_diag;
@@ -831,7 +827,6 @@ fn fit_field(points: &[Point3], target: &IcpTarget, curvature: &[Matrix3<f64>], 
         for i in 0..dim {
             h[(i, i)] += FIELD_DAMPING * mean_diag.max(f64::MIN_POSITIVE);
         }
-        let t0 = Instant::now();
         let step = solve_banded_spd(&h, &(-&g), field.bandwidth())
             .ok_or_else(|| RegisterError::Singular {
                 stage: format!("deformation field, iteration {it}"),
@@ -840,7 +835,6 @@ fn fit_field(points: &[Point3], target: &IcpTarget, curvature: &[Matrix3<f64>], 
         if step.iter().any(|v| !v.is_finite()) {
             return Err(RegisterError::NonFinite { what: format!("deformation field step, iteration {it}") });
         }
-        if std::env::var_os("TRIM_DEBUG").is_some() { eprintln!("field it {it}: max_d {max_d:.3} pairs {} step max {:.4e} lambda {lambda:.3e} match {t_match:.3} eq {t_eq:.3} solve {:.3}", pairs.len(), step.amax(), t0.elapsed().as_secs_f64()); }
         field.add_step(step.as_slice());
     }
     let matches = final_matches(points, target, curvature, Some(&field), settings.max_distance_end_mm);
