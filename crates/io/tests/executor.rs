@@ -429,3 +429,50 @@ async fn the_monitor_catches_emission_during_motion_in_the_simulated_cell() {
     assert_eq!(v[0].what, "laser emission enabled while the CNC moves");
     cell.laser.emission(false).await.unwrap().unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_planned_job_runs_and_the_simulated_galvo_time_matches_the_planners_estimate() {
+    let path = trim_plan::testing::synthetic_core_path(12, 7);
+    let job = trim_plan::planner::plan(&path, &trim_plan::planner::PlanSettings::default())
+        .expect("plan");
+    let layers = job.layers().count();
+    // Fast clocks: the galvo as fast as it can, the CNC 100× faster than real.
+    let mut o = trim_io::cell::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
+    o.galvo_time_scale = 0.0;
+    o.cnc_time_scale = 0.01;
+    let sim = SimCell::start(o).await.unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let t = Instant::now();
+    let summary = Executor::new(
+        job.clone(),
+        connect(&sim, Tap::none()).await,
+        dir.path().join("j"),
+        None,
+    )
+    .with_options(options())
+    .run(CancellationToken::new(), None)
+    .await
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(summary.layers_marked, layers);
+    assert_eq!(assert_marked_exactly_once(&job, &sim.galvo.marks()), 0);
+    assert!(sim.monitor.violations().is_empty());
+    // The planner's estimate (its own implementation of the timing model) against the
+    // simulator's clock, which runs on the list in bits.
+    let planned_s = job.estimate.marking_s + job.estimate.jumping_s;
+    let rel = (summary.galvo_modelled_s - planned_s).abs() / planned_s;
+    let overhead: Vec<f64> = summary.layers.iter().map(|l| l.overhead_s * 1e3).collect();
+    let mean = overhead.iter().sum::<f64>() / overhead.len() as f64;
+    eprintln!(
+        "planned job: {} zones, {layers} layers, {} vectors; galvo simulated {:.6} s vs planner estimate {planned_s:.6} s (rel {rel:.2e}); per-layer overhead mean {mean:.1} ms max {:.1} ms; wall {:.2} s",
+        job.zones.len(),
+        summary.vectors_marked,
+        summary.galvo_modelled_s,
+        overhead.iter().copied().fold(0.0, f64::max),
+        t.elapsed().as_secs_f64()
+    );
+    assert!(
+        rel < ESTIMATE_REL_TOLERANCE,
+        "simulated {} s vs planned {planned_s} s",
+        summary.galvo_modelled_s
+    );
+}

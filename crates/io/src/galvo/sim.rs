@@ -331,29 +331,33 @@ async fn serve(stream: TcpStream, shared: Arc<Shared>) {
             }
             Some(Ok(f)) => f,
             Some(Err(e)) => {
-                // Reply BAD_FRAME when the header still gives a sequence number, then close.
+                // Reply when the header can still be read (the magic is right), then close.
                 tracing::warn!(error = %e, "galvo simulator: bad frame, closing");
                 let mut buf = framed.read_buffer().clone();
-                let sequence = match decode_frame(&mut buf) {
-                    Err(FrameError::UnsupportedVersion { sequence, .. }) => Some(sequence),
-                    _ if buf.len() >= 8 => {
-                        Some(u32::from_le_bytes([buf[4], buf[5], buf[6], buf[7]]))
-                    }
-                    _ => None,
+                let header = |b: &bytes::BytesMut| {
+                    (b.len() >= 10).then(|| {
+                        (
+                            u32::from_le_bytes([b[4], b[5], b[6], b[7]]),
+                            u16::from_le_bytes([b[8], b[9]]),
+                        )
+                    })
                 };
-                if let Some(sequence) = sequence {
+                let reply = match decode_frame(&mut buf) {
+                    Err(FrameError::BadMagic(_)) => None,
+                    Err(FrameError::UnsupportedVersion { .. }) => {
+                        header(&buf).map(|h| (StatusCode::UnsupportedVersion, h))
+                    }
+                    _ => header(&buf).map(|h| (StatusCode::BadFrame, h)),
+                };
+                if let Some((code, (sequence, frame_type))) = reply {
                     let req = Frame {
                         crc: false,
                         sequence,
-                        frame_type: 0,
+                        frame_type: frame_type & !super::protocol::REPLY_BIT,
                         payload: Vec::new(),
                     };
                     let _ = framed
-                        .send(reply_frame(
-                            &req,
-                            StatusCode::BadFrame,
-                            e.to_string().as_bytes(),
-                        ))
+                        .send(reply_frame(&req, code, e.to_string().as_bytes()))
                         .await;
                 }
                 shared.trip("bad frame");
