@@ -19,7 +19,11 @@ use crate::register::{matrix_to_numpy, similarity_from_numpy};
 
 /// Parses settings JSON into `T`, naming the offending key in a `ValueError`.
 fn settings_from_json<T: serde::de::DeserializeOwned>(what: &str, json: &str) -> PyResult<T> {
-    serde_json::from_str(json).map_err(|e| value_error(what, e))
+    let de = &mut serde_json::Deserializer::from_str(json);
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let key = e.path().to_string();
+        value_error(what, format!("{key}: {}", e.inner()))
+    })
 }
 
 /// Maps a planning error: bad settings to `ValueError`, the rest to `PlanningError`.
