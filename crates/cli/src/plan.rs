@@ -114,3 +114,77 @@ fn zone_table(output: &PlanOutput) -> String {
     }
     s
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use trim_plan::job::Job;
+
+    fn write_core(dir: &std::path::Path) -> PathBuf {
+        let csv = dir.join("core.csv");
+        let path = trim_plan::testing::synthetic_core_path(60, 11);
+        trim_geom::formats::write_path(&csv, &path).expect("writes the CSV");
+        csv
+    }
+
+    #[test]
+    fn plans_a_csv_into_job_json_and_svg() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let out = dir.path().join("plan.json");
+        let svg = dir.path().join("plan.svg");
+        run(Args {
+            path: write_core(dir.path()),
+            config: None,
+            out: out.clone(),
+            svg: Some(svg.clone()),
+        })
+        .expect("plans");
+        let job =
+            Job::from_json(&std::fs::read_to_string(&out).expect("json written")).expect("a job");
+        assert!(job.validation.passed);
+        assert!(job.validation.max_round_trip_error_mm <= 1e-3);
+        let svg = std::fs::read_to_string(&svg).expect("svg written");
+        assert!(svg.starts_with("<svg"));
+    }
+
+    #[test]
+    fn config_sets_the_settings_and_bad_input_names_file_and_line() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let config = dir.path().join("job.toml");
+        std::fs::write(
+            &config,
+            "[field]\ntelecentric = true\n[layers]\nstep_mm = 0.3\n",
+        )
+        .expect("writes");
+        let out = dir.path().join("plan.json");
+        run(Args {
+            path: write_core(dir.path()),
+            config: Some(config),
+            out: out.clone(),
+            svg: None,
+        })
+        .expect("plans");
+        let job = Job::from_json(&std::fs::read_to_string(&out).expect("json")).expect("job");
+        assert!((job.layer_step_mm - 0.3).abs() < 1e-15);
+
+        let bad = dir.path().join("bad.csv");
+        std::fs::write(
+            &bad,
+            "contour,x,y,z,u,v,w\n1,0,0,0,0,0,1\n1,1,0,nan?,0,0,1\n",
+        )
+        .expect("writes");
+        let e = run(Args {
+            path: bad.clone(),
+            config: None,
+            out: out.clone(),
+            svg: None,
+        })
+        .expect_err("refused");
+        let text = format!("{e:#}");
+        assert!(
+            text.contains("bad.csv") && text.contains("line 3"),
+            "{text}"
+        );
+        assert!(!text.contains('\n'), "one line: {text}");
+    }
+}
