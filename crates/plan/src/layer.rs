@@ -14,8 +14,9 @@
 //! when z_max − z_min is a multiple of ΔH) are dropped.
 //!
 //! Projection: the galvo point of a registered point P in a layer with focus point F is
-//! x = (P − F)·X, y = (P − F)·Y (DESIGN.md "Job"); z = (P − F)·Z is kept beside it
-//! ([`crate::job::Polyline::z_mm`]) so the 3D point can be recovered.
+//! x = (P − F)·X, y = (P − F)·Y (DESIGN.md "Job"); z = (P − F)·Z, the height over the focal
+//! plane, is returned beside it ([`project`]). The Job keeps only (x, y): see
+//! [`crate::planner`] for what the round trip guarantees.
 
 use serde::{Deserialize, Serialize};
 use trim_geom::{ContourId, Point3, Vector3};
