@@ -27,3 +27,4 @@ pub mod sampling;
 pub mod eval;
 pub mod paper;
 pub mod banded;
+pub mod datum;

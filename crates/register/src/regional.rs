@@ -79,6 +79,10 @@ pub struct CoarseSettings {
     pub init: CoarseInit,
     /// The principal-axes start is refused beyond this rotation from the nominal pose, degrees.
     pub max_init_rotation_deg: f64,
+    /// The centroid start may move the scan at most this far from the nominal pose, mm: a
+    /// larger shift means the scan is not of this part at this fixture (refused as not
+    /// overlapping).
+    pub max_init_translation_mm: f64,
     /// A voxel must hold this many scan points to count (drops isolated outliers).
     pub min_voxel_points: usize,
     /// Pyramid levels, coarse to fine (scan voxel size, maximum distance, iterations).
@@ -100,6 +104,7 @@ impl Default for CoarseSettings {
         CoarseSettings {
             init: CoarseInit::PrincipalAxes,
             max_init_rotation_deg: 15.0,
+            max_init_translation_mm: 15.0,
             min_voxel_points: 3,
             levels: vec![level(2.0, 12.0, 30), level(1.0, 4.0, 30), level(0.5, 1.5, 30)],
             with_scale: true,
@@ -271,6 +276,7 @@ impl RegisterSettings {
         }
         positive("coarse.huber_fraction", self.coarse.huber_fraction)?;
         positive("coarse.max_init_rotation_deg", self.coarse.max_init_rotation_deg)?;
+        positive("coarse.max_init_translation_mm", self.coarse.max_init_translation_mm)?;
         let f = &self.field;
         positive("field.spacing_mm", f.spacing_mm)?;
         positive("field.voxel_mm", f.voxel_mm)?;
@@ -711,6 +717,15 @@ fn initial_guess(
     }
     let rot = nalgebra::UnitQuaternion::from_matrix(&rotation);
     let t = cc.coords - rot * cs.coords;
+    let shift = (t + rot * cs.coords - cs.coords).norm();
+    if shift > settings.max_init_translation_mm {
+        let near = overlap_fraction(&scan_pts, target.tree(), settings.max_init_translation_mm);
+        return Err(RegisterError::NotOverlapping {
+            fraction_pct: 100.0 * near,
+            distance_mm: settings.max_init_translation_mm,
+            needed_pct: 100.0,
+        });
+    }
     let correction = Similarity3::from_parts(nalgebra::Translation3::from(t), rot, 1.0);
     Ok(correction * cad_from_scan_nominal)
 }
