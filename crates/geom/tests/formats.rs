@@ -283,6 +283,62 @@ fn ply_skips_extra_properties_and_elements_of_any_type_in_binary() {
     );
 }
 
+/// A vertex of scalars only takes the reader's fixed-stride path: mixed types, little-endian,
+/// integer coordinates and an element after it.
+#[test]
+fn ply_fixed_layout_vertices_with_mixed_scalar_types() {
+    let mut b = b"ply
+format binary_little_endian 1.0
+element vertex 3
+        property short x
+property uchar pad
+property double y
+property int z
+        property float nz
+property char nx
+property ushort ny
+        element edge 1
+property uint a
+property uint b
+end_header
+"
+    .to_vec();
+    let rows: [(i16, f64, i32, f32, i8, u16); 3] = [
+        (-7, 0.125, 70_000, 1.0, 0, 0),
+        (300, -1e10, -3, 0.0, -2, 0),
+        (0, 5.5, 0, 0.0, 0, 9),
+    ];
+    for (x, y, z, nz, nx, ny) in rows {
+        b.extend_from_slice(&x.to_le_bytes());
+        b.push(0xAB);
+        b.extend_from_slice(&y.to_le_bytes());
+        b.extend_from_slice(&z.to_le_bytes());
+        b.extend_from_slice(&nz.to_le_bytes());
+        b.extend_from_slice(&nx.to_le_bytes());
+        b.extend_from_slice(&ny.to_le_bytes());
+    }
+    b.extend_from_slice(&[1, 0, 0, 0, 2, 0, 0, 0]);
+    let c = read_points_from_bytes(&b, FsPath::new("fixed.ply")).unwrap();
+    assert_eq!(
+        c.points(),
+        &[
+            Point3::new(-7.0, 0.125, 70_000.0),
+            Point3::new(300.0, -1e10, -3.0),
+            Point3::new(0.0, 5.5, 0.0)
+        ]
+    );
+    assert_eq!(
+        c.normals().unwrap(),
+        &[Vector3::z(), -Vector3::x(), Vector3::y()]
+    );
+    // The edge element is read past; cutting into it is a truncation of "edge".
+    let e = err_points(&b[..b.len() - 3], "fixed.ply");
+    assert_starts(
+        &e,
+        "fixed.ply: element 0: truncated: the header declares 1 edge elements",
+    );
+}
+
 fn path_of(seed: u64) -> Path {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let contours = [3i64, -1, 40]

@@ -353,6 +353,10 @@ fn roles(element: &Element, name: &FsPath) -> Result<Vec<Role>> {
     Ok(roles)
 }
 
+/// Receives one element instance: its index, its place in the file and its vertex slots
+/// (x y z nx ny nz).
+type RowSink<'a> = dyn FnMut(usize, Location, &[f64; 6]) -> Result<()> + 'a;
+
 /// Where body values come from: the ascii token stream or the binary bytes.
 trait Source {
     /// Starts instance `index` of `element` (ascii: reads its line).
@@ -371,6 +375,17 @@ trait Source {
     fn min_instance_bytes(&self, element: &Element) -> usize;
     /// The bytes not yet read.
     fn remaining_bytes(&self) -> usize;
+    /// Reads every instance of an element whose properties are all scalars in one pass, calling
+    /// `row(index, place, slots)` with each instance's vertex slots (x y z nx ny nz). `None` when
+    /// this source has no such fast path; the caller then reads value by value.
+    fn scalar_rows(
+        &mut self,
+        _element: &Element,
+        _roles: &[Role],
+        _row: &mut RowSink<'_>,
+    ) -> Option<Result<()>> {
+        None
+    }
 }
 
 struct Binary<'a> {
@@ -487,6 +502,76 @@ impl Source for Binary<'_> {
 
     fn remaining_bytes(&self) -> usize {
         self.body.len() - self.pos
+    }
+
+    fn scalar_rows(
+        &mut self,
+        element: &Element,
+        roles: &[Role],
+        row: &mut RowSink<'_>,
+    ) -> Option<Result<()>> {
+        // (offset in the row, type, vertex slot) of the values used; the rest is skipped by stride.
+        let mut used = Vec::with_capacity(6);
+        let mut stride = 0;
+        for (prop, role) in element.props.iter().zip(roles) {
+            let Kind::Scalar(ty) = prop.kind else {
+                return None;
+            };
+            if let Role::Vertex(slot) = role {
+                used.push((stride, ty, *slot));
+            }
+            stride += ty.size();
+        }
+        if stride == 0 {
+            return None;
+        }
+        let rest = &self.body[self.pos..];
+        let whole_rows = rest.len() / stride;
+        let rows = element.count.min(whole_rows);
+        let big_endian = self.big_endian;
+        for (index, bytes) in rest.chunks_exact(stride).take(rows).enumerate() {
+            let mut slots = [0.0; 6];
+            for &(offset, ty, slot) in &used {
+                slots[slot] = decode(&bytes[offset..], ty, big_endian);
+            }
+            if let Err(e) = row(index, Location::Element(index), &slots) {
+                return Some(Err(e));
+            }
+        }
+        self.pos += rows * stride;
+        if rows < element.count {
+            return Some(Err(self.truncated(element, rows)));
+        }
+        Some(Ok(()))
+    }
+}
+
+/// Decodes one value; `bytes` holds at least the type's size (the caller sliced a whole row).
+fn decode(bytes: &[u8], ty: Ty, big_endian: bool) -> f64 {
+    fn arr<const N: usize>(b: &[u8]) -> [u8; N] {
+        let mut a = [0; N];
+        a.copy_from_slice(&b[..N]);
+        a
+    }
+    macro_rules! get {
+        ($t:ty) => {{
+            let a = arr::<{ size_of::<$t>() }>(bytes);
+            if big_endian {
+                <$t>::from_be_bytes(a)
+            } else {
+                <$t>::from_le_bytes(a)
+            }
+        }};
+    }
+    match ty {
+        Ty::I8 => f64::from(get!(i8)),
+        Ty::U8 => f64::from(get!(u8)),
+        Ty::I16 => f64::from(get!(i16)),
+        Ty::U16 => f64::from(get!(u16)),
+        Ty::I32 => f64::from(get!(i32)),
+        Ty::U32 => f64::from(get!(u32)),
+        Ty::F32 => f64::from(get!(f32)),
+        Ty::F64 => get!(f64),
     }
 }
 
@@ -654,6 +739,42 @@ fn parse_body<S: Source>(src: &mut S, header: &Header, name: &FsPath) -> Result<
                 normals.reserve_exact(capacity);
             }
         }
+        let mut push_vertex = |index: usize, at: Location, slots: &[f64; 6]| -> Result<()> {
+            let p = Point3::new(slots[0], slots[1], slots[2]);
+            if !p.coords.iter().all(|c| c.is_finite()) {
+                return Err(GeomError::parse(
+                    name,
+                    at,
+                    format!("vertex {index}: ({}, {}, {}) is not finite", p.x, p.y, p.z),
+                ));
+            }
+            points.push(p);
+            if has_normals {
+                let n = Vector3::new(slots[3], slots[4], slots[5]);
+                let Some(unit) = super::unit_or_none(&n, MIN_NORMAL_NORM) else {
+                    return Err(GeomError::parse(
+                        name,
+                        at,
+                        format!(
+                            "vertex {index}: the normal ({}, {}, {}) is zero or not finite",
+                            n.x, n.y, n.z
+                        ),
+                    ));
+                };
+                normals.push(unit);
+            }
+            Ok(())
+        };
+        let mut ignore = |_: usize, _: Location, _: &[f64; 6]| Ok(());
+        let on_row: &mut RowSink<'_> = if is_vertex {
+            &mut push_vertex
+        } else {
+            &mut ignore
+        };
+        if let Some(done) = src.scalar_rows(element, &roles, on_row) {
+            done?;
+            continue;
+        }
         for index in 0..element.count {
             src.begin(element, index)?;
             let mut slots = [0.0; 6];
@@ -686,29 +807,7 @@ fn parse_body<S: Source>(src: &mut S, header: &Header, name: &FsPath) -> Result<
             }
             src.end(element, index)?;
             if is_vertex {
-                let p = Point3::new(slots[0], slots[1], slots[2]);
-                if !p.coords.iter().all(|c| c.is_finite()) {
-                    return Err(GeomError::parse(
-                        name,
-                        src.at(index),
-                        format!("vertex {index}: ({}, {}, {}) is not finite", p.x, p.y, p.z),
-                    ));
-                }
-                points.push(p);
-                if has_normals {
-                    let n = Vector3::new(slots[3], slots[4], slots[5]);
-                    let Some(unit) = super::unit_or_none(&n, MIN_NORMAL_NORM) else {
-                        return Err(GeomError::parse(
-                            name,
-                            src.at(index),
-                            format!(
-                                "vertex {index}: the normal ({}, {}, {}) is zero or not finite",
-                                n.x, n.y, n.z
-                            ),
-                        ));
-                    };
-                    normals.push(unit);
-                }
+                on_row(index, src.at(index), &slots)?;
             }
         }
     }
