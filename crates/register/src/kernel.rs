@@ -4,10 +4,11 @@
 //! `|r| < c`, 0 beyond (Zhang, "Parameter estimation techniques", 1997, Table 1).
 
 /// A robust kernel.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum RobustKernel {
     /// Plain least squares.
+    #[default]
     None,
     /// Huber with threshold `k_mm`.
     Huber {
@@ -19,12 +20,6 @@ pub enum RobustKernel {
         /// Cut-off, mm.
         c_mm: f64,
     },
-}
-
-impl Default for RobustKernel {
-    fn default() -> Self {
-        RobustKernel::None
-    }
 }
 
 impl RobustKernel {

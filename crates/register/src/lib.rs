@@ -7,13 +7,26 @@
 //! - [`point_to_plane`]: the linearised point-to-plane / point-to-point normal equations.
 //! - [`icp`]: ICP (point-to-point, point-to-plane; rigid or scaled; robust; pyramid).
 //! - [`kernel`]: robust kernels.
+//! - [`regional`]: the regional registration of a path and its quality report (DESIGN.md
+//!   "Registration").
+//! - [`field`]: the quadratic B-spline deformation field; [`banded`]: its banded solve.
+//! - [`sampling`]: scan thinning and CAD visibility culling.
+//! - [`datum`]: the six-point datum fit (thesis §3.5.2).
+//! - [`paper`]: the paper's method, the baseline of the accuracy evaluation; [`eval`]: scoring.
 //! - [`reduce`]: deterministic parallel sums.
 
+pub mod banded;
+pub mod datum;
 pub mod error;
+pub mod eval;
+pub mod field;
 pub mod icp;
 pub mod kernel;
+pub mod paper;
 pub mod point_to_plane;
 pub mod reduce;
+pub mod regional;
+pub mod sampling;
 pub mod umeyama;
 
 pub use error::{RegisterError, Result};
@@ -21,10 +34,3 @@ pub use icp::{IcpMethod, IcpResult, IcpSettings, IcpTarget, PyramidLevel, icp, i
 pub use kernel::RobustKernel;
 pub use regional::{QualityReport, RegisterSettings, Registration, register};
 pub use umeyama::{UmeyamaFit, umeyama, umeyama_weighted};
-pub mod field;
-pub mod regional;
-pub mod sampling;
-pub mod eval;
-pub mod paper;
-pub mod banded;
-pub mod datum;

@@ -741,13 +741,17 @@ fn overlap_fraction(points: &[Point3], tree: &KdTree, distance_mm: f64) -> f64 {
 
 /// Matches of the field's points: scan point `q` (CAD frame) to its CAD point under the current
 /// field (`F⁻¹(q)`'s nearest CAD point), with the residual along the carried normal.
+/// A scan point's match: CAD index, CAD point, carried normal, field Jacobian at the CAD point,
+/// residual (mm).
+type Matched = (usize, Point3, Vector3, Matrix3<f64>, f64);
+
 fn match_points(
     points: &[Point3],
     target: &IcpTarget,
     curvature: &[Matrix3<f64>],
     field: Option<&BSplineField>,
     max_distance_mm: f64,
-) -> Vec<Option<(usize, Point3, Vector3, Matrix3<f64>, f64)>> {
+) -> Vec<Option<Matched>> {
     let cad = target.cloud().points();
     let normals = target.cloud().normals();
     let d2max = max_distance_mm * max_distance_mm;
