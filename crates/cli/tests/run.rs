@@ -27,8 +27,8 @@ fn layers_done(dir: &Path) -> BTreeMap<(u64, u64), usize> {
     for e in journal_entries(dir) {
         if e["kind"] == "layer_done" {
             let key = (
-                e["key"]["zone"].as_u64().unwrap(),
-                e["key"]["layer"].as_u64().unwrap(),
+                e["key"]["zone"].as_u64().expect("journal key has a zone"),
+                e["key"]["layer"].as_u64().expect("journal key has a layer"),
             );
             *done.entry(key).or_insert(0) += 1;
         }
@@ -37,12 +37,15 @@ fn layers_done(dir: &Path) -> BTreeMap<(u64, u64), usize> {
 }
 
 fn planned_layers(dir: &Path) -> Vec<(u64, u64)> {
-    let plan: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("plan.json")).unwrap()).unwrap();
+    let text = std::fs::read_to_string(dir.join("plan.json")).expect("plan.json is readable");
+    let plan: serde_json::Value = serde_json::from_str(&text).expect("plan.json is JSON");
     let mut keys = Vec::new();
-    for z in plan["zones"].as_array().unwrap() {
-        for l in z["layers"].as_array().unwrap() {
-            keys.push((z["id"].as_u64().unwrap(), l["index"].as_u64().unwrap()));
+    for z in plan["zones"].as_array().expect("zones") {
+        for l in z["layers"].as_array().expect("layers") {
+            keys.push((
+                z["id"].as_u64().expect("zone id"),
+                l["index"].as_u64().expect("layer index"),
+            ));
         }
     }
     keys
@@ -59,9 +62,21 @@ fn demo_runs_to_the_end_and_leaves_a_complete_run_folder() {
         .unwrap();
     let stdout = String::from_utf8_lossy(&result.stdout);
     let stderr = String::from_utf8_lossy(&result.stderr);
-    assert!(result.status.success(), "stdout:\n{stdout}\nstderr:\n{stderr}");
-    for expected in ["registration:", "zone  centre", "time estimate:", "executed:", "done:"] {
-        assert!(stdout.contains(expected), "{expected:?} missing from:\n{stdout}");
+    assert!(
+        result.status.success(),
+        "stdout:\n{stdout}\nstderr:\n{stderr}"
+    );
+    for expected in [
+        "registration:",
+        "zone  centre",
+        "time estimate:",
+        "executed:",
+        "done:",
+    ] {
+        assert!(
+            stdout.contains(expected),
+            "{expected:?} missing from:\n{stdout}"
+        );
     }
     for file in [
         "job.toml",
@@ -77,16 +92,28 @@ fn demo_runs_to_the_end_and_leaves_a_complete_run_folder() {
         "inputs/scan.ply",
     ] {
         let p = out.join(file);
-        assert!(p.is_file() && p.metadata().unwrap().len() > 0, "{file} missing or empty");
+        assert!(
+            p.is_file() && p.metadata().unwrap().len() > 0,
+            "{file} missing or empty"
+        );
     }
     let done = layers_done(&out);
     let planned = planned_layers(&out);
     assert!(!planned.is_empty());
     for key in &planned {
-        assert_eq!(done.get(key), Some(&1), "layer {key:?} finished {:?} times", done.get(key));
+        assert_eq!(
+            done.get(key),
+            Some(&1),
+            "layer {key:?} finished {:?} times",
+            done.get(key)
+        );
     }
     let mcap = std::fs::read(out.join("run.mcap")).unwrap();
-    assert_eq!(&mcap[..8], b"\x89MCAP0\r\n", "run.mcap starts with the MCAP magic");
+    assert_eq!(
+        &mcap[..8],
+        b"\x89MCAP0\r\n",
+        "run.mcap starts with the MCAP magic"
+    );
 }
 
 #[test]
@@ -116,7 +143,10 @@ fn killed_run_resumes_without_marking_a_layer_twice() {
     child.wait().unwrap();
     let before = layers_done(&out);
     let planned = planned_layers(&out);
-    assert!(before.len() < planned.len(), "the kill came after the last layer");
+    assert!(
+        before.len() < planned.len(),
+        "the kill came after the last layer"
+    );
 
     let result = Command::new(TRIMCTL)
         .args(["run", "--sim-time-scale", "0.01", "--resume"])
@@ -131,7 +161,12 @@ fn killed_run_resumes_without_marking_a_layer_twice() {
     );
     let after = layers_done(&out);
     for key in &planned {
-        assert_eq!(after.get(key), Some(&1), "layer {key:?} finished {:?} times", after.get(key));
+        assert_eq!(
+            after.get(key),
+            Some(&1),
+            "layer {key:?} finished {:?} times",
+            after.get(key)
+        );
     }
 }
 
@@ -140,7 +175,10 @@ fn bad_job_files_get_one_line_naming_the_key() {
     let tmp = tempfile::tempdir().unwrap();
     let cases = [
         ("[beam]\npowr_w = 10\n", "powr_w"),
-        ("[galvo]\nmark_speed_mm_per_s = -1\n", "galvo.mark_speed_mm_per_s"),
+        (
+            "[galvo]\nmark_speed_mm_per_s = -1\n",
+            "galvo.mark_speed_mm_per_s",
+        ),
         ("max_incidence_deg = 90\n", "max_incidence_deg"),
         ("[zoning]\nk = 0\n", "zoning.k"),
         ("[register]\nmode = \"sideways\"\n", "mode"),
@@ -160,9 +198,16 @@ fn bad_job_files_get_one_line_naming_the_key() {
             .unwrap();
         let stderr = String::from_utf8_lossy(&result.stderr);
         assert_eq!(result.status.code(), Some(1), "{text:?}: {stderr}");
-        let lines: Vec<&str> = stderr.lines().filter(|l| l.starts_with("trimctl: error")).collect();
+        let lines: Vec<&str> = stderr
+            .lines()
+            .filter(|l| l.starts_with("trimctl: error"))
+            .collect();
         assert_eq!(lines.len(), 1, "{text:?}: {stderr}");
-        assert!(lines[0].contains(key), "{text:?}: {:?} does not name {key}", lines[0]);
+        assert!(
+            lines[0].contains(key),
+            "{text:?}: {:?} does not name {key}",
+            lines[0]
+        );
         assert!(
             !tmp.path().join(format!("run{i}")).exists(),
             "{text:?}: a refused job must not create a run folder"

@@ -3,7 +3,7 @@
 use rayon::prelude::*;
 
 use crate::error::{GeomError, Result};
-use crate::math::{Point3, Similarity3, Vector3, is_finite_point, is_finite_vector};
+use crate::math::{Point3, Similarity3, Vector3, is_finite_point, unit_or_none};
 
 /// Normals shorter than this are refused as undefined.
 pub const MIN_NORMAL_NORM: f64 = 1e-12;
@@ -183,14 +183,10 @@ fn check_normals(n_points: usize, mut normals: Vec<Vector3>) -> Result<Vec<Vecto
         });
     }
     for (index, n) in normals.iter_mut().enumerate() {
-        let norm = n.norm();
-        if !is_finite_vector(n) || norm < MIN_NORMAL_NORM {
-            return Err(GeomError::NonFinite {
-                what: "normal",
-                index,
-            });
-        }
-        *n /= norm;
+        *n = unit_or_none(n, MIN_NORMAL_NORM).ok_or(GeomError::NonFinite {
+            what: "normal",
+            index,
+        })?;
     }
     Ok(normals)
 }
@@ -219,6 +215,14 @@ mod tests {
         assert!((c.normals().unwrap()[0].norm() - 1.0).abs() < 1e-15);
         assert!(PointCloud::with_normals(vec![Point3::origin()], vec![Vector3::zeros()]).is_err());
         assert!(PointCloud::with_normals(vec![Point3::origin()], vec![]).is_err());
+        let huge = PointCloud::with_normals(
+            vec![Point3::origin()],
+            vec![Vector3::new(1e308, 0.0, 1e308)],
+        )
+        .unwrap();
+        assert!(
+            (huge.normals().unwrap()[0] - Vector3::new(1.0, 0.0, 1.0).normalize()).norm() < 1e-15
+        );
     }
 
     #[test]

@@ -111,26 +111,7 @@ fn in_file(name: &FsPath, e: GeomError) -> GeomError {
     }
 }
 
-/// The unit vector along `v` (a normal or feature vector read from a file), or `None` when a
-/// component is not finite or the length is below `min_norm`. The vector is scaled by its largest
-/// component first, so components near `f64::MAX` do not overflow the length (a plain
-/// `v / v.norm()` would divide by infinity and return a zero vector).
-fn unit_or_none(v: &Vector3, min_norm: f64) -> Option<Vector3> {
-    if !v.iter().all(|c| c.is_finite()) {
-        return None;
-    }
-    let largest = v.amax();
-    if largest == 0.0 {
-        return None;
-    }
-    let scaled = v / largest;
-    let scaled_norm = scaled.norm();
-    // The true length, largest × scaled_norm, may overflow to infinity: that is long enough.
-    if largest * scaled_norm < min_norm {
-        return None;
-    }
-    Some(scaled / scaled_norm)
-}
+pub(crate) use crate::math::unit_or_none;
 
 fn read_file(path: &FsPath) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| GeomError::io(path, e))

@@ -24,3 +24,24 @@ pub fn is_finite_point(p: &Point3) -> bool {
 pub fn is_finite_vector(v: &Vector3) -> bool {
     v.iter().all(|c| c.is_finite())
 }
+
+/// `v` scaled to unit length, or `None` when it is NaN, infinite or shorter than `min_norm`.
+/// Divides by the largest component first, so vectors with huge components (whose length
+/// overflows to infinity) still normalise instead of vanishing.
+#[must_use]
+pub fn unit_or_none(v: &Vector3, min_norm: f64) -> Option<Vector3> {
+    if !is_finite_vector(v) {
+        return None;
+    }
+    let largest = v.amax();
+    if largest == 0.0 {
+        return None;
+    }
+    let scaled = v / largest;
+    let scaled_norm = scaled.norm();
+    // The true length, largest × scaled_norm, may overflow to infinity: that is long enough.
+    if largest * scaled_norm < min_norm {
+        return None;
+    }
+    Some(scaled / scaled_norm)
+}

@@ -272,16 +272,8 @@ impl Mesh {
     }
 }
 
-/// The unit vector along `v`, or `None` for a zero or non-finite `v`. Scales by the largest
-/// component first, so neither tiny (sub-micrometre triangles, whose squared components
-/// underflow) nor huge components lose the direction.
 fn unit_along(v: &Vector3) -> Option<Vector3> {
-    let largest = v.amax();
-    if !(largest > 0.0 && largest.is_finite()) {
-        return None;
-    }
-    let scaled = v / largest;
-    Some(scaled / scaled.norm())
+    crate::math::unit_or_none(v, 0.0)
 }
 
 fn corners(vertices: &[Point3], tri: [u32; 3]) -> Option<[Point3; 3]> {

@@ -8,7 +8,7 @@ use std::collections::HashSet;
 
 use crate::cloud::Aabb;
 use crate::error::{GeomError, Result};
-use crate::math::{Point3, Similarity3, UnitVector3, Vector3, is_finite_point, is_finite_vector};
+use crate::math::{Point3, Similarity3, UnitVector3, Vector3, is_finite_point, unit_or_none};
 
 /// A contour id, as in the path CSV's `contour` column.
 pub type ContourId = i64;
@@ -62,13 +62,8 @@ impl Contour {
             return Err(bad(format!("point {i} is not finite")));
         }
         for (i, f) in features.iter_mut().enumerate() {
-            let norm = f.norm();
-            if !is_finite_vector(f) || norm < MIN_FEATURE_NORM {
-                return Err(bad(format!(
-                    "feature vector at point {i} is zero or not finite"
-                )));
-            }
-            *f /= norm;
+            *f = unit_or_none(f, MIN_FEATURE_NORM)
+                .ok_or_else(|| bad(format!("feature vector at point {i} is zero or not finite")))?;
         }
         let contour = Contour {
             id,
@@ -260,6 +255,13 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.to_string().contains("feature"), "{e}");
+        let huge = Contour::new(
+            4,
+            vec![Point3::origin(), Point3::new(1.0, 0.0, 0.0)],
+            Vector3::new(0.0, 1e308, 1e308),
+        )
+        .unwrap();
+        assert!((huge.features()[0] - Vector3::new(0.0, 1.0, 1.0).normalize()).norm() < 1e-15);
     }
 
     #[test]
