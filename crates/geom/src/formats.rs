@@ -25,7 +25,6 @@ use std::path::Path as FsPath;
 
 use crate::cloud::PointCloud;
 use crate::error::{GeomError, Location, Result};
-use crate::math::Vector3;
 use crate::mesh::Mesh;
 use crate::path::Path;
 
@@ -294,6 +293,7 @@ pub fn encode_path(trim_path: &Path) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::math::Vector3;
 
     #[test]
     fn unit_or_none_survives_huge_and_refuses_zero_or_tiny() {
