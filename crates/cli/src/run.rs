@@ -379,10 +379,6 @@ fn write_plan(run_dir: &Path, plan: &PlanOutput) -> anyhow::Result<()> {
     Ok(())
 }
 
-#[expect(
-    clippy::too_many_arguments,
-    reason = "the report gathers every stage's result"
-)]
 fn finish(
     run_dir: &Path,
     config: &JobConfig,
