@@ -19,7 +19,9 @@ use trim_io::tap::{Device, Tap};
 use trim_plan::job::{Job, LayerKey};
 
 /// The laser must be off (light path closed) within this of the fault's injection. The slowest
-/// case is a galvo that hangs mid-list: its own heartbeat watchdog (250 ms) closes the gate.
+/// cases: a galvo that hangs mid-list (its own heartbeat watchdog, 400 ms, closes the gate) and a
+/// laser that stops answering mid-list (the executor sees the reply timeout, 500 ms, and closes
+/// the galvo gate).
 const LASER_OFF_BOUND: Duration = Duration::from_millis(1500);
 /// The matrix's galvo clock: real seconds per modelled second.
 const MATRIX_GALVO_TIME_SCALE: f64 = 10.0;
@@ -254,6 +256,22 @@ async fn cancel_mid_layer_turns_the_laser_off_and_resume_finishes_without_remark
     assert_eq!(sim.galvo.marks().len(), before);
 }
 
+/// Whether the light path was open at an instant, from the monitor's event log.
+fn light_on_at(sim: &SimCell, at: Instant) -> bool {
+    let (mut emission, mut gate) = (false, false);
+    for (t, e) in sim.monitor.events() {
+        if t > at {
+            break;
+        }
+        match e {
+            trim_io::safety::CellEvent::Emission(on) => emission = on,
+            trim_io::safety::CellEvent::Gate(on) => gate = on,
+            _ => {}
+        }
+    }
+    emission && gate
+}
+
 /// Where each device is hit in layer index 2 (zone 1, layer 0) of `demo_job(2)`: the trigger
 /// and the phase the executor must stop in. Arrival counts include the preparation's commands.
 fn matrix_cases() -> Vec<(Device, &'static str, Trigger, Phase)> {
@@ -311,16 +329,32 @@ fn matrix_cases() -> Vec<(Device, &'static str, Trigger, Phase)> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
-    let job = demo_job(2);
     let target = LayerKey { zone: 1, layer: 0 };
+    // The target layer starts with a 10-vector zig-zag (15 vectors in all): that one mark run
+    // takes about 1.1 s at the matrix's galvo clock, longer than every detection delay, so a
+    // fault mid-list meets the light on and the latency measured is that of the way down, not
+    // of the list reaching a jump or its end.
+    let mut job = demo_job(2);
+    job.zones[1].layers[0].polylines.insert(
+        0,
+        trim_plan::job::Polyline {
+            contour: 99,
+            points: (0..=10)
+                .map(|i| {
+                    [
+                        -10.0 + 2.0 * f64::from(i),
+                        if i % 2 == 0 { -15.0 } else { -11.0 },
+                    ]
+                })
+                .collect(),
+        },
+    );
     let mut table = Vec::new();
     for (device, where_, trigger, phase) in matrix_cases() {
         for kind in FaultKind::ALL {
             let label = format!("{device} {kind:?} at {where_}");
             eprintln!("case: {label}");
-            // The galvo runs 10× slower than modelled (a layer's list takes about 0.6 s), so a
-            // fault mid-list meets the light on and the measured latency is that of the way down,
-            // not of the list ending by itself.
+            // The galvo runs 10× slower than modelled.
             let sim = sim_cell_scaled("monaco", MATRIX_GALVO_TIME_SCALE).await;
             let fault = Fault {
                 kind,
@@ -352,6 +386,7 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
             let detected_at = s.detected_at.expect("detection time");
 
             // The laser is off (light path closed) within the bound of the injection.
+            let light_at_injection = light_on_at(&sim, injected_at);
             let closed = sim
                 .monitor
                 .light_closed_since(injected_at)
@@ -388,7 +423,7 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
             );
             assert_eq!(journal::read(&path).unwrap().finished.len(), 4, "{label}");
             table.push(format!(
-                "{label:<40} detected {:>6.0} ms after injection; light off {:>6.1} ms after injection, {:>6.1} ms after detection; laser-off cmds {:>5.1} ms (serial ok {}, galvo ok {}); cut at {:?}/{}; partial {partial}; {:.2} s",
+                "{label:<40} detected {:>5.0} ms after injection; light off {:>6.1} ms after injection, {:>5.1} ms after detection; laser-off cmds {:>5.1} ms (serial ok {}, galvo ok {}); cut at {:?}/{}; partial {partial}; light on at injection {light_at_injection}; {:.2} s",
                 detected_at.saturating_duration_since(injected_at).as_secs_f64() * 1e3,
                 from_injection.as_secs_f64() * 1e3,
                 from_detection.as_secs_f64() * 1e3,

@@ -14,13 +14,14 @@ use trim_plan::job::{
 };
 
 /// Timeouts for tests: short device timeouts so faults resolve fast, still far above the
-/// in-process simulators' reply times (well under 10 ms even on a loaded machine).
+/// in-process simulators' reply times (under 10 ms even on a loaded machine), and a heartbeat
+/// the client beats every 100 ms.
 pub fn test_timeouts() -> Timeouts {
     Timeouts {
-        galvo_reply: Duration::from_millis(400),
+        galvo_reply: Duration::from_millis(500),
         galvo_resends: 1,
-        galvo_heartbeat_ms: 250,
-        laser_reply: Duration::from_millis(400),
+        galvo_heartbeat_ms: 400,
+        laser_reply: Duration::from_millis(500),
         cnc_reply: Duration::from_millis(1000),
         cnc_motion: Duration::from_secs(3),
         list_time_factor: 3.0,
