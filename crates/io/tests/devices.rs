@@ -136,7 +136,7 @@ async fn galvo_two_list_buffers_and_refusals() {
     let sim = GalvoSim::start(
         LO.into(),
         GalvoSimConfig {
-            time_scale: 20.0,
+            time_scale: 1000.0,
             ..GalvoSimConfig::default()
         },
         monitor.clone(),
@@ -157,7 +157,7 @@ async fn galvo_two_list_buffers_and_refusals() {
         StatusCode::ListEmpty
     );
     c.execute(0).await.unwrap().unwrap();
-    // While list 0 runs (20× slow: about 10 ms), list 1 loads; list 0 itself is busy.
+    // While list 0 runs (1000× slow: 0.5 s), list 1 loads; list 0 itself is busy.
     assert_eq!(
         c.load_list(0, 9, &square(0))
             .await

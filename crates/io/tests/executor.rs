@@ -170,7 +170,8 @@ async fn whole_job_marks_every_vector_once_with_both_laser_profiles() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cancel_mid_layer_turns_the_laser_off_and_resume_finishes_without_remarking() {
-    let sim = sim_cell("monaco").await;
+    // A slow galvo clock (vectors of about 0.1 s) so the progress watcher sees the layer midway.
+    let sim = sim_cell_scaled("monaco", MATRIX_GALVO_TIME_SCALE).await;
     let job = demo_job(2);
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("run.journal");
