@@ -36,7 +36,11 @@ fn surface(n: usize, seed: u64) -> PointCloud {
 }
 
 fn small_motion() -> Similarity3 {
-    Similarity3::new(Vector3::new(0.3, -0.2, 0.1), Vector3::new(0.01, -0.005, 0.02), 1.0)
+    Similarity3::new(
+        Vector3::new(0.3, -0.2, 0.1),
+        Vector3::new(0.01, -0.005, 0.02),
+        1.0,
+    )
 }
 
 fn bench_ops(c: &mut Criterion) {
@@ -58,7 +62,9 @@ fn bench_ops(c: &mut Criterion) {
             ..IcpSettings::default()
         };
         group.bench_with_input(BenchmarkId::new("icp_iteration", n), &source, |b, s| {
-            b.iter(|| icp_step(s, &prepared, &Similarity3::identity(), &settings, "bench").expect("step"));
+            b.iter(|| {
+                icp_step(s, &prepared, &Similarity3::identity(), &settings, "bench").expect("step")
+            });
         });
         let moved: Vec<Point3> = source.points().iter().map(|p| small_motion() * p).collect();
         group.bench_with_input(BenchmarkId::new("umeyama", n), &moved, |b, m| {
@@ -86,7 +92,16 @@ fn bench_full(c: &mut Criterion) {
     let mut group = c.benchmark_group("register");
     group.sample_size(10);
     group.bench_function("full/500k", |b| {
-        b.iter(|| register(&case.cad_points, &case.scan, &case.path, &case.scan_from_cad_nominal, &settings).expect("registered"));
+        b.iter(|| {
+            register(
+                &case.cad_points,
+                &case.scan,
+                &case.path,
+                &case.scan_from_cad_nominal,
+                &settings,
+            )
+            .expect("registered")
+        });
     });
     group.finish();
 }

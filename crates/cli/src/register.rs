@@ -56,22 +56,34 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         None => RegisterSettings::default(),
     };
     if let Some(v) = &args.viewpoint {
-        anyhow::ensure!(v.len() == 3, "--viewpoint: expected x,y,z, got {} numbers", v.len());
+        anyhow::ensure!(
+            v.len() == 3,
+            "--viewpoint: expected x,y,z, got {} numbers",
+            v.len()
+        );
         settings.scanner_viewpoint_mm = Some([v[0], v[1], v[2]]);
     }
-    settings.validate().map_err(|e| anyhow::anyhow!("register.{e}"))?;
+    settings
+        .validate()
+        .map_err(|e| anyhow::anyhow!("register.{e}"))?;
     let initial = match &args.initial {
         Some(p) => read_matrix(p)?,
         None => Similarity3::identity(),
     };
-    let cad = match read_geometry(&args.cad).with_context(|| format!("reading {}", args.cad.display()))? {
+    let cad = match read_geometry(&args.cad)
+        .with_context(|| format!("reading {}", args.cad.display()))?
+    {
         Geometry::Mesh(mesh) => mesh.sample_area_weighted(settings.cad_sample_points, 1),
         Geometry::Points(cloud) if cloud.has_normals() => cloud,
         Geometry::Points(cloud) => {
             // Orientation from the cloud's centroid outward: right for closed, convex-ish parts;
             // point-to-plane residuals do not depend on the sign, visibility culling does.
             let centre = cloud.bounds().map(|b| b.center()).unwrap_or_default();
-            let normals = estimate_normals(cloud.points(), CAD_NORMAL_NEIGHBOURS, Orientation::AlongReference(Vector3::z()))?;
+            let normals = estimate_normals(
+                cloud.points(),
+                CAD_NORMAL_NEIGHBOURS,
+                Orientation::AlongReference(Vector3::z()),
+            )?;
             let oriented = cloud
                 .points()
                 .iter()
@@ -82,11 +94,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         Geometry::Path(_) => anyhow::bail!("{}: is a path, not a CAD model", args.cad.display()),
     };
-    let scan = read_points(&args.scan).with_context(|| format!("reading {}", args.scan.display()))?;
+    let scan =
+        read_points(&args.scan).with_context(|| format!("reading {}", args.scan.display()))?;
     let path = read_path(&args.path).with_context(|| format!("reading {}", args.path.display()))?;
     let t_read = t0.elapsed().as_secs_f64();
     let registration = register(&cad, &scan, &path, &initial, &settings)?;
-    write_path(&args.out, &registration.path).with_context(|| format!("writing {}", args.out.display()))?;
+    write_path(&args.out, &registration.path)
+        .with_context(|| format!("writing {}", args.out.display()))?;
     if let Some(report) = &args.report {
         std::fs::write(report, serde_json::to_string_pretty(&registration.report)?)
             .with_context(|| format!("writing {}", report.display()))?;
@@ -101,12 +115,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 fn read_matrix(path: &std::path::Path) -> anyhow::Result<Similarity3> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     let values: Vec<f64> = text
         .split(|c: char| c.is_whitespace() || c == ',')
         .filter(|s| !s.is_empty())
-        .map(|s| s.parse::<f64>().with_context(|| format!("{}: `{s}` is not a number", path.display())))
+        .map(|s| {
+            s.parse::<f64>()
+                .with_context(|| format!("{}: `{s}` is not a number", path.display()))
+        })
         .collect::<anyhow::Result<_>>()?;
-    anyhow::ensure!(values.len() == 16, "{}: expected 16 numbers (a 4×4 matrix), got {}", path.display(), values.len());
-    Ok(similarity_from_matrix(&nalgebra::Matrix4::from_row_slice(&values))?)
+    anyhow::ensure!(
+        values.len() == 16,
+        "{}: expected 16 numbers (a 4×4 matrix), got {}",
+        path.display(),
+        values.len()
+    );
+    Ok(similarity_from_matrix(&nalgebra::Matrix4::from_row_slice(
+        &values,
+    ))?)
 }

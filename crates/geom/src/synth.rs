@@ -588,9 +588,17 @@ impl SynthCase {
         use crate::formats::{PlyEncoding, write_path, write_ply, write_stl};
         std::fs::create_dir_all(dir).map_err(|e| GeomError::io(dir, e))?;
         write_stl(&dir.join("cad.stl"), &self.cad_mesh()?)?;
-        write_ply(&dir.join("cad_points.ply"), &self.cad_points, PlyEncoding::BinaryLittleEndian)?;
+        write_ply(
+            &dir.join("cad_points.ply"),
+            &self.cad_points,
+            PlyEncoding::BinaryLittleEndian,
+        )?;
         write_path(&dir.join("path.csv"), &self.path)?;
-        write_ply(&dir.join("scan.ply"), &self.scan, PlyEncoding::BinaryLittleEndian)?;
+        write_ply(
+            &dir.join("scan.ply"),
+            &self.scan,
+            PlyEncoding::BinaryLittleEndian,
+        )?;
         write_path(&dir.join("truth.csv"), &self.truth)?;
         let m = |s: &Similarity3| {
             let h = s.to_homogeneous();
@@ -904,7 +912,9 @@ mod tests {
         assert_eq!(truth.len(), case.truth.len());
         let mesh = crate::formats::read_mesh(&dir.path().join("cad.stl")).unwrap();
         assert_eq!(mesh.triangles().len(), case.cad_triangles.len());
-        let info: CaseInfo = serde_json::from_str(&std::fs::read_to_string(dir.path().join("case.json")).unwrap()).unwrap();
+        let info: CaseInfo =
+            serde_json::from_str(&std::fs::read_to_string(dir.path().join("case.json")).unwrap())
+                .unwrap();
         assert_eq!(info.params, case.params);
     }
 

@@ -14,7 +14,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
     let seeds: u64 = args.get(1).map_or(Ok(3), |s| s.parse())?;
     let scan_points: usize = args.get(2).map_or(Ok(200_000), |s| s.parse())?;
-    println!("| level | seed | method | cross-edge P95 µm | cross-edge max µm | pointwise P95 µm | flagged | time s |");
+    println!(
+        "| level | seed | method | cross-edge P95 µm | cross-edge max µm | pointwise P95 µm | flagged | time s |"
+    );
     println!("|---|---|---|---|---|---|---|---|");
     for (level, sag, twist, scale, pose_deg, pose_mm) in [
         ("mild", 0.2, 0.4, 0.005, 2.0, 1.0),
@@ -42,27 +44,46 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 ..base
             };
             let t0 = Instant::now();
-            let reg = register(&case.cad_points, &case.scan, &case.path, &case.scan_from_cad_nominal, &settings)?;
+            let reg = register(
+                &case.cad_points,
+                &case.scan,
+                &case.path,
+                &case.scan_from_cad_nominal,
+                &settings,
+            )?;
             let t_ours = t0.elapsed().as_secs_f64();
             let e = path_errors(&reg.path, &case.truth, |_| true)?;
             if std::env::var_os("TRIM_DEBUG").is_some() {
                 eprintln!("timings {:?}", reg.report.timings_s);
                 for (name, range) in [("slots", 1..=4), ("holes", 5..=46), ("edges", 47..=52)] {
                     let e = path_errors(&reg.path, &case.truth, |id| range.contains(&id))?;
-                    eprintln!("  {name}: cross P95 {:.1} max {:.1} pointwise P95 {:.1}", e.cross_edge_p95_mm * 1e3, e.cross_edge_max_mm * 1e3, e.pointwise_p95_mm * 1e3);
+                    eprintln!(
+                        "  {name}: cross P95 {:.1} max {:.1} pointwise P95 {:.1}",
+                        e.cross_edge_p95_mm * 1e3,
+                        e.cross_edge_max_mm * 1e3,
+                        e.pointwise_p95_mm * 1e3
+                    );
                 }
                 let rinv = case.scan_from_cad_true.inverse();
                 for (name, range) in [("slots", 1..=4), ("holes", 5..=46), ("edges", 47..=52)] {
                     let mut sum = nalgebra::Vector3::zeros();
                     let mut n = 0.0;
-                    for c in reg.path.contours().iter().filter(|c| range.contains(&c.id())) {
-                        let t = case.truth.get(c.id()).unwrap();
+                    for c in reg
+                        .path
+                        .contours()
+                        .iter()
+                        .filter(|c| range.contains(&c.id()))
+                    {
+                        let t = case.truth.get(c.id()).ok_or("contour missing from truth")?;
                         for (p, q) in c.points().iter().zip(t.points()) {
                             sum += rinv.isometry.rotation * (p - q);
                             n += 1.0;
                         }
                     }
-                    eprintln!("  {name}: mean error (part frame) {:.1?} µm", (sum / n * 1e3).as_slice());
+                    eprintln!(
+                        "  {name}: mean error (part frame) {:.1?} µm",
+                        (sum / n * 1e3).as_slice()
+                    );
                 }
                 for c in reg.report.contours.iter().filter(|c| !c.trustworthy) {
                     eprintln!("  flagged {c:?}");
@@ -79,7 +100,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 continue;
             }
             let t0 = Instant::now();
-            match paper_method(&case.cad_points, &case.scan, &case.path, &case.scan_from_cad_nominal, &PaperSettings::default()) {
+            match paper_method(
+                &case.cad_points,
+                &case.scan,
+                &case.path,
+                &case.scan_from_cad_nominal,
+                &PaperSettings::default(),
+            ) {
                 Ok(p) => {
                     let t_paper = t0.elapsed().as_secs_f64();
                     let e = path_errors(&p, &case.truth, |_| true)?;

@@ -24,7 +24,9 @@ fn arg<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> T {
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
     if args.len() < 3 {
-        return Err("usage: icp_bench SOURCE TARGET [--max-dist D] [--iterations N] [--repeat R]".into());
+        return Err(
+            "usage: icp_bench SOURCE TARGET [--max-dist D] [--iterations N] [--repeat R]".into(),
+        );
     }
     let source = read_points(std::path::Path::new(&args[1]))?;
     let target = read_points(std::path::Path::new(&args[2]))?;
@@ -33,7 +35,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let repeat: usize = arg(&args, "--repeat", 10);
     let init = match args.iter().position(|a| a == "--init") {
         Some(i) => {
-            let v: Vec<f64> = args[i + 1..i + 17].iter().map(|s| s.parse()).collect::<Result<_, _>>()?;
+            let v: Vec<f64> = args[i + 1..i + 17]
+                .iter()
+                .map(|s| s.parse())
+                .collect::<Result<_, _>>()?;
             similarity_from_matrix(&nalgebra::Matrix4::from_row_slice(&v))?
         }
         None => trim_geom::Similarity3::identity(),
@@ -58,14 +63,26 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let r = last.ok_or("--repeat must be at least 1")?;
     let m = r.target_from_source.to_homogeneous();
     let rows: Vec<String> = (0..4)
-        .map(|i| format!("[{}]", (0..4).map(|j| format!("{:.12e}", m[(i, j)])).collect::<Vec<_>>().join(", ")))
+        .map(|i| {
+            format!(
+                "[{}]",
+                (0..4)
+                    .map(|j| format!("{:.12e}", m[(i, j)]))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        })
         .collect();
     let mut sorted = times.clone();
     sorted.sort_by(f64::total_cmp);
     println!(
         "{{\"median_s\": {:.6e}, \"times_s\": [{}], \"iterations\": {}, \"fitness\": {:.6}, \"rmse\": {:.6e}, \"source_points\": {}, \"target_points\": {}, \"threads\": {}, \"target_from_source\": [{}]}}",
         sorted[sorted.len() / 2],
-        times.iter().map(|t| format!("{t:.6e}")).collect::<Vec<_>>().join(", "),
+        times
+            .iter()
+            .map(|t| format!("{t:.6e}"))
+            .collect::<Vec<_>>()
+            .join(", "),
         r.iterations,
         r.fitness,
         r.rmse_mm,

@@ -7,7 +7,11 @@ use nalgebra::{DMatrix, DVector};
 /// Solves `A x = b` for symmetric positive-definite `A` with half-bandwidth `bandwidth`
 /// (reading only the lower triangle within the band). `None` if `A` is not positive definite.
 #[must_use]
-pub fn solve_banded_spd(a: &DMatrix<f64>, b: &DVector<f64>, bandwidth: usize) -> Option<DVector<f64>> {
+pub fn solve_banded_spd(
+    a: &DMatrix<f64>,
+    b: &DVector<f64>,
+    bandwidth: usize,
+) -> Option<DVector<f64>> {
     let n = a.nrows();
     if a.ncols() != n || b.len() != n {
         return None;
@@ -71,7 +75,8 @@ mod tests {
         for i in 0..n {
             for j in 0..n {
                 if i.abs_diff(j) <= bw {
-                    a[(i, j)] = 1.0 / (1.0 + (i as f64 - j as f64).abs()) + if i == j { 4.0 } else { 0.0 };
+                    a[(i, j)] =
+                        1.0 / (1.0 + (i as f64 - j as f64).abs()) + if i == j { 4.0 } else { 0.0 };
                 }
             }
         }

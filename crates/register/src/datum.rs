@@ -68,20 +68,29 @@ pub fn datum_fit(
         with_scale: false,
         ..coarse.clone()
     };
-    let surface = coarse_fit(scan, &target, &cad_from_scan0, &rigid)?.target_from_source.inverse();
+    let surface = coarse_fit(scan, &target, &cad_from_scan0, &rigid)?
+        .target_from_source
+        .inverse();
     let tree = KdTree::build(scan.points());
     let mut found = Vec::with_capacity(datums_in_cad.len());
     for (k, d) in datums_in_cad.iter().enumerate() {
         let guess = surface * d;
         let near = tree.knn(&guess, DATUM_NEIGHBOURS);
-        if near.first().is_none_or(|n| n.distance_sq > MAX_DATUM_DISTANCE_MM.powi(2)) {
+        if near
+            .first()
+            .is_none_or(|n| n.distance_sq > MAX_DATUM_DISTANCE_MM.powi(2))
+        {
             return Err(RegisterError::Contour {
                 contour: k as i64,
-                message: format!("datum {k} is not on the scan (no scan point within {MAX_DATUM_DISTANCE_MM} mm)"),
+                message: format!(
+                    "datum {k} is not on the scan (no scan point within {MAX_DATUM_DISTANCE_MM} mm)"
+                ),
             });
         }
         let pts: Vec<Point3> = near.iter().map(|n| scan.points()[n.index]).collect();
-        let centre = Point3::from(pts.iter().map(|p| p.coords).sum::<trim_geom::Vector3>() / pts.len() as f64);
+        let centre = Point3::from(
+            pts.iter().map(|p| p.coords).sum::<trim_geom::Vector3>() / pts.len() as f64,
+        );
         let n = pca_normal(pts.iter());
         found.push(guess - n * n.dot(&(guess - centre)));
     }
@@ -118,10 +127,17 @@ mod tests {
         })
         .unwrap();
         // Six datums on the top face (w = 1.5), clear of holes: 3-2-1 style spread.
-        let datums: Vec<Point3> = [(-13.0, -40.0), (13.0, -40.0), (0.0, 40.0), (-13.0, 10.0), (13.0, 10.0), (0.0, -30.0)]
-            .iter()
-            .map(|&(u, v)| design_point(u, v, 1.5))
-            .collect();
+        let datums: Vec<Point3> = [
+            (-13.0, -40.0),
+            (13.0, -40.0),
+            (0.0, 40.0),
+            (-13.0, 10.0),
+            (13.0, 10.0),
+            (0.0, -30.0),
+        ]
+        .iter()
+        .map(|&(u, v)| design_point(u, v, 1.5))
+        .collect();
         let fit = datum_fit(
             &case.cad_points,
             &case.scan,
@@ -134,9 +150,26 @@ mod tests {
         // Six points on a near-flat face fix the tilt and height well and the in-plane pose
         // only through the face's camber and twist: the thesis notes the datum fit deviates
         // more than the surface fit. Check the datum residuals and the tilt.
-        assert!(fit.residuals_mm.iter().all(|r| *r < 0.02), "{:?}", fit.residuals_mm);
-        assert!(rotation_angle_between(&fit.scan_from_cad, &case.scan_from_cad_true) < 0.2f64.to_radians());
+        assert!(
+            fit.residuals_mm.iter().all(|r| *r < 0.02),
+            "{:?}",
+            fit.residuals_mm
+        );
+        assert!(
+            rotation_angle_between(&fit.scan_from_cad, &case.scan_from_cad_true)
+                < 0.2f64.to_radians()
+        );
         assert!(translation_distance(&fit.surface_scan_from_cad, &case.scan_from_cad_true) < 0.2);
-        assert!(datum_fit(&case.cad_points, &case.scan, &datums[..2], &case.scan_from_cad_nominal, View::From(case.scanner_in_scan), &CoarseSettings::default()).is_err());
+        assert!(
+            datum_fit(
+                &case.cad_points,
+                &case.scan,
+                &datums[..2],
+                &case.scan_from_cad_nominal,
+                View::From(case.scanner_in_scan),
+                &CoarseSettings::default()
+            )
+            .is_err()
+        );
     }
 }

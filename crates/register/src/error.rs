@@ -25,9 +25,7 @@ pub enum RegisterError {
         method: &'static str,
     },
     /// Too few correspondences (within the maximum distance, after trimming) to solve.
-    #[error(
-        "{stage}: {got} correspondences within {max_distance_mm} mm, needs at least {needed}"
-    )]
+    #[error("{stage}: {got} correspondences within {max_distance_mm} mm, needs at least {needed}")]
     TooFewCorrespondences {
         /// Which step (e.g. "icp level 2, iteration 5").
         stage: String,

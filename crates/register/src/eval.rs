@@ -36,7 +36,11 @@ pub fn quantile(values: &[f64], q: f64) -> f64 {
 
 /// Scores `registered` against `truth` (same contours, ids and point counts), optionally only
 /// the contours `keep` accepts (e.g. the trustworthy ones).
-pub fn path_errors(registered: &Path, truth: &Path, keep: impl Fn(i64) -> bool) -> Result<PathErrors> {
+pub fn path_errors(
+    registered: &Path,
+    truth: &Path,
+    keep: impl Fn(i64) -> bool,
+) -> Result<PathErrors> {
     let mut cross = Vec::new();
     let mut pointwise = Vec::new();
     for c in registered.contours() {

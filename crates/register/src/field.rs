@@ -42,7 +42,11 @@ pub struct BSplineField {
 
 fn basis(t: f64) -> ([f64; 3], [f64; 3]) {
     (
-        [0.5 * (1.0 - t) * (1.0 - t), 0.5 * (-2.0 * t * t + 2.0 * t + 1.0), 0.5 * t * t],
+        [
+            0.5 * (1.0 - t) * (1.0 - t),
+            0.5 * (-2.0 * t * t + 2.0 * t + 1.0),
+            0.5 * t * t,
+        ],
         [t - 1.0, 1.0 - 2.0 * t, t],
     )
 }
@@ -164,7 +168,9 @@ impl BSplineField {
     #[must_use]
     pub fn displacement(&self, x: &Point3) -> Vector3 {
         let w = self.weights(x);
-        (0..SUPPORT).map(|n| w.value[n] * self.coefficients[w.index[n]]).sum()
+        (0..SUPPORT)
+            .map(|n| w.value[n] * self.coefficients[w.index[n]])
+            .sum()
     }
 
     /// The displacement and its Jacobian `∂d/∂x` at `x`.
@@ -219,13 +225,22 @@ impl BSplineField {
                 for i in 0..d[0] {
                     let c = self.flat(i, j, k);
                     if i > 0 && i + 1 < d[0] {
-                        out.push(([self.flat(i - 1, j, k), c, self.flat(i + 1, j, k)], [1.0, -2.0, 1.0]));
+                        out.push((
+                            [self.flat(i - 1, j, k), c, self.flat(i + 1, j, k)],
+                            [1.0, -2.0, 1.0],
+                        ));
                     }
                     if j > 0 && j + 1 < d[1] {
-                        out.push(([self.flat(i, j - 1, k), c, self.flat(i, j + 1, k)], [1.0, -2.0, 1.0]));
+                        out.push((
+                            [self.flat(i, j - 1, k), c, self.flat(i, j + 1, k)],
+                            [1.0, -2.0, 1.0],
+                        ));
                     }
                     if k > 0 && k + 1 < d[2] {
-                        out.push(([self.flat(i, j, k - 1), c, self.flat(i, j, k + 1)], [1.0, -2.0, 1.0]));
+                        out.push((
+                            [self.flat(i, j, k - 1), c, self.flat(i, j, k + 1)],
+                            [1.0, -2.0, 1.0],
+                        ));
                     }
                 }
             }
@@ -240,22 +255,37 @@ mod tests {
 
     #[test]
     fn weights_partition_unity_and_reproduce_quadratics() {
-        let mut f = BSplineField::zero(&Point3::new(-20.0, -50.0, -5.0), &Point3::new(20.0, 50.0, 5.0), 10.0);
+        let mut f = BSplineField::zero(
+            &Point3::new(-20.0, -50.0, -5.0),
+            &Point3::new(20.0, 50.0, 5.0),
+            10.0,
+        );
         // Fit a quadratic field exactly by least squares on samples, then check it elsewhere.
-        let target = |p: &Point3| Vector3::new(1e-3 * p.y * p.y, 2e-3 * p.x * p.y, 0.01 * p.z - 1e-4 * p.x * p.x);
+        let target = |p: &Point3| {
+            Vector3::new(
+                1e-3 * p.y * p.y,
+                2e-3 * p.x * p.y,
+                0.01 * p.z - 1e-4 * p.x * p.x,
+            )
+        };
         let n = 3 * f.len();
         let mut h = nalgebra::DMatrix::<f64>::zeros(n, n);
         let mut g = nalgebra::DVector::<f64>::zeros(n);
         for i in 0..20 {
             for j in 0..50 {
                 for k in 0..5 {
-                    let p = Point3::new(-19.0 + 2.0 * f64::from(i), -49.0 + 2.0 * f64::from(j), -4.0 + 2.0 * f64::from(k));
+                    let p = Point3::new(
+                        -19.0 + 2.0 * f64::from(i),
+                        -49.0 + 2.0 * f64::from(j),
+                        -4.0 + 2.0 * f64::from(k),
+                    );
                     let w = f.weights(&p);
                     let t = target(&p);
                     for a in 0..SUPPORT {
                         for b in 0..SUPPORT {
                             for c in 0..3 {
-                                h[(3 * w.index[a] + c, 3 * w.index[b] + c)] += w.value[a] * w.value[b];
+                                h[(3 * w.index[a] + c, 3 * w.index[b] + c)] +=
+                                    w.value[a] * w.value[b];
                             }
                         }
                         for c in 0..3 {
@@ -276,13 +306,16 @@ mod tests {
             let (d, j) = f.displacement_and_jacobian(&p);
             assert!((d - target(&p)).norm() < 1e-6, "{d} vs {}", target(&p));
             let e = 1e-5;
-            let fd = (f.displacement(&(p + Vector3::x() * e)) - f.displacement(&(p - Vector3::x() * e))) / (2.0 * e);
+            let fd = (f.displacement(&(p + Vector3::x() * e))
+                - f.displacement(&(p - Vector3::x() * e)))
+                / (2.0 * e);
             assert!((j.column(0) - fd).norm() < 1e-6);
             let y = f.apply(&p);
             assert!((f.inverse_apply(&y, 20) - p).norm() < 1e-9);
         }
         // Affine fields have zero smoothness energy.
-        let mut affine = BSplineField::zero(&Point3::origin(), &Point3::new(30.0, 30.0, 30.0), 10.0);
+        let mut affine =
+            BSplineField::zero(&Point3::origin(), &Point3::new(30.0, 30.0, 30.0), 10.0);
         let d = affine.dims();
         let mut step = vec![0.0; 3 * affine.len()];
         for k in 0..d[2] {

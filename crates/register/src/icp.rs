@@ -211,7 +211,11 @@ pub fn icp_step(
         .par_iter()
         .map(|p| target_from_source * p)
         .collect();
-    let found = nearest_correspondences(&moved, &target.tree, settings.max_correspondence_distance_mm);
+    let found = nearest_correspondences(
+        &moved,
+        &target.tree,
+        settings.max_correspondence_distance_mm,
+    );
     let mut matched: Vec<(usize, usize, f64)> = found
         .iter()
         .enumerate()
@@ -312,7 +316,13 @@ pub fn icp(
     let mut converged = false;
     let mut iterations = 0;
     for it in 0..settings.max_iterations {
-        let step = icp_step(source, target, &current, settings, &format!("icp iteration {it}"))?;
+        let step = icp_step(
+            source,
+            target,
+            &current,
+            settings,
+            &format!("icp iteration {it}"),
+        )?;
         iterations = it + 1;
         current = step.target_from_source;
         let inc = &step.increment;
@@ -329,9 +339,14 @@ pub fn icp(
         }
     }
     let Some(step) = last else {
-        return Err(RegisterError::setting("max_iterations", "must be at least 1"));
+        return Err(RegisterError::setting(
+            "max_iterations",
+            "must be at least 1",
+        ));
     };
-    Ok(finish(source, target, current, settings, step, iterations, converged))
+    Ok(finish(
+        source, target, current, settings, step, iterations, converged,
+    ))
 }
 
 fn finish(
@@ -345,25 +360,29 @@ fn finish(
 ) -> IcpResult {
     // Final statistics at the final estimate.
     let moved: Vec<Point3> = source.points().par_iter().map(|p| current * p).collect();
-    let found =
-        nearest_correspondences(&moved, &target.tree, settings.max_correspondence_distance_mm);
+    let found = nearest_correspondences(
+        &moved,
+        &target.tree,
+        settings.max_correspondence_distance_mm,
+    );
     let normals = target.cloud.normals();
     let tpts = target.cloud.points();
     let plane = settings.method == IcpMethod::PointToPlane;
-    let (count, sum_d2, sum_r2) = found.iter().enumerate().fold(
-        (0usize, 0.0, 0.0),
-        |(c, d, r), (i, m)| match m {
-            Some((j, d2)) => {
-                let res2 = if plane {
-                    normals.map_or(*d2, |ns| (moved[i] - tpts[*j]).dot(&ns[*j]).powi(2))
-                } else {
-                    *d2
-                };
-                (c + 1, d + d2, r + res2)
-            }
-            None => (c, d, r),
-        },
-    );
+    let (count, sum_d2, sum_r2) =
+        found
+            .iter()
+            .enumerate()
+            .fold((0usize, 0.0, 0.0), |(c, d, r), (i, m)| match m {
+                Some((j, d2)) => {
+                    let res2 = if plane {
+                        normals.map_or(*d2, |ns| (moved[i] - tpts[*j]).dot(&ns[*j]).powi(2))
+                    } else {
+                        *d2
+                    };
+                    (c + 1, d + d2, r + res2)
+                }
+                None => (c, d, r),
+            });
     let denom = count.max(1) as f64;
     IcpResult {
         target_from_source: current,
@@ -401,7 +420,10 @@ pub fn icp_pyramid(
     settings: &IcpSettings,
 ) -> Result<IcpResult> {
     if levels.is_empty() {
-        return Err(RegisterError::setting("levels", "needs at least one pyramid level"));
+        return Err(RegisterError::setting(
+            "levels",
+            "needs at least one pyramid level",
+        ));
     }
     if source.is_empty() {
         return Err(RegisterError::EmptyCloud { which: "source" });

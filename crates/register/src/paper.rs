@@ -33,7 +33,11 @@ impl Default for PaperSettings {
             max_iterations,
         };
         PaperSettings {
-            coarse_levels: vec![level(2.0, 12.0, 30), level(1.0, 4.0, 30), level(0.5, 1.5, 30)],
+            coarse_levels: vec![
+                level(2.0, 12.0, 30),
+                level(1.0, 4.0, 30),
+                level(0.5, 1.5, 30),
+            ],
             clip_radius_mm: 3.0,
             local_max_distance_mm: 1.0,
             local_iterations: 50,
@@ -56,7 +60,13 @@ pub fn paper_method(
         ..IcpSettings::default()
     };
     let cad_plain = PointCloud::new(cad.points().to_vec())?;
-    let coarse = icp_pyramid(&cad_plain, scan, initial_scan_from_cad, &settings.coarse_levels, &rigid)?;
+    let coarse = icp_pyramid(
+        &cad_plain,
+        scan,
+        initial_scan_from_cad,
+        &settings.coarse_levels,
+        &rigid,
+    )?;
     let scan_from_cad = coarse.target_from_source;
     let cad_moved = cad_plain.transformed(&scan_from_cad);
     let cad_tree = KdTree::build(cad_moved.points());
@@ -74,8 +84,18 @@ pub fn paper_method(
         .map(|c| {
             let moved = c.transformed(&scan_from_cad);
             let fit = (|| -> Result<Similarity3> {
-                let ci = crop_near_polyline(cad_moved.points(), &cad_tree, moved.points(), settings.clip_radius_mm)?;
-                let si = crop_near_polyline(scan.points(), &scan_tree, moved.points(), settings.clip_radius_mm)?;
+                let ci = crop_near_polyline(
+                    cad_moved.points(),
+                    &cad_tree,
+                    moved.points(),
+                    settings.clip_radius_mm,
+                )?;
+                let si = crop_near_polyline(
+                    scan.points(),
+                    &scan_tree,
+                    moved.points(),
+                    settings.clip_radius_mm,
+                )?;
                 let src = cad_moved.select(&ci)?;
                 let tgt = IcpTarget::new(scan.select(&si)?)?;
                 Ok(icp(&src, &tgt, &Similarity3::identity(), &local)?.target_from_source)

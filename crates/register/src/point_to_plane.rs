@@ -94,10 +94,18 @@ impl NormalEquations {
     pub fn eigenvalues(&self, with_scale: bool) -> Vec<f64> {
         let norm = if self.weight > 0.0 { self.weight } else { 1.0 };
         let mut v: Vec<f64> = if with_scale {
-            SymmetricEigen::new(self.h / norm).eigenvalues.iter().copied().collect()
+            SymmetricEigen::new(self.h / norm)
+                .eigenvalues
+                .iter()
+                .copied()
+                .collect()
         } else {
             let h6: SMatrix<f64, 6, 6> = self.h.fixed_view::<6, 6>(0, 0).into();
-            SymmetricEigen::new(h6 / norm).eigenvalues.iter().copied().collect()
+            SymmetricEigen::new(h6 / norm)
+                .eigenvalues
+                .iter()
+                .copied()
+                .collect()
         };
         v.sort_by(f64::total_cmp);
         v
@@ -219,7 +227,11 @@ pub fn increment(delta: &Vector7, centre: &Point3) -> Similarity3 {
     let omega = Vector3::new(delta[0], delta[1], delta[2]);
     let t = Vector3::new(delta[3], delta[4], delta[5]);
     let scale = delta[6].exp();
-    let to_origin = Similarity3::from_parts(Translation3::from(-centre.coords), UnitQuaternion::identity(), 1.0);
+    let to_origin = Similarity3::from_parts(
+        Translation3::from(-centre.coords),
+        UnitQuaternion::identity(),
+        1.0,
+    );
     let about = Similarity3::from_parts(
         Translation3::from(centre.coords + t),
         UnitQuaternion::from_scaled_axis(omega),
@@ -235,7 +247,11 @@ mod tests {
     #[test]
     fn one_step_recovers_a_small_motion_on_a_box() {
         // Points on the six faces of a box, normals outward: every direction is constrained.
-        let truth = Similarity3::new(Vector3::new(0.01, -0.02, 0.005), Vector3::new(0.001, 0.002, -0.001), 1.0);
+        let truth = Similarity3::new(
+            Vector3::new(0.01, -0.02, 0.005),
+            Vector3::new(0.001, 0.002, -0.001),
+            1.0,
+        );
         let mut pairs = Vec::new();
         for i in -5..=5 {
             for j in -5..=5 {
@@ -249,7 +265,12 @@ mod tests {
                     (Point3::new(-5.0, a, b), -Vector3::x()),
                 ] {
                     // The source point is the target point moved by truth⁻¹.
-                    pairs.push(Pair { x: truth.inverse() * q, q, n, w: 1.0 });
+                    pairs.push(Pair {
+                        x: truth.inverse() * q,
+                        q,
+                        n,
+                        w: 1.0,
+                    });
                 }
             }
         }
@@ -266,7 +287,12 @@ mod tests {
         let pairs: Vec<Pair> = (0..100)
             .map(|i| {
                 let p = Point3::new(f64::from(i % 10), f64::from(i / 10), 0.0);
-                Pair { x: p, q: p, n: Vector3::z(), w: 1.0 }
+                Pair {
+                    x: p,
+                    q: p,
+                    n: Vector3::z(),
+                    w: 1.0,
+                }
             })
             .collect();
         let c = weighted_centre(&pairs);

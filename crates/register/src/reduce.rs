@@ -39,7 +39,9 @@ mod tests {
 
     #[test]
     fn same_bits_on_one_and_many_threads() {
-        let values: Vec<f64> = (0..100_000).map(|i| (f64::from(i) * 0.37).sin() * 1e3).collect();
+        let values: Vec<f64> = (0..100_000)
+            .map(|i| (f64::from(i) * 0.37).sin() * 1e3)
+            .collect();
         let sum = || chunked_sum(values.len(), 0.0, |a, i| *a += values[i], |a, b| *a += b);
         let many = sum();
         let one = rayon::ThreadPoolBuilder::new()

@@ -26,12 +26,12 @@ use rayon::prelude::*;
 use trim_geom::crop::crop_near_polyline;
 use trim_geom::{Contour, ContourId, KdTree, Path, Point3, PointCloud, Similarity3, Vector3};
 
-use crate::error::{RegisterError, Result};
 use crate::banded::solve_banded_spd;
+use crate::error::{RegisterError, Result};
 use crate::field::{BSplineField, SUPPORT};
 use crate::icp::{IcpMethod, IcpResult, IcpSettings, IcpTarget, PyramidLevel, icp};
 use crate::kernel::RobustKernel;
-use crate::sampling::{View, dense_voxel_centroids, facing_indices, voxel_pick};
+use crate::sampling::{View, dense_voxel_centroids, facing_indices, spatial_order, voxel_pick};
 
 /// Levenberg-Marquardt damping of the field's Gauss-Newton step, relative to the mean data
 /// weight per unknown.
@@ -106,7 +106,11 @@ impl Default for CoarseSettings {
             max_init_rotation_deg: 15.0,
             max_init_translation_mm: 15.0,
             min_voxel_points: 3,
-            levels: vec![level(2.0, 12.0, 30), level(1.0, 4.0, 30), level(0.5, 1.5, 30)],
+            levels: vec![
+                level(2.0, 12.0, 30),
+                level(1.0, 4.0, 30),
+                level(0.5, 1.5, 30),
+            ],
             with_scale: true,
             huber_fraction: 0.25,
         }
@@ -228,7 +232,10 @@ fn positive(name: &str, v: f64) -> Result<()> {
     if v.is_finite() && v > 0.0 {
         Ok(())
     } else {
-        Err(RegisterError::setting(name, format!("must be finite and > 0, got {v}")))
+        Err(RegisterError::setting(
+            name,
+            format!("must be finite and > 0, got {v}"),
+        ))
     }
 }
 
@@ -236,7 +243,10 @@ fn fraction(name: &str, v: f64) -> Result<()> {
     if (0.0..=1.0).contains(&v) {
         Ok(())
     } else {
-        Err(RegisterError::setting(name, format!("must be in [0, 1], got {v}")))
+        Err(RegisterError::setting(
+            name,
+            format!("must be in [0, 1], got {v}"),
+        ))
     }
 }
 
@@ -245,21 +255,36 @@ impl RegisterSettings {
     pub fn validate(&self) -> Result<()> {
         if let Some(v) = self.scanner_viewpoint_mm {
             if !v.iter().all(|c| c.is_finite()) {
-                return Err(RegisterError::setting("scanner_viewpoint_mm", "must be finite"));
+                return Err(RegisterError::setting(
+                    "scanner_viewpoint_mm",
+                    "must be finite",
+                ));
             }
         }
         let d = Vector3::from(self.view_direction);
         if !(d.iter().all(|c| c.is_finite()) && d.norm() > 0.0) {
-            return Err(RegisterError::setting("view_direction", "must be a finite non-zero vector"));
+            return Err(RegisterError::setting(
+                "view_direction",
+                "must be a finite non-zero vector",
+            ));
         }
         if !(-1.0..=1.0).contains(&self.facing_min_cos) {
-            return Err(RegisterError::setting("facing_min_cos", "must be in [−1, 1]"));
+            return Err(RegisterError::setting(
+                "facing_min_cos",
+                "must be in [−1, 1]",
+            ));
         }
         if self.cad_sample_points < 1000 {
-            return Err(RegisterError::setting("cad_sample_points", "must be at least 1000"));
+            return Err(RegisterError::setting(
+                "cad_sample_points",
+                "must be at least 1000",
+            ));
         }
         if self.coarse.levels.is_empty() {
-            return Err(RegisterError::setting("coarse.levels", "needs at least one level"));
+            return Err(RegisterError::setting(
+                "coarse.levels",
+                "needs at least one level",
+            ));
         }
         for (k, l) in self.coarse.levels.iter().enumerate() {
             positive(&format!("coarse.levels[{k}].voxel_mm"), l.voxel_mm)?;
@@ -275,8 +300,14 @@ impl RegisterSettings {
             }
         }
         positive("coarse.huber_fraction", self.coarse.huber_fraction)?;
-        positive("coarse.max_init_rotation_deg", self.coarse.max_init_rotation_deg)?;
-        positive("coarse.max_init_translation_mm", self.coarse.max_init_translation_mm)?;
+        positive(
+            "coarse.max_init_rotation_deg",
+            self.coarse.max_init_rotation_deg,
+        )?;
+        positive(
+            "coarse.max_init_translation_mm",
+            self.coarse.max_init_translation_mm,
+        )?;
         let f = &self.field;
         positive("field.spacing_mm", f.spacing_mm)?;
         positive("field.voxel_mm", f.voxel_mm)?;
@@ -284,10 +315,16 @@ impl RegisterSettings {
         positive("field.max_distance_end_mm", f.max_distance_end_mm)?;
         positive("field.huber_mm", f.huber_mm)?;
         if !(f.smoothness.is_finite() && f.smoothness >= 0.0) {
-            return Err(RegisterError::setting("field.smoothness", "must be finite and ≥ 0"));
+            return Err(RegisterError::setting(
+                "field.smoothness",
+                "must be finite and ≥ 0",
+            ));
         }
         if f.iterations == 0 {
-            return Err(RegisterError::setting("field.iterations", "must be at least 1"));
+            return Err(RegisterError::setting(
+                "field.iterations",
+                "must be at least 1",
+            ));
         }
         let q = &self.quality;
         positive("quality.coverage_radius_mm", q.coverage_radius_mm)?;
@@ -401,6 +438,9 @@ impl Registration {
     }
 }
 
+/// Voxel size of the CAD's spatially coherent order, mm.
+pub const CAD_ORDER_VOXEL_MM: f64 = 1.0;
+
 /// CAD candidates per scan point; the one whose surface passes closest wins.
 pub const MATCH_CANDIDATES: usize = 6;
 
@@ -422,7 +462,11 @@ pub fn shape_operators(cad: &PointCloud, tree: &KdTree) -> Vec<Matrix3<f64>> {
         .zip(normals.par_iter())
         .map(|(c, n)| {
             // Tangent basis.
-            let helper = if n.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
+            let helper = if n.x.abs() < 0.9 {
+                Vector3::x()
+            } else {
+                Vector3::y()
+            };
             let e1 = n.cross(&helper).normalize();
             let e2 = n.cross(&e1);
             let mut ata = nalgebra::Matrix3::<f64>::zeros();
@@ -437,16 +481,24 @@ pub fn shape_operators(cad: &PointCloud, tree: &KdTree) -> Vec<Matrix3<f64>> {
                 let (t1, t2) = (d.dot(&e1), d.dot(&e2));
                 let (g1, g2) = (dn.dot(&e1), dn.dot(&e2));
                 // S = [[a, b], [b, c]]: g1 = a t1 + b t2, g2 = b t1 + c t2.
-                for (row, rhs) in [(Vector3::new(t1, t2, 0.0), g1), (Vector3::new(0.0, t1, t2), g2)] {
+                for (row, rhs) in [
+                    (Vector3::new(t1, t2, 0.0), g1),
+                    (Vector3::new(0.0, t1, t2), g2),
+                ] {
                     ata += row * row.transpose();
                     atb += row * rhs;
                 }
             }
-            let Some(abc) = (ata + Matrix3::identity() * 1e-12).try_inverse().map(|inv| inv * atb) else {
+            let Some(abc) = (ata + Matrix3::identity() * 1e-12)
+                .try_inverse()
+                .map(|inv| inv * atb)
+            else {
                 return Matrix3::zeros();
             };
             let (a, b, cc) = (abc[0], abc[1], abc[2]);
-            a * e1 * e1.transpose() + b * (e1 * e2.transpose() + e2 * e1.transpose()) + cc * e2 * e2.transpose()
+            a * e1 * e1.transpose()
+                + b * (e1 * e2.transpose() + e2 * e1.transpose())
+                + cc * e2 * e2.transpose()
         })
         .collect()
 }
@@ -465,7 +517,11 @@ struct Match {
     r: f64,
 }
 
-fn stage<T>(timings: &mut Vec<(String, f64)>, name: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
+fn stage<T>(
+    timings: &mut Vec<(String, f64)>,
+    name: &str,
+    f: impl FnOnce() -> Result<T>,
+) -> Result<T> {
     let t0 = Instant::now();
     let out = f()?;
     timings.push((name.to_string(), t0.elapsed().as_secs_f64()));
@@ -488,21 +544,34 @@ pub fn register(
     if scan.is_empty() {
         return Err(RegisterError::EmptyCloud { which: "scan" });
     }
-    if !initial_scan_from_cad.to_homogeneous().iter().all(|v| v.is_finite()) {
-        return Err(RegisterError::NonFinite { what: "initial scan_from_cad".into() });
+    if !initial_scan_from_cad
+        .to_homogeneous()
+        .iter()
+        .all(|v| v.is_finite())
+    {
+        return Err(RegisterError::NonFinite {
+            what: "initial scan_from_cad".into(),
+        });
     }
     let mut timings = Vec::new();
     let cad_from_scan_initial = initial_scan_from_cad.inverse();
     let view_in_cad = match settings.scanner_viewpoint_mm {
         Some(v) => View::From(cad_from_scan_initial * Point3::from(v)),
-        None => View::Along(cad_from_scan_initial.isometry.rotation * Vector3::from(settings.view_direction)),
+        None => View::Along(
+            cad_from_scan_initial.isometry.rotation * Vector3::from(settings.view_direction),
+        ),
     };
     let target = stage(&mut timings, "cad visibility + kd-tree", || {
         let facing = facing_indices(cad, view_in_cad, settings.facing_min_cos)?;
         if facing.is_empty() {
-            return Err(RegisterError::EmptyCloud { which: "CAD (faces toward the scanner)" });
+            return Err(RegisterError::EmptyCloud {
+                which: "CAD (faces toward the scanner)",
+            });
         }
-        IcpTarget::new(cad.select(&facing)?)
+        let visible = cad.select(&facing)?;
+        // Spatially coherent order: the curvature pass walks the CAD in it.
+        let order = spatial_order(visible.points(), CAD_ORDER_VOXEL_MM);
+        IcpTarget::new(visible.select(&order)?)
     })?;
 
     // Coarse: scan → CAD, point-to-plane with scale, over a scan pyramid.
@@ -515,9 +584,16 @@ pub fn register(
     // Field points: one real scan point per voxel, in the CAD frame.
     let field_points: Vec<Point3> = stage(&mut timings, "scan thinning", || {
         let picked = voxel_pick(scan.points(), settings.field.voxel_mm)?;
-        Ok(picked.par_iter().map(|&i| cad_from_scan * scan.points()[i]).collect())
+        Ok(picked
+            .par_iter()
+            .map(|&i| cad_from_scan * scan.points()[i])
+            .collect())
     })?;
-    let overlap = overlap_fraction(&field_points, target.tree(), settings.quality.overlap_distance_mm);
+    let overlap = overlap_fraction(
+        &field_points,
+        target.tree(),
+        settings.quality.overlap_distance_mm,
+    );
     if overlap < settings.quality.min_overlap {
         return Err(RegisterError::NotOverlapping {
             fraction_pct: 100.0 * overlap,
@@ -527,10 +603,23 @@ pub fn register(
     }
 
     let (field, matches) = match settings.mode {
-        Mode::Global => (None, final_matches(&field_points, &target, &[], None, settings.quality.overlap_distance_mm)),
+        Mode::Global => (
+            None,
+            final_matches(
+                &field_points,
+                &target,
+                &[],
+                None,
+                settings.quality.overlap_distance_mm,
+            ),
+        ),
         Mode::Regional => {
-            let curvature = stage(&mut timings, "cad curvature", || Ok(shape_operators(target.cloud(), target.tree())))?;
-            let (f, m) = stage(&mut timings, "deformation field", || fit_field(&field_points, &target, &curvature, &settings.field))?;
+            let curvature = stage(&mut timings, "cad curvature", || {
+                Ok(shape_operators(target.cloud(), target.tree()))
+            })?;
+            let (f, m) = stage(&mut timings, "deformation field", || {
+                fit_field(&field_points, &target, &curvature, &settings.field)
+            })?;
             (Some(f), m)
         }
     };
@@ -545,7 +634,13 @@ pub fn register(
     })?;
 
     let contours = stage(&mut timings, "quality", || {
-        Ok(contour_quality(path, field.as_ref(), &matches, &scan_from_cad, &settings.quality))
+        Ok(contour_quality(
+            path,
+            field.as_ref(),
+            &matches,
+            &scan_from_cad,
+            &settings.quality,
+        ))
     })?;
     let field_rmse_mm = field.as_ref().map(|_| {
         let n = matches.len().max(1) as f64;
@@ -619,7 +714,9 @@ pub fn coarse_fit(
             },
             other => other,
         })?;
-        let scale_change = (r.target_from_source.scaling() / current.scaling()).ln().abs();
+        let scale_change = (r.target_from_source.scaling() / current.scaling())
+            .ln()
+            .abs();
         if scale_change > MAX_COARSE_LOG_SCALE_CHANGE {
             return Err(RegisterError::Singular {
                 stage: format!(
@@ -634,7 +731,8 @@ pub fn coarse_fit(
         iterations += r.iterations;
         result = Some(r);
     }
-    let mut r = result.ok_or_else(|| RegisterError::setting("coarse.levels", "needs at least one level"))?;
+    let mut r = result
+        .ok_or_else(|| RegisterError::setting("coarse.levels", "needs at least one level"))?;
     r.iterations = iterations;
     Ok(r)
 }
@@ -643,7 +741,11 @@ pub fn coarse_fit(
 fn moments(points: &[Point3]) -> (Point3, Matrix3<f64>) {
     let n = points.len().max(1) as f64;
     let c: Vector3 = points.iter().map(|p| p.coords).sum::<Vector3>() / n;
-    let cov: Matrix3<f64> = points.iter().map(|p| (p.coords - c) * (p.coords - c).transpose()).sum::<Matrix3<f64>>() / n;
+    let cov: Matrix3<f64> = points
+        .iter()
+        .map(|p| (p.coords - c) * (p.coords - c).transpose())
+        .sum::<Matrix3<f64>>()
+        / n;
     (Point3::from(c), cov)
 }
 
@@ -654,7 +756,9 @@ fn principal_axes(cov: &Matrix3<f64>) -> (Matrix3<f64>, bool) {
     let mut order = [0usize, 1, 2];
     order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
     let v = order.map(|i| eig.eigenvalues[i]);
-    let distinct = v[1] > 0.0 && v[0] / v[1] >= MIN_AXIS_VARIANCE_RATIO && v[1] / v[2].max(f64::MIN_POSITIVE) >= MIN_AXIS_VARIANCE_RATIO;
+    let distinct = v[1] > 0.0
+        && v[0] / v[1] >= MIN_AXIS_VARIANCE_RATIO
+        && v[1] / v[2].max(f64::MIN_POSITIVE) >= MIN_AXIS_VARIANCE_RATIO;
     let axes = Matrix3::from_columns(&order.map(|i| eig.eigenvectors.column(i).into_owned()));
     (axes, distinct)
 }
@@ -671,10 +775,11 @@ fn initial_guess(
         return Ok(*cad_from_scan_nominal);
     }
     // Both clouds thinned alike (dense voxels only), the scan taken to the CAD frame.
-    let scan_pts: Vec<Point3> = dense_voxel_centroids(scan.points(), voxel_mm, settings.min_voxel_points)?
-        .iter()
-        .map(|p| cad_from_scan_nominal * p)
-        .collect();
+    let scan_pts: Vec<Point3> =
+        dense_voxel_centroids(scan.points(), voxel_mm, settings.min_voxel_points)?
+            .iter()
+            .map(|p| cad_from_scan_nominal * p)
+            .collect();
     let cad_pts = dense_voxel_centroids(target.cloud().points(), voxel_mm, 1)?;
     if scan_pts.len() < 3 || cad_pts.len() < 3 {
         return Err(RegisterError::TooFewCorrespondences {
@@ -694,7 +799,12 @@ fn initial_guess(
         if ok_s && ok_c {
             // R·esᵢ = ±ecᵢ; of the four proper sign choices take the one nearest the identity.
             let mut best: Option<(f64, Matrix3<f64>)> = None;
-            for signs in [[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]] {
+            for signs in [
+                [1.0, 1.0, 1.0],
+                [1.0, -1.0, -1.0],
+                [-1.0, 1.0, -1.0],
+                [-1.0, -1.0, 1.0],
+            ] {
                 let ec_signed = Matrix3::from_columns(&[0, 1, 2].map(|i| ec.column(i) * signs[i]));
                 let mut r = ec_signed * es.transpose();
                 if r.determinant() < 0.0 {
@@ -763,19 +873,35 @@ fn match_points(
             // edge the nearest sample may lie on the other face (a top-face scan point 0.1 mm
             // from a rim finds a wall sample), and its plane would pull sideways.
             let mut best: Option<(f64, usize, Point3, Vector3, Matrix3<f64>, f64)> = None;
+            // The field at the nearest candidate; the others (within a millimetre) use its
+            // first-order expansion `d(c) ≈ d₀ + J₀ (c − c₀)` and its normal map.
+            let mut at_nearest: Option<(Point3, Vector3, Matrix3<f64>, Matrix3<f64>)> = None;
             for nb in target.tree().knn(&p, MATCH_CANDIDATES) {
                 if nb.distance_sq > d2max {
                     break;
                 }
                 let c = cad[nb.index];
                 let n0 = normals.map_or(Vector3::z(), |ns| ns[nb.index]);
-                let (d, j) = field.map_or((Vector3::zeros(), Matrix3::zeros()), |f| f.displacement_and_jacobian(&c));
-                let m = Matrix3::identity() + j;
-                let n = m.try_inverse().map_or(n0, |inv| (inv.transpose() * n0).normalize());
+                let (c0, d0, j, normal_map) = *at_nearest.get_or_insert_with(|| {
+                    let (d, j) = field.map_or((Vector3::zeros(), Matrix3::zeros()), |f| {
+                        f.displacement_and_jacobian(&c)
+                    });
+                    let m = (Matrix3::identity() + j)
+                        .try_inverse()
+                        .map_or_else(Matrix3::identity, |inv| inv.transpose());
+                    (c, d, j, m)
+                });
+                let d = d0 + j * (c - c0);
+                let n = (normal_map * n0)
+                    .try_normalize(f64::MIN_POSITIVE)
+                    .unwrap_or(n0);
                 // Distance to the osculating quadric (see `shape_operators`).
                 let diff = q - (c + d);
                 let t = diff - n * n.dot(&diff);
-                let s = curvature.get(nb.index).copied().unwrap_or_else(Matrix3::zeros);
+                let s = curvature
+                    .get(nb.index)
+                    .copied()
+                    .unwrap_or_else(Matrix3::zeros);
                 let r = -(n.dot(&diff) + 0.5 * (t.transpose() * s * t)[(0, 0)]);
                 if best.is_none_or(|b| r.abs() < b.0) {
                     best = Some((r.abs(), nb.index, c, n, j, r));
@@ -787,7 +913,13 @@ fn match_points(
         .collect()
 }
 
-fn final_matches(points: &[Point3], target: &IcpTarget, curvature: &[Matrix3<f64>], field: Option<&BSplineField>, max_distance_mm: f64) -> Vec<Match> {
+fn final_matches(
+    points: &[Point3],
+    target: &IcpTarget,
+    curvature: &[Matrix3<f64>],
+    field: Option<&BSplineField>,
+    max_distance_mm: f64,
+) -> Vec<Match> {
     match_points(points, target, curvature, field, max_distance_mm)
         .into_iter()
         .zip(points)
@@ -796,16 +928,27 @@ fn final_matches(points: &[Point3], target: &IcpTarget, curvature: &[Matrix3<f64
 }
 
 /// Fits the displacement field (CAD frame) to the scan points `q` (CAD frame).
-fn fit_field(points: &[Point3], target: &IcpTarget, curvature: &[Matrix3<f64>], settings: &FieldSettings) -> Result<(BSplineField, Vec<Match>)> {
+fn fit_field(
+    points: &[Point3],
+    target: &IcpTarget,
+    curvature: &[Matrix3<f64>],
+    settings: &FieldSettings,
+) -> Result<(BSplineField, Vec<Match>)> {
     let bounds = target
         .cloud()
         .bounds()
         .ok_or(RegisterError::EmptyCloud { which: "CAD" })?;
     let pad = Vector3::repeat(0.25 * settings.spacing_mm);
-    let mut field = BSplineField::zero(&(bounds.min - pad), &(bounds.max + pad), settings.spacing_mm);
+    let mut field = BSplineField::zero(
+        &(bounds.min - pad),
+        &(bounds.max + pad),
+        settings.spacing_mm,
+    );
     let dim = 3 * field.len();
     let stencils = field.second_differences();
-    let kernel = RobustKernel::Huber { k_mm: settings.huber_mm };
+    let kernel = RobustKernel::Huber {
+        k_mm: settings.huber_mm,
+    };
     let shrink_steps = settings.iterations.saturating_sub(3).max(1);
     let ratio = settings.max_distance_end_mm / settings.max_distance_start_mm;
     for it in 0..settings.iterations {
@@ -846,27 +989,43 @@ fn fit_field(points: &[Point3], target: &IcpTarget, curvature: &[Matrix3<f64>], 
         for i in 0..dim {
             h[(i, i)] += FIELD_DAMPING * mean_diag.max(f64::MIN_POSITIVE);
         }
-        let step = solve_banded_spd(&h, &(-&g), field.bandwidth())
-            .ok_or_else(|| RegisterError::Singular {
+        let step = solve_banded_spd(&h, &(-&g), field.bandwidth()).ok_or_else(|| {
+            RegisterError::Singular {
                 stage: format!("deformation field, iteration {it}"),
                 eigenvalues: Vec::new(),
-            })?;
+            }
+        })?;
         if step.iter().any(|v| !v.is_finite()) {
-            return Err(RegisterError::NonFinite { what: format!("deformation field step, iteration {it}") });
+            return Err(RegisterError::NonFinite {
+                what: format!("deformation field step, iteration {it}"),
+            });
         }
         field.add_step(step.as_slice());
     }
-    let matches = final_matches(points, target, curvature, Some(&field), settings.max_distance_end_mm);
+    let matches = final_matches(
+        points,
+        target,
+        curvature,
+        Some(&field),
+        settings.max_distance_end_mm,
+    );
     Ok((field, matches))
 }
 
 /// `Σ w a aᵀ` and `Σ w a r` with `a = Bₖ(c) n'` (the residual's gradient in `δₖ`), accumulated
 /// per grid cell (the points of a cell share their 27 control points, so each cell is one dense
 /// 81-column product `Aᵀ W A`), cells in parallel, scattered in cell order (deterministic).
-fn field_normal_equations(field: &BSplineField, pairs: &[(Point3, Vector3, f64, f64)]) -> (DMatrix<f64>, DVector<f64>) {
+fn field_normal_equations(
+    field: &BSplineField,
+    pairs: &[(Point3, Vector3, f64, f64)],
+) -> (DMatrix<f64>, DVector<f64>) {
     const LOCAL: usize = 3 * SUPPORT;
     let dim = 3 * field.len();
-    let mut keyed: Vec<(usize, usize)> = pairs.par_iter().enumerate().map(|(i, p)| (field.weights(&p.0).cell, i)).collect();
+    let mut keyed: Vec<(usize, usize)> = pairs
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| (field.weights(&p.0).cell, i))
+        .collect();
     keyed.par_sort_unstable();
     let mut groups: Vec<&[(usize, usize)]> = Vec::new();
     let mut start = 0;
@@ -920,7 +1079,11 @@ fn field_normal_equations(field: &BSplineField, pairs: &[(Point3, Vector3, f64, 
     (h, g)
 }
 
-fn move_contour(c: &Contour, field: Option<&BSplineField>, scan_from_cad: &Similarity3) -> Result<Contour> {
+fn move_contour(
+    c: &Contour,
+    field: Option<&BSplineField>,
+    scan_from_cad: &Similarity3,
+) -> Result<Contour> {
     let rot = scan_from_cad.isometry.rotation;
     let points: Vec<Point3> = c
         .points()
@@ -937,7 +1100,9 @@ fn move_contour(c: &Contour, field: Option<&BSplineField>, scan_from_cad: &Simil
 }
 
 /// `λmin/λmax` and the weakest direction of `Σ n nᵀ` (unit weights), or `(0, z)` when empty.
-fn translational_degeneracy(normals: impl Iterator<Item = Vector3>) -> (f64, Vector3, Matrix3<f64>) {
+fn translational_degeneracy(
+    normals: impl Iterator<Item = Vector3>,
+) -> (f64, Vector3, Matrix3<f64>) {
     let m: Matrix3<f64> = normals.map(|n| n * n.transpose()).sum();
     let eig = SymmetricEigen::new(m);
     let (mut imin, mut imax) = (0, 0);
@@ -953,7 +1118,11 @@ fn translational_degeneracy(normals: impl Iterator<Item = Vector3>) -> (f64, Vec
     if hi <= 0.0 {
         return (0.0, Vector3::z(), m);
     }
-    (eig.eigenvalues[imin].max(0.0) / hi, eig.eigenvectors.column(imin).into_owned(), m)
+    (
+        eig.eigenvalues[imin].max(0.0) / hi,
+        eig.eigenvectors.column(imin).into_owned(),
+        m,
+    )
 }
 
 fn contour_quality(
@@ -969,7 +1138,11 @@ fn contour_quality(
     path.contours()
         .par_iter()
         .map(|c| {
-            let moved: Vec<Point3> = c.points().iter().map(|p| field.map_or(*p, |f| f.apply(p))).collect();
+            let moved: Vec<Point3> = c
+                .points()
+                .iter()
+                .map(|p| field.map_or(*p, |f| f.apply(p)))
+                .collect();
             let max_field_displacement_mm = c
                 .points()
                 .iter()
@@ -978,19 +1151,30 @@ fn contour_quality(
                 .fold(0.0, f64::max);
             let covered = moved
                 .iter()
-                .filter(|p| tree.nearest(p).is_some_and(|n| n.distance_sq <= q.coverage_radius_mm.powi(2)))
+                .filter(|p| {
+                    tree.nearest(p)
+                        .is_some_and(|n| n.distance_sq <= q.coverage_radius_mm.powi(2))
+                })
                 .count();
-            let patch = crop_near_polyline(&pts, &tree, &moved, q.patch_radius_mm).unwrap_or_default();
-            let support = crop_near_polyline(&pts, &tree, &moved, q.support_radius_mm).unwrap_or_default();
+            let patch =
+                crop_near_polyline(&pts, &tree, &moved, q.patch_radius_mm).unwrap_or_default();
+            let support =
+                crop_near_polyline(&pts, &tree, &moved, q.support_radius_mm).unwrap_or_default();
             let residual_rms_mm = if patch.is_empty() {
                 f64::NAN
             } else {
-                (patch.iter().map(|&i| matches[i].r.powi(2)).sum::<f64>() / patch.len() as f64).sqrt()
+                (patch.iter().map(|&i| matches[i].r.powi(2)).sum::<f64>() / patch.len() as f64)
+                    .sqrt()
             };
-            let (degeneracy_ratio, weakest, _) = translational_degeneracy(patch.iter().map(|&i| matches[i].n));
+            let (degeneracy_ratio, weakest, _) =
+                translational_degeneracy(patch.iter().map(|&i| matches[i].n));
             let (_, _, ms) = translational_degeneracy(support.iter().map(|&i| matches[i].n));
             let ms_max = SymmetricEigen::new(ms).eigenvalues.max();
-            let support_ratio = if ms_max > 0.0 { (weakest.transpose() * ms * weakest)[(0, 0)] / ms_max } else { 0.0 };
+            let support_ratio = if ms_max > 0.0 {
+                (weakest.transpose() * ms * weakest)[(0, 0)] / ms_max
+            } else {
+                0.0
+            };
             let coverage = covered as f64 / c.points().len() as f64;
             let mut flags = Vec::new();
             if patch.is_empty() {
@@ -1008,14 +1192,23 @@ fn contour_quality(
                     flags.push(Flag::Unsupported);
                 }
             }
-            let trustworthy = !flags.iter().any(|f| matches!(f, Flag::NoScanPoints | Flag::LowCoverage | Flag::HighResidual | Flag::Unsupported));
+            let trustworthy = !flags.iter().any(|f| {
+                matches!(
+                    f,
+                    Flag::NoScanPoints | Flag::LowCoverage | Flag::HighResidual | Flag::Unsupported
+                )
+            });
             let w = rot * weakest;
             ContourQuality {
                 id: c.id(),
                 points: c.points().len(),
                 scan_points: patch.len(),
                 coverage,
-                residual_rms_mm: if residual_rms_mm.is_finite() { residual_rms_mm } else { -1.0 },
+                residual_rms_mm: if residual_rms_mm.is_finite() {
+                    residual_rms_mm
+                } else {
+                    -1.0
+                },
                 degeneracy_ratio,
                 weakest_direction: [w.x, w.y, w.z],
                 support_ratio,

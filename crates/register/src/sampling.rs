@@ -7,10 +7,15 @@ use crate::error::{RegisterError, Result};
 
 /// Keeps, per occupied voxel of `voxel_mm`, the one point nearest the voxel's centroid (ties to
 /// the lower index). Unlike centroid down-sampling it never moves a point off the surface (no
-/// bias at edges), and it is deterministic. Returns ascending indices into `points`.
+/// bias at edges), and it is deterministic. Returns indices into `points` in voxel order, so
+/// that consecutive points are neighbours in space (kd-tree queries in that order stay in
+/// cache).
 pub fn voxel_pick(points: &[Point3], voxel_mm: f64) -> Result<Vec<usize>> {
     if !(voxel_mm.is_finite() && voxel_mm > 0.0) {
-        return Err(RegisterError::setting("voxel_mm", format!("must be finite and > 0, got {voxel_mm}")));
+        return Err(RegisterError::setting(
+            "voxel_mm",
+            format!("must be finite and > 0, got {voxel_mm}"),
+        ));
     }
     let key = |p: &Point3| {
         [
@@ -19,7 +24,11 @@ pub fn voxel_pick(points: &[Point3], voxel_mm: f64) -> Result<Vec<usize>> {
             (p.z / voxel_mm).floor() as i64,
         ]
     };
-    let mut order: Vec<([i64; 3], usize)> = points.par_iter().enumerate().map(|(i, p)| (key(p), i)).collect();
+    let mut order: Vec<([i64; 3], usize)> = points
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| (key(p), i))
+        .collect();
     order.par_sort_unstable();
     let mut picked = Vec::new();
     let mut start = 0;
@@ -29,7 +38,11 @@ pub fn voxel_pick(points: &[Point3], voxel_mm: f64) -> Result<Vec<usize>> {
             end += 1;
         }
         let group = &order[start..end];
-        let centroid: Vector3 = group.iter().map(|&(_, i)| points[i].coords).sum::<Vector3>() / group.len() as f64;
+        let centroid: Vector3 = group
+            .iter()
+            .map(|&(_, i)| points[i].coords)
+            .sum::<Vector3>()
+            / group.len() as f64;
         let best = group
             .iter()
             .map(|&(_, i)| ((points[i].coords - centroid).norm_squared(), i))
@@ -38,8 +51,29 @@ pub fn voxel_pick(points: &[Point3], voxel_mm: f64) -> Result<Vec<usize>> {
         picked.push(best);
         start = end;
     }
-    picked.sort_unstable();
     Ok(picked)
+}
+
+/// `0..points.len()` in the lexicographic order of their `voxel_mm` voxels (ties by index):
+/// a deterministic spatially coherent order for kd-tree construction and queries.
+#[must_use]
+pub fn spatial_order(points: &[Point3], voxel_mm: f64) -> Vec<usize> {
+    let mut keyed: Vec<([i64; 3], usize)> = points
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            (
+                [
+                    (p.x / voxel_mm).floor() as i64,
+                    (p.y / voxel_mm).floor() as i64,
+                    (p.z / voxel_mm).floor() as i64,
+                ],
+                i,
+            )
+        })
+        .collect();
+    keyed.par_sort_unstable();
+    keyed.into_iter().map(|(_, i)| i).collect()
 }
 
 /// Where the scanner looked from, in the frame of the cloud it is applied to.
@@ -76,42 +110,19 @@ pub fn facing_indices(cad: &PointCloud, view: View, min_cos: f64) -> Result<Vec<
         .collect())
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn picks_one_point_per_voxel_on_the_surface() {
-        let pts: Vec<Point3> = (0..1000).map(|i| Point3::new(f64::from(i) * 0.01, 0.0, 0.0)).collect();
-        let idx = voxel_pick(&pts, 1.0).unwrap();
-        assert_eq!(idx.len(), 10);
-        // Every picked point is an input point near a voxel centre.
-        for (k, &i) in idx.iter().enumerate() {
-            assert!((pts[i].x - (k as f64 + 0.495)).abs() < 0.011, "{}", pts[i].x);
-        }
-        assert!(voxel_pick(&pts, 0.0).is_err());
-    }
-
-    #[test]
-    fn culls_back_faces() {
-        let cad = PointCloud::with_normals(
-            vec![Point3::origin(), Point3::origin(), Point3::origin()],
-            vec![Vector3::z(), -Vector3::z(), Vector3::x()],
-        )
-        .unwrap();
-        let up = facing_indices(&cad, View::Along(Vector3::z()), -0.1).unwrap();
-        assert_eq!(up, vec![0, 2]);
-        let eye = facing_indices(&cad, View::From(Point3::new(0.0, 0.0, -10.0)), 0.5).unwrap();
-        assert_eq!(eye, vec![1]);
-    }
-}
-
 /// Voxel centroids of the voxels holding at least `min_count` points (deterministic, in voxel
 /// order). Isolated outliers sit alone in their voxels and drop out, which plain centroid
 /// down-sampling would keep (at coarse voxels they can outnumber the surface).
-pub fn dense_voxel_centroids(points: &[Point3], voxel_mm: f64, min_count: usize) -> Result<Vec<Point3>> {
+pub fn dense_voxel_centroids(
+    points: &[Point3],
+    voxel_mm: f64,
+    min_count: usize,
+) -> Result<Vec<Point3>> {
     if !(voxel_mm.is_finite() && voxel_mm > 0.0) {
-        return Err(RegisterError::setting("voxel_mm", format!("must be finite and > 0, got {voxel_mm}")));
+        return Err(RegisterError::setting(
+            "voxel_mm",
+            format!("must be finite and > 0, got {voxel_mm}"),
+        ));
     }
     let mut keyed: Vec<([i64; 3], usize)> = points
         .par_iter()
@@ -136,10 +147,51 @@ pub fn dense_voxel_centroids(points: &[Point3], voxel_mm: f64, min_count: usize)
             end += 1;
         }
         if end - start >= min_count {
-            let sum: Vector3 = keyed[start..end].iter().map(|&(_, i)| points[i].coords).sum();
+            let sum: Vector3 = keyed[start..end]
+                .iter()
+                .map(|&(_, i)| points[i].coords)
+                .sum();
             out.push(Point3::from(sum / (end - start) as f64));
         }
         start = end;
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn picks_one_point_per_voxel_on_the_surface() {
+        let pts: Vec<Point3> = (0..1000)
+            .map(|i| Point3::new(f64::from(i) * 0.01, 0.0, 0.0))
+            .collect();
+        let idx = voxel_pick(&pts, 1.0).unwrap();
+        assert_eq!(idx.len(), 10);
+        let mut idx = idx;
+        idx.sort_unstable();
+        // Every picked point is an input point near a voxel centre.
+        for (k, &i) in idx.iter().enumerate() {
+            assert!(
+                (pts[i].x - (k as f64 + 0.495)).abs() < 0.011,
+                "{}",
+                pts[i].x
+            );
+        }
+        assert!(voxel_pick(&pts, 0.0).is_err());
+    }
+
+    #[test]
+    fn culls_back_faces() {
+        let cad = PointCloud::with_normals(
+            vec![Point3::origin(), Point3::origin(), Point3::origin()],
+            vec![Vector3::z(), -Vector3::z(), Vector3::x()],
+        )
+        .unwrap();
+        let up = facing_indices(&cad, View::Along(Vector3::z()), -0.1).unwrap();
+        assert_eq!(up, vec![0, 2]);
+        let eye = facing_indices(&cad, View::From(Point3::new(0.0, 0.0, -10.0)), 0.5).unwrap();
+        assert_eq!(eye, vec![1]);
+    }
 }

@@ -116,20 +116,14 @@ pub fn umeyama_weighted(
     };
     let d = svd.singular_values;
     // nalgebra's SVD is not sorted: find the smallest singular value for the reflection fix.
-    let imin = (0..3)
-        .min_by(|&a, &b| d[a].total_cmp(&d[b]))
-        .unwrap_or(2);
+    let imin = (0..3).min_by(|&a, &b| d[a].total_cmp(&d[b])).unwrap_or(2);
     let mut s = Vector3::new(1.0, 1.0, 1.0);
     if (u.determinant() * v_t.determinant()) < 0.0 {
         s[imin] = -1.0;
     }
     let r = u * Matrix3::from_diagonal(&s) * v_t;
     // Eq. 42: scale; Eq. 41: translation.
-    let scale = if with_scale {
-        d.dot(&s) / var_x
-    } else {
-        1.0
-    };
+    let scale = if with_scale { d.dot(&s) / var_x } else { 1.0 };
     let t = mu_y - scale * r * mu_x;
     let rotation = UnitQuaternion::from_matrix(&r);
     let target_from_source = Similarity3::from_parts(Translation3::from(t), rotation, scale);
@@ -165,13 +159,15 @@ mod tests {
     #[test]
     fn recovers_an_exact_similarity() {
         let src = random_points(100, 1);
-        let truth = Similarity3::new(Vector3::new(1.0, -2.0, 3.0), Vector3::new(0.3, -0.2, 1.1), 1.3);
+        let truth = Similarity3::new(
+            Vector3::new(1.0, -2.0, 3.0),
+            Vector3::new(0.3, -0.2, 1.1),
+            1.3,
+        );
         let dst: Vec<Point3> = src.iter().map(|p| truth * p).collect();
         let fit = umeyama(&src, &dst, true).unwrap();
         assert!((fit.target_from_source.scaling() - 1.3).abs() < 1e-12);
-        assert!(
-            (fit.target_from_source.to_homogeneous() - truth.to_homogeneous()).norm() < 1e-10
-        );
+        assert!((fit.target_from_source.to_homogeneous() - truth.to_homogeneous()).norm() < 1e-10);
         assert!(fit.rms_mm < 1e-10);
         let rigid = umeyama(&src, &dst, false).unwrap();
         assert_eq!(rigid.target_from_source.scaling(), 1.0);
@@ -183,14 +179,22 @@ mod tests {
         let src = random_points(50, 2);
         let dst: Vec<Point3> = src.iter().map(|p| Point3::new(-p.x, p.y, p.z)).collect();
         let fit = umeyama(&src, &dst, true).unwrap();
-        let m = fit.target_from_source.isometry.rotation.to_rotation_matrix();
+        let m = fit
+            .target_from_source
+            .isometry
+            .rotation
+            .to_rotation_matrix();
         assert!((m.matrix().determinant() - 1.0).abs() < 1e-12);
     }
 
     #[test]
     fn weights_select_pairs() {
         let src = random_points(60, 3);
-        let truth = Similarity3::new(Vector3::new(0.5, 0.0, 0.0), Vector3::new(0.0, 0.0, 0.2), 1.0);
+        let truth = Similarity3::new(
+            Vector3::new(0.5, 0.0, 0.0),
+            Vector3::new(0.0, 0.0, 0.2),
+            1.0,
+        );
         let mut dst: Vec<Point3> = src.iter().map(|p| truth * p).collect();
         let mut w = vec![1.0; 60];
         for i in 0..10 {

@@ -6,14 +6,16 @@ use nalgebra::Matrix4;
 use trim_geom::formats::read_points;
 use trim_geom::normals::{Orientation, estimate_normals};
 use trim_geom::transform::{rotation_angle_between, similarity_from_matrix, translation_distance};
-use trim_geom::{Point3, PointCloud, Similarity3};
-use trim_register::icp::{IcpMethod, IcpSettings, IcpTarget, icp};
 use trim_geom::voxel::voxel_downsample;
+use trim_geom::{Point3, PointCloud, Similarity3};
 use trim_register::RobustKernel;
+use trim_register::icp::{IcpMethod, IcpSettings, IcpTarget, icp};
 use trim_register::umeyama::umeyama;
 
 fn data(rel: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data")
+        .join(rel)
 }
 
 /// PCL's `IterativeClosestPoint` settings (README): point-to-point from the identity, at most 50
@@ -101,6 +103,10 @@ fn bunny_point_to_plane_converges() {
 }
 
 /// Reads libpointmatcher's CSV (`x,y,z,nx,ny,nz` header, " , " separators).
+#[expect(
+    clippy::unwrap_used,
+    reason = "a test helper: a malformed data file must fail the test"
+)]
 fn read_car(name: &str) -> PointCloud {
     let text = std::fs::read_to_string(data(name)).unwrap();
     let mut lines = text.lines();
@@ -119,7 +125,11 @@ fn read_car(name: &str) -> PointCloud {
         }
         let v: Vec<f64> = line
             .split(',')
-            .map(|s| s.trim().parse::<f64>().unwrap_or_else(|e| panic!("line {}: {e}", i + 2)))
+            .map(|s| {
+                s.trim()
+                    .parse::<f64>()
+                    .unwrap_or_else(|e| panic!("line {}: {e}", i + 2))
+            })
             .collect();
         assert_eq!(v.len(), 6, "line {}", i + 2);
         points.push(Point3::new(v[0], v[1], v[2]));
@@ -134,12 +144,24 @@ fn car_umeyama_on_row_pairs_recovers_the_scale_to_1e9() {
     let b = read_car("car-similarity/car_cloud400_scaled.csv");
     assert_eq!(a.len(), 24_989);
     let fit = umeyama(a.points(), b.points(), true).unwrap();
-    assert!((fit.target_from_source.scaling() - 1.04).abs() < 1e-9, "{}", fit.target_from_source.scaling());
+    assert!(
+        (fit.target_from_source.scaling() - 1.04).abs() < 1e-9,
+        "{}",
+        fit.target_from_source.scaling()
+    );
     assert!(fit.rms_mm < 1e-9, "{}", fit.rms_mm);
-    let angle = fit.target_from_source.isometry.rotation.angle().to_degrees();
+    let angle = fit
+        .target_from_source
+        .isometry
+        .rotation
+        .angle()
+        .to_degrees();
     assert!((angle - 11.46).abs() < 0.01, "{angle}");
     let t = fit.target_from_source.isometry.translation.vector;
-    assert!((t - nalgebra::Vector3::new(2.0, 2.0, 2.0)).norm() < 1e-9, "{t}");
+    assert!(
+        (t - nalgebra::Vector3::new(2.0, 2.0, 2.0)).norm() < 1e-9,
+        "{t}"
+    );
 }
 
 #[test]
@@ -171,9 +193,17 @@ fn car_scaled_icp_recovers_the_scale_to_1e3() {
 }
 
 fn centroid(points: &[Point3]) -> nalgebra::Vector3<f64> {
-    points.iter().map(|p| p.coords).sum::<nalgebra::Vector3<f64>>() / points.len() as f64
+    points
+        .iter()
+        .map(|p| p.coords)
+        .sum::<nalgebra::Vector3<f64>>()
+        / points.len() as f64
 }
 
+#[expect(
+    clippy::unwrap_used,
+    reason = "a test helper: a malformed data file must fail the test"
+)]
 fn read_matrix(name: &str) -> Matrix4<f64> {
     let text = std::fs::read_to_string(data(name)).unwrap();
     let v: Vec<f64> = text
@@ -199,7 +229,9 @@ fn lidar_pair_point_to_plane_meets_small_gicps_python_tolerance() {
         Orientation::TowardViewpoint(Point3::origin()),
     )
     .unwrap();
-    let target = IcpTarget::new(PointCloud::with_normals(target.points().to_vec(), normals).unwrap()).unwrap();
+    let target =
+        IcpTarget::new(PointCloud::with_normals(target.points().to_vec(), normals).unwrap())
+            .unwrap();
     let settings = IcpSettings {
         method: IcpMethod::PointToPlane,
         max_correspondence_distance_mm: 1.0,
@@ -213,5 +245,8 @@ fn lidar_pair_point_to_plane_meets_small_gicps_python_tolerance() {
     let dr = rotation_angle_between(&r.target_from_source, &truth);
     let dt = translation_distance(&r.target_from_source, &truth);
     // small_gicp's Python tolerance: 0.05 rad and 0.05 m (its C++ one: 2.5° and 0.2 m).
-    assert!(dr < 0.05 && dt < 0.05, "rotation error {dr} rad, translation error {dt} m");
+    assert!(
+        dr < 0.05 && dt < 0.05,
+        "rotation error {dr} rad, translation error {dt} m"
+    );
 }

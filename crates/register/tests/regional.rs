@@ -14,6 +14,10 @@ const CROSS_EDGE_MAX_MM: f64 = 0.050;
 const POINTWISE_P95_MM: f64 = 0.030;
 
 /// Small enough for the test profile, dense enough for the targets.
+#[expect(
+    clippy::unwrap_used,
+    reason = "a test helper: a generator failure must fail the test"
+)]
 fn case(seed: u64, large: bool) -> SynthCase {
     let (sag_mm, twist_deg, scale_range, pose_deg, pose_mm) = if large {
         (0.5, 1.0, 0.02, 5.0, 3.0)
@@ -45,7 +49,14 @@ fn settings(case: &SynthCase) -> RegisterSettings {
 fn meets_the_accuracy_targets_on_mild_and_large_deformation() {
     for (seed, large) in [(11, false), (12, true)] {
         let c = case(seed, large);
-        let reg = register(&c.cad_points, &c.scan, &c.path, &c.scan_from_cad_nominal, &settings(&c)).unwrap();
+        let reg = register(
+            &c.cad_points,
+            &c.scan,
+            &c.path,
+            &c.scan_from_cad_nominal,
+            &settings(&c),
+        )
+        .unwrap();
         let e = path_errors(&reg.path, &c.truth, |_| true).unwrap();
         assert!(
             e.cross_edge_p95_mm <= CROSS_EDGE_P95_MM
@@ -55,7 +66,11 @@ fn meets_the_accuracy_targets_on_mild_and_large_deformation() {
         );
         // The coarse stage absorbed the fixture error and the scale.
         let true_scale = c.deformation.scale.mean();
-        assert!((reg.scan_from_cad.scaling() - true_scale).abs() < 0.03, "scale {}", reg.scan_from_cad.scaling());
+        assert!(
+            (reg.scan_from_cad.scaling() - true_scale).abs() < 0.03,
+            "scale {}",
+            reg.scan_from_cad.scaling()
+        );
     }
 }
 
@@ -64,9 +79,23 @@ fn beats_the_papers_method_by_the_issues_factors() {
     // Mild: at least 2× better; large: the paper's method is ≥ 20× worse than our P95.
     for (seed, large, factor) in [(21, false, 2.0), (22, true, 20.0)] {
         let c = case(seed, large);
-        let ours = register(&c.cad_points, &c.scan, &c.path, &c.scan_from_cad_nominal, &settings(&c)).unwrap();
+        let ours = register(
+            &c.cad_points,
+            &c.scan,
+            &c.path,
+            &c.scan_from_cad_nominal,
+            &settings(&c),
+        )
+        .unwrap();
         let ours = path_errors(&ours.path, &c.truth, |_| true).unwrap();
-        let paper = paper_method(&c.cad_points, &c.scan, &c.path, &c.scan_from_cad_nominal, &PaperSettings::default()).unwrap();
+        let paper = paper_method(
+            &c.cad_points,
+            &c.scan,
+            &c.path,
+            &c.scan_from_cad_nominal,
+            &PaperSettings::default(),
+        )
+        .unwrap();
         let paper = path_errors(&paper, &c.truth, |_| true).unwrap();
         assert!(
             paper.cross_edge_p95_mm >= factor * ours.cross_edge_p95_mm,
@@ -78,10 +107,28 @@ fn beats_the_papers_method_by_the_issues_factors() {
 #[test]
 fn refuses_a_scan_that_does_not_overlap_the_cad() {
     let c = case(31, false);
-    let far = c.scan.transformed(&Similarity3::new(Vector3::new(0.0, 0.0, 200.0), Vector3::zeros(), 1.0));
-    let err = register(&c.cad_points, &far, &c.path, &c.scan_from_cad_nominal, &settings(&c)).unwrap_err();
+    let far = c.scan.transformed(&Similarity3::new(
+        Vector3::new(0.0, 0.0, 200.0),
+        Vector3::zeros(),
+        1.0,
+    ));
+    let err = register(
+        &c.cad_points,
+        &far,
+        &c.path,
+        &c.scan_from_cad_nominal,
+        &settings(&c),
+    )
+    .unwrap_err();
     assert!(matches!(err, RegisterError::NotOverlapping { .. }), "{err}");
-    let err = register(&c.cad_points, &PointCloud::default(), &c.path, &c.scan_from_cad_nominal, &settings(&c)).unwrap_err();
+    let err = register(
+        &c.cad_points,
+        &PointCloud::default(),
+        &c.path,
+        &c.scan_from_cad_nominal,
+        &settings(&c),
+    )
+    .unwrap_err();
     assert!(matches!(err, RegisterError::EmptyCloud { .. }), "{err}");
 }
 
@@ -91,31 +138,89 @@ fn flags_a_contour_without_scan_points_and_keeps_the_rest() {
     // Remove every scan point within 3 mm of contour 20's true position.
     let hole = c.truth.get(20).unwrap();
     let keep: Vec<usize> = (0..c.scan.len())
-        .filter(|&i| hole.points().iter().all(|p| (c.scan.points()[i] - p).norm() > 3.0))
+        .filter(|&i| {
+            hole.points()
+                .iter()
+                .all(|p| (c.scan.points()[i] - p).norm() > 3.0)
+        })
         .collect();
     let scan = c.scan.select(&keep).unwrap();
-    let reg = register(&c.cad_points, &scan, &c.path, &c.scan_from_cad_nominal, &settings(&c)).unwrap();
+    let reg = register(
+        &c.cad_points,
+        &scan,
+        &c.path,
+        &c.scan_from_cad_nominal,
+        &settings(&c),
+    )
+    .unwrap();
     let q = reg.report.contours.iter().find(|q| q.id == 20).unwrap();
     assert!(!q.trustworthy, "{q:?}");
-    assert!(q.flags.contains(&Flag::LowCoverage) || q.flags.contains(&Flag::NoScanPoints), "{q:?}");
-    let flagged = reg.report.contours.iter().filter(|q| !q.trustworthy).count();
-    assert!(flagged <= 3, "{flagged} contours flagged: {:?}", reg.report.contours.iter().filter(|q| !q.trustworthy).collect::<Vec<_>>());
+    assert!(
+        q.flags.contains(&Flag::LowCoverage) || q.flags.contains(&Flag::NoScanPoints),
+        "{q:?}"
+    );
+    let flagged = reg
+        .report
+        .contours
+        .iter()
+        .filter(|q| !q.trustworthy)
+        .count();
+    assert!(
+        flagged <= 3,
+        "{flagged} contours flagged: {:?}",
+        reg.report
+            .contours
+            .iter()
+            .filter(|q| !q.trustworthy)
+            .collect::<Vec<_>>()
+    );
     // The contour still moves with the field from its neighbours (pinned by them).
-    let trusted = |id: i64| reg.report.contours.iter().any(|q| q.id == id && q.trustworthy);
+    let trusted = |id: i64| {
+        reg.report
+            .contours
+            .iter()
+            .any(|q| q.id == id && q.trustworthy)
+    };
     let e = path_errors(&reg.path, &c.truth, trusted).unwrap();
     assert!(e.cross_edge_p95_mm <= CROSS_EDGE_P95_MM, "{e:?}");
 }
 
 #[test]
 fn is_deterministic_to_the_bit_on_any_thread_count() {
-    let c = generate(&SynthParams { seed: 51, scan_points: 40_000, cad_points: 80_000, ..SynthParams::default() }).unwrap();
+    let c = generate(&SynthParams {
+        seed: 51,
+        scan_points: 40_000,
+        cad_points: 80_000,
+        ..SynthParams::default()
+    })
+    .unwrap();
     let s = settings(&c);
-    let run = || register(&c.cad_points, &c.scan, &c.path, &c.scan_from_cad_nominal, &s).unwrap();
+    let run = || {
+        register(
+            &c.cad_points,
+            &c.scan,
+            &c.path,
+            &c.scan_from_cad_nominal,
+            &s,
+        )
+        .unwrap()
+    };
     let a = run();
-    let b = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(run);
-    let bits = |p: &Path| p.points().flat_map(|q| q.coords.iter().map(|v| v.to_bits()).collect::<Vec<_>>()).collect::<Vec<u64>>();
+    let b = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(run);
+    let bits = |p: &Path| {
+        p.points()
+            .flat_map(|q| q.coords.iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+            .collect::<Vec<u64>>()
+    };
     assert_eq!(bits(&a.path), bits(&b.path));
-    assert_eq!(a.scan_from_cad.to_homogeneous(), b.scan_from_cad.to_homogeneous());
+    assert_eq!(
+        a.scan_from_cad.to_homogeneous(),
+        b.scan_from_cad.to_homogeneous()
+    );
 }
 
 #[test]
@@ -124,9 +229,15 @@ fn settings_refuse_out_of_range_keys_by_name() {
     s.field.spacing_mm = -1.0;
     let e = s.validate().unwrap_err().to_string();
     assert!(e.contains("field.spacing_mm"), "{e}");
-    let e = toml::from_str::<RegisterSettings>("[field]\nspacing = 3.0\n").unwrap_err().to_string();
+    let e = toml::from_str::<RegisterSettings>("[field]\nspacing = 3.0\n")
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("spacing"), "{e}");
-    let parsed: RegisterSettings = toml::from_str("mode = \"global\"\n[field]\nsmoothness = 0.5\n").unwrap();
+    let parsed: RegisterSettings =
+        toml::from_str("mode = \"global\"\n[field]\nsmoothness = 0.5\n").unwrap();
     assert_eq!(parsed.field.smoothness, 0.5);
-    assert_eq!(parsed.field.spacing_mm, RegisterSettings::default().field.spacing_mm);
+    assert_eq!(
+        parsed.field.spacing_mm,
+        RegisterSettings::default().field.spacing_mm
+    );
 }
