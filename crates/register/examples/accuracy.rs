@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use trim_geom::synth::{SynthParams, generate};
 use trim_register::eval::path_errors;
-use trim_register::paper::{PaperSettings, paper_method};
+use trim_register::paper::{PaperSettings, paper_local_fits, paper_method};
 use trim_register::regional::{RegisterSettings, register};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -119,6 +119,23 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 }
                 Err(err) => println!("| {level} | {seed} | paper | failed: {err} | | | | |"),
             }
+            // The paper's local stage started from trimctl's coarse similarity.
+            let t0 = Instant::now();
+            let local = paper_local_fits(
+                &case.cad_points,
+                &case.scan,
+                &case.path,
+                &reg.scan_from_cad,
+                &PaperSettings::default(),
+            )?;
+            let t_local = t0.elapsed().as_secs_f64();
+            let e = path_errors(&local, &case.truth, |_| true)?;
+            println!(
+                "| {level} | {seed} | paper local, trimctl coarse | {:.1} | {:.1} | {:.1} | – | {t_local:.2} |",
+                e.cross_edge_p95_mm * 1e3,
+                e.cross_edge_max_mm * 1e3,
+                e.pointwise_p95_mm * 1e3
+            );
         }
     }
     Ok(())

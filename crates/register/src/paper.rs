@@ -67,7 +67,22 @@ pub fn paper_method(
         &settings.coarse_levels,
         &rigid,
     )?;
-    let scan_from_cad = coarse.target_from_source;
+    paper_local_fits(cad, scan, path, &coarse.target_from_source, settings)
+}
+
+/// The paper's second stage alone: from a coarse `scan_from_cad`, per contour a scaled
+/// point-to-point ICP of the CAD points clipped around it onto the scan points clipped the same
+/// way. With trimctl's coarse similarity as the start, this isolates the local stage's failure
+/// modes (clip shrinkage, unseen faces, one similarity per contour).
+pub fn paper_local_fits(
+    cad: &PointCloud,
+    scan: &PointCloud,
+    path: &Path,
+    scan_from_cad: &Similarity3,
+    settings: &PaperSettings,
+) -> Result<Path> {
+    let cad_plain = PointCloud::new(cad.points().to_vec())?;
+    let scan_from_cad = *scan_from_cad;
     let cad_moved = cad_plain.transformed(&scan_from_cad);
     let cad_tree = KdTree::build(cad_moved.points());
     let scan_tree = KdTree::build(scan.points());
