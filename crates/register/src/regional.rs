@@ -41,6 +41,11 @@ pub const FIELD_DAMPING: f64 = 1e-3;
 /// part is that far off, and a scan → CAD fit that gets there is shrinking onto the surface.
 pub const MAX_COARSE_LOG_SCALE_CHANGE: f64 = 0.1;
 
+/// The centroid start may move the scan at most this far from the nominal pose, mm (three times
+/// the 5 mm fixture error trimctl is specified for): a larger shift means the scan is not of
+/// this part at this fixture, refused as not overlapping.
+pub const MAX_INIT_TRANSLATION_MM: f64 = 15.0;
+
 /// Principal axes count as defined when consecutive variances differ by this factor.
 pub const MIN_AXIS_VARIANCE_RATIO: f64 = 1.3;
 
@@ -79,10 +84,6 @@ pub struct CoarseSettings {
     pub init: CoarseInit,
     /// The principal-axes start is refused beyond this rotation from the nominal pose, degrees.
     pub max_init_rotation_deg: f64,
-    /// The centroid start may move the scan at most this far from the nominal pose, mm: a
-    /// larger shift means the scan is not of this part at this fixture (refused as not
-    /// overlapping).
-    pub max_init_translation_mm: f64,
     /// A voxel must hold this many scan points to count (drops isolated outliers).
     pub min_voxel_points: usize,
     /// Pyramid levels, coarse to fine (scan voxel size, maximum distance, iterations).
@@ -104,7 +105,6 @@ impl Default for CoarseSettings {
         CoarseSettings {
             init: CoarseInit::PrincipalAxes,
             max_init_rotation_deg: 15.0,
-            max_init_translation_mm: 15.0,
             min_voxel_points: 3,
             levels: vec![
                 level(2.0, 12.0, 30),
@@ -303,10 +303,6 @@ impl RegisterSettings {
         positive(
             "coarse.max_init_rotation_deg",
             self.coarse.max_init_rotation_deg,
-        )?;
-        positive(
-            "coarse.max_init_translation_mm",
-            self.coarse.max_init_translation_mm,
         )?;
         let f = &self.field;
         positive("field.spacing_mm", f.spacing_mm)?;
@@ -828,11 +824,11 @@ fn initial_guess(
     let rot = nalgebra::UnitQuaternion::from_matrix(&rotation);
     let t = cc.coords - rot * cs.coords;
     let shift = (t + rot * cs.coords - cs.coords).norm();
-    if shift > settings.max_init_translation_mm {
-        let near = overlap_fraction(&scan_pts, target.tree(), settings.max_init_translation_mm);
+    if shift > MAX_INIT_TRANSLATION_MM {
+        let near = overlap_fraction(&scan_pts, target.tree(), MAX_INIT_TRANSLATION_MM);
         return Err(RegisterError::NotOverlapping {
             fraction_pct: 100.0 * near,
-            distance_mm: settings.max_init_translation_mm,
+            distance_mm: MAX_INIT_TRANSLATION_MM,
             needed_pct: 100.0,
         });
     }
