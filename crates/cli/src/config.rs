@@ -144,15 +144,30 @@ impl JobConfig {
 
     /// Parses job TOML and checks every value's range.
     pub fn parse(text: &str) -> anyhow::Result<JobConfig> {
-        let config: JobConfig = toml::from_str(text).map_err(|e| {
-            // One line: where, then toml's message (which names the key).
-            let line = e
-                .span()
-                .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
+        // One line: where (line and key path), then toml's message.
+        let where_in = |e: &toml::de::Error| {
+            e.span()
+                .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1)
+        };
+        let de = toml::Deserializer::parse(text).map_err(|e| {
             let message = e.message().trim().replace('\n', " ");
-            match line {
+            match where_in(&e) {
                 Some(l) => anyhow::anyhow!("line {l}: {message}"),
                 None => anyhow::anyhow!("{message}"),
+            }
+        })?;
+        let config: JobConfig = serde_path_to_error::deserialize(de).map_err(|e| {
+            let key = e.path().to_string();
+            let inner = e.inner();
+            let message = inner.message().trim().replace('\n', " ");
+            let key = if key == "." {
+                String::new()
+            } else {
+                format!("{key}: ")
+            };
+            match where_in(inner) {
+                Some(l) => anyhow::anyhow!("line {l}: {key}{message}"),
+                None => anyhow::anyhow!("{key}{message}"),
             }
         })?;
         config.validate()?;
@@ -772,6 +787,10 @@ mod tests {
         assert!(e.contains("powr_w"), "{e}");
         let e = JobConfig::parse("[bem]\n").unwrap_err().to_string();
         assert!(e.contains("bem"), "{e}");
+        let e = JobConfig::parse("[register]\nmode = \"sideways\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("register.mode") && e.contains("line 2"), "{e}");
     }
 
     #[test]

@@ -24,12 +24,12 @@ pub enum Exit {
 
 /// An error that carries its exit code.
 #[derive(Debug, thiserror::Error)]
-#[error("{source:#}")]
+#[error("{error:#}")]
 pub struct Failure {
     /// The exit code.
     pub exit: Exit,
-    /// What happened.
-    pub source: anyhow::Error,
+    /// What happened (printed whole by `Display`, so it is not also the error's `source`).
+    pub error: anyhow::Error,
 }
 
 impl Failure {
@@ -37,7 +37,7 @@ impl Failure {
     pub fn with_exit(exit: Exit, source: impl Into<anyhow::Error>) -> anyhow::Error {
         anyhow::Error::new(Failure {
             exit,
-            source: source.into(),
+            error: source.into(),
         })
     }
 }

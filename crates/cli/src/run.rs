@@ -427,11 +427,16 @@ fn exec_failure(e: ExecError, run_dir: &Path) -> anyhow::Error {
         ExecError::Stopped(_) => Exit::DeviceFault,
         _ => Exit::Refused,
     };
-    let hint = format!(
-        "the laser is off; continue with: trimctl run --resume {}",
-        run_dir.display()
-    );
-    Failure::with_exit(exit, anyhow::anyhow!("{e}; {hint}"))
+    match e {
+        ExecError::Stopped(_) => Failure::with_exit(
+            exit,
+            anyhow::anyhow!(
+                "{e}; the laser is off; continue with: trimctl run --resume {}",
+                run_dir.display()
+            ),
+        ),
+        other => Failure::with_exit(exit, other),
+    }
 }
 
 fn resume(run_dir: &Path, args: &Args) -> anyhow::Result<()> {
@@ -662,20 +667,12 @@ fn record_inputs(
 }
 
 fn finish_recorder(rec: SharedRecorder) -> anyhow::Result<()> {
-    match std::sync::Arc::try_unwrap(rec) {
-        Ok(mutex) => mutex
-            .into_inner()
-            .map_err(|_| anyhow::anyhow!("recorder lock poisoned"))?
-            .finish()
-            .context("closing the run record")?,
-        // Someone still holds it (a device tap in a task not yet dropped): flush what we have.
-        Err(shared) => shared
-            .lock()
-            .map_err(|_| anyhow::anyhow!("recorder lock poisoned"))?
-            .flush()
-            .context("flushing the run record")?,
-    }
-    Ok(())
+    // Closing writes the summary and index; a device tap that still holds the recorder gets
+    // its late messages refused rather than written after the end.
+    rec.lock()
+        .map_err(|_| anyhow::anyhow!("recorder lock poisoned"))?
+        .finish()
+        .context("closing the run record")
 }
 
 async fn draw_progress(mut rx: tokio::sync::mpsc::UnboundedReceiver<Progress>, job: Job) {
