@@ -128,7 +128,13 @@ impl Shared {
         if !c.session {
             return;
         }
-        tracing::warn!(why, "galvo simulator: watchdog trip, laser signals dropped");
+        // A trip that finds the signals off and no list running (the host closed an idle
+        // session at the end of a job) changes nothing an operator must see.
+        if c.laser_signals || c.state == ControllerState::Executing {
+            tracing::warn!(why, "galvo simulator: watchdog trip, laser signals dropped");
+        } else {
+            tracing::debug!(why, "galvo simulator: idle session ended, watchdog latched");
+        }
         c.session = false;
         c.laser_signals = false;
         self.set_gate(&mut c, false);
