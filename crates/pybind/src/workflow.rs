@@ -72,7 +72,10 @@ pub fn synth_case<'py>(py: Python<'py>, params_json: &str) -> PyResult<Bound<'py
 /// `(registered Path, quality report JSON, scan_from_cad 4×4)`.
 #[pyfunction]
 #[pyo3(signature = (cad, cad_normals, scan, path, init, settings_json, scan_normals = None))]
-#[expect(clippy::too_many_arguments, reason = "mirrors the Python wrapper's arguments")]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "mirrors the Python wrapper's arguments"
+)]
 pub fn register_path<'py>(
     py: Python<'py>,
     cad: &Bound<'py, PyAny>,
@@ -101,10 +104,12 @@ pub fn register_path<'py>(
         None => trim_geom::Similarity3::identity(),
     };
     let inner = path.inner;
-    let registration = run_detached(py, move || register(&cad, &scan, &inner, &initial, &settings))?
-        .map_err(register_error)?;
-    let report = serde_json::to_string(&registration.report)
-        .map_err(|e| value_error("report", e))?;
+    let registration = run_detached(py, move || {
+        register(&cad, &scan, &inner, &initial, &settings)
+    })?
+    .map_err(register_error)?;
+    let report =
+        serde_json::to_string(&registration.report).map_err(|e| value_error("report", e))?;
     Ok((
         PyPath {
             inner: registration.path,
@@ -133,8 +138,8 @@ pub fn plan_path(
 ) -> PyResult<(String, String, String)> {
     let settings: PlanSettings = settings_from_json("plan settings", settings_json)?;
     settings.validate().map_err(plan_error)?;
-    let out = run_detached(py, move || plan_with_report(&path.inner, &settings))?
-        .map_err(plan_error)?;
+    let out =
+        run_detached(py, move || plan_with_report(&path.inner, &settings))?.map_err(plan_error)?;
     let job = out.job.to_json().map_err(|e| value_error("job", e))?;
     let table = serde_json::to_string(&out.table).map_err(|e| value_error("table", e))?;
     let meta = serde_json::json!({
