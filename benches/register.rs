@@ -10,8 +10,9 @@ use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use trim_geom::synth::{SynthParams, generate};
-use trim_geom::{KdTree, Point3, PointCloud, Similarity3, Vector3};
+use trim_geom::{Point3, PointCloud, Similarity3, Vector3};
 use trim_register::icp::{IcpMethod, IcpSettings, IcpTarget, icp_step, nearest_correspondences};
+use trim_register::kdtree::KdTree;
 use trim_register::regional::{RegisterSettings, register};
 use trim_register::umeyama::umeyama;
 

@@ -9,9 +9,10 @@
 
 use rayon::prelude::*;
 use trim_geom::voxel::voxel_downsample;
-use trim_geom::{KdTree, Point3, PointCloud, Similarity3, Vector3};
+use trim_geom::{Point3, PointCloud, Similarity3, Vector3};
 
 use crate::error::{RegisterError, Result};
+use crate::kdtree::KdTree;
 use crate::kernel::RobustKernel;
 use crate::point_to_plane::{
     NormalEquations, Pair, point_to_plane_equations, point_to_point_equations, solve_increment,
@@ -161,6 +162,11 @@ impl IcpTarget {
     }
 }
 
+/// Source points per parallel task of the correspondence search: small enough to balance two
+/// to a few dozen threads on the ~10⁴-point clouds of a pyramid level, large enough that the
+/// task overhead stays below a percent.
+const QUERY_CHUNK: usize = 256;
+
 /// For each source point (already in the target frame), its nearest target point within
 /// `max_distance_mm`: `(target index, squared distance)`, in source order (parallel).
 #[must_use]
@@ -170,14 +176,70 @@ pub fn nearest_correspondences(
     max_distance_mm: f64,
 ) -> Vec<Option<(usize, f64)>> {
     let max_sq = max_distance_mm * max_distance_mm;
-    source_in_target
-        .par_iter()
-        .map(|p| {
-            tree.nearest(p)
-                .filter(|n| n.distance_sq <= max_sq)
-                .map(|n| (n.index, n.distance_sq))
-        })
-        .collect()
+    let mut found = vec![None; source_in_target.len()];
+    found
+        .par_chunks_mut(QUERY_CHUNK)
+        .zip(source_in_target.par_chunks(QUERY_CHUNK))
+        .for_each(|(out, pts)| {
+            for (o, p) in out.iter_mut().zip(pts) {
+                *o = tree
+                    .nearest_within(p, max_sq)
+                    .map(|n| (n.index, n.distance_sq));
+            }
+        });
+    found
+}
+
+/// The per-iteration buffers of [`icp`]: the moved source points and their correspondences,
+/// reused across iterations. The previous iteration's correspondences warm-start the next search
+/// (the answer does not depend on them, see [`KdTree::nearest_from`]).
+#[derive(Debug, Default)]
+struct Correspondences {
+    moved: Vec<Point3>,
+    found: Vec<Option<(usize, f64)>>,
+    warm: bool,
+}
+
+impl Correspondences {
+    /// Moves the source by `target_from_source` and finds each point's nearest target point
+    /// within `max_distance_mm`, in source order (parallel over fixed chunks).
+    fn update(
+        &mut self,
+        source: &[Point3],
+        target: &IcpTarget,
+        target_from_source: &Similarity3,
+        max_distance_mm: f64,
+    ) {
+        let max_sq = max_distance_mm * max_distance_mm;
+        let n = source.len();
+        if !self.warm || self.found.len() != n {
+            self.found.clear();
+            self.found.resize(n, None);
+            self.warm = false;
+        }
+        self.moved.resize(n, Point3::origin());
+        let tpts = target.cloud.points();
+        let tree = &target.tree;
+        let warm = self.warm;
+        self.moved
+            .par_chunks_mut(QUERY_CHUNK)
+            .zip(self.found.par_chunks_mut(QUERY_CHUNK))
+            .zip(source.par_chunks(QUERY_CHUNK))
+            .for_each(|((moved, found), pts)| {
+                for ((m, f), p) in moved.iter_mut().zip(found.iter_mut()).zip(pts) {
+                    *m = target_from_source * p;
+                    let hint = if warm {
+                        f.map(|(j, _)| (j, &tpts[j]))
+                    } else {
+                        None
+                    };
+                    *f = tree
+                        .nearest_from(m, max_sq, hint)
+                        .map(|nb| (nb.index, nb.distance_sq));
+                }
+            });
+        self.warm = true;
+    }
 }
 
 /// One ICP iteration's outcome.
@@ -206,16 +268,31 @@ pub fn icp_step(
     settings: &IcpSettings,
     stage: &str,
 ) -> Result<IcpStep> {
-    let moved: Vec<Point3> = source
-        .points()
-        .par_iter()
-        .map(|p| target_from_source * p)
-        .collect();
-    let found = nearest_correspondences(
-        &moved,
-        &target.tree,
+    step_with(
+        source,
+        target,
+        target_from_source,
+        settings,
+        stage,
+        &mut Correspondences::default(),
+    )
+}
+
+fn step_with(
+    source: &PointCloud,
+    target: &IcpTarget,
+    target_from_source: &Similarity3,
+    settings: &IcpSettings,
+    stage: &str,
+    buffers: &mut Correspondences,
+) -> Result<IcpStep> {
+    buffers.update(
+        source.points(),
+        target,
+        target_from_source,
         settings.max_correspondence_distance_mm,
     );
+    let (moved, found) = (&buffers.moved, &buffers.found);
     let mut matched: Vec<(usize, usize, f64)> = found
         .iter()
         .enumerate()
@@ -315,13 +392,15 @@ pub fn icp(
     let mut last: Option<IcpStep> = None;
     let mut converged = false;
     let mut iterations = 0;
+    let mut buffers = Correspondences::default();
     for it in 0..settings.max_iterations {
-        let step = icp_step(
+        let step = step_with(
             source,
             target,
             &current,
             settings,
             &format!("icp iteration {it}"),
+            &mut buffers,
         )?;
         iterations = it + 1;
         current = step.target_from_source;
@@ -345,7 +424,12 @@ pub fn icp(
         ));
     };
     Ok(finish(
-        source, target, current, settings, step, iterations, converged,
+        source,
+        target,
+        current,
+        settings,
+        (step, iterations, converged),
+        &mut buffers,
     ))
 }
 
@@ -354,17 +438,17 @@ fn finish(
     target: &IcpTarget,
     current: Similarity3,
     settings: &IcpSettings,
-    step: IcpStep,
-    iterations: usize,
-    converged: bool,
+    (step, iterations, converged): (IcpStep, usize, bool),
+    buffers: &mut Correspondences,
 ) -> IcpResult {
-    // Final statistics at the final estimate.
-    let moved: Vec<Point3> = source.points().par_iter().map(|p| current * p).collect();
-    let found = nearest_correspondences(
-        &moved,
-        &target.tree,
+    // Final statistics at the final estimate (the last step's correspondences warm-start it).
+    buffers.update(
+        source.points(),
+        target,
+        &current,
         settings.max_correspondence_distance_mm,
     );
+    let (moved, found) = (&buffers.moved, &buffers.found);
     let normals = target.cloud.normals();
     let tpts = target.cloud.points();
     let plane = settings.method == IcpMethod::PointToPlane;

@@ -21,6 +21,7 @@ pub mod error;
 pub mod eval;
 pub mod field;
 pub mod icp;
+pub mod kdtree;
 pub mod kernel;
 pub mod paper;
 pub mod point_to_plane;

@@ -30,6 +30,7 @@ use crate::banded::solve_banded_spd;
 use crate::error::{RegisterError, Result};
 use crate::field::{BSplineField, SUPPORT};
 use crate::icp::{IcpMethod, IcpResult, IcpSettings, IcpTarget, PyramidLevel, icp};
+use crate::kdtree;
 use crate::kernel::RobustKernel;
 use crate::sampling::{View, dense_voxel_centroids, facing_indices, spatial_order, voxel_pick};
 
@@ -449,14 +450,14 @@ pub const CURVATURE_NEIGHBOURS: usize = 6;
 /// plane: without it a scan point on a 1.2 mm hole wall, 0.12 mm from its nearest CAD sample,
 /// reads `t²/2R ≈ 6 µm` off, always toward the hole, and half-visible holes shift by that.
 #[must_use]
-pub fn shape_operators(cad: &PointCloud, tree: &KdTree) -> Vec<Matrix3<f64>> {
+pub fn shape_operators(cad: &PointCloud, tree: &kdtree::KdTree) -> Vec<Matrix3<f64>> {
     let pts = cad.points();
     let Some(normals) = cad.normals() else {
         return vec![Matrix3::zeros(); pts.len()];
     };
     pts.par_iter()
         .zip(normals.par_iter())
-        .map(|(c, n)| {
+        .map_init(Vec::new, |neighbours, (c, n)| {
             // Tangent basis.
             let helper = if n.x.abs() < 0.9 {
                 Vector3::x()
@@ -467,7 +468,8 @@ pub fn shape_operators(cad: &PointCloud, tree: &KdTree) -> Vec<Matrix3<f64>> {
             let e2 = n.cross(&e1);
             let mut ata = nalgebra::Matrix3::<f64>::zeros();
             let mut atb = Vector3::zeros();
-            for nb in tree.knn(c, CURVATURE_NEIGHBOURS + 1) {
+            tree.knn_within(c, CURVATURE_NEIGHBOURS + 1, f64::INFINITY, neighbours);
+            for nb in neighbours.iter() {
                 let d = pts[nb.index] - c;
                 let dn = normals[nb.index] - n;
                 // Only neighbours on the same smooth face (normals within ~25°).
@@ -836,11 +838,11 @@ fn initial_guess(
     Ok(correction * cad_from_scan_nominal)
 }
 
-fn overlap_fraction(points: &[Point3], tree: &KdTree, distance_mm: f64) -> f64 {
+fn overlap_fraction(points: &[Point3], tree: &kdtree::KdTree, distance_mm: f64) -> f64 {
     let d2 = distance_mm * distance_mm;
     let near = points
         .par_iter()
-        .filter(|p| tree.nearest(p).is_some_and(|n| n.distance_sq <= d2))
+        .filter(|p| tree.nearest_within(p, d2).is_some())
         .count();
     near as f64 / points.len().max(1) as f64
 }
@@ -863,7 +865,7 @@ fn match_points(
     let d2max = max_distance_mm * max_distance_mm;
     points
         .par_iter()
-        .map(|q| {
+        .map_init(Vec::new, |candidates, q| {
             let p = field.map_or(*q, |f| f.inverse_apply(q, 2));
             // Of the nearest CAD points, the one whose surface passes closest to q: near an
             // edge the nearest sample may lie on the other face (a top-face scan point 0.1 mm
@@ -872,10 +874,10 @@ fn match_points(
             // The field at the nearest candidate; the others (within a millimetre) use its
             // first-order expansion `d(c) ≈ d₀ + J₀ (c − c₀)` and its normal map.
             let mut at_nearest: Option<(Point3, Vector3, Matrix3<f64>, Matrix3<f64>)> = None;
-            for nb in target.tree().knn(&p, MATCH_CANDIDATES) {
-                if nb.distance_sq > d2max {
-                    break;
-                }
+            target
+                .tree()
+                .knn_within(&p, MATCH_CANDIDATES, d2max, candidates);
+            for nb in candidates.iter() {
                 let c = cad[nb.index];
                 let n0 = normals.map_or(Vector3::z(), |ns| ns[nb.index]);
                 let (c0, d0, j, normal_map) = *at_nearest.get_or_insert_with(|| {
