@@ -12,7 +12,7 @@ use trim_geom::voxel::voxel_downsample;
 use trim_geom::{Point3, PointCloud, Similarity3, Vector3};
 
 use crate::error::{RegisterError, Result};
-use crate::kdtree::KdTree;
+use crate::kdtree::{KdTree, Scratch};
 use crate::kernel::RobustKernel;
 use crate::point_to_plane::{
     NormalEquations, Pair, point_to_plane_equations, point_to_point_equations, solve_increment,
@@ -181,9 +181,10 @@ pub fn nearest_correspondences(
         .par_chunks_mut(QUERY_CHUNK)
         .zip(source_in_target.par_chunks(QUERY_CHUNK))
         .for_each(|(out, pts)| {
+            let mut scratch = Scratch::default();
             for (o, p) in out.iter_mut().zip(pts) {
                 *o = tree
-                    .nearest_within(p, max_sq)
+                    .nearest_from(p, max_sq, None, &mut scratch)
                     .map(|n| (n.index, n.distance_sq));
             }
         });
@@ -226,6 +227,7 @@ impl Correspondences {
             .zip(self.found.par_chunks_mut(QUERY_CHUNK))
             .zip(source.par_chunks(QUERY_CHUNK))
             .for_each(|((moved, found), pts)| {
+                let mut scratch = Scratch::default();
                 for ((m, f), p) in moved.iter_mut().zip(found.iter_mut()).zip(pts) {
                     *m = target_from_source * p;
                     let hint = if warm {
@@ -234,7 +236,7 @@ impl Correspondences {
                         None
                     };
                     *f = tree
-                        .nearest_from(m, max_sq, hint)
+                        .nearest_from(m, max_sq, hint, &mut scratch)
                         .map(|nb| (nb.index, nb.distance_sq));
                 }
             });

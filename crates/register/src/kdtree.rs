@@ -18,7 +18,7 @@ use trim_geom::Point3;
 const LEAF: usize = 12;
 
 /// Subtrees at least this large are built in parallel.
-const PARALLEL_BUILD: usize = 16_384;
+const PARALLEL_BUILD: usize = 4096;
 
 /// One answer: the index of the point in the slice the tree was built from and the squared
 /// distance to it (squared length unit of the points, mm² for CAD and scans).
@@ -128,19 +128,20 @@ impl KdTree {
     /// The nearest point within `max_distance_sq` (inclusive) of `query`, if any.
     #[must_use]
     pub fn nearest_within(&self, query: &Point3, max_distance_sq: f64) -> Option<Neighbour> {
-        self.nearest_from(query, max_distance_sq, None)
+        self.nearest_from(query, max_distance_sq, None, &mut Scratch::default())
     }
 
     /// As [`KdTree::nearest_within`], starting from the candidate `hint` (an index into the
     /// points the tree was built from, and that point, e.g. the previous ICP iteration's match):
     /// when it lies within the bound, only cells nearer than it are searched. The answer does
-    /// not depend on the hint.
+    /// not depend on the hint. `scratch` is reused across queries (one per thread).
     #[must_use]
     pub fn nearest_from(
         &self,
         query: &Point3,
         max_distance_sq: f64,
         hint: Option<(usize, &Point3)>,
+        scratch: &mut Scratch,
     ) -> Option<Neighbour> {
         if self.index.is_empty() || max_distance_sq.is_nan() || max_distance_sq < 0.0 {
             return None;
@@ -161,7 +162,7 @@ impl KdTree {
                 }
             }
         }
-        self.search(&q, &mut best);
+        self.search(&q, &mut best, &mut scratch.stack);
         (best.index != u32::MAX).then_some(Neighbour {
             index: best.index as usize,
             distance_sq: best.distance_sq,
@@ -169,54 +170,50 @@ impl KdTree {
     }
 
     /// The `k` nearest points within `max_distance_sq` (inclusive) of `query`, nearest first
-    /// (ties by index), into `out` (cleared first; fewer than `k` if fewer lie within the bound).
-    pub fn knn_within(
+    /// (ties by index); fewer than `k` if fewer lie within the bound. The answer lives in
+    /// `scratch`, which is reused across queries (one per thread).
+    pub fn knn_within<'s>(
         &self,
         query: &Point3,
         k: usize,
         max_distance_sq: f64,
-        out: &mut Vec<Neighbour>,
-    ) {
-        out.clear();
+        scratch: &'s mut Scratch,
+    ) -> &'s [Neighbour] {
+        scratch.found.clear();
         if k == 0 || self.index.is_empty() || max_distance_sq.is_nan() || max_distance_sq < 0.0 {
-            return;
+            return &scratch.found;
         }
         let q = [query.x, query.y, query.z];
         let mut found = Nearests {
             k,
             max_distance_sq,
-            found: Vec::with_capacity(k + 1),
+            found: &mut scratch.found,
         };
-        self.search(&q, &mut found);
-        out.extend(found.found.iter().map(|&(d, i)| Neighbour {
-            index: i as usize,
-            distance_sq: d,
-        }));
+        self.search(&q, &mut found, &mut scratch.stack);
+        &scratch.found
     }
 
     /// Depth-first search: descend to the query's leaf, stacking the far children whose cells
     /// (incremental distance, Arya & Mount 1993) lie within the visitor's bound; then the stacked
     /// cells still within the (shrunk) bound.
-    fn search<V: Visitor>(&self, q: &[f64; 3], visitor: &mut V) {
-        let mut stack = [Cell {
+    fn search<V: Visitor>(&self, q: &[f64; 3], visitor: &mut V, stack: &mut Vec<Cell>) {
+        stack.clear();
+        stack.push(Cell {
             node: 1,
             lo: 0,
-            hi: 0,
+            // At most 2³² − 1 points (see `build`).
+            hi: self.index.len() as u32,
             distance_sq: 0.0,
             offset: [0.0; 3],
-        }; MAX_DEPTH];
-        // At most 2³² − 1 points (see `build`).
-        stack[0].hi = self.index.len() as u32;
-        let mut depth = 1;
-        while depth > 0 {
-            depth -= 1;
+        });
+        while let Some(cell) = stack.pop() {
             let Cell {
                 node,
                 lo,
                 hi,
                 distance_sq,
                 offset,
-            } = stack[depth];
+            } = cell;
             let (mut node, mut lo, mut hi) = (node as usize, lo as usize, hi as usize);
             if distance_sq > visitor.bound() {
                 continue;
@@ -231,17 +228,16 @@ impl KdTree {
                 } else {
                     ((2 * node + 1, mid, hi), (2 * node, lo, mid))
                 };
-                if far_sq <= visitor.bound() && depth < MAX_DEPTH {
+                if far_sq <= visitor.bound() {
                     let mut far_offset = offset;
                     far_offset[a] = diff;
-                    stack[depth] = Cell {
+                    stack.push(Cell {
                         node: far.0 as u32,
                         lo: far.1 as u32,
                         hi: far.2 as u32,
                         distance_sq: far_sq,
                         offset: far_offset,
-                    };
-                    depth += 1;
+                    });
                 }
                 (node, lo, hi) = near;
             }
@@ -269,13 +265,16 @@ impl KdTree {
     }
 }
 
-/// Deepest stack of pending cells: one per tree level, and a tree over fewer than 2³² points
-/// with leaves of at least one point has fewer than 33 levels.
-const MAX_DEPTH: usize = 34;
+/// Per-thread buffers of the queries: the stack of pending cells and the k-NN answer.
+#[derive(Debug, Clone, Default)]
+pub struct Scratch {
+    stack: Vec<Cell>,
+    found: Vec<Neighbour>,
+}
 
 /// A pending cell of [`KdTree::search`]: node, point range, squared distance from the query to
 /// the cell, and the per-axis offsets that make it up.
-#[derive(Clone, Copy)]
+#[derive(Debug, Clone, Copy)]
 struct Cell {
     node: u32,
     lo: u32,
@@ -316,17 +315,17 @@ impl Visitor for Nearest {
 }
 
 /// The `k` least `(d², index)` within `max_distance_sq`, sorted.
-struct Nearests {
+struct Nearests<'a> {
     k: usize,
     max_distance_sq: f64,
-    found: Vec<(f64, u32)>,
+    found: &'a mut Vec<Neighbour>,
 }
 
-impl Visitor for Nearests {
+impl Visitor for Nearests<'_> {
     #[inline]
     fn bound(&self) -> f64 {
         if self.found.len() == self.k {
-            self.found[self.k - 1].0
+            self.found[self.k - 1].distance_sq
         } else {
             self.max_distance_sq
         }
@@ -338,8 +337,8 @@ impl Visitor for Nearests {
                 continue;
             }
             if self.found.len() == self.k {
-                let (wd, wi) = self.found[self.k - 1];
-                if !better(d, i, wd, wi) {
+                let worst = self.found[self.k - 1];
+                if !better(d, i, worst.distance_sq, worst.index as u32) {
                     continue;
                 }
                 self.found.pop();
@@ -348,9 +347,15 @@ impl Visitor for Nearests {
             let at = self
                 .found
                 .iter()
-                .position(|&(fd, fi)| better(d, i, fd, fi))
+                .position(|f| better(d, i, f.distance_sq, f.index as u32))
                 .unwrap_or(self.found.len());
-            self.found.insert(at, (d, i));
+            self.found.insert(
+                at,
+                Neighbour {
+                    index: i as usize,
+                    distance_sq: d,
+                },
+            );
         }
     }
 }
@@ -377,9 +382,8 @@ fn build_node(items: &mut [([f64; 3], u32)], node: usize, out: &mut Vec<(usize, 
         }
     }
     let mid = n / 2;
-    items.select_nth_unstable_by(mid, |x, y| {
-        x.0[axis].total_cmp(&y.0[axis]).then(x.1.cmp(&y.1))
-    });
+    // Deterministic: the selection's result depends only on the input order, itself fixed.
+    items.select_nth_unstable_by(mid, |x, y| x.0[axis].total_cmp(&y.0[axis]));
     out.push((node, axis as u8, items[mid].0[axis]));
     let (left, right) = items.split_at_mut(mid);
     if n >= PARALLEL_BUILD {
@@ -434,7 +438,7 @@ mod tests {
         let tree = KdTree::build(&points);
         assert_eq!(tree.len(), 3000);
         let queries = cloud(400, 8);
-        let mut out = Vec::new();
+        let mut scratch = Scratch::default();
         for (n, q) in queries.iter().enumerate() {
             for max_sq in [0.0, 0.3, 4.0, 1e9] {
                 let truth = brute(&points, q, max_sq);
@@ -445,10 +449,10 @@ mod tests {
                 );
                 // Any hint gives the same answer.
                 let h = (n * 7) % points.len();
-                let hinted = tree.nearest_from(q, max_sq, Some((h, &points[h])));
+                let hinted = tree.nearest_from(q, max_sq, Some((h, &points[h])), &mut scratch);
                 assert_eq!(hinted, got);
                 for k in [1, 6, 11] {
-                    tree.knn_within(q, k, max_sq, &mut out);
+                    let out = tree.knn_within(q, k, max_sq, &mut scratch);
                     let want: Vec<(f64, usize)> = truth.iter().take(k).copied().collect();
                     let have: Vec<(f64, usize)> =
                         out.iter().map(|g| (g.distance_sq, g.index)).collect();

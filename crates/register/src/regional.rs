@@ -30,7 +30,7 @@ use crate::banded::solve_banded_spd;
 use crate::error::{RegisterError, Result};
 use crate::field::{BSplineField, SUPPORT};
 use crate::icp::{IcpMethod, IcpResult, IcpSettings, IcpTarget, PyramidLevel, icp};
-use crate::kdtree;
+use crate::kdtree::{self, Scratch};
 use crate::kernel::RobustKernel;
 use crate::sampling::{View, dense_voxel_centroids, facing_indices, spatial_order, voxel_pick};
 
@@ -457,7 +457,7 @@ pub fn shape_operators(cad: &PointCloud, tree: &kdtree::KdTree) -> Vec<Matrix3<f
     };
     pts.par_iter()
         .zip(normals.par_iter())
-        .map_init(Vec::new, |neighbours, (c, n)| {
+        .map_init(Scratch::default, |scratch, (c, n)| {
             // Tangent basis.
             let helper = if n.x.abs() < 0.9 {
                 Vector3::x()
@@ -468,8 +468,7 @@ pub fn shape_operators(cad: &PointCloud, tree: &kdtree::KdTree) -> Vec<Matrix3<f
             let e2 = n.cross(&e1);
             let mut ata = nalgebra::Matrix3::<f64>::zeros();
             let mut atb = Vector3::zeros();
-            tree.knn_within(c, CURVATURE_NEIGHBOURS + 1, f64::INFINITY, neighbours);
-            for nb in neighbours.iter() {
+            for nb in tree.knn_within(c, CURVATURE_NEIGHBOURS + 1, f64::INFINITY, scratch) {
                 let d = pts[nb.index] - c;
                 let dn = normals[nb.index] - n;
                 // Only neighbours on the same smooth face (normals within ~25°).
@@ -842,8 +841,10 @@ fn overlap_fraction(points: &[Point3], tree: &kdtree::KdTree, distance_mm: f64) 
     let d2 = distance_mm * distance_mm;
     let near = points
         .par_iter()
-        .filter(|p| tree.nearest_within(p, d2).is_some())
-        .count();
+        .map_init(Scratch::default, |scratch, p| {
+            usize::from(tree.nearest_from(p, d2, None, scratch).is_some())
+        })
+        .sum::<usize>();
     near as f64 / points.len().max(1) as f64
 }
 
@@ -865,7 +866,7 @@ fn match_points(
     let d2max = max_distance_mm * max_distance_mm;
     points
         .par_iter()
-        .map_init(Vec::new, |candidates, q| {
+        .map_init(Scratch::default, |scratch, q| {
             let p = field.map_or(*q, |f| f.inverse_apply(q, 2));
             // Of the nearest CAD points, the one whose surface passes closest to q: near an
             // edge the nearest sample may lie on the other face (a top-face scan point 0.1 mm
@@ -874,10 +875,10 @@ fn match_points(
             // The field at the nearest candidate; the others (within a millimetre) use its
             // first-order expansion `d(c) ≈ d₀ + J₀ (c − c₀)` and its normal map.
             let mut at_nearest: Option<(Point3, Vector3, Matrix3<f64>, Matrix3<f64>)> = None;
-            target
+            for nb in target
                 .tree()
-                .knn_within(&p, MATCH_CANDIDATES, d2max, candidates);
-            for nb in candidates.iter() {
+                .knn_within(&p, MATCH_CANDIDATES, d2max, scratch)
+            {
                 let c = cad[nb.index];
                 let n0 = normals.map_or(Vector3::z(), |ns| ns[nb.index]);
                 let (c0, d0, j, normal_map) = *at_nearest.get_or_insert_with(|| {
