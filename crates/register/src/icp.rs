@@ -115,7 +115,9 @@ pub struct IcpResult {
     /// Its scale (1 for a rigid fit).
     pub scale: f64,
     /// Root-mean-square residual over the final correspondences (distance for point-to-point,
-    /// plane distance for point-to-plane), mm.
+    /// plane distance for point-to-plane) at the final transform, mm. When converged, the final
+    /// correspondences are the last iteration's (its step was below the epsilons); otherwise
+    /// they are searched at the final transform.
     pub rmse_mm: f64,
     /// Mean squared point distance of the final correspondences, mm² (PCL's fitness score).
     pub mean_squared_distance_mm2: f64,
@@ -443,13 +445,20 @@ fn finish(
     (step, iterations, converged): (IcpStep, usize, bool),
     buffers: &mut Correspondences,
 ) -> IcpResult {
-    // Final statistics at the final estimate (the last step's correspondences warm-start it).
-    buffers.update(
-        source.points(),
-        target,
-        &current,
-        settings.max_correspondence_distance_mm,
-    );
+    // Final statistics at the final estimate. Converged, the last step moved every point by
+    // less than the epsilons: its correspondences stand, re-evaluated at the final estimate
+    // (pairs pushed beyond the maximum distance dropped), and a whole further search, a seventh
+    // of a typical run, is saved. Otherwise the correspondences are searched again.
+    let max_sq = settings.max_correspondence_distance_mm.powi(2);
+    let reuse = converged;
+    if !reuse {
+        buffers.update(
+            source.points(),
+            target,
+            &current,
+            settings.max_correspondence_distance_mm,
+        );
+    }
     let (moved, found) = (&buffers.moved, &buffers.found);
     let normals = target.cloud.normals();
     let tpts = target.cloud.points();
@@ -460,10 +469,19 @@ fn finish(
             .enumerate()
             .fold((0usize, 0.0, 0.0), |(c, d, r), (i, m)| match m {
                 Some((j, d2)) => {
-                    let res2 = if plane {
-                        normals.map_or(*d2, |ns| (moved[i] - tpts[*j]).dot(&ns[*j]).powi(2))
+                    let (x, d2) = if reuse {
+                        let x = step.increment * moved[i];
+                        (x, (x - tpts[*j]).norm_squared())
                     } else {
-                        *d2
+                        (moved[i], *d2)
+                    };
+                    if d2 > max_sq {
+                        return (c, d, r);
+                    }
+                    let res2 = if plane {
+                        normals.map_or(d2, |ns| (x - tpts[*j]).dot(&ns[*j]).powi(2))
+                    } else {
+                        d2
                     };
                     (c + 1, d + d2, r + res2)
                 }
