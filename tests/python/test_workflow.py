@@ -102,8 +102,9 @@ def test_plan_errors(registration):
         trimctl.plan(registration.path, max_incidence_deg=-1.0)
     with pytest.raises(ValueError, match="machine.kinematics.*hexapod"):
         trimctl.plan(registration.path, kinematics="hexapod")
-    with pytest.raises(trimctl.PlanningError, match="k"):
-        trimctl.plan(registration.path, k=len(registration.path) + 1)
+    # k larger than the contours (pieces after splitting) there are to zone.
+    with pytest.raises(trimctl.PlanningError, match="zoning.k = 10000"):
+        trimctl.plan(registration.path, k=10_000)
     with pytest.raises(ValueError, match="init"):
         trimctl.register_path(np.zeros((10, 3)), np.zeros((10, 3)), registration.path,
                               cad_normals=np.tile([0.0, 0, 1], (10, 1)), init=np.eye(3))
