@@ -125,9 +125,8 @@ impl BSplineField {
         3 * (2 + 2 * d[a] + 2 * d[a] * d[b]) + 2
     }
 
-    /// The basis weights at `x` (outside the box the edge cells' polynomials extend).
-    #[must_use]
-    pub fn weights(&self, x: &Point3) -> Weights {
+    /// The cell of `x` (per axis) and its 1-D basis values and derivatives (per mm).
+    fn locate(&self, x: &Point3) -> ([usize; 3], [[f64; 3]; 3], [[f64; 3]; 3]) {
         let h = self.spacing_mm;
         let mut cell = [0usize; 3];
         let mut b = [[0.0; 3]; 3];
@@ -140,6 +139,56 @@ impl BSplineField {
             b[a] = v;
             db[a] = d.map(|g| g / h);
         }
+        (cell, b, db)
+    }
+
+    /// The flat-index step of one control point along each axis (x, y, z): [`Self::flat`] is
+    /// `i·s₀ + j·s₁ + k·s₂`.
+    fn strides(&self) -> [usize; 3] {
+        let d = self.dims();
+        let [a, b, c] = self.order;
+        let mut s = [0; 3];
+        s[a] = 1;
+        s[b] = d[a];
+        s[c] = d[a] * d[b];
+        s
+    }
+
+    /// The flat index of the grid cell holding `x` (as [`Weights::cell`]).
+    #[must_use]
+    pub fn cell_index(&self, x: &Point3) -> usize {
+        let (cell, _, _) = self.locate(x);
+        cell[0] + self.cells[0] * (cell[1] + self.cells[1] * cell[2])
+    }
+
+    /// The control indices and basis values at `x` (as [`Weights::index`] and
+    /// [`Weights::value`], without the gradients).
+    #[must_use]
+    pub fn values(&self, x: &Point3) -> ([usize; SUPPORT], [f64; SUPPORT]) {
+        let (cell, b, _) = self.locate(x);
+        let s = self.strides();
+        let base = cell[0] * s[0] + cell[1] * s[1] + cell[2] * s[2];
+        let mut index = [0; SUPPORT];
+        let mut value = [0.0; SUPPORT];
+        let mut n = 0;
+        for k in 0..3 {
+            for j in 0..3 {
+                for i in 0..3 {
+                    index[n] = base + i * s[0] + j * s[1] + k * s[2];
+                    value[n] = b[0][i] * b[1][j] * b[2][k];
+                    n += 1;
+                }
+            }
+        }
+        (index, value)
+    }
+
+    /// The basis weights at `x` (outside the box the edge cells' polynomials extend).
+    #[must_use]
+    pub fn weights(&self, x: &Point3) -> Weights {
+        let (cell, b, db) = self.locate(x);
+        let s = self.strides();
+        let base = cell[0] * s[0] + cell[1] * s[1] + cell[2] * s[2];
         let mut w = Weights {
             index: [0; SUPPORT],
             value: [0.0; SUPPORT],
@@ -150,7 +199,7 @@ impl BSplineField {
         for k in 0..3 {
             for j in 0..3 {
                 for i in 0..3 {
-                    w.index[n] = self.flat(cell[0] + i, cell[1] + j, cell[2] + k);
+                    w.index[n] = base + i * s[0] + j * s[1] + k * s[2];
                     w.value[n] = b[0][i] * b[1][j] * b[2][k];
                     w.gradient[n] = Vector3::new(
                         db[0][i] * b[1][j] * b[2][k],
@@ -167,9 +216,9 @@ impl BSplineField {
     /// The displacement `d(x)`, mm.
     #[must_use]
     pub fn displacement(&self, x: &Point3) -> Vector3 {
-        let w = self.weights(x);
+        let (index, value) = self.values(x);
         (0..SUPPORT)
-            .map(|n| w.value[n] * self.coefficients[w.index[n]])
+            .map(|n| value[n] * self.coefficients[index[n]])
             .sum()
     }
 
@@ -312,6 +361,18 @@ mod tests {
             assert!((j.column(0) - fd).norm() < 1e-6);
             let y = f.apply(&p);
             assert!((f.inverse_apply(&y, 20) - p).norm() < 1e-9);
+        }
+        // The strided indices are `flat`'s.
+        let p = Point3::new(3.3, -7.1, 1.2);
+        let (index, value) = f.values(&p);
+        let w = f.weights(&p);
+        assert_eq!(index, w.index);
+        assert_eq!(value, w.value);
+        assert_eq!(f.cell_index(&p), w.cell);
+        let d = f.dims();
+        let s = f.strides();
+        for (i, j, k) in [(0, 0, 0), (1, 2, 3), (d[0] - 1, d[1] - 1, d[2] - 1)] {
+            assert_eq!(f.flat(i, j, k), i * s[0] + j * s[1] + k * s[2]);
         }
         // Affine fields have zero smoothness energy.
         let mut affine =

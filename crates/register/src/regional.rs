@@ -1023,7 +1023,7 @@ fn field_normal_equations(
     let mut keyed: Vec<(usize, usize)> = pairs
         .par_iter()
         .enumerate()
-        .map(|(i, p)| (field.weights(&p.0).cell, i))
+        .map(|(i, p)| (field.cell_index(&p.0), i))
         .collect();
     keyed.par_sort_unstable();
     let mut groups: Vec<&[(usize, usize)]> = Vec::new();
@@ -1046,11 +1046,11 @@ fn field_normal_equations(
             let mut index = [0usize; SUPPORT];
             for (row, &(_, i)) in group.iter().enumerate() {
                 let (c, nrm, r, w) = pairs[i];
-                let wt = field.weights(&c);
-                index = wt.index;
+                let (wt_index, wt_value) = field.values(&c);
+                index = wt_index;
                 for k in 0..SUPPORT {
                     for x in 0..3 {
-                        let v = wt.value[k] * nrm[x];
+                        let v = wt_value[k] * nrm[x];
                         a[(row, 3 * k + x)] = v;
                         aw[(row, 3 * k + x)] = w * v;
                         gl[3 * k + x] += w * v * r;
