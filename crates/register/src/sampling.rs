@@ -5,6 +5,64 @@ use trim_geom::{Point3, PointCloud, Vector3};
 
 use crate::error::{RegisterError, Result};
 
+/// Bits per axis of a packed voxel key: three fit a `u64`.
+const PACKED_AXIS_BITS: u32 = 21;
+
+/// Every point's voxel of `voxel_mm` with its index, sorted by voxel (lexicographic in
+/// `(x, y, z)`), ties by index. The voxel is given as a `u64` that orders and compares as the
+/// voxel does: packed offsets from the lowest voxel when every axis spans fewer than
+/// 2^[`PACKED_AXIS_BITS`] voxels (16-byte items sort fast), else the voxel's rank.
+fn sorted_voxels(points: &[Point3], voxel_mm: f64) -> Vec<(u64, usize)> {
+    let key = |p: &Point3| {
+        [
+            (p.x / voxel_mm).floor() as i64,
+            (p.y / voxel_mm).floor() as i64,
+            (p.z / voxel_mm).floor() as i64,
+        ]
+    };
+    let keys: Vec<[i64; 3]> = points.par_iter().map(key).collect();
+    let (lo, hi) = keys
+        .iter()
+        .fold(([i64::MAX; 3], [i64::MIN; 3]), |(mut lo, mut hi), k| {
+            for a in 0..3 {
+                lo[a] = lo[a].min(k[a]);
+                hi[a] = hi[a].max(k[a]);
+            }
+            (lo, hi)
+        });
+    let fits = (0..3).all(|a| {
+        hi[a]
+            .checked_sub(lo[a])
+            .is_some_and(|span| span < 1 << PACKED_AXIS_BITS)
+    });
+    if fits {
+        let mut packed: Vec<(u64, usize)> = keys
+            .par_iter()
+            .enumerate()
+            .map(|(i, k)| {
+                let off = [0, 1, 2].map(|a| (k[a] - lo[a]) as u64);
+                (
+                    (off[0] << (2 * PACKED_AXIS_BITS)) | (off[1] << PACKED_AXIS_BITS) | off[2],
+                    i,
+                )
+            })
+            .collect();
+        packed.par_sort_unstable();
+        return packed;
+    }
+    let mut keyed: Vec<([i64; 3], usize)> = keys.into_iter().zip(0..).collect();
+    keyed.par_sort_unstable();
+    let mut rank = 0u64;
+    let mut out = Vec::with_capacity(keyed.len());
+    for (n, &(k, i)) in keyed.iter().enumerate() {
+        if n > 0 && keyed[n - 1].0 != k {
+            rank += 1;
+        }
+        out.push((rank, i));
+    }
+    out
+}
+
 /// Keeps, per occupied voxel of `voxel_mm`, the one point nearest the voxel's centroid (ties to
 /// the lower index). Unlike centroid down-sampling it never moves a point off the surface (no
 /// bias at edges), and it is deterministic. Returns indices into `points` in voxel order, so
@@ -17,19 +75,7 @@ pub fn voxel_pick(points: &[Point3], voxel_mm: f64) -> Result<Vec<usize>> {
             format!("must be finite and > 0, got {voxel_mm}"),
         ));
     }
-    let key = |p: &Point3| {
-        [
-            (p.x / voxel_mm).floor() as i64,
-            (p.y / voxel_mm).floor() as i64,
-            (p.z / voxel_mm).floor() as i64,
-        ]
-    };
-    let mut order: Vec<([i64; 3], usize)> = points
-        .par_iter()
-        .enumerate()
-        .map(|(i, p)| (key(p), i))
-        .collect();
-    order.par_sort_unstable();
+    let order = sorted_voxels(points, voxel_mm);
     let mut picked = Vec::new();
     let mut start = 0;
     while start < order.len() {
@@ -58,22 +104,10 @@ pub fn voxel_pick(points: &[Point3], voxel_mm: f64) -> Result<Vec<usize>> {
 /// a deterministic spatially coherent order for kd-tree construction and queries.
 #[must_use]
 pub fn spatial_order(points: &[Point3], voxel_mm: f64) -> Vec<usize> {
-    let mut keyed: Vec<([i64; 3], usize)> = points
-        .par_iter()
-        .enumerate()
-        .map(|(i, p)| {
-            (
-                [
-                    (p.x / voxel_mm).floor() as i64,
-                    (p.y / voxel_mm).floor() as i64,
-                    (p.z / voxel_mm).floor() as i64,
-                ],
-                i,
-            )
-        })
-        .collect();
-    keyed.par_sort_unstable();
-    keyed.into_iter().map(|(_, i)| i).collect()
+    sorted_voxels(points, voxel_mm)
+        .into_iter()
+        .map(|(_, i)| i)
+        .collect()
 }
 
 /// Where the scanner looked from, in the frame of the cloud it is applied to.
@@ -124,21 +158,7 @@ pub fn dense_voxel_centroids(
             format!("must be finite and > 0, got {voxel_mm}"),
         ));
     }
-    let mut keyed: Vec<([i64; 3], usize)> = points
-        .par_iter()
-        .enumerate()
-        .map(|(i, p)| {
-            (
-                [
-                    (p.x / voxel_mm).floor() as i64,
-                    (p.y / voxel_mm).floor() as i64,
-                    (p.z / voxel_mm).floor() as i64,
-                ],
-                i,
-            )
-        })
-        .collect();
-    keyed.par_sort_unstable();
+    let keyed = sorted_voxels(points, voxel_mm);
     let mut out = Vec::new();
     let mut start = 0;
     while start < keyed.len() {
@@ -180,6 +200,48 @@ mod tests {
             );
         }
         assert!(voxel_pick(&pts, 0.0).is_err());
+    }
+
+    #[test]
+    fn sorted_voxels_order_as_the_voxel_keys_do() {
+        for (spread, voxel) in [(50.0, 0.7), (1e6, 1e-3)] {
+            let pts: Vec<Point3> = (0..5000)
+                .map(|i| {
+                    let t = f64::from(i);
+                    Point3::new(
+                        spread * (t * 0.37).sin(),
+                        spread * (t * 0.11).cos(),
+                        ((t * 0.05).sin() * 3.0).round(),
+                    )
+                })
+                .collect();
+            let mut reference: Vec<([i64; 3], usize)> = pts
+                .iter()
+                .enumerate()
+                .map(|(i, p)| {
+                    (
+                        [
+                            (p.x / voxel).floor() as i64,
+                            (p.y / voxel).floor() as i64,
+                            (p.z / voxel).floor() as i64,
+                        ],
+                        i,
+                    )
+                })
+                .collect();
+            reference.sort_unstable();
+            let got = sorted_voxels(&pts, voxel);
+            assert_eq!(got.len(), reference.len());
+            for n in 0..got.len() {
+                assert_eq!(got[n].1, reference[n].1);
+                if n > 0 {
+                    assert_eq!(
+                        got[n].0 == got[n - 1].0,
+                        reference[n].0 == reference[n - 1].0
+                    );
+                }
+            }
+        }
     }
 
     #[test]
