@@ -8,8 +8,10 @@ use anyhow::Context;
 use trim_geom::formats::{Geometry, read_geometry, read_path, read_points, write_path};
 use trim_geom::normals::{Orientation, estimate_normals};
 use trim_geom::transform::similarity_from_matrix;
-use trim_geom::{PointCloud, Similarity3, Vector3};
+use trim_geom::{Point3, PointCloud, Similarity3, Vector3};
+use trim_register::datum::datum_fit;
 use trim_register::regional::{RegisterSettings, register};
+use trim_register::sampling::View;
 
 use crate::config::JobConfig;
 use crate::summary;
@@ -46,6 +48,12 @@ pub struct Args {
     /// Default: the identity (the CAM data is in the machine frame).
     #[arg(long)]
     pub initial: Option<PathBuf>,
+    /// Datum-compliant positioning (thesis §3.5.2) instead of the regional registration: a text
+    /// file of the part's datum points in the CAD frame (`x y z` or `x,y,z` per line, at least 3,
+    /// normally 6). The path is moved rigidly by the datum fit; the report gives each datum's
+    /// residual.
+    #[arg(long, value_name = "FILE")]
+    pub datums: Option<PathBuf>,
 }
 
 /// Runs the command.
@@ -98,6 +106,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         read_points(&args.scan).with_context(|| format!("reading {}", args.scan.display()))?;
     let path = read_path(&args.path).with_context(|| format!("reading {}", args.path.display()))?;
     let t_read = t0.elapsed().as_secs_f64();
+    if let Some(datums_file) = &args.datums {
+        return datum_positioning(&args, datums_file, &cad, &scan, &path, &initial, &settings);
+    }
     let registration = register(&cad, &scan, &path, &initial, &settings)?;
     write_path(&args.out, &registration.path)
         .with_context(|| format!("writing {}", args.out.display()))?;
@@ -112,6 +123,95 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     print!("{}", summary::registration(&registration.report));
     Ok(())
+}
+
+/// The six-point datum fit as the positioning mode: a rigid pose from the datums, applied to the
+/// whole path.
+fn datum_positioning(
+    args: &Args,
+    datums_file: &std::path::Path,
+    cad: &PointCloud,
+    scan: &PointCloud,
+    path: &trim_geom::Path,
+    initial: &Similarity3,
+    settings: &RegisterSettings,
+) -> anyhow::Result<()> {
+    let datums = read_points_text(datums_file)?;
+    let view = match settings.scanner_viewpoint_mm {
+        Some(v) => View::From(Point3::from(v)),
+        None => View::Along(Vector3::from(settings.view_direction)),
+    };
+    let t = Instant::now();
+    let fit = datum_fit(cad, scan, &datums, initial, view, &settings.coarse)?;
+    let fit_s = t.elapsed().as_secs_f64();
+    let registered = path.transformed(&fit.scan_from_cad);
+    write_path(&args.out, &registered)
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    let report = serde_json::json!({
+        "mode": "datum",
+        "scan_from_cad": fit.scan_from_cad.to_homogeneous().transpose().as_slice().chunks(4)
+            .map(<[f64]>::to_vec).collect::<Vec<_>>(),
+        "datums_in_scan": fit.datums_in_scan.iter().map(|p| [p.x, p.y, p.z]).collect::<Vec<_>>(),
+        "residuals_mm": fit.residuals_mm,
+        "timings_s": [["datum fit", fit_s]],
+    });
+    if let Some(file) = &args.report {
+        std::fs::write(file, serde_json::to_string_pretty(&report)?)
+            .with_context(|| format!("writing {}", file.display()))?;
+    }
+    eprintln!("stage timings:\n  {:<28} {fit_s:>8.3} s", "datum fit");
+    let worst = fit.residuals_mm.iter().copied().fold(0.0, f64::max);
+    println!(
+        "datum fit: {} datums, residuals {} µm (worst {:.1} µm)",
+        datums.len(),
+        fit.residuals_mm
+            .iter()
+            .map(|r| format!("{:.1}", r * 1e3))
+            .collect::<Vec<_>>()
+            .join(", "),
+        worst * 1e3
+    );
+    Ok(())
+}
+
+/// Points from a text file: `x y z` or `x,y,z` per line; `#` starts a comment.
+fn read_points_text(path: &std::path::Path) -> anyhow::Result<Vec<Point3>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut points = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.split('#').next().unwrap_or("").trim();
+        if line.is_empty() {
+            continue;
+        }
+        let values: Vec<f64> = line
+            .split(|c: char| c.is_whitespace() || c == ',')
+            .filter(|s| !s.is_empty())
+            .map(|s| {
+                s.parse::<f64>()
+                    .ok()
+                    .filter(|v| v.is_finite())
+                    .with_context(|| {
+                        format!("{}:{}: `{s}` is not a finite number", path.display(), i + 1)
+                    })
+            })
+            .collect::<anyhow::Result<_>>()?;
+        anyhow::ensure!(
+            values.len() == 3,
+            "{}:{}: expected x y z, got {} numbers",
+            path.display(),
+            i + 1,
+            values.len()
+        );
+        points.push(Point3::new(values[0], values[1], values[2]));
+    }
+    anyhow::ensure!(
+        points.len() >= 3,
+        "{}: a datum fit needs at least 3 datum points, got {}",
+        path.display(),
+        points.len()
+    );
+    Ok(points)
 }
 
 fn read_matrix(path: &std::path::Path) -> anyhow::Result<Similarity3> {
