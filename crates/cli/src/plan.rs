@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use trim_plan::planner::{PlanOutput, PlanSettings, plan_with_report};
+use trim_plan::planner::{PlanSettings, plan_with_report};
 
 use crate::config::JobConfig;
 
@@ -42,7 +42,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         std::fs::write(svg, trim_plan::svg::job_svg(job))
             .with_context(|| format!("cannot write {}", svg.display()))?;
     }
-    print!("{}", zone_table(&output));
+    print!("{}", crate::summary::zone_table(&output));
     let v = &job.validation;
     eprintln!(
         "trimctl plan: {} contours → {} pieces; k-means k = {}{} → {} zones ({} merges, {} greedy splits) → {} sections/zones, {} layers; ΔH = {:.4} mm",
@@ -82,37 +82,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     Ok(())
-}
-
-/// The zone table: the paper's Table 1 columns (zone, centre and axis (x, y, z, u, v, w),
-/// largest included angle) plus the largest incidence with and without the lens, the layer
-/// count and the contours.
-fn zone_table(output: &PlanOutput) -> String {
-    use std::fmt::Write as _;
-    let mut s = String::from(
-        "zone  cluster  centre (x, y, z, u, v, w)                                 included/°  incidence/°  with lens/°  layers  contours\n",
-    );
-    for r in &output.table {
-        let c = r.centre;
-        let _ = writeln!(
-            s,
-            "{:>4}  {:>7}  ({:8.3}, {:8.3}, {:8.3}, {:6.3}, {:6.3}, {:6.3})  {:>10.4}  {:>11.4}  {:>11.4}  {:>6}  {:?}",
-            r.zone,
-            r.cluster,
-            c[0],
-            c[1],
-            c[2],
-            c[3],
-            c[4],
-            c[5],
-            r.max_pairwise_deg,
-            r.max_incidence_deg,
-            r.max_incidence_with_lens_deg,
-            r.layers,
-            r.contours
-        );
-    }
-    s
 }
 
 #[cfg(test)]

@@ -95,20 +95,23 @@ pub fn plan(plan: &PlanOutput) -> String {
     s
 }
 
-/// The zone table alone.
+/// The zone table: the paper's Table 1 columns (zone, centre and axis (x, y, z, u, v, w),
+/// largest included angle) plus the k-means cluster it is a section of, the largest incidence
+/// without and with the lens ray angle, the layer count and the contour ids.
 #[must_use]
 pub fn zone_table(plan: &PlanOutput) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "  zone  centre (x, y, z, u, v, w)                                  pairwise°  incidence°  +lens°  layers  contours"
+        "  zone  cluster  centre (x, y, z, u, v, w)                                  pairwise°  incidence°  +lens°  layers  contours"
     );
     for r in &plan.table {
         let c = r.centre;
         let _ = writeln!(
             s,
-            "  {:>4}  ({:>8.3}, {:>8.3}, {:>8.3}, {:>6.3}, {:>6.3}, {:>6.3})  {:>9.3}  {:>10.3}  {:>6.3}  {:>6}  {}",
+            "  {:>4}  {:>7}  ({:>8.3}, {:>8.3}, {:>8.3}, {:>6.3}, {:>6.3}, {:>6.3})  {:>9.3}  {:>10.3}  {:>6.3}  {:>6}  {:?}",
             r.zone,
+            r.cluster,
             c[0],
             c[1],
             c[2],
@@ -119,7 +122,7 @@ pub fn zone_table(plan: &PlanOutput) -> String {
             r.max_incidence_deg,
             r.max_incidence_with_lens_deg,
             r.layers,
-            r.contours.len()
+            r.contours
         );
     }
     s

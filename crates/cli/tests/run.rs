@@ -68,7 +68,7 @@ fn demo_runs_to_the_end_and_leaves_a_complete_run_folder() {
     );
     for expected in [
         "registration:",
-        "zone  centre",
+        "zone  cluster  centre",
         "time estimate:",
         "executed:",
         "done:",
