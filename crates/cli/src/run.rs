@@ -388,36 +388,25 @@ fn finish(
     timings: &Timings,
     outcome: anyhow::Result<Result<RunSummary, ExecError>>,
 ) -> anyhow::Result<()> {
-    match outcome? {
+    let outcome = outcome?;
+    let stopped = outcome.as_ref().err().map(ToString::to_string);
+    write_report(
+        run_dir,
+        config,
+        description,
+        registration,
+        plan,
+        timings,
+        outcome.as_ref().ok(),
+        stopped.as_deref(),
+    )?;
+    match outcome {
         Ok(run) => {
-            write_report(
-                run_dir,
-                config,
-                description,
-                registration,
-                plan,
-                timings,
-                Some(&run),
-                None,
-            )?;
             print!("{}", summary::execution(&run, &plan.job));
             println!("done: run folder {}", run_dir.display());
             Ok(())
         }
-        Err(e) => {
-            let text = e.to_string();
-            write_report(
-                run_dir,
-                config,
-                description,
-                registration,
-                plan,
-                timings,
-                None,
-                Some(&text),
-            )?;
-            Err(exec_failure(e, run_dir))
-        }
+        Err(e) => Err(exec_failure(e, run_dir)),
     }
 }
 

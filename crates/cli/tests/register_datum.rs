@@ -8,6 +8,31 @@ use trim_geom::{Point3, Vector3};
 
 const TRIMCTL: &str = env!("CARGO_BIN_EXE_trimctl");
 
+/// Runs `trimctl register --datums` on the synthetic case in `case`.
+fn register_with_datums(
+    case: &std::path::Path,
+    datums: &std::path::Path,
+    out: &std::path::Path,
+    report: Option<&std::path::Path>,
+) -> std::process::Output {
+    let mut cmd = Command::new(TRIMCTL);
+    cmd.arg("register")
+        .arg("--cad")
+        .arg(case.join("cad.stl"))
+        .arg("--scan")
+        .arg(case.join("scan.ply"))
+        .arg("--path")
+        .arg(case.join("path.csv"))
+        .arg("--datums")
+        .arg(datums)
+        .arg("--out")
+        .arg(out);
+    if let Some(r) = report {
+        cmd.arg("--report").arg(r);
+    }
+    cmd.output().expect("trimctl register runs")
+}
+
 /// Pointwise error the datum fit must stay under on an undeformed part with 10 µm scan noise
 /// (the thesis notes it is less accurate than a surface fit).
 const MAX_P95_ERROR_MM: f64 = 0.05;
@@ -65,22 +90,7 @@ fn datum_fit_positions_an_undeformed_part() {
 
     let out = tmp.path().join("registered.csv");
     let report = tmp.path().join("report.json");
-    let result = Command::new(TRIMCTL)
-        .arg("register")
-        .arg("--cad")
-        .arg(case.join("cad.stl"))
-        .arg("--scan")
-        .arg(case.join("scan.ply"))
-        .arg("--path")
-        .arg(case.join("path.csv"))
-        .arg("--datums")
-        .arg(tmp.path().join("datums.txt"))
-        .arg("--out")
-        .arg(&out)
-        .arg("--report")
-        .arg(&report)
-        .output()
-        .expect("trimctl register runs");
+    let result = register_with_datums(&case, &tmp.path().join("datums.txt"), &out, Some(&report));
     let stdout = String::from_utf8_lossy(&result.stdout);
     assert!(
         result.status.success(),
@@ -106,20 +116,12 @@ fn datum_fit_positions_an_undeformed_part() {
 
     // Too few datums is refused with the file named.
     std::fs::write(tmp.path().join("two.txt"), "0 0 0\n1 0 0\n").expect("write");
-    let result = Command::new(TRIMCTL)
-        .arg("register")
-        .arg("--cad")
-        .arg(case.join("cad.stl"))
-        .arg("--scan")
-        .arg(case.join("scan.ply"))
-        .arg("--path")
-        .arg(case.join("path.csv"))
-        .arg("--datums")
-        .arg(tmp.path().join("two.txt"))
-        .arg("--out")
-        .arg(tmp.path().join("x.csv"))
-        .output()
-        .expect("trimctl register runs");
+    let result = register_with_datums(
+        &case,
+        &tmp.path().join("two.txt"),
+        &tmp.path().join("x.csv"),
+        None,
+    );
     assert_eq!(result.status.code(), Some(1));
     let stderr = String::from_utf8_lossy(&result.stderr);
     assert!(
