@@ -1,5 +1,5 @@
 //! The crates point one way (DESIGN.md, STYLE.md practice 2): geom ← register, geom ← plan ← io ←
-//! cli; pybind on top; and tokio, pyo3 and clap never reach geom, register or plan.
+//! cli, plan ← calib ← cli; pybind on top; and tokio, pyo3 and clap never reach geom, register or plan.
 
 #![expect(
     clippy::unwrap_used,
@@ -95,6 +95,7 @@ fn workspace_crates_point_one_way() {
         "trim-geom",
         "trim-register",
         "trim-plan",
+        "trim-calib",
         "trim-io",
         "trimctl",
         "trimctl-py",
@@ -103,14 +104,21 @@ fn workspace_crates_point_one_way() {
         ("trim-geom", &[][..]),
         ("trim-register", &["trim-geom"][..]),
         ("trim-plan", &["trim-geom"][..]),
+        ("trim-calib", &["trim-geom", "trim-plan"][..]),
         ("trim-io", &["trim-geom", "trim-plan"][..]),
         (
             "trimctl",
-            &["trim-geom", "trim-register", "trim-plan", "trim-io"][..],
+            &[
+                "trim-geom",
+                "trim-register",
+                "trim-plan",
+                "trim-calib",
+                "trim-io",
+            ][..],
         ),
         (
             "trimctl-py",
-            &["trim-geom", "trim-register", "trim-plan"][..],
+            &["trim-geom", "trim-register", "trim-plan", "trim-calib"][..],
         ),
     ]);
     for krate in ours {
@@ -130,7 +138,7 @@ fn workspace_crates_point_one_way() {
 #[test]
 fn runtime_frameworks_stay_out_of_the_algorithm_crates() {
     let deps = normal_deps(&metadata());
-    for krate in ["trim-geom", "trim-register", "trim-plan"] {
+    for krate in ["trim-geom", "trim-register", "trim-plan", "trim-calib"] {
         let all = reach(&deps, krate);
         for banned in ["tokio", "pyo3", "clap"] {
             assert!(!all.contains(banned), "{banned} reaches {krate}");

@@ -39,6 +39,7 @@
 use serde::{Deserialize, Serialize};
 use trim_geom::{Point3, UnitVector3, Vector3};
 
+use crate::cell::TableModel;
 use crate::error::{PlanError, require_positive};
 use crate::frame::frame_from_axes;
 use crate::job::{Frame, Pose};
@@ -380,10 +381,7 @@ pub fn forward(m: &MachineSettings, pose: &AxisPose) -> (Point3, UnitVector3) {
     (point, UnitVector3::new_normalize(dir))
 }
 
-/// Inverse: every pose (one per tilt branch, C in (−180°, 180°]) that puts the focus at
-/// `point` with the beam along `direction` (work-piece frame, unit, from the part toward the
-/// lens). Limits are not checked here ([`choose_pose`] does). At the singularity (beam along
-/// C) C is `c_hint_deg`. The fixed-head machine has a pose only for +Z.
+/// Inverse on the nominal lines of `m`: see [`inverse_on`].
 #[must_use]
 pub fn inverse(
     m: &MachineSettings,
@@ -391,42 +389,35 @@ pub fn inverse(
     direction: &UnitVector3,
     c_hint_deg: f64,
 ) -> Vec<AxisPose> {
-    let d = direction.into_inner();
+    inverse_on(m, &TableModel::nominal(m), point, direction, c_hint_deg)
+}
+
+/// Inverse: every pose (one per tilt branch, C in (−180°, 180°]) that puts the focus at
+/// `point` with the beam along `direction` (work-piece frame, unit, from the part toward the
+/// lens) on the cell whose rotary axes are `table` (calibrated or nominal lines). The joint
+/// positions put the table point under the tool point; for pose mode `tcp` they are turned into
+/// the world coordinates that LinuxCNC's own (nominal) kinematics maps to those joints, so a
+/// calibrated cell is driven right by an uncalibrated controller. Limits are not checked here
+/// ([`choose_pose`] does). At the singularity (beam along C) C is `c_hint_deg`. The fixed-head
+/// machine has a pose only for +Z.
+#[must_use]
+pub fn inverse_on(
+    m: &MachineSettings,
+    table: &TableModel,
+    point: &Point3,
+    direction: &UnitVector3,
+    c_hint_deg: f64,
+) -> Vec<AxisPose> {
     let world = point.coords + Vector3::from(m.workpiece_origin_mm);
-    let mut angles: Vec<(f64, f64)> = Vec::new();
-    match m.kinematics {
-        KinematicsKind::Xyz => {
-            if crate::piece::angle_rad(&d, &Vector3::z()) <= FIXED_HEAD_TOLERANCE_RAD {
-                angles.push((0.0, 0.0));
-            }
-        }
-        kind => {
-            let tilt = d.z.clamp(-1.0, 1.0).acos();
-            for t in [tilt, -tilt] {
-                let s = t.sin();
-                let c = if s.abs() < SINGULAR_SIN {
-                    c_hint_deg.to_radians()
-                } else if kind == KinematicsKind::XyzacTrt {
-                    // d = (sin C·sin A, cos C·sin A, cos A)
-                    (d.x / s).atan2(d.y / s)
-                } else {
-                    // d = (−cos C·sin B, sin C·sin B, cos B)
-                    (d.y / s).atan2(-d.x / s)
-                };
-                angles.push((t, c));
-                if s.abs() < SINGULAR_SIN {
-                    break;
-                }
-            }
-        }
-    }
-    angles
+    table
+        .orient(direction, c_hint_deg)
         .into_iter()
-        .map(|(t, c)| {
-            let (tilt_deg, rotary_deg) = (t.to_degrees(), c.to_degrees());
+        .map(|(tilt_deg, rotary_deg)| {
+            let joints =
+                (table.machine_from_table(tilt_deg, rotary_deg) * Point3::from(world)).coords;
             let linear = match m.pose_mode {
-                PoseMode::Tcp => world,
-                PoseMode::Joints => joints_from_world(m, &world, tilt_deg, rotary_deg),
+                PoseMode::Joints => joints,
+                PoseMode::Tcp => world_from_joints(m, &joints, tilt_deg, rotary_deg),
             };
             AxisPose {
                 linear_mm: [linear.x, linear.y, linear.z],
@@ -435,6 +426,35 @@ pub fn inverse(
             }
         })
         .collect()
+}
+
+/// Forward on the cell whose rotary axes are `table`: where a pose puts the focus and which
+/// way the beam points, in the work-piece frame (the direction from the focus toward the lens).
+#[must_use]
+pub fn forward_on(
+    m: &MachineSettings,
+    table: &TableModel,
+    pose: &AxisPose,
+) -> (Point3, UnitVector3) {
+    let joints = joints_of(m, pose);
+    let table_from_machine = table
+        .machine_from_table(pose.tilt_deg, pose.rotary_deg)
+        .inverse();
+    let point = table_from_machine * Point3::from(joints) - Vector3::from(m.workpiece_origin_mm);
+    let dir = table.rotation(pose.tilt_deg, pose.rotary_deg).transpose() * Vector3::z();
+    (point, UnitVector3::new_normalize(dir))
+}
+
+/// The galvo head's axes seen from the part (work-piece frame) at a pose of the cell whose
+/// rotary axes are `table`: the zone frame.
+#[must_use]
+pub fn head_frame_on(table: &TableModel, tilt_deg: f64, rotary_deg: f64) -> Frame {
+    let table_from_machine = table.rotation(tilt_deg, rotary_deg).transpose();
+    frame_from_axes(
+        &(table_from_machine * Vector3::x()),
+        &(table_from_machine * Vector3::y()),
+        &(table_from_machine * Vector3::z()),
+    )
 }
 
 /// Why a pose is outside the limits, or `None` when it is inside (world and joint limits).

@@ -1,6 +1,7 @@
 //! Zone-layered planning for trimctl (DESIGN.md "Algorithms", paper §2).
 //!
 //! - [`beam`]: beam optics (waist, Rayleigh length, fluence, focus processing length, spot).
+//! - [`cell`]: the calibrated cell: rotary axis lines, scanner pose, lens calibration.
 //! - [`piece`]: contours as pieces (contours split where their feature vectors spread).
 //! - [`zoning`]: k-means zoning with the incidence limit and automatic k.
 //! - [`frame`]: local zone frames (paper Eq. 11–13, right-handed).
@@ -15,6 +16,7 @@
 //! - [`error`]: the error type, [`PlanError`].
 
 pub mod beam;
+pub mod cell;
 pub mod error;
 pub mod field;
 pub mod frame;

@@ -1,0 +1,8 @@
+//! Cell calibration for trimctl (DESIGN.md "Frames and the calibration chain"; thesis §3).
+//!
+//! - [`sphere`]: robust sphere fits (RANSAC, then least squares with the known radius).
+//! - [`cell`]: `trimctl calibrate cell`: the rotary axis lines, the scanner pose and the
+//!   sphere's table position from sphere scans at many machine poses, in one nonlinear least
+//!   squares problem.
+//! - [`field`]: `trimctl calibrate field`: the galvo field correction from a marked grid.
+//! - [`error`]: the error type, [`CalibError`].
