@@ -6,3 +6,7 @@
 //!   squares problem.
 //! - [`field`]: `trimctl calibrate field`: the galvo field correction from a marked grid.
 //! - [`error`]: the error type, [`CalibError`].
+
+pub mod error;
+
+pub use error::CalibError;

@@ -2,6 +2,9 @@
 //! stderr. `main` alone owns the exit codes (see [`exit`]).
 
 mod beam;
+mod calibrate;
+mod calibrate_cell;
+mod calibrate_field;
 mod config;
 mod config_cmd;
 mod exit;
@@ -44,6 +47,8 @@ enum Command {
     Sim(sim::Args),
     /// Show the job.toml configuration.
     Config(config_cmd::Args),
+    /// Calibrate the cell: rotary axes and scanner pose (`cell`), galvo field (`field`).
+    Calibrate(calibrate::Args),
 }
 
 fn main() -> ExitCode {
@@ -58,6 +63,7 @@ fn main() -> ExitCode {
         Command::Synth(a) => synth::run(a),
         Command::Sim(a) => sim::run(a),
         Command::Config(a) => config_cmd::run(a),
+        Command::Calibrate(a) => calibrate::run(a),
     };
     exit::code_for(result)
 }
