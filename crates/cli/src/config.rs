@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 use toml::Value;
+use trim_io::twin::TruthSettings;
+use trim_plan::cell::{Calibration, ScanPose};
 use trim_plan::field::FieldSettings;
 use trim_plan::kinematics::MachineSettings;
 use trim_plan::layer::LayerSettings;
@@ -37,8 +39,12 @@ pub struct JobConfig {
     pub machine: MachineSettings,
     /// Galvo field, calibration, speeds and delays.
     pub galvo: GalvoSettings,
+    /// The cell as calibrated (`trimctl calibrate`): axis lines, scanner pose, field, lens.
+    pub calibration: Calibration,
     /// Where the devices are.
     pub cell: CellConfig,
+    /// The built-in simulators (the digital twin's true cell).
+    pub sim: SimConfig,
     /// Where the run folder goes.
     pub output: OutputConfig,
 }
@@ -56,7 +62,9 @@ impl Default for JobConfig {
             field: plan.field,
             machine: plan.machine,
             galvo: plan.galvo,
+            calibration: plan.calibration,
             cell: CellConfig::default(),
+            sim: SimConfig::default(),
             output: OutputConfig::default(),
         }
     }
@@ -71,8 +79,18 @@ pub struct PartConfig {
     pub cad: Option<PathBuf>,
     /// The CAM template path (path CSV).
     pub path: Option<PathBuf>,
-    /// The scan of the clamped part (PLY, PCD, XYZ).
+    /// The scan of the clamped part (PLY, PCD, XYZ), in the scanner frame.
     pub scan: Option<PathBuf>,
+    /// The machine pose the scan was taken at.
+    pub scan_pose: ScanPose,
+}
+
+/// The built-in simulators (job.toml `[sim]`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimConfig {
+    /// The true cell the simulators carry (the digital twin); the nominal cell when empty.
+    pub truth: TruthSettings,
 }
 
 /// Device addresses. `"sim"` starts the built-in simulator for that device.
@@ -133,6 +151,10 @@ impl JobConfig {
             &mut config.part.scan,
         ]
         .into_iter()
+        .chain([
+            &mut config.calibration.field_correction,
+            &mut config.sim.truth.path,
+        ])
         .flatten()
         {
             if p.is_relative() {
@@ -177,6 +199,10 @@ impl JobConfig {
     /// Checks every value's range, naming the key at fault.
     pub fn validate(&self) -> anyhow::Result<()> {
         self.plan_settings().validate()?;
+        self.sim
+            .truth
+            .validate(self.machine.kinematics)
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
         self.register
             .validate()
             .map_err(|e| anyhow::anyhow!("register.{e}"))?;
@@ -215,6 +241,7 @@ impl JobConfig {
             field: self.field,
             machine: self.machine,
             galvo: self.galvo,
+            calibration: self.calibration.clone(),
         }
     }
 
@@ -253,6 +280,163 @@ pub const KEY_DOCS: &[(&str, &str, Option<&str>)] = &[
         "part.scan",
         "Scan of the clamped part: PLY, PCD or XYZ (normals optional).",
         Some("\"scan.ply\""),
+    ),
+    (
+        "part.scan_pose",
+        "The machine pose the scan was taken at: linear joint positions (the tool point, machine frame) and rotary axes. The scan is mapped into the work-piece frame through [calibration].",
+        None,
+    ),
+    (
+        "part.scan_pose.xyz_mm",
+        "X, Y, Z joint positions, mm.",
+        None,
+    ),
+    (
+        "part.scan_pose.tilt_deg",
+        "The tilting axis (A, or B on a B/C cell), degrees.",
+        None,
+    ),
+    ("part.scan_pose.c_deg", "C, degrees.", None),
+    (
+        "calibration",
+        "The cell as measured by `trimctl calibrate cell` / `calibrate field` (docs/DESIGN.md \"Frames and the calibration chain\"). A missing key is the nominal value of [machine] (axis lines), the identity (scanner) or none (field correction).",
+        None,
+    ),
+    (
+        "calibration.a_axis_point_mm",
+        "A point on the A line at A = C = 0, machine frame, mm (xyzac-trt).",
+        Some("[0.0, 20.0, 10.0]"),
+    ),
+    (
+        "calibration.a_axis_direction",
+        "The A line's unit direction (right-hand rule); nominal +X.",
+        Some("[1.0, 0.0, 0.0]"),
+    ),
+    (
+        "calibration.b_axis_point_mm",
+        "A point on the B line at B = C = 0, machine frame, mm (xyzbc-trt).",
+        Some("[-20.0, 0.0, -15.0]"),
+    ),
+    (
+        "calibration.b_axis_direction",
+        "The B line's unit direction; nominal +Y.",
+        Some("[0.0, 1.0, 0.0]"),
+    ),
+    (
+        "calibration.c_axis_point_mm",
+        "A point on the C line, given at A (B) = 0, machine frame, mm.",
+        Some("[0.0, 0.0, 0.0]"),
+    ),
+    (
+        "calibration.c_axis_direction",
+        "The C line's unit direction; nominal +Z.",
+        Some("[0.0, 0.0, 1.0]"),
+    ),
+    (
+        "calibration.scanner_rotation",
+        "R of the scanner on the head (3×3, rows): a scanner point s is at (X, Y, Z) + R·s + t.",
+        Some("[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]"),
+    ),
+    (
+        "calibration.scanner_translation_mm",
+        "t of the scanner on the head, mm.",
+        Some("[0.0, 0.0, 0.0]"),
+    ),
+    (
+        "calibration.field_correction",
+        "The galvo field correction from `trimctl calibrate field` (field.json), relative to this file.",
+        Some("\"field.json\""),
+    ),
+    ("calibration.lens", "The lens.", None),
+    (
+        "calibration.lens.pivot_to_focal_plane_mm",
+        "L: the scan pivot's height above the focal plane, mm. A point h above the focal plane is reached at (L − h)/L of its focal-plane position. Unset: the field correction's value, else beam.focal_length_mm. Ignored for a telecentric lens.",
+        Some("254.0"),
+    ),
+    (
+        "sim",
+        "The built-in simulators used where [cell] says \"sim\".",
+        None,
+    ),
+    (
+        "sim.truth",
+        "The digital twin: the true cell the simulators carry, which may differ from the nominal one and from [calibration]. The galvo simulator lands every marked vector on the true part and the run reports the spot error. Empty: a perfect nominal cell.",
+        None,
+    ),
+    (
+        "sim.truth.a_axis_point_mm",
+        "The true A line's point, machine frame, mm.",
+        Some("[0.05, 20.08, 9.97]"),
+    ),
+    (
+        "sim.truth.a_axis_direction",
+        "The true A line's direction.",
+        Some("[1.0, 0.0003, -0.0002]"),
+    ),
+    (
+        "sim.truth.b_axis_point_mm",
+        "The true B line's point (xyzbc-trt), mm.",
+        Some("[-20.05, 0.0, -15.03]"),
+    ),
+    (
+        "sim.truth.b_axis_direction",
+        "The true B line's direction (xyzbc-trt).",
+        Some("[0.0002, 1.0, 0.0003]"),
+    ),
+    (
+        "sim.truth.c_axis_point_mm",
+        "The true C line's point, mm.",
+        Some("[-0.04, 0.06, 0.0]"),
+    ),
+    (
+        "sim.truth.c_axis_direction",
+        "The true C line's direction.",
+        Some("[0.0004, -0.0001, 1.0]"),
+    ),
+    (
+        "sim.truth.scanner_rotation",
+        "The scanner's true rotation on the head (3×3, rows).",
+        Some("[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]"),
+    ),
+    (
+        "sim.truth.scanner_translation_mm",
+        "The scanner's true translation on the head, mm.",
+        Some("[0.3, -0.2, 0.15]"),
+    ),
+    (
+        "sim.truth.pivot_to_focal_plane_mm",
+        "The lens's true pivot height L, mm (unset: beam.focal_length_mm).",
+        Some("262.0"),
+    ),
+    (
+        "sim.truth.path",
+        "The true trimming line (path CSV, work-piece frame) the spot error is measured against; the built-in demo part brings its own.",
+        Some("\"truth.csv\""),
+    ),
+    (
+        "sim.truth.head",
+        "The galvo head's true field: where a command c lands on the focal plane, offset + rotation·(c·(1 + barrel·|c|²) + trapezoid terms).",
+        None,
+    ),
+    (
+        "sim.truth.head.offset_mm",
+        "Where the zero command lands, head frame, mm.",
+        None,
+    ),
+    (
+        "sim.truth.head.rotation_deg",
+        "The head's rotation about the beam axis, degrees.",
+        None,
+    ),
+    (
+        "sim.truth.head.barrel_per_mm2",
+        "Radial distortion k: c ↦ c·(1 + k·|c|²), 1/mm².",
+        None,
+    ),
+    (
+        "sim.truth.head.trapezoid_per_mm",
+        "Keystone: x gains x·(tx·y), y gains y·(ty·x), 1/mm.",
+        None,
     ),
     (
         "max_incidence_deg",

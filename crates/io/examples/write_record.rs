@@ -49,10 +49,10 @@ fn job() -> Job {
                         index: m,
                         focus_point: [10.0 * z as f64, 0.0, -0.1 * m as f64],
                         pose: Pose(pose),
-                        polylines: vec![Polyline {
-                            contour: z as i64,
-                            points: vec![[-3.0, -1.0], [0.0, 2.0], [3.0, -1.0]],
-                        }],
+                        polylines: vec![Polyline::from_points(
+                            z as i64,
+                            vec![[-3.0, -1.0], [0.0, 2.0], [3.0, -1.0]],
+                        )],
                     }
                 })
                 .collect(),
@@ -64,6 +64,7 @@ fn job() -> Job {
         focus_half_length_mm: 0.4,
         zones,
         settings: JobSettings {
+            lens: Default::default(),
             max_incidence_deg: 5.0,
             kinematics: "xyzac-trt".into(),
             galvo: GalvoSettings::default(),

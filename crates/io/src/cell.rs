@@ -174,6 +174,8 @@ pub struct SimOptions {
     pub cnc_time_scale: f64,
     /// Faults to arm.
     pub faults: SimFaults,
+    /// The digital twin the galvo simulator lands its vectors with, if any.
+    pub twin: Option<std::sync::Arc<crate::twin::Twin>>,
 }
 
 impl SimOptions {
@@ -185,6 +187,7 @@ impl SimOptions {
             galvo_time_scale: 1.0,
             cnc_time_scale: 1.0,
             faults: SimFaults::default(),
+            twin: None,
         }
     }
 }
@@ -216,6 +219,7 @@ impl SimCell {
             lo,
             GalvoSimConfig {
                 time_scale: options.galvo_time_scale,
+                twin: options.twin.clone(),
                 ..GalvoSimConfig::default()
             },
             monitor.clone(),
@@ -240,6 +244,9 @@ impl SimCell {
         )
         .await
         .map_err(|e| SimError(format!("cnc: {e}")))?;
+        if let Some(twin) = &options.twin {
+            twin.attach_cnc(cnc.pose_source());
+        }
         Ok(SimCell {
             galvo,
             laser,

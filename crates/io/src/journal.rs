@@ -319,6 +319,7 @@ mod tests {
             focus_half_length_mm: 0.4,
             zones: vec![],
             settings: JobSettings {
+                lens: Default::default(),
                 max_incidence_deg: 5.0,
                 kinematics: "xyzac-trt".into(),
                 galvo: GalvoSettings::default(),

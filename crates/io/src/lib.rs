@@ -7,6 +7,8 @@
 //! - [`executor`]: the state machine over the Job with its interlocks, the [`journal`], and the
 //!   run [`record`] (MCAP).
 //! - [`cell`]: the three devices together, and [`cell::SimCell`], all three simulated.
+//! - [`twin`]: the digital twin: a true cell in the simulators, and the spot error on the true
+//!   part.
 //!
 //! Device calls return `Result<Result<T, Fault>, Error>`: the outer error is the transport (link,
 //! timeout, garbled bytes), the inner one the device's own refusal or fault.
@@ -21,3 +23,4 @@ pub mod laser;
 pub mod record;
 pub mod safety;
 pub mod tap;
+pub mod twin;

@@ -338,9 +338,9 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
     let mut job = demo_job(2);
     job.zones[1].layers[0].polylines.insert(
         0,
-        trim_plan::job::Polyline {
-            contour: 99,
-            points: (0..=10)
+        trim_plan::job::Polyline::from_points(
+            99,
+            (0..=10)
                 .map(|i| {
                     [
                         -10.0 + 2.0 * f64::from(i),
@@ -348,7 +348,7 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
                     ]
                 })
                 .collect(),
-        },
+        ),
     );
     let mut table = Vec::new();
     for (device, where_, trigger, phase) in matrix_cases() {

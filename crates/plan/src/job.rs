@@ -115,19 +115,77 @@ impl Pose {
 pub struct Polyline {
     /// The id of the input contour this polyline is (part of).
     pub contour: ContourId,
-    /// At least two points, galvo millimetres.
+    /// At least two points, galvo millimetres: the geometry, in the zone frame's x/y (the
+    /// galvo's own axes).
     pub points: Vec<[f64; 2]>,
+    /// What the galvo is sent for each point (same axes, mm, before the bits conversion): the
+    /// point after the lens height term and the field correction. Empty in a job planned
+    /// without them (the executor then sends `points`).
+    #[serde(default)]
+    pub commands: Vec<[f64; 2]>,
+    /// Each point's height above the layer's focal plane, toward the lens (mm): the `h` of the
+    /// height term.
+    #[serde(default)]
+    pub heights_mm: Vec<f64>,
 }
 
 impl Polyline {
+    /// A polyline of geometric points only (commands = points, heights 0): for hand-made jobs
+    /// and tests.
+    #[must_use]
+    pub fn from_points(contour: ContourId, points: Vec<[f64; 2]>) -> Polyline {
+        Polyline {
+            contour,
+            heights_mm: vec![0.0; points.len()],
+            commands: points.clone(),
+            points,
+        }
+    }
+
+    /// What the galvo is sent: `commands`, or `points` for a job planned without them.
+    #[must_use]
+    pub fn galvo_commands(&self) -> &[[f64; 2]] {
+        if self.commands.is_empty() {
+            &self.points
+        } else {
+            &self.commands
+        }
+    }
+
     /// The polyline length (mm).
     #[must_use]
     pub fn length_mm(&self) -> f64 {
-        self.points
-            .windows(2)
-            .map(|w| ((w[1][0] - w[0][0]).powi(2) + (w[1][1] - w[0][1]).powi(2)).sqrt())
-            .sum()
+        path_length_mm(&self.points)
     }
+}
+
+/// The length (mm) of a 2-D polyline.
+#[must_use]
+pub fn path_length_mm(points: &[[f64; 2]]) -> f64 {
+    points
+        .windows(2)
+        .map(|w| ((w[1][0] - w[0][0]).powi(2) + (w[1][1] - w[0][1]).powi(2)).sqrt())
+        .sum()
+}
+
+/// The lens model a job's commands were computed with (`settings.lens`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct LensRecord {
+    /// A telecentric lens (no height term).
+    pub telecentric: bool,
+    /// L, the scan pivot's height above the focal plane (mm); `None` for a telecentric lens.
+    pub pivot_to_focal_plane_mm: Option<f64>,
+    /// The field correction file, if one was applied.
+    pub field_correction: Option<FieldCorrectionRecord>,
+}
+
+/// A field correction file a job used.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FieldCorrectionRecord {
+    /// The file as named in the settings.
+    pub file: String,
+    /// The checksum of its bytes.
+    pub checksum: String,
 }
 
 /// Galvo motion and laser timing, used for the time estimate and sent to the galvo as list
@@ -209,14 +267,15 @@ impl GalvoSettings {
         let mut pos = [0.0_f64, 0.0_f64];
         let (mut marking_s, mut jumping_s) = (0.0, 0.0);
         for pl in polylines {
-            let (Some(first), Some(last)) = (pl.points.first(), pl.points.last()) else {
+            let sent = pl.galvo_commands();
+            let (Some(first), Some(last)) = (sent.first(), sent.last()) else {
                 continue;
             };
             let jump_mm = (first[0] - pos[0]).hypot(first[1] - pos[1]);
             jumping_s += jump_mm / self.jump_speed_mm_per_s + self.jump_delay_us * S_PER_US;
-            let segments = pl.points.len().saturating_sub(1);
+            let segments = sent.len().saturating_sub(1);
             if segments > 0 {
-                marking_s += pl.length_mm() / self.mark_speed_mm_per_s
+                marking_s += path_length_mm(sent) / self.mark_speed_mm_per_s
                     + (self.laser_on_delay_us
                         + (segments - 1) as f64 * self.polygon_delay_us
                         + self.laser_off_delay_us
@@ -238,6 +297,9 @@ pub struct JobSettings {
     pub kinematics: String,
     /// Galvo motion and timing.
     pub galvo: GalvoSettings,
+    /// The lens model the commands were computed with.
+    #[serde(default)]
+    pub lens: LensRecord,
     /// The planner's other settings (beam, zoning, machine limits), as it wrote them.
     #[serde(default)]
     pub extra: serde_json::Value,

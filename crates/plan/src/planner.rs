@@ -29,6 +29,7 @@ use serde::{Deserialize, Serialize};
 use trim_geom::{ContourId, Path, Point3, UnitVector3, Vector3};
 
 use crate::beam::Beam;
+use crate::cell::{Calibration, TableModel};
 use crate::error::{PlanError, require_open_closed};
 use crate::field::{FieldSettings, Lens, Section, sections};
 use crate::job::{
@@ -36,7 +37,7 @@ use crate::job::{
     Zone, galvo_to_workpiece,
 };
 use crate::kinematics::{
-    AxisPose, MachineSettings, choose_pose, forward, head_frame, inverse, limit_violation,
+    AxisPose, MachineSettings, choose_pose, forward_on, head_frame_on, inverse_on, limit_violation,
     move_time_s,
 };
 use crate::layer::{LayerSettings, ZoneLayers, layer_pieces, project};
@@ -59,8 +60,8 @@ pub const POSE_TOLERANCE: f64 = 1e-6;
 pub const MAX_VIOLATION_LINES: usize = 200;
 
 /// Every planning option (job.toml: top-level `max_incidence_deg` and the `[beam]`,
-/// `[zoning]`, `[layers]`, `[field]`, `[machine]` and `[galvo]` tables).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+/// `[zoning]`, `[layers]`, `[field]`, `[machine]`, `[galvo]` and `[calibration]` tables).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PlanSettings {
     /// The incidence limit (degrees): the largest angle between a contour's feature vector and
@@ -78,6 +79,8 @@ pub struct PlanSettings {
     pub machine: MachineSettings,
     /// Galvo field, speeds and delays.
     pub galvo: GalvoSettings,
+    /// The cell as calibrated: rotary axis lines, scanner pose, field correction, lens pivot.
+    pub calibration: Calibration,
 }
 
 impl Default for PlanSettings {
@@ -90,6 +93,7 @@ impl Default for PlanSettings {
             field: FieldSettings::default(),
             machine: MachineSettings::default(),
             galvo: GalvoSettings::default(),
+            calibration: Calibration::default(),
         }
     }
 }
@@ -104,7 +108,14 @@ impl PlanSettings {
         self.field.validate(self.max_incidence_deg)?;
         self.machine.validate()?;
         self.galvo.validate()?;
+        self.calibration.validate(self.machine.kinematics)?;
         Ok(())
+    }
+
+    /// The rotary table as calibrated (nominal lines where `[calibration]` gives none).
+    #[must_use]
+    pub fn table(&self) -> TableModel {
+        self.calibration.table(&self.machine)
     }
 
     fn lens(&self) -> Lens {
@@ -226,6 +237,7 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
 
     // (5) order and poses.
     let machine = &settings.machine;
+    let rotary = settings.table();
     let focus_points = |p: &Planned| -> Vec<Point3> {
         p.layers
             .layers
@@ -235,7 +247,7 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
     };
     let mut provisional = Vec::with_capacity(planned.len());
     for (i, p) in planned.iter().enumerate() {
-        let poses = zone_poses(machine, &focus_points(p), &p.axis, &AxisPose::HOME)
+        let poses = zone_poses(machine, &rotary, &focus_points(p), &p.axis, &AxisPose::HOME)
             .map_err(|reason| unreachable(i, p, &pieces_contours(&p.section), machine, reason))?;
         provisional.push(poses);
     }
@@ -256,9 +268,9 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
     for (zone_id, &idx) in order.iter().enumerate() {
         let p = &planned[idx];
         let contours = pieces_contours(&p.section);
-        let poses = zone_poses(machine, &focus_points(p), &p.axis, &previous)
+        let poses = zone_poses(machine, &rotary, &focus_points(p), &p.axis, &previous)
             .map_err(|reason| unreachable(zone_id, p, &contours, machine, reason))?;
-        let frame = head_frame(machine.kinematics, poses[0].tilt_deg, poses[0].rotary_deg);
+        let frame = head_frame_on(&rotary, poses[0].tilt_deg, poses[0].rotary_deg);
         let mut zone_s = 0.0;
         let mut layers = Vec::with_capacity(poses.len());
         let mut zone_traces = Vec::with_capacity(poses.len());
@@ -274,6 +286,8 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
                 polylines.push(Polyline {
                     contour: lp.contour,
                     points,
+                    commands: Vec::new(),
+                    heights_mm: heights.clone(),
                 });
                 layer_traces.push(Trace {
                     source: lp.source.clone(),
@@ -351,6 +365,7 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
             max_incidence_deg: settings.max_incidence_deg,
             kinematics: machine.kinematics.name().to_owned(),
             galvo: settings.galvo,
+            lens: crate::job::LensRecord::default(),
             extra: serde_json::to_value(settings).unwrap_or(serde_json::Value::Null),
         },
         validation: ValidationReport::default(),
@@ -414,6 +429,7 @@ fn unreachable(
 /// branch within limits for every layer with the least rotary travel from `previous`.
 fn zone_poses(
     machine: &MachineSettings,
+    table: &TableModel,
     focus_points: &[Point3],
     axis: &UnitVector3,
     previous: &AxisPose,
@@ -421,7 +437,7 @@ fn zone_poses(
     let Some(first) = focus_points.first() else {
         return Ok(Vec::new());
     };
-    let branches = inverse(machine, first, axis, previous.rotary_deg);
+    let branches = inverse_on(machine, table, first, axis, previous.rotary_deg);
     if branches.is_empty() {
         return Err("the kinematics cannot point the beam that way".to_owned());
     }
@@ -432,7 +448,7 @@ fn zone_poses(
         let mut prev = *previous;
         let mut failed = None;
         for f in focus_points {
-            let cands: Vec<AxisPose> = inverse(machine, f, axis, prev.rotary_deg)
+            let cands: Vec<AxisPose> = inverse_on(machine, table, f, axis, prev.rotary_deg)
                 .into_iter()
                 .filter(|c| (c.tilt_deg - branch.tilt_deg).abs() < 1e-9)
                 .collect();
@@ -513,6 +529,7 @@ fn validate(
         0.5 * settings.galvo.field_mm[1],
     ];
     let lens = settings.lens();
+    let rotary = settings.table();
     let mut coverage: std::collections::BTreeMap<ContourId, Vec<(f64, f64)>> = Default::default();
     for (zone, zone_traces) in job.zones.iter().zip(traces) {
         let (fx, fy, fz) = (
@@ -528,7 +545,7 @@ fn validate(
                     if let Some(why) = limit_violation(&settings.machine, &pose) {
                         violation(format!("{at}: pose outside the axis limits: {why}"));
                     }
-                    let (tip, dir) = forward(&settings.machine, &pose);
+                    let (tip, dir) = forward_on(&settings.machine, &rotary, &pose);
                     let focus = Point3::from(layer.focus_point);
                     if (tip - focus).norm() > POSE_TOLERANCE
                         || angle_rad(&dir, &fz) > POSE_TOLERANCE

@@ -185,6 +185,17 @@ impl CncSim {
     pub fn tcp_kinematics(&self) -> bool {
         self.shared.m().tcp
     }
+
+    /// A handle that reads the position `[X, Y, Z, A, B, C]` and the TCP mode, for the
+    /// digital twin.
+    #[must_use]
+    pub fn pose_source(&self) -> crate::twin::PoseSource {
+        let shared = Arc::clone(&self.shared);
+        Box::new(move || {
+            let m = shared.m();
+            (m.pos, m.tcp)
+        })
+    }
 }
 
 struct Session {

@@ -49,7 +49,7 @@ pub fn vector_count(layer: &Layer) -> u32 {
     let n: usize = layer
         .polylines
         .iter()
-        .map(|p| p.points.len().saturating_sub(1))
+        .map(|p| p.galvo_commands().len().saturating_sub(1))
         .sum();
     u32::try_from(n).unwrap_or(u32::MAX)
 }
@@ -61,7 +61,7 @@ pub fn vectors_bits(
 ) -> Result<Vec<VectorBits>, OutOfField> {
     let mut out = Vec::new();
     for (pi, pl) in layer.polylines.iter().enumerate() {
-        let pts = bits_of(pi, &pl.points, settings)?;
+        let pts = bits_of(pi, pl.galvo_commands(), settings)?;
         out.extend(pts.windows(2).map(|w| (w[0], w[1])));
     }
     Ok(out)
@@ -111,7 +111,7 @@ pub fn layer_list(
     ];
     let mut index = 0_u32;
     for (pi, pl) in layer.polylines.iter().enumerate() {
-        let pts = bits_of(pi, &pl.points, settings)?;
+        let pts = bits_of(pi, pl.galvo_commands(), settings)?;
         let mut jumped = false;
         for w in pts.windows(2) {
             if index >= first_vector {
@@ -145,14 +145,8 @@ mod tests {
             focus_point: [0.0; 3],
             pose: Pose::default(),
             polylines: vec![
-                Polyline {
-                    contour: 1,
-                    points: vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]],
-                },
-                Polyline {
-                    contour: 2,
-                    points: vec![[-2.0, -2.0], [-2.0, -3.0]],
-                },
+                Polyline::from_points(1, vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]),
+                Polyline::from_points(2, vec![[-2.0, -2.0], [-2.0, -3.0]]),
             ],
         }
     }
@@ -206,6 +200,7 @@ mod tests {
         let s = GalvoSettings::default();
         let mut l = layer();
         l.polylines[1].points[1] = [0.0, 50.5];
+        l.polylines[1].commands[1] = [0.0, 50.5];
         let e = layer_list(&l, &s, 0).unwrap_err();
         assert_eq!((e.polyline, e.point), (1, 1));
         assert_eq!(mm_to_bits([50.0, -50.0], &s), Some([500_000, -500_000]));

@@ -35,6 +35,8 @@ pub struct GalvoSimConfig {
     pub time_scale: f64,
     /// Largest number of commands a list holds.
     pub list_capacity: u32,
+    /// The digital twin that lands every lit vector on the true part, if any.
+    pub twin: Option<std::sync::Arc<crate::twin::Twin>>,
 }
 
 impl Default for GalvoSimConfig {
@@ -43,6 +45,7 @@ impl Default for GalvoSimConfig {
             half_field_bits: 1 << 30,
             time_scale: 1.0,
             list_capacity: 1 << 20,
+            twin: None,
         }
     }
 }
@@ -649,6 +652,11 @@ async fn run_list(shared: Arc<Shared>, commands: Vec<ListCommand>, tag: u32, run
                         to_bits: pos,
                         lit: if running { lit } else { Lit::Partial },
                     });
+                if lit != Lit::Dry
+                    && let Some(twin) = &shared.config.twin
+                {
+                    twin.on_mark(tag, from, pos);
+                }
             }
             if !running {
                 let _ = still_running(&shared, run_id);

@@ -149,25 +149,8 @@ pub fn list_time_s(commands: &[ListCommand]) -> f64 {
 /// marking).
 #[must_use]
 pub fn polylines_time_s(polylines: &[Polyline], settings: &GalvoSettings) -> (f64, f64) {
-    let mut pos = [0.0_f64, 0.0_f64];
-    let (mut marking_s, mut jumping_s) = (0.0, 0.0);
-    let us = 1e-6;
-    for pl in polylines {
-        let Some(first) = pl.points.first() else {
-            continue;
-        };
-        let jump_mm = ((first[0] - pos[0]).powi(2) + (first[1] - pos[1]).powi(2)).sqrt();
-        jumping_s += jump_mm / settings.jump_speed_mm_per_s + settings.jump_delay_us * us;
-        let segments = pl.points.len().saturating_sub(1);
-        if segments > 0 {
-            marking_s += pl.length_mm() / settings.mark_speed_mm_per_s
-                + settings.laser_on_delay_us * us
-                + (segments - 1) as f64 * settings.polygon_delay_us * us
-                + (settings.laser_off_delay_us + settings.mark_delay_us) * us;
-        }
-        pos = *pl.points.last().unwrap_or(first);
-    }
-    (marking_s, jumping_s)
+    // One model for the planner and the controller: the Job's own (trim_plan::job).
+    settings.polylines_time_s(polylines)
 }
 
 #[cfg(test)]
@@ -217,10 +200,7 @@ mod tests {
             mark_delay_us: 30.0,
             polygon_delay_us: 10.0,
         };
-        let pl = Polyline {
-            contour: 1,
-            points: vec![[3.0, 4.0], [4.0, 4.0], [4.0, 5.0]],
-        };
+        let pl = Polyline::from_points(1, vec![[3.0, 4.0], [4.0, 4.0], [4.0, 5.0]]);
         let (m, j) = polylines_time_s(&[pl], &settings);
         assert!(
             (m + j - expected_s).abs() < 1e-12,

@@ -53,19 +53,19 @@ pub fn demo_job(layers: usize) -> Job {
                     focus_point: [5.0 * zid as f64, 0.0, dz],
                     pose: pose(5.0 * zid as f64, 0.0, dz, a, c),
                     polylines: vec![
-                        Polyline {
-                            contour: 1 + zid as i64,
-                            points: vec![
+                        Polyline::from_points(
+                            1 + zid as i64,
+                            vec![
                                 [-4.0 * s, -2.0],
                                 [-2.0 * s, 2.0],
                                 [0.0, -2.0],
                                 [2.0 * s, 2.0],
                             ],
-                        },
-                        Polyline {
-                            contour: 10 + zid as i64,
-                            points: vec![[5.0, 5.0 + s], [8.0, 5.0 + s], [8.0, 9.0]],
-                        },
+                        ),
+                        Polyline::from_points(
+                            10 + zid as i64,
+                            vec![[5.0, 5.0 + s], [8.0, 5.0 + s], [8.0, 9.0]],
+                        ),
                     ],
                 }
             })
@@ -90,6 +90,7 @@ pub fn demo_job(layers: usize) -> Job {
         focus_half_length_mm: 0.4,
         zones,
         settings: JobSettings {
+            lens: Default::default(),
             max_incidence_deg: 5.0,
             kinematics: "xyzac-trt".into(),
             galvo: GalvoSettings {

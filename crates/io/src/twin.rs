@@ -1,0 +1,504 @@
+//! The digital twin: a *true* cell that differs from the nominal one (job.toml `[sim.truth]`;
+//! DESIGN.md "Frames and the calibration chain").
+//!
+//! The planner works from `[calibration]` (nominal where it is silent); the simulators carry the
+//! truth: the rotary axes' real lines, the scanner's real pose on the head, the galvo head's real
+//! field (offset, rotation, distortion) and the lens's real pivot height L. The galvo simulator
+//! hands every marked vector to [`Twin::on_mark`], which asks the CNC simulator where the
+//! machine is, builds the real beam of that command, carries it into the work-piece frame
+//! through the *true* table, meets the true part there and measures the distance from the
+//! landed spot to the true trimming line: the **spot error**.
+//!
+//! Truth model of the head: a command c (mm, head frame) lands on the focal plane at
+//! `J + D(c)` (J the linear joints, the tool point), `D` = [`LensDistortion::land`]; the beam
+//! comes from a pivot at height L above `J + D(0)`, so at height h (toward the lens) it is at
+//! `D(0) + (L − h)/L·(D(c) − D(0))`. A telecentric lens sends every beam along +Z.
+
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+
+use nalgebra::Isometry3;
+use serde::{Deserialize, Serialize};
+use trim_geom::kdtree::KdTree;
+use trim_geom::{Path, Point3, UnitVector3, Vector3};
+use trim_plan::cell::{Calibration, ScanPose, ScannerPose, TableModel};
+use trim_plan::kinematics::{AxisPose, KinematicsKind, MachineSettings, joints_of};
+use trim_plan::planner::PlanSettings;
+
+/// The galvo head's true field (interim: to be replaced by `trim_plan::lens::LensDistortion`).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LensDistortion {
+    /// Where the zero command lands (mm).
+    pub offset_mm: [f64; 2],
+    /// Rotation about the beam axis (degrees).
+    pub rotation_deg: f64,
+    /// Radial distortion k: c ↦ c·(1 + k·|c|²) (1/mm²).
+    pub barrel_per_mm2: f64,
+    /// Keystone: x gains x·tx·y, y gains y·ty·x (1/mm).
+    pub trapezoid_per_mm: [f64; 2],
+}
+
+impl LensDistortion {
+    /// Where a command lands on the focal plane (mm).
+    #[must_use]
+    pub fn land(&self, c: [f64; 2]) -> [f64; 2] {
+        let r2 = c[0] * c[0] + c[1] * c[1];
+        let k = 1.0 + self.barrel_per_mm2 * r2;
+        let x = c[0] * k + c[0] * self.trapezoid_per_mm[0] * c[1];
+        let y = c[1] * k + c[1] * self.trapezoid_per_mm[1] * c[0];
+        let (s, co) = self.rotation_deg.to_radians().sin_cos();
+        [
+            self.offset_mm[0] + co * x - s * y,
+            self.offset_mm[1] + s * x + co * y,
+        ]
+    }
+
+    /// Refuses non-finite values.
+    pub fn validate(&self) -> Result<(), String> {
+        let all = [
+            self.offset_mm[0],
+            self.offset_mm[1],
+            self.rotation_deg,
+            self.barrel_per_mm2,
+            self.trapezoid_per_mm[0],
+            self.trapezoid_per_mm[1],
+        ];
+        if all.iter().all(|v| v.is_finite()) {
+            Ok(())
+        } else {
+            Err(format!("every value must be finite, got {self:?}"))
+        }
+    }
+}
+
+/// Neighbouring path vertices searched for the nearest segment of the trimming line.
+const NEAREST_VERTICES: usize = 8;
+
+/// job.toml `[sim.truth]`: the true cell. A missing key is the nominal value (lines of
+/// `[machine]`, identity scanner, a perfect head, L = the focal length).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TruthSettings {
+    /// The true A line's point (machine frame, mm).
+    pub a_axis_point_mm: Option<[f64; 3]>,
+    /// The true A line's direction.
+    pub a_axis_direction: Option<[f64; 3]>,
+    /// The true B line's point (machine frame, mm).
+    pub b_axis_point_mm: Option<[f64; 3]>,
+    /// The true B line's direction.
+    pub b_axis_direction: Option<[f64; 3]>,
+    /// The true C line's point (machine frame, mm, at A (B) = 0).
+    pub c_axis_point_mm: Option<[f64; 3]>,
+    /// The true C line's direction.
+    pub c_axis_direction: Option<[f64; 3]>,
+    /// The scanner's true rotation R on the head (rows).
+    pub scanner_rotation: Option<[[f64; 3]; 3]>,
+    /// The scanner's true translation t on the head (mm).
+    pub scanner_translation_mm: Option<[f64; 3]>,
+    /// The lens's true pivot height L (mm); unset: the focal length.
+    pub pivot_to_focal_plane_mm: Option<f64>,
+    /// The true trimming line (path CSV, work-piece frame); the demo part brings its own.
+    pub path: Option<PathBuf>,
+    /// The galvo head's true field.
+    pub head: LensDistortion,
+}
+
+impl TruthSettings {
+    /// The axis lines and scanner pose as a [`Calibration`] (the same keys, the true values).
+    #[must_use]
+    pub fn as_calibration(&self) -> Calibration {
+        Calibration {
+            a_axis_point_mm: self.a_axis_point_mm,
+            a_axis_direction: self.a_axis_direction,
+            b_axis_point_mm: self.b_axis_point_mm,
+            b_axis_direction: self.b_axis_direction,
+            c_axis_point_mm: self.c_axis_point_mm,
+            c_axis_direction: self.c_axis_direction,
+            scanner_rotation: self.scanner_rotation,
+            scanner_translation_mm: self.scanner_translation_mm,
+            ..Calibration::default()
+        }
+    }
+
+    /// Refuses unusable values, naming the key (`sim.truth.…`).
+    pub fn validate(&self, kind: KinematicsKind) -> Result<(), String> {
+        self.as_calibration()
+            .validate(kind)
+            .map_err(|e| e.to_string().replacen("calibration.", "sim.truth.", 1))?;
+        if let Some(l) = self.pivot_to_focal_plane_mm
+            && !(l.is_finite() && l > 0.0)
+        {
+            return Err(format!(
+                "sim.truth.pivot_to_focal_plane_mm: must be a finite number > 0, got {l}"
+            ));
+        }
+        self.head
+            .validate()
+            .map_err(|reason| format!("sim.truth.head: {reason}"))
+    }
+}
+
+/// The true cell, resolved against the plan settings the controller is configured with.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrueCell {
+    /// The controller's configuration: its (nominal) kinematics turn commanded poses into
+    /// joint positions.
+    pub machine: MachineSettings,
+    /// The true rotary axis lines.
+    pub table: TableModel,
+    /// The scanner's true pose on the head.
+    pub scanner: ScannerPose,
+    /// The galvo head's true field.
+    pub head: LensDistortion,
+    /// A telecentric lens (beams along +Z).
+    pub telecentric: bool,
+    /// The true pivot height L (mm).
+    pub pivot_to_focal_plane_mm: f64,
+    /// Galvo bits per millimetre (as the controller is set up).
+    pub bits_per_mm: f64,
+}
+
+impl TrueCell {
+    /// The true cell of `truth` on the machine and galvo of `plan`.
+    #[must_use]
+    pub fn new(truth: &TruthSettings, plan: &PlanSettings) -> TrueCell {
+        let cal = truth.as_calibration();
+        TrueCell {
+            machine: plan.machine,
+            table: cal.table(&plan.machine),
+            scanner: cal.scanner(),
+            head: truth.head,
+            telecentric: plan.field.telecentric,
+            pivot_to_focal_plane_mm: truth
+                .pivot_to_focal_plane_mm
+                .unwrap_or(plan.beam.focal_length_mm),
+            bits_per_mm: plan.galvo.bits_per_mm,
+        }
+    }
+
+    /// The joints (mm) and rotary axes (degrees) the controller drives for the CNC position
+    /// `[X, Y, Z, A, B, C]`; `tcp`: the position is LinuxCNC world coordinates (M428).
+    #[must_use]
+    pub fn joints(&self, position: [f64; 6], tcp: bool) -> (Vector3, f64, f64) {
+        let tilt = match self.machine.kinematics {
+            KinematicsKind::XyzbcTrt => position[4],
+            _ => position[3],
+        };
+        let pose = AxisPose {
+            linear_mm: [position[0], position[1], position[2]],
+            tilt_deg: tilt,
+            rotary_deg: position[5],
+        };
+        let mut m = self.machine;
+        m.pose_mode = if tcp {
+            trim_plan::PoseMode::Tcp
+        } else {
+            trim_plan::PoseMode::Joints
+        };
+        (joints_of(&m, &pose), tilt, position[5])
+    }
+
+    /// The real beam of a galvo command at a CNC position: where it crosses the focal plane
+    /// and its direction toward the lens, both in the work-piece frame.
+    #[must_use]
+    pub fn beam(
+        &self,
+        position: [f64; 6],
+        tcp: bool,
+        command_mm: [f64; 2],
+    ) -> (Point3, UnitVector3) {
+        let (j, tilt, c) = self.joints(position, tcp);
+        let d0 = self.head.land([0.0, 0.0]);
+        let dc = self.head.land(command_mm);
+        let on_plane = Point3::new(j.x + dc[0], j.y + dc[1], j.z);
+        let toward_lens = if self.telecentric {
+            Vector3::z()
+        } else {
+            let pivot = Point3::new(j.x + d0[0], j.y + d0[1], j.z + self.pivot_to_focal_plane_mm);
+            (pivot - on_plane).normalize()
+        };
+        let table_from_machine = self.table.machine_from_table(tilt, c).inverse();
+        let origin = Vector3::from(self.machine.workpiece_origin_mm);
+        (
+            table_from_machine * on_plane - origin,
+            UnitVector3::new_normalize(table_from_machine * toward_lens),
+        )
+    }
+
+    /// `scanner_from_workpiece` at a scan pose: how the true scanner sees work-piece points.
+    #[must_use]
+    pub fn scanner_from_workpiece(&self, pose: &ScanPose) -> Isometry3<f64> {
+        trim_plan::cell::ScanChain {
+            table: self.table,
+            scanner: self.scanner,
+            pose: *pose,
+            workpiece_origin_mm: Vector3::from(self.machine.workpiece_origin_mm),
+        }
+        .workpiece_from_scanner()
+        .inverse()
+    }
+}
+
+/// The true part: its trimming line with the surface normal at every vertex.
+#[derive(Debug)]
+pub struct TruePart {
+    vertices: Vec<Point3>,
+    normals: Vec<Vector3>,
+    /// For each vertex: (first vertex of its contour, one past its last).
+    spans: Vec<(usize, usize)>,
+    tree: KdTree,
+}
+
+impl TruePart {
+    /// The part whose true trimming line is `path` (work-piece frame; feature vectors are the
+    /// surface normals).
+    #[must_use]
+    pub fn new(path: &Path) -> TruePart {
+        let (mut vertices, mut normals, mut spans) = (Vec::new(), Vec::new(), Vec::new());
+        for c in path.contours() {
+            let start = vertices.len();
+            let end = start + c.points().len();
+            vertices.extend_from_slice(c.points());
+            normals.extend(c.features().iter().map(|f| f.normalize()));
+            spans.extend(std::iter::repeat_n((start, end), c.points().len()));
+        }
+        let tree = KdTree::build(&vertices);
+        TruePart {
+            vertices,
+            normals,
+            spans,
+            tree,
+        }
+    }
+
+    /// Where a beam (a point on it and its direction) meets the part's surface at the trimming
+    /// line (the tangent plane of the nearest vertex), and the distance (mm) from there to the
+    /// trimming line.
+    #[must_use]
+    pub fn land(&self, on_beam: &Point3, direction: &UnitVector3) -> Option<(Point3, f64)> {
+        let near = self.tree.nearest(on_beam)?;
+        let (q, n) = (self.vertices[near.index], self.normals[near.index]);
+        let along = direction.dot(&n);
+        let spot = if along.abs() > 1e-6 {
+            on_beam + direction.into_inner() * ((q - on_beam).dot(&n) / along)
+        } else {
+            *on_beam
+        };
+        Some((spot, self.distance_to_line(&spot)))
+    }
+
+    /// The distance (mm) from a point to the nearest segment of the trimming line.
+    #[must_use]
+    pub fn distance_to_line(&self, p: &Point3) -> f64 {
+        let mut best = f64::INFINITY;
+        for n in self.tree.knn(p, NEAREST_VERTICES) {
+            let i = n.index;
+            let (start, end) = self.spans[i];
+            for (a, b) in [
+                (i.saturating_sub(1).max(start), i),
+                (i, (i + 1).min(end - 1)),
+            ] {
+                best = best.min(segment_distance(p, &self.vertices[a], &self.vertices[b]));
+            }
+        }
+        best
+    }
+}
+
+fn segment_distance(p: &Point3, a: &Point3, b: &Point3) -> f64 {
+    let ab = b - a;
+    let len2 = ab.norm_squared();
+    let t = if len2 > 0.0 {
+        ((p - a).dot(&ab) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (p - (a + ab * t)).norm()
+}
+
+/// One landed spot.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Spot {
+    /// The galvo list tag of the vector.
+    pub tag: u32,
+    /// Where it landed on the true part (work-piece frame, mm).
+    pub landed_mm: [f64; 3],
+    /// Its distance to the true trimming line (mm).
+    pub error_mm: f64,
+}
+
+/// Where the machine is: the CNC position `[X, Y, Z, A, B, C]` and whether it is in TCP mode.
+pub type PoseSource = Box<dyn Fn() -> ([f64; 6], bool) + Send + Sync>;
+
+/// The twin: the true cell, the true part and the spots landed so far.
+pub struct Twin {
+    cell: TrueCell,
+    part: TruePart,
+    pose: Mutex<Option<PoseSource>>,
+    spots: Mutex<Vec<Spot>>,
+}
+
+impl std::fmt::Debug for Twin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Twin")
+            .field("cell", &self.cell)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Twin {
+    /// A twin of `cell` carrying `part`. Attach the CNC with [`Twin::attach_cnc`].
+    #[must_use]
+    pub fn new(cell: TrueCell, part: TruePart) -> Arc<Twin> {
+        Arc::new(Twin {
+            cell,
+            part,
+            pose: Mutex::new(None),
+            spots: Mutex::new(Vec::new()),
+        })
+    }
+
+    /// The true cell.
+    #[must_use]
+    pub fn cell(&self) -> &TrueCell {
+        &self.cell
+    }
+
+    /// Where the machine's position comes from (the CNC simulator).
+    pub fn attach_cnc(&self, source: PoseSource) {
+        *self
+            .pose
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(source);
+    }
+
+    /// A marked vector (galvo bits, from → to) of list `tag`: lands both ends on the true part.
+    pub fn on_mark(&self, tag: u32, from_bits: [i32; 2], to_bits: [i32; 2]) {
+        let Some((position, tcp)) = self
+            .pose
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .as_ref()
+            .map(|f| f())
+        else {
+            return;
+        };
+        let mut out = Vec::with_capacity(2);
+        for bits in [from_bits, to_bits] {
+            let mm = [
+                f64::from(bits[0]) / self.cell.bits_per_mm,
+                f64::from(bits[1]) / self.cell.bits_per_mm,
+            ];
+            let (p, d) = self.cell.beam(position, tcp, mm);
+            if let Some((spot, error_mm)) = self.part.land(&p, &d) {
+                out.push(Spot {
+                    tag,
+                    landed_mm: [spot.x, spot.y, spot.z],
+                    error_mm,
+                });
+            }
+        }
+        self.spots
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .extend(out);
+    }
+
+    /// Every spot landed so far.
+    #[must_use]
+    pub fn spots(&self) -> Vec<Spot> {
+        self.spots
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+    }
+}
+
+/// Spot error statistics (µm).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct SpotStats {
+    /// Spots counted.
+    pub spots: usize,
+    /// Mean (µm).
+    pub mean_um: f64,
+    /// 95th percentile (µm).
+    pub p95_um: f64,
+    /// Largest (µm).
+    pub max_um: f64,
+}
+
+impl SpotStats {
+    /// The statistics of spot errors given in millimetres.
+    #[must_use]
+    pub fn of_mm(errors_mm: &[f64]) -> SpotStats {
+        if errors_mm.is_empty() {
+            return SpotStats::default();
+        }
+        let mut um: Vec<f64> = errors_mm.iter().map(|e| e * 1e3).collect();
+        um.sort_by(f64::total_cmp);
+        let rank = ((0.95 * um.len() as f64).ceil() as usize).clamp(1, um.len()) - 1;
+        SpotStats {
+            spots: um.len(),
+            mean_um: um.iter().sum::<f64>() / um.len() as f64,
+            p95_um: um[rank],
+            max_um: um[um.len() - 1],
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use trim_geom::Contour;
+
+    fn line_part() -> Path {
+        let pts: Vec<Point3> = (0..=100)
+            .map(|i| Point3::new(-5.0 + 0.1 * f64::from(i), 2.0, 1.0))
+            .collect();
+        Path::new(vec![Contour::new(7, pts, Vector3::z()).expect("contour")]).expect("path")
+    }
+
+    #[test]
+    fn a_perfect_cell_lands_on_the_commanded_point() {
+        let plan = PlanSettings::default();
+        let cell = TrueCell::new(&TruthSettings::default(), &plan);
+        // TCP pose putting the focus at (0, 2, 1) with the beam along +Z: world = point.
+        let pos = [0.0, 2.0, 1.0, 0.0, 0.0, 0.0];
+        let part = TruePart::new(&line_part());
+        for cmd in [[0.0, 0.0], [3.0, 0.0], [-4.5, 0.0]] {
+            let (p, d) = cell.beam(pos, true, cmd);
+            let (spot, err) = part.land(&p, &d).expect("lands");
+            // The beam leans outward by atan(x/L); the part is on the focal plane: no error.
+            assert!(err < 1e-9, "{cmd:?}: {err}");
+            assert!((spot - Point3::new(cmd[0], 2.0, 1.0)).norm() < 1e-9);
+        }
+        // 0.01 mm off the line in y: 10 µm error.
+        let (p, d) = cell.beam(pos, true, [1.0, 0.01]);
+        let (_, err) = part.land(&p, &d).expect("lands");
+        assert!((err - 0.01).abs() < 1e-9, "{err}");
+    }
+
+    #[test]
+    fn the_head_height_term_follows_the_pivot() {
+        // Focal plane 0.2 mm above the part: the beam meets the part 0.2 mm further along its
+        // slant, (L + 0.2)/L of the command.
+        let plan = PlanSettings::default();
+        let cell = TrueCell::new(&TruthSettings::default(), &plan);
+        let l = cell.pivot_to_focal_plane_mm;
+        let pos = [0.0, 2.0, 1.2, 0.0, 0.0, 0.0];
+        let part = TruePart::new(&line_part());
+        let (p, d) = cell.beam(pos, true, [4.0, 0.0]);
+        let (spot, _) = part.land(&p, &d).expect("lands");
+        assert!((spot.x - 4.0 * (l + 0.2) / l).abs() < 1e-9, "{spot}");
+    }
+
+    #[test]
+    fn spot_stats_rank_the_95th_percentile() {
+        let errs: Vec<f64> = (1..=100).map(|i| f64::from(i) * 1e-3).collect();
+        let s = SpotStats::of_mm(&errs);
+        assert_eq!(s.spots, 100);
+        assert!((s.p95_um - 95.0).abs() < 1e-9 && (s.max_um - 100.0).abs() < 1e-9);
+        assert_eq!(SpotStats::of_mm(&[]).spots, 0);
+    }
+}
