@@ -16,10 +16,13 @@ use trim_geom::synth::{SynthParams, generate};
 use trim_geom::{Path as TrimPath, PointCloud};
 use trim_io::cell::{Cell, CellAddresses, SimCell, SimOptions, Timeouts};
 use trim_io::executor::{ExecError, ExecOptions, Executor, Progress, RunSummary, StopCause};
+use trim_io::journal::Entry;
 use trim_io::laser::Profile;
 use trim_io::record::{Recorder, SharedRecorder, device_tap};
 use trim_io::tap::Tap;
+use trim_io::twin::{Spot, SpotStats, TrueCell, TruePart, Twin};
 use trim_plan::Job;
+use trim_plan::cell::ScanChain;
 use trim_plan::planner::{PlanOutput, plan_with_report};
 use trim_register::regional::{Registration, register};
 
@@ -50,6 +53,8 @@ pub mod files {
     pub const SUMMARY: &str = "summary.json";
     /// The demo part's input files.
     pub const INPUTS: &str = "inputs";
+    /// The demo part's true trimming line (work-piece frame), under [`INPUTS`].
+    pub const TRUTH: &str = "truth.csv";
 }
 
 /// The simulated cell's default speed: real seconds per simulated second. The demo runs the
@@ -134,7 +139,8 @@ fn apply_overrides(config: &mut JobConfig, args: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The part's inputs: CAD cloud with outward normals, scan, template path, fixture pose.
+/// The part's inputs: CAD cloud with outward normals, the scan mapped into the work-piece
+/// frame through `[calibration]`, template path, fixture pose.
 struct Inputs {
     cad: PointCloud,
     scan: PointCloud,
@@ -153,11 +159,19 @@ fn load_inputs(config: &JobConfig, args: &Args, run_dir: &Path) -> anyhow::Resul
         let dir = run_dir.join(files::INPUTS);
         std::fs::create_dir_all(&dir)
             .with_context(|| format!("cannot create {}", dir.display()))?;
+        // The synthetic part lives in the true work-piece frame; the scanner sees it through
+        // the true cell ([sim.truth]) at the scan pose.
+        let truth_cell = TrueCell::new(&config.sim.truth, &config.plan_settings());
+        let scanner_from_workpiece = Similarity3::from_isometry(
+            truth_cell.scanner_from_workpiece(&config.part.scan_pose),
+            1.0,
+        );
+        let scan_in_scanner = case.scan.transformed(&scanner_from_workpiece);
         formats::write_path(&dir.join("path.csv"), &case.path)?;
-        formats::write_path(&dir.join("truth.csv"), &case.truth)?;
+        formats::write_path(&dir.join(files::TRUTH), &case.truth)?;
         formats::write_ply(
             &dir.join("scan.ply"),
-            &case.scan,
+            &scan_in_scanner,
             formats::PlyEncoding::BinaryLittleEndian,
         )?;
         formats::write_ply(
@@ -173,7 +187,7 @@ fn load_inputs(config: &JobConfig, args: &Args, run_dir: &Path) -> anyhow::Resul
                 case.scan.len()
             ),
             cad: case.cad_points,
-            scan: case.scan,
+            scan: scan_to_workpiece(config, &scan_in_scanner),
             path: case.path,
             scan_from_cad_initial: case.scan_from_cad_nominal,
         });
@@ -201,7 +215,7 @@ fn load_inputs(config: &JobConfig, args: &Args, run_dir: &Path) -> anyhow::Resul
             cad_file.display()
         ),
     };
-    let scan = formats::read_points(scan_file)?;
+    let scan = scan_to_workpiece(config, &formats::read_points(scan_file)?);
     let path = formats::read_path(path_file)?;
     Ok(Inputs {
         description: format!(
@@ -217,6 +231,101 @@ fn load_inputs(config: &JobConfig, args: &Args, run_dir: &Path) -> anyhow::Resul
         path,
         scan_from_cad_initial: Similarity3::identity(),
     })
+}
+
+/// The scan (scanner frame) in the work-piece frame: through the scanner's pose on the head,
+/// the machine pose of `[part.scan_pose]` and the rotary axes, all as `[calibration]` says.
+fn scan_to_workpiece(config: &JobConfig, scan_in_scanner: &PointCloud) -> PointCloud {
+    let settings = config.plan_settings();
+    let chain = ScanChain {
+        table: settings.table(),
+        scanner: config.calibration.scanner(),
+        pose: config.part.scan_pose,
+        workpiece_origin_mm: settings.machine.workpiece_origin_mm.into(),
+    };
+    scan_in_scanner.transformed(&Similarity3::from_isometry(
+        chain.workpiece_from_scanner(),
+        1.0,
+    ))
+}
+
+/// The true trimming line the twin measures the spot error against: `[sim.truth] path`, or the
+/// demo part's own (in the run folder).
+fn truth_line(config: &JobConfig, run_dir: &Path) -> anyhow::Result<Option<TrimPath>> {
+    let file = match &config.sim.truth.path {
+        Some(p) => p.clone(),
+        None => {
+            let demo = run_dir.join(files::INPUTS).join(files::TRUTH);
+            if !(config.is_demo() && demo.exists()) {
+                return Ok(None);
+            }
+            demo
+        }
+    };
+    Ok(Some(
+        formats::read_path(&file).context("sim.truth.path: the true trimming line")?,
+    ))
+}
+
+/// The twin's spot errors of a run: overall and per zone (µm).
+#[derive(Debug, Clone, Serialize)]
+pub struct SpotReport {
+    /// Over every landed spot.
+    pub overall: SpotStats,
+    /// Per zone id, in job order.
+    pub per_zone: Vec<(usize, SpotStats)>,
+}
+
+impl SpotReport {
+    /// Groups spots by zone through the journal's list tags.
+    fn new(spots: &[Spot], journal: &Path) -> SpotReport {
+        let mut zone_of_tag = std::collections::HashMap::new();
+        if let Ok(text) = std::fs::read_to_string(journal) {
+            for line in text.lines() {
+                if let Ok(Entry::LayerBegin { key, tag, .. }) = serde_json::from_str(line) {
+                    zone_of_tag.insert(tag, key.zone);
+                }
+            }
+        }
+        let mut per: std::collections::BTreeMap<usize, Vec<f64>> = Default::default();
+        for s in spots {
+            if let Some(z) = zone_of_tag.get(&s.tag) {
+                per.entry(*z).or_default().push(s.error_mm);
+            }
+        }
+        let all: Vec<f64> = spots.iter().map(|s| s.error_mm).collect();
+        SpotReport {
+            overall: SpotStats::of_mm(&all),
+            per_zone: per
+                .into_iter()
+                .map(|(z, e)| (z, SpotStats::of_mm(&e)))
+                .collect(),
+        }
+    }
+
+    fn line(&self) -> String {
+        format!(
+            "spot error on the true part (digital twin, registration included): P95 {:.1} µm, max {:.1} µm, mean {:.1} µm over {} spots\n",
+            self.overall.p95_um, self.overall.max_um, self.overall.mean_um, self.overall.spots
+        )
+    }
+
+    fn markdown(&self) -> String {
+        let mut out = String::from(
+            "\n## Spot error (digital twin)\n\nDistance from each landed spot to the true trimming line, on the true cell of `[sim.truth]`; registration error included.\n\n",
+        );
+        out.push_str(&format!(
+            "Overall: P95 {:.1} µm, max {:.1} µm, mean {:.1} µm ({} spots).\n\n| zone | spots | P95 µm | max µm |\n|---|---|---|---|\n",
+            self.overall.p95_um, self.overall.max_um, self.overall.mean_um, self.overall.spots
+        ));
+        for (z, s) in &self.per_zone {
+            out.push_str(&format!(
+                "| {z} | {} | {:.1} | {:.1} |\n",
+                s.spots, s.p95_um, s.max_um
+            ));
+        }
+        out
+    }
 }
 
 /// The seed of the area-weighted CAD sampling (fixed: the same CAD gives the same samples).
@@ -347,6 +456,7 @@ fn fresh(args: &Args) -> anyhow::Result<()> {
             &timings,
             None,
             None,
+            None,
         )?;
         println!(
             "dry run: nothing executed; run folder {}",
@@ -386,9 +496,9 @@ fn finish(
     registration: &Registration,
     plan: &PlanOutput,
     timings: &Timings,
-    outcome: anyhow::Result<Result<RunSummary, ExecError>>,
+    outcome: anyhow::Result<Executed>,
 ) -> anyhow::Result<()> {
-    let outcome = outcome?;
+    let (outcome, spots) = outcome?;
     let stopped = outcome.as_ref().err().map(ToString::to_string);
     write_report(
         run_dir,
@@ -399,7 +509,11 @@ fn finish(
         timings,
         outcome.as_ref().ok(),
         stopped.as_deref(),
+        spots.as_ref(),
     )?;
+    if let Some(r) = &spots {
+        print!("{}", r.line());
+    }
     match outcome {
         Ok(run) => {
             print!("{}", summary::execution(&run, &plan.job));
@@ -444,8 +558,11 @@ fn resume(run_dir: &Path, args: &Args) -> anyhow::Result<()> {
     }
     eprintln!("trimctl run: resuming {}", run_dir.display());
     let t = Instant::now();
-    let outcome = execute(&config, args, run_dir, &job, None, true)?;
+    let (outcome, spots) = execute(&config, args, run_dir, &job, None, true)?;
     let wall_s = t.elapsed().as_secs_f64();
+    if let Some(r) = &spots {
+        print!("{}", r.line());
+    }
     match outcome {
         Ok(run) => {
             print!("{}", summary::execution(&run, &job));
@@ -459,6 +576,10 @@ fn resume(run_dir: &Path, args: &Args) -> anyhow::Result<()> {
     }
 }
 
+/// What an execution gave: the executor's outcome and, with the digital twin, the spot
+/// errors on the true part.
+type Executed = (Result<RunSummary, ExecError>, Option<SpotReport>);
+
 /// Connects the cell (starting simulators where the config says "sim"), then runs or resumes.
 /// The outer error: the cell could not be set up; the inner: the execution stopped.
 fn execute(
@@ -468,7 +589,18 @@ fn execute(
     job: &Job,
     record: Option<(&Inputs, &Registration)>,
     resuming: bool,
-) -> anyhow::Result<Result<RunSummary, ExecError>> {
+) -> anyhow::Result<Executed> {
+    // The twin lands the galvo simulator's vectors on the true part ([sim.truth]).
+    let twin = if config.cell.galvo == SIM {
+        truth_line(config, run_dir)?.map(|line| {
+            Twin::new(
+                TrueCell::new(&config.sim.truth, &config.plan_settings()),
+                TruePart::new(&line),
+            )
+        })
+    } else {
+        None
+    };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -484,6 +616,7 @@ fn execute(
             let mut options = SimOptions::new(profile.clone());
             options.galvo_time_scale = args.sim_time_scale;
             options.cnc_time_scale = args.sim_time_scale;
+            options.twin = twin.clone();
             Some(
                 SimCell::start(options)
                     .await
@@ -496,6 +629,20 @@ fn execute(
         let recorder = open_recorder(run_dir, resuming)?;
         if let (Some(rec), Some((inputs, registration))) = (&recorder, record) {
             record_inputs(rec, inputs, registration, job)?;
+        }
+        if let Some(rec) = &recorder {
+            rec.lock()
+                .map_err(|_| anyhow::anyhow!("recorder lock poisoned"))?
+                .json(
+                    "/calibration",
+                    "trimctl.Calibration",
+                    0,
+                    &serde_json::json!({
+                        "calibration": config.calibration,
+                        "lens": job.settings.lens,
+                        "scan_pose": config.part.scan_pose,
+                    }),
+                )?;
         }
         let tap = recorder.as_ref().map_or_else(Tap::none, device_tap);
         let timeouts = Timeouts::default();
@@ -533,7 +680,21 @@ fn execute(
             executor.run(cancel, Some(tx)).await
         };
         let _ = bars.await;
+        let spots = twin
+            .as_ref()
+            .map(|t| SpotReport::new(&t.spots(), &run_dir.join(files::JOURNAL)))
+            .filter(|r| r.overall.spots > 0);
         if let Some(rec) = recorder {
+            if let Some(report) = &spots {
+                rec.lock()
+                    .map_err(|_| anyhow::anyhow!("recorder lock poisoned"))?
+                    .json(
+                        "/twin/spot_error",
+                        "trimctl.SpotError",
+                        0,
+                        &serde_json::to_value(report)?,
+                    )?;
+            }
             finish_recorder(rec)?;
         }
         if let Some(sim) = &sim {
@@ -542,7 +703,7 @@ fn execute(
                 bail!("safety monitor found interlock violations: {violations:?}");
             }
         }
-        Ok(result)
+        Ok((result, spots))
     })
 }
 
@@ -717,8 +878,9 @@ fn write_report(
     timings: &Timings,
     run: Option<&RunSummary>,
     stopped: Option<&str>,
+    spots: Option<&SpotReport>,
 ) -> anyhow::Result<()> {
-    let report = summary::report_markdown(
+    let mut report = summary::report_markdown(
         config,
         description,
         &registration.report,
@@ -732,6 +894,9 @@ fn write_report(
             ("execute", timings.execute_s),
         ],
     );
+    if let Some(s) = spots {
+        report.push_str(&s.markdown());
+    }
     std::fs::write(run_dir.join(files::REPORT), report)?;
     let json = serde_json::json!({
         "timings_s": timings,
@@ -739,6 +904,9 @@ fn write_report(
         "stopped": stopped,
         "validation": plan.job.validation,
         "estimate": plan.job.estimate,
+        "spot_error": spots,
+        "calibration": config.calibration,
+        "lens": plan.job.settings.lens,
     });
     std::fs::write(
         run_dir.join(files::SUMMARY),

@@ -26,6 +26,8 @@ pub const WORKPIECE_FRAME: &str = "workpiece";
 
 /// foxglove.PointCloud (JSON schema).
 pub const POINT_CLOUD_SCHEMA: &str = r#"{"title":"foxglove.PointCloud","type":"object","properties":{"timestamp":{"type":"object","properties":{"sec":{"type":"integer","minimum":0},"nsec":{"type":"integer","minimum":0,"maximum":999999999}}},"frame_id":{"type":"string"},"pose":{"type":"object","properties":{"position":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"orientation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}}},"point_stride":{"type":"integer","minimum":0},"fields":{"type":"array","items":{"type":"object","properties":{"name":{"type":"string"},"offset":{"type":"integer","minimum":0},"type":{"type":"integer","description":"foxglove.NumericType: 7 FLOAT32, 8 FLOAT64"}}}},"data":{"type":"string","contentEncoding":"base64"}}}"#;
+/// A JSON object of any shape (the topic's schema name says what it holds).
+pub const OBJECT_SCHEMA: &str = r#"{"type":"object"}"#;
 /// foxglove.SceneUpdate (JSON schema; the parts used: entities with line primitives).
 pub const SCENE_UPDATE_SCHEMA: &str = r#"{"title":"foxglove.SceneUpdate","type":"object","properties":{"deletions":{"type":"array","items":{"type":"object"}},"entities":{"type":"array","items":{"type":"object","properties":{"timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"frame_id":{"type":"string"},"id":{"type":"string"},"lifetime":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"frame_locked":{"type":"boolean"},"metadata":{"type":"array","items":{"type":"object","properties":{"key":{"type":"string"},"value":{"type":"string"}}}},"arrows":{"type":"array"},"cubes":{"type":"array"},"spheres":{"type":"array"},"cylinders":{"type":"array"},"lines":{"type":"array","items":{"type":"object","properties":{"type":{"type":"integer","description":"0 LINE_STRIP, 1 LINE_LOOP, 2 LINE_LIST"},"pose":{"type":"object"},"thickness":{"type":"number"},"scale_invariant":{"type":"boolean"},"points":{"type":"array","items":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}}},"color":{"type":"object","properties":{"r":{"type":"number"},"g":{"type":"number"},"b":{"type":"number"},"a":{"type":"number"}}},"colors":{"type":"array"},"indices":{"type":"array"}}}},"triangles":{"type":"array"},"texts":{"type":"array"},"models":{"type":"array"}}}}}}"#;
 /// foxglove.FrameTransform (JSON schema).
@@ -333,6 +335,18 @@ impl Recorder {
             "line": 0,
         });
         self.write("/log", "foxglove.Log", LOG_SCHEMA, t_ns, &msg)
+    }
+
+    /// Any JSON object on `topic` under a permissive schema named `schema_name` (run summaries
+    /// such as `/calibration` and `/twin/spot_error`).
+    pub fn json(
+        &mut self,
+        topic: &str,
+        schema_name: &'static str,
+        t_ns: u64,
+        msg: &Value,
+    ) -> Result<(), RecordError> {
+        self.write(topic, schema_name, OBJECT_SCHEMA, t_ns, msg)
     }
 
     /// One device command or reply on `/device/<name>`.
