@@ -16,6 +16,7 @@ mod run;
 mod sim;
 mod summary;
 mod synth;
+mod twin_demo;
 
 use std::process::ExitCode;
 

@@ -8,9 +8,16 @@ use trim_geom::synth::{SynthParams, generate};
 /// Arguments of `trimctl synth`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Output folder (created): cad.stl, cad_points.ply, path.csv, scan.ply, truth.csv, case.json.
+    /// Output folder (created): cad.stl, cad_points.ply, path.csv, scan.ply, truth.csv, case.json;
+    /// with --calibration: the calibration artefacts instead (see there).
     #[arg(long)]
     pub out: PathBuf,
+    /// Write what the digital twin's true cell would give the calibration instead of a part:
+    /// `job.toml` (the demo job on a twin carrying that true cell, `[sim.truth]`), the sphere
+    /// scans with `poses.csv` and `tool_mark.txt` for `trimctl calibrate cell`, `marks.csv` for
+    /// `trimctl calibrate field`, and `truth.json`.
+    #[arg(long)]
+    pub calibration: bool,
     /// Random seed.
     #[arg(long, default_value_t = SynthParams::default().seed)]
     pub seed: u64,
@@ -39,6 +46,9 @@ pub struct Args {
 
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.calibration {
+        return calibration_artefacts(&args);
+    }
     let params = SynthParams {
         seed: args.seed,
         sag_mm: args.sag_mm,
@@ -60,6 +70,52 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         case.scan.len(),
         case.cad_points.len(),
         case.cad_triangles.len()
+    );
+    Ok(())
+}
+
+/// The job file of the twin: the demo part on the simulated cell whose true cell is `truth`.
+#[derive(serde::Serialize)]
+struct TwinJob<'a> {
+    sim: TwinSim<'a>,
+}
+
+#[derive(serde::Serialize)]
+struct TwinSim<'a> {
+    truth: &'a trim_io::twin::TruthSettings,
+}
+
+/// `trimctl synth --calibration`.
+fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
+    let defaults = crate::config::JobConfig::default();
+    let truth = crate::twin_demo::demo_truth(
+        args.seed,
+        &defaults.machine,
+        defaults.beam.focal_length_mm,
+        &crate::twin_demo::TruthMagnitudes::default(),
+    );
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let job = format!(
+        "# The built-in demo part on a simulated cell whose true geometry differs from the nominal\n\
+         # one ([sim.truth], seed {}). Run it as is for the spot error before calibration; add the\n\
+         # [calibration] that `trimctl calibrate cell` and `calibrate field` find for the after.\n\n{}",
+        args.seed,
+        toml::to_string(&TwinJob {
+            sim: TwinSim { truth: &truth }
+        })
+        .context("serialising the twin's job")?
+    );
+    let job_file = args.out.join("job.toml");
+    std::fs::write(&job_file, job)
+        .with_context(|| format!("cannot write {}", job_file.display()))?;
+    std::fs::write(
+        args.out.join("truth.json"),
+        serde_json::to_string_pretty(&truth)?,
+    )?;
+    println!(
+        "{}: job.toml (the twin's true cell), truth.json",
+        args.out.display()
     );
     Ok(())
 }
