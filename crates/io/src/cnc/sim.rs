@@ -24,7 +24,8 @@ const MOTION_TICK_MS: u64 = 2;
 /// Simulator settings.
 #[derive(Debug, Clone)]
 pub struct CncSimConfig {
-    /// Axis limits (min, max) for X Y Z A B C (mm, degrees).
+    /// Axis limits (min, max) for X Y Z A B C (mm, degrees). A and B have the same travel, so
+    /// one simulator serves A/C and B/C jobs (`[machine] a_limits_deg`, `b_limits_deg`).
     pub limits: [(f64, f64); 6],
     /// Maximum linear speed (mm/s).
     pub max_linear_mm_per_s: f64,
@@ -42,7 +43,7 @@ impl Default for CncSimConfig {
                 (-100.0, 100.0),
                 (-120.0, 120.0),
                 (-100.0, 50.0),
-                (0.0, 0.0),
+                (-100.0, 50.0),
                 (-36000.0, 36000.0),
             ],
             max_linear_mm_per_s: 20.0,

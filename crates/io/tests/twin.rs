@@ -1,0 +1,113 @@
+//! The digital twin end to end: a planner that knows the true cell puts every spot on the true
+//! trimming line; one that assumes the nominal cell misses it by what the cell's errors say.
+
+#![expect(
+    clippy::unwrap_used,
+    reason = "integration test: a failed setup step should fail the test loudly"
+)]
+
+#[expect(dead_code, reason = "shared helpers; this test uses two of them")]
+mod common;
+
+use std::sync::Arc;
+
+use tokio_util::sync::CancellationToken;
+use trim_io::cell::SimCell;
+use trim_io::executor::Executor;
+use trim_io::tap::Tap;
+use trim_io::twin::{SpotStats, TrueCell, TruePart, TruthSettings, Twin};
+use trim_plan::field::FieldSettings;
+use trim_plan::kinematics::{KinematicsKind, MachineSettings};
+use trim_plan::planner::{PlanSettings, plan};
+
+use common::{connect, test_timeouts};
+
+/// A true cell off the nominal one by a few hundredths of a degree and a tenth of a millimetre.
+fn truth(kind: KinematicsKind) -> TruthSettings {
+    let (tilt_point, tilt_dir) = match kind {
+        KinematicsKind::XyzbcTrt => ([-20.12, 0.0, 10.07], [0.0004, 1.0, -0.0003]),
+        _ => ([0.0, 20.09, 10.11], [1.0, 0.0005, 0.0004]),
+    };
+    let mut t = TruthSettings {
+        c_axis_point_mm: Some([0.13, -0.08, 0.0]),
+        c_axis_direction: Some([0.0006, -0.0004, 1.0]),
+        ..TruthSettings::default()
+    };
+    if kind == KinematicsKind::XyzbcTrt {
+        t.b_axis_point_mm = Some(tilt_point);
+        t.b_axis_direction = Some(tilt_dir);
+    } else {
+        t.a_axis_point_mm = Some(tilt_point);
+        t.a_axis_direction = Some(tilt_dir);
+    }
+    t
+}
+
+async fn spots(settings: &PlanSettings, truth: &TruthSettings) -> SpotStats {
+    let path = trim_plan::testing::synthetic_core_path(16, 3);
+    let job = plan(&path, settings).unwrap();
+    assert!(job.validation.passed, "{:?}", job.validation.violations);
+    let twin = Twin::new(TrueCell::new(truth, settings), TruePart::new(&path));
+    let mut o = trim_io::cell::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
+    o.galvo_time_scale = 0.0;
+    o.cnc_time_scale = 0.002;
+    o.twin = Some(Arc::clone(&twin));
+    let sim = SimCell::start(o).await.unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    Executor::new(
+        job.clone(),
+        connect(&sim, Tap::none()).await,
+        dir.path().join("j"),
+        None,
+    )
+    .with_options(trim_io::executor::ExecOptions {
+        timeouts: test_timeouts(),
+        ..trim_io::executor::ExecOptions::default()
+    })
+    .run(CancellationToken::new(), None)
+    .await
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert!(sim.monitor.violations().is_empty());
+    let errors: Vec<f64> = twin.spots().iter().map(|s| s.error_mm).collect();
+    let vectors: usize = job
+        .layers()
+        .flat_map(|(_, _, l)| l.polylines.iter())
+        .map(|p| p.points.len() - 1)
+        .sum();
+    assert_eq!(errors.len(), 2 * vectors, "every vector's two ends landed");
+    SpotStats::of_mm(&errors)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_planner_that_knows_the_true_axes_lands_on_the_line_for_both_kinematics() {
+    for kind in [KinematicsKind::XyzacTrt, KinematicsKind::XyzbcTrt] {
+        let truth = truth(kind);
+        let nominal = PlanSettings {
+            machine: MachineSettings {
+                kinematics: kind,
+                ..MachineSettings::default()
+            },
+            field: FieldSettings {
+                telecentric: true,
+                ..FieldSettings::default()
+            },
+            ..PlanSettings::default()
+        };
+        let calibrated = PlanSettings {
+            calibration: truth.as_calibration(),
+            ..nominal.clone()
+        };
+        let known = spots(&calibrated, &truth).await;
+        let assumed = spots(&nominal, &truth).await;
+        eprintln!(
+            "{kind:?}: calibrated axes: P95 {:.3} µm max {:.3} µm; nominal axes: P95 {:.1} µm max {:.1} µm",
+            known.p95_um, known.max_um, assumed.p95_um, assumed.max_um
+        );
+        // Galvo bits are 0.1 µm: what is left is quantisation.
+        assert!(known.max_um < 0.5, "{kind:?}: {known:?}");
+        assert!(
+            assumed.p95_um > 20.0,
+            "{kind:?}: the twin sees the axis errors: {assumed:?}"
+        );
+    }
+}
