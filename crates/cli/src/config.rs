@@ -245,6 +245,26 @@ impl JobConfig {
         }
     }
 
+    /// The scan (scanner frame) in the work-piece frame: through the scanner's pose on the
+    /// head, the machine pose of `[part.scan_pose]` and the rotary axes, all as `[calibration]`
+    /// says.
+    pub fn scan_to_workpiece(
+        &self,
+        scan_in_scanner: &trim_geom::PointCloud,
+    ) -> trim_geom::PointCloud {
+        let settings = self.plan_settings();
+        let chain = trim_plan::cell::ScanChain {
+            table: settings.table(),
+            scanner: self.calibration.scanner(),
+            pose: self.part.scan_pose,
+            workpiece_origin_mm: settings.machine.workpiece_origin_mm.into(),
+        };
+        scan_in_scanner.transformed(&trim_geom::math::Similarity3::from_isometry(
+            chain.workpiece_from_scanner(),
+            1.0,
+        ))
+    }
+
     /// Whether the job runs the built-in demo part.
     pub fn is_demo(&self) -> bool {
         self.part.cad.is_none()

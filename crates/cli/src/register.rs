@@ -59,10 +59,10 @@ pub struct Args {
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let t0 = Instant::now();
-    let mut settings = match &args.config {
-        Some(p) => JobConfig::load(p)?.register,
-        None => RegisterSettings::default(),
-    };
+    let config = args.config.as_deref().map(JobConfig::load).transpose()?;
+    let mut settings = config
+        .as_ref()
+        .map_or_else(RegisterSettings::default, |c| c.register.clone());
     if let Some(v) = &args.viewpoint {
         anyhow::ensure!(
             v.len() == 3,
@@ -104,6 +104,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let scan =
         read_points(&args.scan).with_context(|| format!("reading {}", args.scan.display()))?;
+    // With a job file, the scan (scanner frame) goes into the work-piece frame through its
+    // [calibration] and [part.scan_pose], as `trimctl run` does.
+    let scan = match &config {
+        Some(c) => c.scan_to_workpiece(&scan),
+        None => scan,
+    };
     let path = read_path(&args.path).with_context(|| format!("reading {}", args.path.display()))?;
     let t_read = t0.elapsed().as_secs_f64();
     if let Some(datums_file) = &args.datums {

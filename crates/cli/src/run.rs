@@ -22,7 +22,6 @@ use trim_io::record::{Recorder, SharedRecorder, device_tap};
 use trim_io::tap::Tap;
 use trim_io::twin::{Spot, SpotStats, TrueCell, TruePart, Twin};
 use trim_plan::Job;
-use trim_plan::cell::ScanChain;
 use trim_plan::planner::{PlanOutput, plan_with_report};
 use trim_register::regional::{Registration, register};
 
@@ -187,7 +186,7 @@ fn load_inputs(config: &JobConfig, args: &Args, run_dir: &Path) -> anyhow::Resul
                 case.scan.len()
             ),
             cad: case.cad_points,
-            scan: scan_to_workpiece(config, &scan_in_scanner),
+            scan: config.scan_to_workpiece(&scan_in_scanner),
             path: case.path,
             scan_from_cad_initial: case.scan_from_cad_nominal,
         });
@@ -215,7 +214,7 @@ fn load_inputs(config: &JobConfig, args: &Args, run_dir: &Path) -> anyhow::Resul
             cad_file.display()
         ),
     };
-    let scan = scan_to_workpiece(config, &formats::read_points(scan_file)?);
+    let scan = config.scan_to_workpiece(&formats::read_points(scan_file)?);
     let path = formats::read_path(path_file)?;
     Ok(Inputs {
         description: format!(
@@ -231,22 +230,6 @@ fn load_inputs(config: &JobConfig, args: &Args, run_dir: &Path) -> anyhow::Resul
         path,
         scan_from_cad_initial: Similarity3::identity(),
     })
-}
-
-/// The scan (scanner frame) in the work-piece frame: through the scanner's pose on the head,
-/// the machine pose of `[part.scan_pose]` and the rotary axes, all as `[calibration]` says.
-fn scan_to_workpiece(config: &JobConfig, scan_in_scanner: &PointCloud) -> PointCloud {
-    let settings = config.plan_settings();
-    let chain = ScanChain {
-        table: settings.table(),
-        scanner: config.calibration.scanner(),
-        pose: config.part.scan_pose,
-        workpiece_origin_mm: settings.machine.workpiece_origin_mm.into(),
-    };
-    scan_in_scanner.transformed(&Similarity3::from_isometry(
-        chain.workpiece_from_scanner(),
-        1.0,
-    ))
 }
 
 /// The true trimming line the twin measures the spot error against: `[sim.truth] path`, or the

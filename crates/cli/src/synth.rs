@@ -18,6 +18,14 @@ pub struct Args {
     /// `trimctl calibrate field`, and `truth.json`.
     #[arg(long)]
     pub calibration: bool,
+    /// With --calibration: which links of the true cell differ from nominal (comma-separated:
+    /// axes, scanner, field, height), for a spot-error budget by link.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "axes,scanner,field,height"
+    )]
+    pub links: Vec<Link>,
     /// Random seed.
     #[arg(long, default_value_t = SynthParams::default().seed)]
     pub seed: u64,
@@ -85,14 +93,45 @@ struct TwinSim<'a> {
     truth: &'a trim_io::twin::TruthSettings,
 }
 
+/// A link of the chain from the scanner to the spot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Link {
+    /// The rotary axis lines.
+    Axes,
+    /// The scanner's pose on the head.
+    Scanner,
+    /// The galvo head's field (offset, rotation, distortion).
+    Field,
+    /// The lens pivot height L (the height term).
+    Height,
+}
+
 /// `trimctl synth --calibration`.
 fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
     let defaults = crate::config::JobConfig::default();
+    let mut magnitudes = crate::twin_demo::TruthMagnitudes::default();
+    if !args.links.contains(&Link::Axes) {
+        magnitudes.axis_tilt_deg = 0.0;
+        magnitudes.axis_offset_mm = 0.0;
+    }
+    if !args.links.contains(&Link::Scanner) {
+        magnitudes.scanner_rotation_deg = 0.0;
+        magnitudes.scanner_translation_mm = 0.0;
+    }
+    if !args.links.contains(&Link::Field) {
+        magnitudes.head_offset_mm = 0.0;
+        magnitudes.head_rotation_deg = 0.0;
+        magnitudes.barrel_at_50_mm_um = 0.0;
+        magnitudes.trapezoid_at_corner_um = 0.0;
+    }
+    if !args.links.contains(&Link::Height) {
+        magnitudes.pivot_fraction = 0.0;
+    }
     let truth = crate::twin_demo::demo_truth(
         args.seed,
         &defaults.machine,
         defaults.beam.focal_length_mm,
-        &crate::twin_demo::TruthMagnitudes::default(),
+        &magnitudes,
     );
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
