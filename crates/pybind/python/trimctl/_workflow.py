@@ -69,7 +69,11 @@ class Layer:
     focus_point: np.ndarray
     pose: Dict[str, float]
     polylines: List[Tuple[int, np.ndarray]]
-    """(contour id, (n, 2) galvo millimetres) per polyline."""
+    """(contour id, (n, 2) galvo millimetres) per polyline: the geometry in the zone frame."""
+    commands: List[np.ndarray] = field(default_factory=list)
+    """Per polyline, (n, 2) mm: what the galvo is sent (height term and field correction)."""
+    heights_mm: List[np.ndarray] = field(default_factory=list)
+    """Per polyline, (n,) mm: each point's height above the focal plane, toward the lens."""
 
 
 @dataclass(frozen=True)
@@ -110,6 +114,14 @@ class Plan:
                     pose=dict(l["pose"]),
                     polylines=[
                         (p["contour"], np.asarray(p["points"], dtype=np.float64).reshape(-1, 2))
+                        for p in l["polylines"]
+                    ],
+                    commands=[
+                        np.asarray(p.get("commands") or p["points"], dtype=np.float64).reshape(-1, 2)
+                        for p in l["polylines"]
+                    ],
+                    heights_mm=[
+                        np.asarray(p.get("heights_mm", []), dtype=np.float64)
                         for p in l["polylines"]
                     ],
                 )
