@@ -23,54 +23,8 @@ use trim_geom::kdtree::KdTree;
 use trim_geom::{Path, Point3, UnitVector3, Vector3};
 use trim_plan::cell::{Calibration, ScanPose, ScannerPose, TableModel};
 use trim_plan::kinematics::{AxisPose, KinematicsKind, MachineSettings, joints_of};
+pub use trim_plan::lens::LensDistortion;
 use trim_plan::planner::PlanSettings;
-
-/// The galvo head's true field (interim: to be replaced by `trim_plan::lens::LensDistortion`).
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct LensDistortion {
-    /// Where the zero command lands (mm).
-    pub offset_mm: [f64; 2],
-    /// Rotation about the beam axis (degrees).
-    pub rotation_deg: f64,
-    /// Radial distortion k: c ↦ c·(1 + k·|c|²) (1/mm²).
-    pub barrel_per_mm2: f64,
-    /// Keystone: x gains x·tx·y, y gains y·ty·x (1/mm).
-    pub trapezoid_per_mm: [f64; 2],
-}
-
-impl LensDistortion {
-    /// Where a command lands on the focal plane (mm).
-    #[must_use]
-    pub fn land(&self, c: [f64; 2]) -> [f64; 2] {
-        let r2 = c[0] * c[0] + c[1] * c[1];
-        let k = 1.0 + self.barrel_per_mm2 * r2;
-        let x = c[0] * k + c[0] * self.trapezoid_per_mm[0] * c[1];
-        let y = c[1] * k + c[1] * self.trapezoid_per_mm[1] * c[0];
-        let (s, co) = self.rotation_deg.to_radians().sin_cos();
-        [
-            self.offset_mm[0] + co * x - s * y,
-            self.offset_mm[1] + s * x + co * y,
-        ]
-    }
-
-    /// Refuses non-finite values.
-    pub fn validate(&self) -> Result<(), String> {
-        let all = [
-            self.offset_mm[0],
-            self.offset_mm[1],
-            self.rotation_deg,
-            self.barrel_per_mm2,
-            self.trapezoid_per_mm[0],
-            self.trapezoid_per_mm[1],
-        ];
-        if all.iter().all(|v| v.is_finite()) {
-            Ok(())
-        } else {
-            Err(format!("every value must be finite, got {self:?}"))
-        }
-    }
-}
 
 /// Neighbouring path vertices searched for the nearest segment of the trimming line.
 const NEAREST_VERTICES: usize = 8;

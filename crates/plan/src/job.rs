@@ -318,6 +318,10 @@ pub struct ValidationReport {
     pub max_field_abs_mm: f64,
     /// The largest error of mapping a galvo point back to its registered 3D point (mm).
     pub max_round_trip_error_mm: f64,
+    /// The largest distance between a point and where its galvo command lands through the
+    /// lens model (height term and field correction) (mm).
+    #[serde(default)]
+    pub max_command_error_mm: f64,
     /// One line per violation, naming zone, layer and contour.
     pub violations: Vec<String>,
 }

@@ -7,6 +7,7 @@
 //! - [`frame`]: local zone frames (paper Eq. 11–13, right-handed).
 //! - [`layer`]: layers by paper Eq. 14 and the galvo projection.
 //! - [`field`]: scan-field sections and the lens ray angle.
+//! - [`lens`]: where a galvo command lands: the height term and the field correction.
 //! - [`kinematics`]: machine poses (LinuxCNC xyzac-trt, xyzbc-trt, fixed head).
 //! - [`order`]: zone ordering (nearest neighbour + 2-opt).
 //! - [`planner`]: [`plan`], validation and the time estimate.
@@ -23,6 +24,7 @@ pub mod frame;
 pub mod job;
 pub mod kinematics;
 pub mod layer;
+pub mod lens;
 pub mod order;
 pub mod piece;
 pub mod planner;

@@ -33,14 +33,15 @@ use crate::cell::{Calibration, TableModel};
 use crate::error::{PlanError, require_open_closed};
 use crate::field::{FieldSettings, Lens, Section, sections};
 use crate::job::{
-    GalvoSettings, JOB_VERSION, Job, JobSettings, Layer, Polyline, TimeEstimate, ValidationReport,
-    Zone, galvo_to_workpiece,
+    FieldCorrectionRecord, GalvoSettings, JOB_VERSION, Job, JobSettings, Layer, LensRecord,
+    Polyline, TimeEstimate, ValidationReport, Zone, galvo_to_workpiece,
 };
 use crate::kinematics::{
     AxisPose, MachineSettings, choose_pose, forward_on, head_frame_on, inverse_on, limit_violation,
     move_time_s,
 };
 use crate::layer::{LayerSettings, ZoneLayers, layer_pieces, project};
+use crate::lens::{FieldCorrection, LensModel};
 use crate::piece::{Piece, angle_rad, pieces_of};
 use crate::zoning::{ZoneGroup, Zoning, ZoningSettings, make_group, zone_pieces};
 
@@ -110,6 +111,65 @@ impl PlanSettings {
         self.galvo.validate()?;
         self.calibration.validate(self.machine.kinematics)?;
         Ok(())
+    }
+
+    /// The lens model the galvo commands are computed with: the height term with L from
+    /// `calibration.lens.pivot_to_focal_plane_mm`, else the field correction file's, else the
+    /// focal length; and the field correction when `calibration.field_correction` names one.
+    /// Also what the Job records of it (file and checksum).
+    pub fn lens_model(&self) -> Result<(LensModel, LensRecord), PlanError> {
+        let field = match &self.calibration.field_correction {
+            None => None,
+            Some(file) => {
+                let bytes = std::fs::read(file).map_err(|e| {
+                    PlanError::setting(
+                        "calibration.field_correction",
+                        file.display(),
+                        format!("cannot read it: {e}"),
+                    )
+                })?;
+                let field = FieldCorrection::read(file).map_err(|e| {
+                    PlanError::setting(
+                        "calibration.field_correction",
+                        file.display(),
+                        e.to_string(),
+                    )
+                })?;
+                Some((
+                    field,
+                    crate::lens::checksum(&bytes),
+                    file.display().to_string(),
+                ))
+            }
+        };
+        let pivot = self
+            .calibration
+            .lens
+            .pivot_to_focal_plane_mm
+            .or_else(|| {
+                field
+                    .as_ref()
+                    .and_then(|(f, _, _)| f.pivot_to_focal_plane_mm)
+            })
+            .unwrap_or(self.beam.focal_length_mm);
+        let record = LensRecord {
+            telecentric: self.field.telecentric,
+            pivot_to_focal_plane_mm: (!self.field.telecentric).then_some(pivot),
+            field_correction: field
+                .as_ref()
+                .map(|(_, checksum, file)| FieldCorrectionRecord {
+                    file: file.clone(),
+                    checksum: checksum.clone(),
+                }),
+        };
+        Ok((
+            LensModel {
+                telecentric: self.field.telecentric,
+                pivot_to_focal_plane_mm: pivot,
+                field: field.map(|(f, _, _)| f),
+            },
+            record,
+        ))
     }
 
     /// The rotary table as calibrated (nominal lines where `[calibration]` gives none).
@@ -197,6 +257,7 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
     let focus_half_length_mm = settings.beam.focus_half_length_mm();
     let step_mm = settings.layers.step_for(focus_half_length_mm)?;
     let lens = settings.lens();
+    let (lens_model, lens_record) = settings.lens_model()?;
     let field_radius_mm = 0.5 * settings.galvo.field_mm[0].min(settings.galvo.field_mm[1]);
 
     // (1) pieces; (2) zoning.
@@ -283,10 +344,17 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
             for lp in pieces_in_layer {
                 let (points, heights): (Vec<[f64; 2]>, Vec<f64>) =
                     lp.points.iter().map(|q| project(&frame, &focus, q)).unzip();
+                // What the galvo is sent: the height term and the field correction undone.
+                // A point no command reaches keeps its geometric value and fails validation.
+                let commands = points
+                    .iter()
+                    .zip(&heights)
+                    .map(|(p, h)| lens_model.command_for(*p, *h).unwrap_or(*p))
+                    .collect();
                 polylines.push(Polyline {
                     contour: lp.contour,
                     points,
-                    commands: Vec::new(),
+                    commands,
                     heights_mm: heights.clone(),
                 });
                 layer_traces.push(Trace {
@@ -365,13 +433,13 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
             max_incidence_deg: settings.max_incidence_deg,
             kinematics: machine.kinematics.name().to_owned(),
             galvo: settings.galvo,
-            lens: crate::job::LensRecord::default(),
+            lens: lens_record,
             extra: serde_json::to_value(settings).unwrap_or(serde_json::Value::Null),
         },
         validation: ValidationReport::default(),
         estimate,
     };
-    job.validation = validate(&job, &traces, path, settings);
+    job.validation = validate(&job, &traces, path, settings, &lens_model);
     Ok(PlanOutput {
         job,
         k: zoning.k,
@@ -512,6 +580,7 @@ fn validate(
     traces: &[Vec<Vec<Trace>>],
     path: &Path,
     settings: &PlanSettings,
+    lens_model: &LensModel,
 ) -> ValidationReport {
     let mut r = ValidationReport::default();
     let mut lines: Vec<String> = Vec::new();
@@ -603,6 +672,33 @@ fn validate(
                             here(),
                             incidence.to_degrees()
                         ));
+                    }
+                    // The command, sent through the lens model, lands on the point.
+                    if let Some(c) = pl.commands.get(i) {
+                        let landed = lens_model.land(*c, *h);
+                        let err = (landed[0] - xy[0]).hypot(landed[1] - xy[1]);
+                        r.max_command_error_mm = r.max_command_error_mm.max(err);
+                        if err > ROUND_TRIP_TOLERANCE_MM {
+                            violation(format!(
+                                "{}: the galvo command lands {:.4} mm off the point (outside the field correction?)",
+                                here(),
+                                err
+                            ));
+                        }
+                        let c_abs = c[0].abs().max(c[1].abs());
+                        if c[0].abs() > half_field[0] + CHECK_SLACK
+                            || c[1].abs() > half_field[1] + CHECK_SLACK
+                        {
+                            violation(format!(
+                                "{}: command ({:.3}, {:.3}) mm outside the field",
+                                here(),
+                                c[0],
+                                c[1]
+                            ));
+                        }
+                        r.max_field_abs_mm = r.max_field_abs_mm.max(c_abs);
+                    } else {
+                        violation(format!("{}: no galvo command", here()));
                     }
                     let registered = point_on_contour(contour.points(), t.source[i]);
                     let back = galvo_to_workpiece(zone, layer, *xy) + fz * *h;
