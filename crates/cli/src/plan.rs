@@ -62,12 +62,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         job.layer_step_mm,
     );
     eprintln!(
-        "trimctl plan: validation {}: focus ≤ {:.4} mm, incidence ≤ {:.3}° (lens included), field ≤ {:.3} mm, round trip ≤ {:.2e} mm; estimate {:.1} s ({:.1} s motion)",
+        "trimctl plan: validation {}: focus ≤ {:.4} mm, incidence ≤ {:.3}° (lens included), field ≤ {:.3} mm, round trip ≤ {:.2e} mm, commands land ≤ {:.2e} mm; estimate {:.1} s ({:.1} s motion)",
         if v.passed { "passed" } else { "FAILED" },
         v.max_focus_deviation_mm,
         v.max_incidence_deg,
         v.max_field_abs_mm,
         v.max_round_trip_error_mm,
+        v.max_command_error_mm,
         job.estimate.total_s,
         job.estimate.motion_s,
     );

@@ -80,12 +80,13 @@ pub fn plan(plan: &PlanOutput) -> String {
     let v = &job.validation;
     let _ = writeln!(
         s,
-        "validation: {} (focus deviation ≤ {:.3} mm, incidence ≤ {:.2}°, field |xy| ≤ {:.1} mm, round trip ≤ {:.2e} mm{})",
+        "validation: {} (focus deviation ≤ {:.3} mm, incidence ≤ {:.2}°, field |xy| ≤ {:.1} mm, round trip ≤ {:.2e} mm, commands land ≤ {:.2e} mm{})",
         if v.passed { "passed" } else { "FAILED" },
         v.max_focus_deviation_mm,
         v.max_incidence_deg,
         v.max_field_abs_mm,
         v.max_round_trip_error_mm,
+        v.max_command_error_mm,
         if v.violations.is_empty() {
             String::new()
         } else {
