@@ -52,6 +52,8 @@ pub mod files {
     pub const SUMMARY: &str = "summary.json";
     /// The demo part's input files.
     pub const INPUTS: &str = "inputs";
+    /// The copy of the field correction the run used.
+    pub const FIELD: &str = "field.json";
     /// The demo part's true trimming line (work-piece frame), under [`INPUTS`].
     pub const TRUTH: &str = "truth.csv";
 }
@@ -344,9 +346,23 @@ fn fresh(args: &Args) -> anyhow::Result<()> {
     };
     apply_overrides(&mut config, args)?;
     let run_dir = new_run_dir(&config, args)?;
+    // The run keeps its own copy of the field correction it used (the Job records its
+    // checksum), so the folder alone can be resumed and audited.
+    if let Some(src) = config.calibration.field_correction.clone() {
+        let copy = run_dir.join(files::FIELD);
+        std::fs::copy(&src, &copy).with_context(|| {
+            format!("calibration.field_correction: cannot copy {}", src.display())
+        })?;
+        config.calibration.field_correction = Some(copy);
+    }
+    // The effective job file names the copy relative to itself.
+    let mut effective = config.clone();
+    if effective.calibration.field_correction.is_some() {
+        effective.calibration.field_correction = Some(PathBuf::from(files::FIELD));
+    }
     std::fs::write(
         run_dir.join(files::JOB),
-        toml::to_string(&config).context("serialising the job file")?,
+        toml::to_string(&effective).context("serialising the job file")?,
     )?;
     eprintln!("trimctl run: recording to {}", run_dir.display());
 
