@@ -351,7 +351,10 @@ fn fresh(args: &Args) -> anyhow::Result<()> {
     if let Some(src) = config.calibration.field_correction.clone() {
         let copy = run_dir.join(files::FIELD);
         std::fs::copy(&src, &copy).with_context(|| {
-            format!("calibration.field_correction: cannot copy {}", src.display())
+            format!(
+                "calibration.field_correction: cannot copy {}",
+                src.display()
+            )
         })?;
         config.calibration.field_correction = Some(copy);
     }
