@@ -8,5 +8,6 @@
 //! - [`error`]: the error type, [`CalibError`].
 
 pub mod error;
+pub mod field;
 
 pub use error::CalibError;

@@ -106,6 +106,13 @@ pub enum Link {
     Height,
 }
 
+/// Marks per side of the field grid `synth --calibration` writes.
+const FIELD_GRID: usize = 21;
+/// Coupon heights of the field marks (mm).
+const FIELD_HEIGHTS_MM: [f64; 3] = [0.0, 2.0, -2.0];
+/// Measurement noise of a mark, per coordinate (µm; the thesis's microscope).
+const MARK_NOISE_UM: f64 = 2.0;
+
 /// `trimctl synth --calibration`.
 fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
     let defaults = crate::config::JobConfig::default();
@@ -152,9 +159,29 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
         args.out.join("truth.json"),
         serde_json::to_string_pretty(&truth)?,
     )?;
+    // The field marks: a 21 × 21 grid over the field on coupons at 0 and ±2 mm, measured
+    // (2 µm noise) relative to the field-centre mark, which the tool mark ties to the machine.
+    let centred = trim_plan::lens::LensDistortion {
+        offset_mm: [0.0, 0.0],
+        ..truth.head
+    };
+    let marks = trim_calib::field::synth_marks(
+        &centred,
+        truth
+            .pivot_to_focal_plane_mm
+            .unwrap_or(defaults.beam.focal_length_mm),
+        FIELD_GRID,
+        0.5 * defaults.galvo.field_mm[0].min(defaults.galvo.field_mm[1]),
+        &FIELD_HEIGHTS_MM,
+        MARK_NOISE_UM,
+        args.seed,
+        0.0,
+    );
+    trim_calib::field::write_marks(&args.out.join("marks.csv"), &marks)?;
     println!(
-        "{}: job.toml (the twin's true cell), truth.json",
-        args.out.display()
+        "{}: job.toml (the twin's true cell), truth.json, marks.csv ({} marks)",
+        args.out.display(),
+        marks.len()
     );
     Ok(())
 }
