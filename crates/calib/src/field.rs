@@ -139,21 +139,33 @@ pub fn write_marks(path: &Path, marks: &[Mark]) -> Result<(), CalibError> {
     f.flush().map_err(io)
 }
 
-/// The marks a head with field `truth` and pivot height `pivot_mm` gives: a `grid × grid`
-/// pattern over `[−half_field, half_field]²` on a coupon at each height of `heights_mm`,
-/// measured with Gaussian noise of `noise_um` per coordinate (seeded). `offset_fraction`
-/// shifts the grid by that fraction of a cell (a held-out grid between the fit's marks).
+/// A marked grid: `grid × grid` commands over `[−half_field, half_field]²` on a coupon at each
+/// of `heights_mm`, measured with Gaussian noise `noise_um` per coordinate; `offset_fraction`
+/// shifts the grid by that fraction of a cell (a held-out grid between another's marks).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MarkGrid {
+    /// Marks per side.
+    pub grid: usize,
+    /// Half the side of the marked square (mm).
+    pub half_field_mm: f64,
+    /// Coupon heights above the focal plane, toward the lens (mm).
+    pub heights_mm: Vec<f64>,
+    /// Measurement noise per coordinate (µm).
+    pub noise_um: f64,
+    /// Grid shift, in cells.
+    pub offset_fraction: f64,
+}
+
+/// The marks a head with field `truth` and pivot height `pivot_mm` gives on `grid` (seeded).
 #[must_use]
-pub fn synth_marks(
-    truth: &LensDistortion,
-    pivot_mm: f64,
-    grid: usize,
-    half_field_mm: f64,
-    heights_mm: &[f64],
-    noise_um: f64,
-    seed: u64,
-    offset_fraction: f64,
-) -> Vec<Mark> {
+pub fn synth_marks(truth: &LensDistortion, pivot_mm: f64, grid: &MarkGrid, seed: u64) -> Vec<Mark> {
+    let (half_field_mm, heights_mm, noise_um, offset_fraction) = (
+        grid.half_field_mm,
+        &grid.heights_mm,
+        grid.noise_um,
+        grid.offset_fraction,
+    );
+    let grid = grid.grid;
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let noise = Normal::new(0.0, noise_um.max(0.0) * 1e-3).unwrap_or_else(|_| {
         // σ = 0 is valid for Normal; only a NaN gets here.
@@ -162,7 +174,7 @@ pub fn synth_marks(
     let n = grid.max(2);
     let step = 2.0 * half_field_mm / (n - 1) as f64;
     let mut out = Vec::with_capacity(n * n * heights_mm.len());
-    for &h in heights_mm {
+    for &h in heights_mm.iter() {
         for j in 0..n {
             for i in 0..n {
                 let c = [
@@ -550,10 +562,24 @@ mod tests {
         for seed in 1..=3 {
             let t = truth();
             let pivot = 262.0;
-            let marks = synth_marks(&t, pivot, 21, 50.0, &[0.0, 2.0, -2.0], 2.0, seed, 0.0);
+            let fit_grid = MarkGrid {
+                grid: 21,
+                half_field_mm: 50.0,
+                heights_mm: vec![0.0, 2.0, -2.0],
+                noise_um: 2.0,
+                offset_fraction: 0.0,
+            };
+            let marks = synth_marks(&t, pivot, &fit_grid, seed);
             let (field, report) = fit_field(&marks, &FieldFitSettings::default()).expect("fit");
             // Held out: a grid between the fit's marks, in the focal plane, without noise.
-            let held = synth_marks(&t, pivot, 20, 50.0, &[0.0], 0.0, seed + 100, 0.5);
+            let held_grid = MarkGrid {
+                grid: 20,
+                heights_mm: vec![0.0],
+                noise_um: 0.0,
+                offset_fraction: 0.5,
+                ..fit_grid
+            };
+            let held = synth_marks(&t, pivot, &held_grid, seed + 100);
             let errs: Vec<f64> = held
                 .iter()
                 .map(|m| {

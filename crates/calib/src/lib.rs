@@ -7,7 +7,10 @@
 //! - [`field`]: `trimctl calibrate field`: the galvo field correction from a marked grid.
 //! - [`error`]: the error type, [`CalibError`].
 
+pub mod artefact;
+pub mod cell;
 pub mod error;
 pub mod field;
+pub mod sphere;
 
 pub use error::CalibError;

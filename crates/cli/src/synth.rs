@@ -170,12 +170,14 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
         truth
             .pivot_to_focal_plane_mm
             .unwrap_or(defaults.beam.focal_length_mm),
-        FIELD_GRID,
-        0.5 * defaults.galvo.field_mm[0].min(defaults.galvo.field_mm[1]),
-        &FIELD_HEIGHTS_MM,
-        MARK_NOISE_UM,
+        &trim_calib::field::MarkGrid {
+            grid: FIELD_GRID,
+            half_field_mm: 0.5 * defaults.galvo.field_mm[0].min(defaults.galvo.field_mm[1]),
+            heights_mm: FIELD_HEIGHTS_MM.to_vec(),
+            noise_um: MARK_NOISE_UM,
+            offset_fraction: 0.0,
+        },
         args.seed,
-        0.0,
     );
     trim_calib::field::write_marks(&args.out.join("marks.csv"), &marks)?;
     println!(

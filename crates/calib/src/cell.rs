@@ -1,0 +1,376 @@
+//! `trimctl calibrate cell`: the rotary axis lines and the scanner's pose on the head from a
+//! sphere fixed on the table, scanned at many machine poses (thesis §3: sensor-to-machine and
+//! rotation-centre calibration, here in one problem).
+//!
+//! Unknowns (17): each axis line's direction (2, small rotations of the nominal one) and point
+//! (2, across the nominal direction; along the line it is no unknown), the scanner's rotation R
+//! (3) and translation t (3), and the sphere's table position p (3). For pose i with the
+//! sphere's centre s_i in the scanner frame:
+//!
+//! `Rot_A(A_i)·Rot_C(C_i)·p = J_i + R·s_i + t`   (3 residuals, weighted by the fit's σ)
+//!
+//! Translating t, p and both axis points together changes no residual: the spheres cannot say
+//! where the tool point is. The tool mark can: a mark made at the field centre at pose 1 lies
+//! at the tool point J_1, and the scanner saw it at m, so `R·m + t = 0` (3 residuals, weighted
+//! as a 2 µm RMS measurement). Levenberg–Marquardt from the nominal cell; the parameters' standard
+//! deviations are `σ̂²·(JᵀJ)⁻¹`.
+
+use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Unit};
+use serde::Serialize;
+use trim_geom::{Point3, UnitVector3, Vector3};
+use trim_plan::cell::{AxisLine, ScannerPose, TableModel};
+use trim_plan::kinematics::KinematicsKind;
+
+use crate::error::CalibError;
+
+/// Fewest poses `calibrate cell` takes.
+pub const MIN_POSES: usize = 8;
+/// The tool mark's measurement σ per coordinate (mm): 2 µm RMS in 3-D.
+pub const TOOL_MARK_SIGMA_MM: f64 = 0.002 / 1.732_050_807_568_877_2;
+/// A floor on the sphere centres' σ (mm), so a fit that claims nanometres does not dominate.
+pub const CENTRE_SIGMA_FLOOR_MM: f64 = 0.0005;
+/// Levenberg–Marquardt iterations.
+const MAX_ITERATIONS: usize = 100;
+/// Fewest distinct positions an axis needs to be determined.
+const MIN_DISTINCT_ANGLES: usize = 3;
+
+/// One observation: a machine pose and the sphere centre the scanner saw there.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SphereObservation {
+    /// Linear joint positions X, Y, Z (mm): the tool point in the machine frame.
+    pub xyz_mm: [f64; 3],
+    /// The tilting axis, A or B (degrees).
+    pub tilt_deg: f64,
+    /// C (degrees).
+    pub c_deg: f64,
+    /// The sphere's centre in the scanner frame (mm).
+    pub centre_mm: Point3,
+    /// Its σ (mm, isotropic).
+    pub sigma_mm: f64,
+}
+
+/// The solved cell.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CellCalibration {
+    /// The rotary axes' lines.
+    pub table: TableModel,
+    /// The scanner's pose on the head.
+    pub scanner: ScannerPose,
+    /// The sphere's centre in the table frame (mm).
+    pub sphere_table_mm: Point3,
+    /// The report.
+    pub report: CellReport,
+}
+
+/// Residuals and standard deviations of a solved cell.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CellReport {
+    /// Per pose: the 3-D residual (µm).
+    pub pose_residual_um: Vec<f64>,
+    /// RMS over the poses (µm).
+    pub rms_um: f64,
+    /// The tool mark's residual (µm).
+    pub tool_mark_residual_um: f64,
+    /// σ of the tilt axis direction (degrees).
+    pub tilt_direction_sd_deg: f64,
+    /// σ of the tilt axis point across the axis (µm).
+    pub tilt_point_sd_um: f64,
+    /// σ of the C axis direction (degrees).
+    pub c_direction_sd_deg: f64,
+    /// σ of the C axis point across the axis (µm).
+    pub c_point_sd_um: f64,
+    /// σ of the scanner rotation (degrees).
+    pub scanner_rotation_sd_deg: f64,
+    /// σ of the scanner translation (µm).
+    pub scanner_translation_sd_um: f64,
+    /// The fit's σ̂ relative to the stated measurement σ (≈ 1 when the model fits).
+    pub sigma_ratio: f64,
+    /// Iterations.
+    pub iterations: usize,
+}
+
+/// Two unit vectors across `d` (right-handed with it).
+fn across(d: &Vector3) -> (Vector3, Vector3) {
+    let helper = if d.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let e1 = d.cross(&helper).normalize();
+    let e2 = d.cross(&e1);
+    (e1, e2)
+}
+
+/// The parametrisation around a reference cell.
+struct Model {
+    kind: KinematicsKind,
+    tilt0: AxisLine,
+    rot0: AxisLine,
+    r0: Matrix3<f64>,
+}
+
+impl Model {
+    fn line(base: &AxisLine, x: &[f64]) -> AxisLine {
+        let d0 = base.direction.into_inner();
+        let (e1, e2) = across(&d0);
+        AxisLine {
+            point_mm: base.point_mm + e1 * x[2] + e2 * x[3],
+            direction: UnitVector3::new_normalize(d0 + e1 * x[0] + e2 * x[1]),
+        }
+    }
+
+    fn unpack(&self, x: &DVector<f64>) -> (TableModel, ScannerPose, Point3) {
+        let tilt = Self::line(&self.tilt0, &x.as_slice()[0..4]);
+        let rotary = Self::line(&self.rot0, &x.as_slice()[4..8]);
+        let w = Vector3::new(x[8], x[9], x[10]);
+        let r = Rotation3::from_scaled_axis(w).matrix() * self.r0;
+        (
+            TableModel {
+                kind: self.kind,
+                tilt,
+                rotary,
+            },
+            ScannerPose {
+                rotation: r,
+                translation_mm: Vector3::new(x[11], x[12], x[13]),
+            },
+            Point3::new(x[14], x[15], x[16]),
+        )
+    }
+
+    fn residuals(
+        &self,
+        x: &DVector<f64>,
+        obs: &[SphereObservation],
+        tool_mark: &Point3,
+    ) -> DVector<f64> {
+        let (table, scanner, p) = self.unpack(x);
+        let mut r = DVector::zeros(3 * obs.len() + 3);
+        for (i, o) in obs.iter().enumerate() {
+            let pred = table.machine_from_table(o.tilt_deg, o.c_deg) * p;
+            let seen = Vector3::from(o.xyz_mm)
+                + scanner.rotation * o.centre_mm.coords
+                + scanner.translation_mm;
+            let d = (pred.coords - seen) / o.sigma_mm;
+            r.fixed_rows_mut::<3>(3 * i).copy_from(&d);
+        }
+        let m = (scanner.rotation * tool_mark.coords + scanner.translation_mm) / TOOL_MARK_SIGMA_MM;
+        r.fixed_rows_mut::<3>(3 * obs.len()).copy_from(&m);
+        r
+    }
+}
+
+fn distinct(values: impl Iterator<Item = f64>) -> usize {
+    let mut v: Vec<i64> = values.map(|a| (a * 1e3).round() as i64).collect();
+    v.sort_unstable();
+    v.dedup();
+    v.len()
+}
+
+/// Solves the cell from the sphere observations and the tool mark (scanner frame, seen at the
+/// first pose), starting from the `nominal` table and the identity scanner.
+pub fn calibrate_cell(
+    nominal: &TableModel,
+    observations: &[SphereObservation],
+    tool_mark_mm: &Point3,
+) -> Result<CellCalibration, CalibError> {
+    if nominal.kind == KinematicsKind::Xyz {
+        return Err(CalibError::Invalid {
+            key: "kinematics".into(),
+            message: "a three-axis (xyz) cell has no rotary axes to calibrate".into(),
+        });
+    }
+    if observations.len() < MIN_POSES {
+        return Err(CalibError::TooFew {
+            what: "poses".into(),
+            needed: MIN_POSES,
+            got: observations.len(),
+        });
+    }
+    let tilt_name = nominal.kind.tilt_axis().unwrap_or("a").to_uppercase();
+    if distinct(observations.iter().map(|o| o.tilt_deg)) < MIN_DISTINCT_ANGLES {
+        return Err(CalibError::Degenerate(format!(
+            "the poses hold fewer than {MIN_DISTINCT_ANGLES} distinct {tilt_name} positions: the {tilt_name} line is not determined (scan at several {tilt_name} angles)"
+        )));
+    }
+    if distinct(observations.iter().map(|o| o.c_deg.rem_euclid(360.0))) < MIN_DISTINCT_ANGLES {
+        return Err(CalibError::Degenerate(format!(
+            "the poses hold fewer than {MIN_DISTINCT_ANGLES} distinct C positions: the C line is not determined (scan at several C angles)"
+        )));
+    }
+    let model = Model {
+        kind: nominal.kind,
+        tilt0: nominal.tilt,
+        rot0: nominal.rotary,
+        r0: Matrix3::identity(),
+    };
+    // Start: identity scanner, t from the tool mark, p from the first pose.
+    let mut x = DVector::zeros(17);
+    let t0 = -tool_mark_mm.coords;
+    x.fixed_rows_mut::<3>(11).copy_from(&t0);
+    let o0 = &observations[0];
+    let seen0 = Point3::from(Vector3::from(o0.xyz_mm) + o0.centre_mm.coords + t0);
+    let p0 = nominal.machine_from_table(o0.tilt_deg, o0.c_deg).inverse() * seen0;
+    x.fixed_rows_mut::<3>(14).copy_from(&p0.coords);
+
+    let jacobian = |x: &DVector<f64>, r0: &DVector<f64>| -> DMatrix<f64> {
+        let mut j = DMatrix::zeros(r0.len(), x.len());
+        for k in 0..x.len() {
+            let h = 1e-7 * (1.0 + x[k].abs());
+            let mut xp = x.clone();
+            xp[k] += h;
+            let mut xm = x.clone();
+            xm[k] -= h;
+            let d = (model.residuals(&xp, observations, tool_mark_mm)
+                - model.residuals(&xm, observations, tool_mark_mm))
+                / (2.0 * h);
+            j.set_column(k, &d);
+        }
+        j
+    };
+    let mut r = model.residuals(&x, observations, tool_mark_mm);
+    let mut cost = r.norm_squared();
+    let mut mu = 1e-3;
+    let mut iterations = 0;
+    for it in 0..MAX_ITERATIONS {
+        iterations = it + 1;
+        let j = jacobian(&x, &r);
+        let jtj = j.transpose() * &j;
+        let g = j.transpose() * &r;
+        let mut improved = false;
+        let mut converged = false;
+        for _ in 0..20 {
+            let mut a = jtj.clone();
+            for k in 0..a.nrows() {
+                a[(k, k)] += mu * jtj[(k, k)].max(1e-12);
+            }
+            let Some(ch) = a.cholesky() else {
+                mu *= 10.0;
+                continue;
+            };
+            let step = ch.solve(&(-&g));
+            let xn = &x + &step;
+            let rn = model.residuals(&xn, observations, tool_mark_mm);
+            let cn = rn.norm_squared();
+            if cn < cost {
+                converged = step.amax() < 1e-12 || (cost - cn) < 1e-14 * cost.max(1.0);
+                x = xn;
+                r = rn;
+                cost = cn;
+                mu = (mu / 3.0).max(1e-12);
+                improved = true;
+                break;
+            }
+            mu *= 10.0;
+        }
+        if !improved || converged || g.amax() < 1e-10 {
+            break;
+        }
+    }
+
+    // Observability: the normal matrix at the solution.
+    let j = jacobian(&x, &r);
+    let jtj = j.transpose() * &j;
+    let eig = jtj.clone().symmetric_eigen();
+    let max_eig = eig.eigenvalues.amax();
+    let names = [
+        "tilt direction",
+        "tilt direction",
+        "tilt point",
+        "tilt point",
+        "C direction",
+        "C direction",
+        "C point",
+        "C point",
+        "scanner rotation",
+        "scanner rotation",
+        "scanner rotation",
+        "scanner translation",
+        "scanner translation",
+        "scanner translation",
+        "sphere position",
+        "sphere position",
+        "sphere position",
+    ];
+    for (k, &e) in eig.eigenvalues.iter().enumerate() {
+        if e < 1e-12 * max_eig {
+            let v = eig.eigenvectors.column(k);
+
+            let mut parts: Vec<&str> = (0..17)
+                .filter(|&i| v[i].abs() > 0.3)
+                .map(|i| names[i])
+                .collect();
+            parts.dedup();
+            return Err(CalibError::Degenerate(format!(
+                "the poses do not determine: {} (add poses that move those axes further)",
+                parts.join(", ").replace("tilt", &tilt_name)
+            )));
+        }
+    }
+    let dof = (r.len() as f64 - 17.0).max(1.0);
+    let sigma2 = cost / dof;
+    let cov = jtj
+        .try_inverse()
+        .ok_or_else(|| CalibError::Degenerate("singular normal equations".into()))?
+        * sigma2;
+    let sd = |a: usize, b: usize| (cov[(a, a)] + cov[(b, b)]).sqrt();
+    let (table, scanner, p) = model.unpack(&x);
+    let pose_residual_um: Vec<f64> = (0..observations.len())
+        .map(|i| r.fixed_rows::<3>(3 * i).norm() * observations[i].sigma_mm * 1e3)
+        .collect();
+    let rms_um = (pose_residual_um.iter().map(|v| v * v).sum::<f64>()
+        / pose_residual_um.len() as f64)
+        .sqrt();
+    let report = CellReport {
+        tool_mark_residual_um: r.fixed_rows::<3>(3 * observations.len()).norm()
+            * TOOL_MARK_SIGMA_MM
+            * 1e3,
+        pose_residual_um,
+        rms_um,
+        tilt_direction_sd_deg: sd(0, 1).to_degrees(),
+        tilt_point_sd_um: sd(2, 3) * 1e3,
+        c_direction_sd_deg: sd(4, 5).to_degrees(),
+        c_point_sd_um: sd(6, 7) * 1e3,
+        scanner_rotation_sd_deg: (cov[(8, 8)] + cov[(9, 9)] + cov[(10, 10)])
+            .sqrt()
+            .to_degrees(),
+        scanner_translation_sd_um: (cov[(11, 11)] + cov[(12, 12)] + cov[(13, 13)]).sqrt() * 1e3,
+        sigma_ratio: sigma2.sqrt(),
+        iterations,
+    };
+    Ok(CellCalibration {
+        table,
+        scanner,
+        sphere_table_mm: p,
+        report,
+    })
+}
+
+/// The angle between two directions (degrees).
+#[must_use]
+pub fn direction_error_deg(a: &UnitVector3, b: &UnitVector3) -> f64 {
+    a.dot(b).clamp(-1.0, 1.0).acos().to_degrees()
+}
+
+/// How far apart two nearly parallel lines are near `at` (mm): the distance between their
+/// points nearest `at`, across the first line.
+#[must_use]
+pub fn line_offset_mm(a: &AxisLine, b: &AxisLine, at: &Point3) -> f64 {
+    let pa = a.foot_of(at);
+    let pb = b.foot_of(&pa);
+    let d = pb - pa;
+    (d - a.direction.into_inner() * d.dot(&a.direction)).norm()
+}
+
+/// The rotation angle between two rotations (degrees).
+#[must_use]
+pub fn rotation_error_deg(a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
+    let r = Rotation3::from_matrix_unchecked(a.transpose() * b);
+    r.angle().to_degrees()
+}
+
+/// A rotation by `angle_deg` about `axis` as a matrix (for tests and artefacts).
+#[must_use]
+pub fn rotation_about(axis: &Vector3, angle_deg: f64) -> Matrix3<f64> {
+    *Rotation3::from_axis_angle(&Unit::new_normalize(*axis), angle_deg.to_radians()).matrix()
+}
