@@ -214,14 +214,24 @@ pub fn observe(
     artefacts: &Artefacts,
     diameter_mm: f64,
 ) -> Result<Vec<SphereObservation>, CalibError> {
+    fit_observations(&artefacts.poses, &artefacts.scans, diameter_mm).map_err(|(_, e)| e)
+}
+
+/// Fits the sphere in every scan (in parallel) and pairs it with its pose. The error names the
+/// index of the scan at fault.
+pub fn fit_observations(
+    poses: &[CalPose],
+    scans: &[PointCloud],
+    diameter_mm: f64,
+) -> Result<Vec<SphereObservation>, (usize, CalibError)> {
     use rayon::prelude::*;
-    artefacts
-        .poses
+    poses
         .par_iter()
-        .zip(&artefacts.scans)
+        .zip(scans)
         .enumerate()
         .map(|(i, (pose, scan))| {
-            let fit = crate::sphere::fit_sphere(scan.points(), 0.5 * diameter_mm, i as u64)?;
+            let fit = crate::sphere::fit_sphere(scan.points(), 0.5 * diameter_mm, i as u64)
+                .map_err(|e| (i, e))?;
             Ok(SphereObservation {
                 xyz_mm: pose.xyz_mm,
                 tilt_deg: pose.tilt_deg,

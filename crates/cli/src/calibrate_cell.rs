@@ -1,35 +1,236 @@
-//! `trimctl calibrate cell --scans DIR --poses poses.csv --sphere-diameter-mm D --tool-mark X,Y,Z --out cal.toml`.
+//! `trimctl calibrate cell --scans DIR --poses poses.csv --sphere-diameter-mm D --tool-mark X,Y,Z --out cal.toml`:
+//! the rotary axis lines and the scanner's pose on the head (`trim_calib::cell`).
 
-use std::path::PathBuf;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use trim_calib::artefact::{CalPose, fit_observations};
+use trim_calib::cell::calibrate_cell;
+use trim_geom::Point3;
+use trim_plan::cell::{Calibration, TableModel};
+use trim_plan::kinematics::{KinematicsKind, MachineSettings};
+
+use crate::config::JobConfig;
+use crate::progress::stage;
 
 /// Arguments of `trimctl calibrate cell`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The folder holding the sphere scans (PLY or PCD, scanner frame) named in poses.csv.
+    /// The folder holding the sphere scans (PLY, PCD or XYZ, scanner frame) named in poses.csv.
     #[arg(long)]
     pub scans: PathBuf,
-    /// CSV with the header `scan,x,y,z,a,c` (file name in --scans; mm; degrees). A B/C cell
-    /// writes `b` for `a`.
+    /// CSV with the header `scan,x,y,z,a,c` (file name in --scans; X, Y, Z joint positions in
+    /// mm; degrees). A B/C cell writes `b` for `a`.
     #[arg(long)]
     pub poses: PathBuf,
     /// The precision sphere's diameter (mm).
     #[arg(long)]
     pub sphere_diameter_mm: f64,
-    /// The centre of a laser mark made at the field centre, as the scanner saw it at the first
-    /// pose (scanner frame, mm): X,Y,Z.
+    /// The centre of a laser mark made at the field centre at the first pose, as the scanner
+    /// saw it there (scanner frame, mm): X,Y,Z.
     #[arg(
         long,
         value_delimiter = ',',
-        num_args = 3,
+        num_args = 1,
         allow_negative_numbers = true
     )]
     pub tool_mark: Vec<f64>,
-    /// Where to write the `[calibration]` table (TOML).
+    /// Where to write the `[calibration]` table (TOML; paste it into job.toml).
     #[arg(long)]
     pub out: PathBuf,
+    /// The job file whose `[machine]` gives the nominal cell (default: the defaults).
+    #[arg(long, value_name = "JOB.toml")]
+    pub job: Option<PathBuf>,
+}
+
+/// Reads poses.csv: the poses, the scan file names, and the kinematics its header implies.
+fn read_poses(path: &Path) -> anyhow::Result<(Vec<String>, Vec<CalPose>, KinematicsKind)> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
+    let Some((hl, header)) = lines.next() else {
+        bail!(
+            "{}: empty file: expected the header scan,x,y,z,a,c",
+            path.display()
+        );
+    };
+    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
+    let kind = match cols.as_slice() {
+        ["scan", "x", "y", "z", "a", "c"] => KinematicsKind::XyzacTrt,
+        ["scan", "x", "y", "z", "b", "c"] => KinematicsKind::XyzbcTrt,
+        _ => bail!(
+            "{}:{}: expected the header scan,x,y,z,a,c (or scan,x,y,z,b,c), got {header:?}",
+            path.display(),
+            hl + 1
+        ),
+    };
+    let (mut names, mut poses) = (Vec::new(), Vec::new());
+    for (i, line) in lines {
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        if f.len() != 6 {
+            bail!(
+                "{}:{}: expected 6 columns, got {}",
+                path.display(),
+                i + 1,
+                f.len()
+            );
+        }
+        let mut v = [0.0; 5];
+        for (k, s) in f[1..].iter().enumerate() {
+            v[k] = s
+                .parse()
+                .ok()
+                .filter(|x: &f64| x.is_finite())
+                .with_context(|| {
+                    format!(
+                        "{}:{}: column {} ({}): {s:?} is not a finite number",
+                        path.display(),
+                        i + 1,
+                        k + 2,
+                        cols[k + 1]
+                    )
+                })?;
+        }
+        names.push(f[0].to_owned());
+        poses.push(CalPose {
+            xyz_mm: [v[0], v[1], v[2]],
+            tilt_deg: v[3],
+            c_deg: v[4],
+        });
+    }
+    Ok((names, poses, kind))
 }
 
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("calibrate cell: being built ({args:?})")
+    if args.tool_mark.len() != 3 {
+        bail!(
+            "--tool-mark: expected X,Y,Z (three numbers), got {}",
+            args.tool_mark.len()
+        );
+    }
+    if !(args.sphere_diameter_mm.is_finite() && args.sphere_diameter_mm > 0.0) {
+        bail!(
+            "--sphere-diameter-mm: must be > 0, got {}",
+            args.sphere_diameter_mm
+        );
+    }
+    let tool_mark = Point3::new(args.tool_mark[0], args.tool_mark[1], args.tool_mark[2]);
+    let (names, poses, kind) = read_poses(&args.poses)?;
+    let machine = match &args.job {
+        Some(j) => JobConfig::load(j)?.machine,
+        None => MachineSettings::default(),
+    };
+    if machine.kinematics != kind {
+        bail!(
+            "{}: the header names a {} cell, the job's [machine] is {}",
+            args.poses.display(),
+            kind.name(),
+            machine.kinematics.name()
+        );
+    }
+    let spinner = stage("reading the sphere scans");
+    let scans = names
+        .iter()
+        .map(|n| {
+            trim_geom::formats::read_points(&args.scans.join(n))
+                .with_context(|| format!("{} (named in {})", n, args.poses.display()))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    drop(spinner);
+    let spinner = stage("fitting the spheres");
+    let observations = fit_observations(&poses, &scans, args.sphere_diameter_mm)
+        .map_err(|(i, e)| anyhow::anyhow!("{}: {e}", args.scans.join(&names[i]).display()))?;
+    drop(spinner);
+    let nominal = TableModel::nominal(&machine);
+    let cal = calibrate_cell(&nominal, &observations, &tool_mark).context("solving the cell")?;
+    let r = &cal.report;
+    let tilt = kind.tilt_axis().unwrap_or("a").to_uppercase();
+
+    let mut calibration = Calibration::default();
+    calibration.set_cell(&cal.table, &cal.scanner);
+    #[derive(serde::Serialize)]
+    struct Out<'a> {
+        calibration: &'a Calibration,
+    }
+    let mut text = String::new();
+    let _ = writeln!(
+        text,
+        "# trimctl calibrate cell: {} poses from {}, sphere Ø {} mm.",
+        poses.len(),
+        args.poses.display(),
+        args.sphere_diameter_mm
+    );
+    let _ = writeln!(
+        text,
+        "# Pose residuals (µm): RMS {:.2}, max {:.2}; tool mark {:.2}. Standard deviations: {tilt} direction {:.5}°, {tilt} point {:.2} µm, C direction {:.5}°, C point {:.2} µm, scanner rotation {:.5}°, scanner translation {:.2} µm.",
+        r.rms_um,
+        r.pose_residual_um.iter().copied().fold(0.0, f64::max),
+        r.tool_mark_residual_um,
+        r.tilt_direction_sd_deg,
+        r.tilt_point_sd_um,
+        r.c_direction_sd_deg,
+        r.c_point_sd_um,
+        r.scanner_rotation_sd_deg,
+        r.scanner_translation_sd_um
+    );
+    let _ = writeln!(
+        text,
+        "# Paste the table below into job.toml; add `field_correction = \"field.json\"` from `trimctl calibrate field`.\n"
+    );
+    text.push_str(
+        &toml::to_string(&Out {
+            calibration: &calibration,
+        })
+        .context("serialising the calibration")?,
+    );
+    std::fs::write(&args.out, text)
+        .with_context(|| format!("cannot write {}", args.out.display()))?;
+
+    println!("pose  scan                  {tilt:>8}°  C°        residual µm");
+    for (i, ((n, p), res)) in names
+        .iter()
+        .zip(&poses)
+        .zip(&r.pose_residual_um)
+        .enumerate()
+    {
+        println!(
+            "{i:>4}  {n:<20}  {:>8.2}  {:>8.2}  {res:>8.2}",
+            p.tilt_deg, p.c_deg
+        );
+    }
+    let line = |name: &str, l: &trim_plan::cell::AxisLine| {
+        println!(
+            "{name} line: point ({:.4}, {:.4}, {:.4}) mm, direction ({:.7}, {:.7}, {:.7})",
+            l.point_mm.x, l.point_mm.y, l.point_mm.z, l.direction.x, l.direction.y, l.direction.z
+        );
+    };
+    line(&tilt, &cal.table.tilt);
+    line("C", &cal.table.rotary);
+    let t = cal.scanner.translation_mm;
+    println!(
+        "scanner: rotation {:.5}° from the identity, translation ({:.4}, {:.4}, {:.4}) mm",
+        trim_calib::cell::rotation_error_deg(&cal.scanner.rotation, &nalgebra::Matrix3::identity()),
+        t.x,
+        t.y,
+        t.z
+    );
+    println!(
+        "residual RMS {:.2} µm over {} poses (σ̂/σ {:.2}); σ: {tilt} {:.5}° / {:.2} µm, C {:.5}° / {:.2} µm, scanner {:.5}° / {:.2} µm",
+        r.rms_um,
+        poses.len(),
+        r.sigma_ratio,
+        r.tilt_direction_sd_deg,
+        r.tilt_point_sd_um,
+        r.c_direction_sd_deg,
+        r.c_point_sd_um,
+        r.scanner_rotation_sd_deg,
+        r.scanner_translation_sd_um
+    );
+    println!("wrote {}", args.out.display());
+    Ok(())
 }

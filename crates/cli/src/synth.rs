@@ -14,8 +14,8 @@ pub struct Args {
     pub out: PathBuf,
     /// Write what the digital twin's true cell would give the calibration instead of a part:
     /// `job.toml` (the demo job on a twin carrying that true cell, `[sim.truth]`), the sphere
-    /// scans with `poses.csv` and `tool_mark.txt` for `trimctl calibrate cell`, `marks.csv` for
-    /// `trimctl calibrate field`, and `truth.json`.
+    /// scans `spheres/` with `poses.csv`, `tool_mark.txt` and `sphere_diameter_mm.txt` for
+    /// `trimctl calibrate cell`, `marks.csv` for `trimctl calibrate field`, and `truth.json`.
     #[arg(long)]
     pub calibration: bool,
     /// With --calibration: which links of the true cell differ from nominal (comma-separated:
@@ -113,6 +113,13 @@ const FIELD_HEIGHTS_MM: [f64; 3] = [0.0, 2.0, -2.0];
 /// Measurement noise of a mark, per coordinate (µm; the thesis's microscope).
 const MARK_NOISE_UM: f64 = 2.0;
 
+/// The calibration sphere's diameter (mm).
+const SPHERE_DIAMETER_MM: f64 = 25.4;
+/// Where it sits on the table (table frame, mm).
+const SPHERE_TABLE_MM: [f64; 3] = [40.0, 30.0, 25.0];
+/// Scanner noise per coordinate (mm; the thesis's scanner).
+const SCAN_NOISE_MM: f64 = 0.010;
+
 /// `trimctl synth --calibration`.
 fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
     let defaults = crate::config::JobConfig::default();
@@ -180,10 +187,36 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
         args.seed,
     );
     trim_calib::field::write_marks(&args.out.join("marks.csv"), &marks)?;
+    // The sphere scans: a Ø 25.4 mm sphere on a stem on the table, scanned at the default
+    // poses by the true scanner on the true table; the tool mark at command 0 lands where the
+    // true head puts it.
+    let plan = defaults.plan_settings();
+    let nominal = trim_plan::cell::TableModel::nominal(&plan.machine);
+    let true_cell = trim_io::twin::TrueCell::new(&truth, &plan);
+    let sphere = trim_geom::Point3::from(SPHERE_TABLE_MM);
+    let poses = trim_calib::artefact::default_poses(&nominal, &sphere);
+    let artefacts = trim_calib::artefact::synth_artefacts(
+        &trim_calib::artefact::ArtefactTruth {
+            table: true_cell.table,
+            scanner: true_cell.scanner,
+            sphere_table_mm: sphere,
+            diameter_mm: SPHERE_DIAMETER_MM,
+            tool_offset_mm: truth.head.offset_mm,
+        },
+        &poses,
+        SCAN_NOISE_MM,
+        args.seed,
+    );
+    trim_calib::artefact::write_artefacts(&args.out, &artefacts, plan.machine.kinematics)?;
+    std::fs::write(
+        args.out.join("sphere_diameter_mm.txt"),
+        format!("{SPHERE_DIAMETER_MM}\n"),
+    )?;
     println!(
-        "{}: job.toml (the twin's true cell), truth.json, marks.csv ({} marks)",
+        "{}: job.toml (the twin's true cell), truth.json, marks.csv ({} marks), spheres/ ({} scans), poses.csv, tool_mark.txt, sphere_diameter_mm.txt",
         args.out.display(),
-        marks.len()
+        marks.len(),
+        artefacts.scans.len()
     );
     Ok(())
 }
