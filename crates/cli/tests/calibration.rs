@@ -1,0 +1,195 @@
+//! The calibration on the digital twin, end to end through the binary: the twin's artefacts
+//! (`synth --calibration`), `calibrate cell`, `calibrate field`, and the same demo run before
+//! and after. After calibration the spot error on the true part (registration included) must
+//! be P95 ≤ 25 µm and max ≤ 50 µm; before, the cell's errors must show.
+
+#![expect(
+    clippy::unwrap_used,
+    reason = "integration test: a failed setup step should fail the test loudly"
+)]
+
+use std::path::Path;
+use std::process::Command;
+
+const TRIMCTL: &str = env!("CARGO_BIN_EXE_trimctl");
+
+fn trimctl(args: &[&str], dir: &Path) -> String {
+    let out = Command::new(TRIMCTL)
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "trimctl {args:?}: {}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn spot(dir: &Path) -> (f64, f64) {
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let o = &s["spot_error"]["overall"];
+    (o["p95_um"].as_f64().unwrap(), o["max_um"].as_f64().unwrap())
+}
+
+#[test]
+fn calibrating_the_twin_brings_the_spot_error_within_tolerance() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    trimctl(&["synth", "--calibration", "--seed", "2", "--out", "."], d);
+    trimctl(
+        &[
+            "run",
+            "job.toml",
+            "--sim-time-scale",
+            "0.005",
+            "--out",
+            "before",
+        ],
+        d,
+    );
+    let mark = std::fs::read_to_string(d.join("tool_mark.txt")).unwrap();
+    let diameter = std::fs::read_to_string(d.join("sphere_diameter_mm.txt")).unwrap();
+    let cell = trimctl(
+        &[
+            "calibrate",
+            "cell",
+            "--scans",
+            "spheres",
+            "--poses",
+            "poses.csv",
+            "--sphere-diameter-mm",
+            diameter.trim(),
+            "--tool-mark",
+            mark.trim(),
+            "--out",
+            "cal.toml",
+        ],
+        d,
+    );
+    assert!(cell.contains("residual RMS"), "{cell}");
+    let field = trimctl(
+        &[
+            "calibrate",
+            "field",
+            "--marks",
+            "marks.csv",
+            "--out",
+            "field.json",
+        ],
+        d,
+    );
+    assert!(field.contains("leave-one-out"), "{field}");
+    // The calibrated job: the twin plus the [calibration] found, naming the field file.
+    let cal = std::fs::read_to_string(d.join("cal.toml"))
+        .unwrap()
+        .replacen(
+            "[calibration]\n",
+            "[calibration]\nfield_correction = \"field.json\"\n",
+            1,
+        );
+    let job = std::fs::read_to_string(d.join("job.toml")).unwrap();
+    std::fs::write(d.join("job-calibrated.toml"), format!("{job}\n{cal}")).unwrap();
+    trimctl(
+        &[
+            "run",
+            "job-calibrated.toml",
+            "--sim-time-scale",
+            "0.005",
+            "--out",
+            "after",
+        ],
+        d,
+    );
+    let (before_p95, before_max) = spot(&d.join("before"));
+    let (after_p95, after_max) = spot(&d.join("after"));
+    eprintln!(
+        "spot error before: P95 {before_p95:.1} µm, max {before_max:.1} µm; after: P95 {after_p95:.1} µm, max {after_max:.1} µm"
+    );
+    assert!(
+        after_p95 <= 25.0 && after_max <= 50.0,
+        "after: {after_p95} / {after_max}"
+    );
+    assert!(
+        before_p95 > 100.0,
+        "the twin's errors show before: {before_p95}"
+    );
+    // The run records what it used: the field file's copy and checksum, and the calibration.
+    let plan: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("after/plan.json")).unwrap()).unwrap();
+    let lens = &plan["settings"]["lens"];
+    assert!(
+        lens["field_correction"]["checksum"]
+            .as_str()
+            .unwrap()
+            .starts_with("crc32:"),
+        "{lens}"
+    );
+    assert!(lens["pivot_to_focal_plane_mm"].as_f64().unwrap() > 0.0);
+    assert!(d.join("after/field.json").exists());
+    let summary = std::fs::read_to_string(d.join("after/summary.json")).unwrap();
+    assert!(summary.contains("a_axis_direction"), "{summary}");
+    let polyline = &plan["zones"][0]["layers"][0]["polylines"][0];
+    assert_eq!(
+        polyline["commands"].as_array().unwrap().len(),
+        polyline["points"].as_array().unwrap().len()
+    );
+}
+
+#[test]
+fn calibrate_cell_refuses_bad_input_naming_the_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    std::fs::write(d.join("poses.csv"), "scan,x,y,z,q,c\n").unwrap();
+    let out = Command::new(TRIMCTL)
+        .args([
+            "calibrate",
+            "cell",
+            "--scans",
+            ".",
+            "--poses",
+            "poses.csv",
+            "--sphere-diameter-mm",
+            "25.4",
+            "--tool-mark",
+            "0,0,0",
+            "--out",
+            "cal.toml",
+        ])
+        .current_dir(d)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("poses.csv:1"), "{err}");
+    std::fs::write(
+        d.join("poses.csv"),
+        "scan,x,y,z,a,c\nmissing.ply,0,0,0,0,0\n",
+    )
+    .unwrap();
+    let out = Command::new(TRIMCTL)
+        .args([
+            "calibrate",
+            "cell",
+            "--scans",
+            ".",
+            "--poses",
+            "poses.csv",
+            "--sphere-diameter-mm",
+            "25.4",
+            "--tool-mark",
+            "0,0,0",
+            "--out",
+            "cal.toml",
+        ])
+        .current_dir(d)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("missing.ply"), "{err}");
+    assert!(!d.join("cal.toml").exists());
+}
