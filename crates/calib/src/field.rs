@@ -6,17 +6,21 @@
 //! `m = (L − h)/L · D(c)` with `D(c) = c + δ(c)`.
 //!
 //! - δ is a penalised tensor-product cubic B-spline (a P-spline, Eilers & Marx 1996) over the
-//!   commanded range: it spans every polynomial up to bicubic — offset, rotation, scale,
-//!   keystone (trapezoid), barrel — and whatever smooth residue a real f-theta head adds. The
-//!   penalty is on second differences of the coefficients (linear motion is free); its weight
-//!   is chosen by leave-one-out cross-validation, computed exactly from the hat matrix
-//!   (`r_i / (1 − H_ii)`).
+//!   commanded range. The penalty weighs fourth differences of the coefficients along rows and
+//!   columns (`penalty_order`), so every bicubic polynomial — offset, rotation, scale, keystone
+//!   (trapezoid), barrel — is free of it: the similarity/affine part and the low-order
+//!   polynomial are fitted as by least squares, and only the smooth residue a real f-theta head
+//!   adds on top is shrunk. Its weight is chosen by leave-one-out cross-validation, exact from
+//!   the hat matrix H: holding out the marks g of one command (all its heights) leaves
+//!   residuals `(I − H_gg)⁻¹ r_g`; the weights are tried in parallel.
 //! - L comes from the raised and lowered rows (h ≠ 0): for a trial L each row's focal-plane
-//!   landing is `m·L/(L − h)`; L is the value that fits best (golden-section search). Without
-//!   such rows L is left to the job (`calibration.lens.pivot_to_focal_plane_mm` or the focal
-//!   length).
+//!   landing is `m·L/(L − h)`; L is the value whose fit leaves the least sum of squares
+//!   (golden-section search over ½–2 × the focal length, alternated once with the weight), its
+//!   standard deviation `√(2σ²/RSS''(L))`. Without such rows L is left to the job
+//!   (`calibration.lens.pivot_to_focal_plane_mm` or the focal length).
 //! - The fitted D is sampled onto a 65 × 65 grid as a [`FieldCorrection`] (field.json), which
-//!   the planner inverts per point.
+//!   the planner inverts per point (Newton) and which converts to a controller's
+//!   [`trim_plan::lens::CorrectionTable`].
 
 use std::io::Write;
 use std::path::Path;
@@ -67,7 +71,7 @@ pub fn read_marks(path: &Path) -> Result<Vec<Mark>, CalibError> {
         match lines.next() {
             None => return Err(parse_err(1, "empty file: expected the header".into())),
             Some((_, l)) if l.trim().is_empty() => {}
-            Some((i, l)) => break (i + 1, l.trim()),
+            Some((i, l)) => break (i + 1, l.trim_start_matches('\u{feff}').trim()),
         }
     };
     let cols: Vec<&str> = header.1.split(',').map(str::trim).collect();
@@ -200,8 +204,13 @@ pub fn synth_marks(truth: &LensDistortion, pivot_mm: f64, grid: &MarkGrid, seed:
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct FieldFitSettings {
-    /// B-spline cells per side of the commanded range.
+    /// B-spline cells per side of the commanded range (fewer when the grid has fewer than two
+    /// mark columns per cell).
     pub cells: usize,
+    /// Order of the coefficient differences the penalty weighs (2–4): polynomials of degree
+    /// below it in each axis are free of the penalty. 4 leaves every bicubic term — offset,
+    /// rotation, scale, keystone, barrel — free, so only the smooth residue is shrunk.
+    pub penalty_order: usize,
     /// Nodes per side of the field.json grid.
     pub grid_nodes: usize,
     /// The nominal L (the focal length, mm): the "before" model and the centre of L's search.
@@ -214,6 +223,7 @@ impl Default for FieldFitSettings {
     fn default() -> Self {
         FieldFitSettings {
             cells: 8,
+            penalty_order: 4,
             grid_nodes: 65,
             focal_length_mm: 254.0,
             smoothing: None,
@@ -221,13 +231,16 @@ impl Default for FieldFitSettings {
     }
 }
 
-/// What the fit found (µm unless named).
+/// What the fit found (µm unless named; residuals are distances in the coupon's plane, head
+/// frame).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FieldFitReport {
     /// Marks used.
     pub marks: usize,
     /// Of which on raised or lowered coupons (h ≠ 0).
     pub marks_off_plane: usize,
+    /// Distinct commands among them (the leave-one-out holds out all marks of one command).
+    pub commands: usize,
     /// RMS distance between measured and nominal (D = identity, L = focal length).
     pub rms_before_um: f64,
     /// Largest such distance.
@@ -236,18 +249,29 @@ pub struct FieldFitReport {
     pub rms_after_um: f64,
     /// Largest residual of the fit.
     pub max_after_um: f64,
-    /// Leave-one-out: RMS of each mark's residual when the fit does not see it.
+    /// Leave-one-out: RMS of each mark's residual when the fit sees no mark of its command
+    /// (exact, from the hat matrix, at the chosen penalty and L).
     pub loo_rms_um: f64,
     /// Leave-one-out: the largest.
     pub loo_max_um: f64,
     /// L fitted from the off-plane rows (mm), if there are any.
     pub pivot_to_focal_plane_mm: Option<f64>,
-    /// Where the zero command lands (mm).
+    /// Its standard deviation (mm), from the curvature of the residual sum of squares.
+    pub pivot_std_mm: Option<f64>,
+    /// Where the zero command lands (mm, head frame).
     pub offset_mm: [f64; 2],
-    /// The field's rotation at the centre (degrees).
+    /// The field's rotation at the centre (degrees, counter-clockwise).
     pub rotation_deg: f64,
+    /// The field's scale at the centre (1 = nominal).
+    pub scale: f64,
     /// The penalty weight used.
     pub smoothing: f64,
+    /// The penalty's difference order.
+    pub penalty_order: usize,
+    /// B-spline cells per side used.
+    pub cells: usize,
+    /// Effective parameters per coordinate (trace of the hat matrix).
+    pub effective_parameters: f64,
     /// Half the side of the commanded range the field covers (mm).
     pub half_field_mm: f64,
 }
@@ -270,13 +294,17 @@ struct Basis {
 }
 
 impl Basis {
+    fn side(&self) -> usize {
+        self.cells + 3
+    }
+
     fn size(&self) -> usize {
-        (self.cells + 3) * (self.cells + 3)
+        self.side() * self.side()
     }
 
     /// (index, value) of the 16 functions non-zero at c.
     fn row(&self, c: [f64; 2]) -> [(usize, f64); 16] {
-        let side = self.cells + 3;
+        let side = self.side();
         let step = 2.0 * self.half / self.cells as f64;
         let locate = |x: f64| {
             let u = ((x + self.half) / step).clamp(0.0, self.cells as f64);
@@ -295,13 +323,23 @@ impl Basis {
         out
     }
 
-    /// The second-difference penalty DᵀD along both directions.
-    fn penalty(&self) -> DMatrix<f64> {
-        let side = self.cells + 3;
+    /// The difference penalty DᵀD of the given order along both directions (Eilers & Marx
+    /// 1996, Eq. 9, applied to rows and columns of the coefficient grid).
+    fn penalty(&self, order: usize) -> DMatrix<f64> {
+        let side = self.side();
         let n = self.size();
+        // Binomial weights with alternating signs: the order-th difference.
+        let mut w = vec![1.0];
+        for _ in 0..order {
+            let mut next = vec![0.0; w.len() + 1];
+            for (k, v) in w.iter().enumerate() {
+                next[k] += v;
+                next[k + 1] -= v;
+            }
+            w = next;
+        }
         let mut p = DMatrix::zeros(n, n);
-        let mut add = |idx: [usize; 3]| {
-            let w = [1.0, -2.0, 1.0];
+        let mut add = |idx: &[usize]| {
             for (a, &ia) in idx.iter().enumerate() {
                 for (b, &ib) in idx.iter().enumerate() {
                     p[(ia, ib)] += w[a] * w[b];
@@ -309,65 +347,157 @@ impl Basis {
             }
         };
         for j in 0..side {
-            for i in 0..side - 2 {
-                add([j * side + i, j * side + i + 1, j * side + i + 2]);
-                add([i * side + j, (i + 1) * side + j, (i + 2) * side + j]);
+            for i in 0..side.saturating_sub(order) {
+                let along_x: Vec<usize> = (0..=order).map(|k| j * side + i + k).collect();
+                let along_y: Vec<usize> = (0..=order).map(|k| (i + k) * side + j).collect();
+                add(&along_x);
+                add(&along_y);
             }
         }
         p
     }
 }
 
-/// One penalised least-squares fit of δ at a given L and weight: the coefficients (x and y),
-/// the residuals and the hat matrix's diagonal.
+/// What does not change while L and the penalty weight are searched: the design matrix over
+/// the commands, its Gram matrix, the penalty and the marks grouped by command.
+struct Design {
+    b: DMatrix<f64>,
+    btb: DMatrix<f64>,
+    penalty: DMatrix<f64>,
+    groups: Vec<Vec<usize>>,
+}
+
+impl Design {
+    fn new(basis: &Basis, marks: &[Mark], order: usize) -> Design {
+        let mut b = DMatrix::zeros(marks.len(), basis.size());
+        for (r, m) in marks.iter().enumerate() {
+            for (k, v) in basis.row([m.x_cmd, m.y_cmd]) {
+                b[(r, k)] = v;
+            }
+        }
+        let btb = b.transpose() * &b;
+        let mut by_command: std::collections::BTreeMap<(i64, i64), Vec<usize>> =
+            std::collections::BTreeMap::new();
+        for (r, m) in marks.iter().enumerate() {
+            let key = (
+                (m.x_cmd * COMMAND_KEY_PER_MM).round() as i64,
+                (m.y_cmd * COMMAND_KEY_PER_MM).round() as i64,
+            );
+            by_command.entry(key).or_default().push(r);
+        }
+        Design {
+            b,
+            btb,
+            penalty: basis.penalty(order),
+            groups: by_command.into_values().collect(),
+        }
+    }
+
+    /// The linear smoother at penalty weight λ: `(BᵀB + λP)⁻¹` and `B·(BᵀB + λP)⁻¹`.
+    fn smoother(&self, lambda: f64) -> Option<Smoother> {
+        let normal = &self.btb + &self.penalty * lambda;
+        let inv = normal.cholesky()?.inverse();
+        let bi = &self.b * &inv;
+        let trace = (0..self.b.nrows())
+            .map(|r| bi.row(r).dot(&self.b.row(r)))
+            .sum();
+        Some(Smoother {
+            lambda,
+            inv,
+            bi,
+            trace,
+        })
+    }
+}
+
+/// Marks whose commands agree to 0.1 µm are one command.
+const COMMAND_KEY_PER_MM: f64 = 1e4;
+
+struct Smoother {
+    lambda: f64,
+    inv: DMatrix<f64>,
+    bi: DMatrix<f64>,
+    /// tr(H): effective parameters per coordinate.
+    trace: f64,
+}
+
+/// One fit at a given L: coefficients (x, y), and each mark's residual in the focal plane
+/// (`y − ŷ`, mm) and its height scale.
 struct Solved {
     coef: [DVector<f64>; 2],
     residual: Vec<[f64; 2]>,
-    leverage: Vec<f64>,
+    scale: Vec<f64>,
 }
 
-fn solve(
-    basis: &Basis,
-    marks: &[Mark],
-    pivot_mm: f64,
-    lambda: f64,
-    penalty: &DMatrix<f64>,
-) -> Option<Solved> {
-    let n = basis.size();
-    let mut b = DMatrix::zeros(marks.len(), n);
-    let mut y = [DVector::zeros(marks.len()), DVector::zeros(marks.len())];
+impl Solved {
+    /// The residuals on the coupons, where they were measured (mm).
+    fn measured(&self) -> impl Iterator<Item = f64> + '_ {
+        self.residual
+            .iter()
+            .zip(&self.scale)
+            .map(|(r, s)| r[0].hypot(r[1]) * s)
+    }
+
+    fn rss(&self) -> f64 {
+        self.measured().map(|d| d * d).sum()
+    }
+}
+
+fn solve(design: &Design, sm: &Smoother, marks: &[Mark], pivot_mm: f64) -> Solved {
+    let n = marks.len();
+    let mut y = [DVector::zeros(n), DVector::zeros(n)];
+    let mut scale = Vec::with_capacity(n);
     for (r, m) in marks.iter().enumerate() {
-        for (k, v) in basis.row([m.x_cmd, m.y_cmd]) {
-            b[(r, k)] = v;
-        }
         let s = height_scale(pivot_mm, m.h_mm);
         y[0][r] = m.x_meas / s - m.x_cmd;
         y[1][r] = m.y_meas / s - m.y_cmd;
+        scale.push(s);
     }
-    let normal = b.transpose() * &b + penalty * lambda;
-    let chol = normal.cholesky()?;
-    let inv = chol.inverse();
     let coef = [
-        &inv * (b.transpose() * &y[0]),
-        &inv * (b.transpose() * &y[1]),
+        &sm.inv * (design.b.tr_mul(&y[0])),
+        &sm.inv * (design.b.tr_mul(&y[1])),
     ];
-    let bi = &b * &inv;
-    let leverage = (0..marks.len()).map(|r| bi.row(r).dot(&b.row(r))).collect();
-    let fit = [&b * &coef[0], &b * &coef[1]];
-    let residual = marks
-        .iter()
-        .enumerate()
-        .map(|(r, m)| {
-            // In measured units: the residual on the coupon at its height.
-            let s = height_scale(pivot_mm, m.h_mm);
-            [(y[0][r] - fit[0][r]) * s, (y[1][r] - fit[1][r]) * s]
-        })
+    let fit = [&design.b * &coef[0], &design.b * &coef[1]];
+    let residual = (0..n)
+        .map(|r| [y[0][r] - fit[0][r], y[1][r] - fit[1][r]])
         .collect();
-    Some(Solved {
+    Solved {
         coef,
         residual,
-        leverage,
-    })
+        scale,
+    }
+}
+
+/// Leave-one-command-out residuals (mm, on the coupon), exact for the linear smoother:
+/// `e_g = (I − H_gg)⁻¹ r_g` for the marks g of one command (Hastie & Tibshirani, the
+/// leave-one-out lemma generalised to a block).
+fn loo_residuals(design: &Design, sm: &Smoother, solved: &Solved) -> Vec<f64> {
+    let mut out = vec![0.0; solved.residual.len()];
+    for g in &design.groups {
+        let k = g.len();
+        let mut a = DMatrix::<f64>::identity(k, k);
+        for (p, &rp) in g.iter().enumerate() {
+            for (q, &rq) in g.iter().enumerate() {
+                a[(p, q)] -= sm.bi.row(rp).dot(&design.b.row(rq));
+            }
+        }
+        let inv = a.clone().try_inverse().unwrap_or_else(|| {
+            // A command the fit reproduces exactly whatever it measured: no held-out
+            // prediction. Regularise so the penalty weight that caused it is not chosen.
+            (a + DMatrix::<f64>::identity(k, k) * 1e-9)
+                .try_inverse()
+                .unwrap_or_else(|| DMatrix::identity(k, k) * 1e9)
+        });
+        for c in 0..2 {
+            let r = DVector::from_iterator(k, g.iter().map(|&i| solved.residual[i][c]));
+            let e = &inv * r;
+            for (p, &i) in g.iter().enumerate() {
+                out[i] += (e[p] * solved.scale[i]).powi(2);
+            }
+        }
+    }
+    out.iter_mut().for_each(|v| *v = v.sqrt());
+    out
 }
 
 fn rms_max_um(v: impl Iterator<Item = f64>) -> (f64, f64) {
@@ -384,16 +514,74 @@ fn rms_max_um(v: impl Iterator<Item = f64>) -> (f64, f64) {
     }
 }
 
-fn loo(s: &Solved) -> (f64, f64) {
-    rms_max_um(
-        s.residual
-            .iter()
-            .zip(&s.leverage)
-            .map(|(r, h)| r[0].hypot(r[1]) / (1.0 - h).max(1e-9)),
-    )
+/// The penalty weights searched when none is given: half decades over 14 decades.
+fn lambda_grid() -> Vec<f64> {
+    (-16..=12).map(|e| 10f64.powf(f64::from(e) / 2.0)).collect()
 }
 
+/// The smoother whose leave-one-command-out RMS at L is least (weights in parallel).
+fn choose_smoother(
+    design: &Design,
+    marks: &[Mark],
+    lambdas: &[f64],
+    pivot_mm: f64,
+) -> Option<Smoother> {
+    use rayon::prelude::*;
+    let scored: Vec<(f64, Smoother)> = lambdas
+        .par_iter()
+        .filter_map(|&l| {
+            let sm = design.smoother(l)?;
+            let solved = solve(design, &sm, marks, pivot_mm);
+            let (rms, _) = rms_max_um(loo_residuals(design, &sm, &solved).into_iter());
+            Some((rms, sm))
+        })
+        .collect();
+    // Ties (within 0.1 %) go to the smoother fit: fewer effective parameters.
+    let best = scored.iter().map(|s| s.0).fold(f64::INFINITY, f64::min);
+    scored
+        .into_iter()
+        .filter(|s| s.0 <= best * 1.001)
+        .max_by(|a, b| a.1.lambda.total_cmp(&b.1.lambda))
+        .map(|s| s.1)
+}
+
+/// L minimising the residual sum of squares at a fixed smoother: golden-section search over
+/// `[½, 2] ×` the focal length (the sum is near-quadratic in 1/L there).
+fn search_pivot(design: &Design, sm: &Smoother, marks: &[Mark], focal_length_mm: f64) -> f64 {
+    let rss = |l: f64| solve(design, sm, marks, l).rss();
+    let (mut a, mut b) = (0.5 * focal_length_mm, 2.0 * focal_length_mm);
+    let g = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
+    let (mut fc, mut fd) = (rss(c), rss(d));
+    for _ in 0..PIVOT_SEARCH_STEPS {
+        if fc < fd {
+            b = d;
+            d = c;
+            fd = fc;
+            c = b - g * (b - a);
+            fc = rss(c);
+        } else {
+            a = c;
+            c = d;
+            fc = fd;
+            d = a + g * (b - a);
+            fd = rss(d);
+        }
+    }
+    0.5 * (a + b)
+}
+
+/// Golden-section steps of L's search: the bracket shrinks to 0.618⁶⁰ ≈ 3·10⁻¹³ of itself.
+const PIVOT_SEARCH_STEPS: usize = 60;
+
+/// The largest |h| (as a fraction of the focal length) a coupon may be raised or lowered.
+const MAX_HEIGHT_FRACTION: f64 = 0.25;
+
 /// Fits the head field (and L from off-plane rows) to the marks.
+///
+/// Steps: the design over the commands; the penalty weight with the least leave-one-command-out
+/// RMS at the nominal L; with off-plane rows, L by golden-section search at that weight, the
+/// weight again at the new L, and L again; the final fit sampled onto a `grid_nodes²` grid.
 pub fn fit_field(
     marks: &[Mark],
     settings: &FieldFitSettings,
@@ -405,16 +593,42 @@ pub fn fit_field(
             got: marks.len(),
         });
     }
-    if !(settings.focal_length_mm.is_finite() && settings.focal_length_mm > 0.0) {
+    let f = settings.focal_length_mm;
+    if !(f.is_finite() && f > 0.0) {
         return Err(CalibError::Invalid {
             key: "focal_length_mm".into(),
-            message: format!("must be > 0, got {}", settings.focal_length_mm),
+            message: format!("must be > 0, got {f}"),
         });
     }
-    if settings.cells < 1 || settings.grid_nodes < 4 {
+    if settings.cells < 1 || settings.grid_nodes < 4 || !(2..=4).contains(&settings.penalty_order) {
         return Err(CalibError::Invalid {
-            key: "cells/grid_nodes".into(),
-            message: "need at least 1 cell and 4 grid nodes".into(),
+            key: "cells/grid_nodes/penalty_order".into(),
+            message: format!(
+                "need at least 1 cell, 4 grid nodes and a penalty order of 2 to 4, got {}, {}, {}",
+                settings.cells, settings.grid_nodes, settings.penalty_order
+            ),
+        });
+    }
+    if let Some(l) = settings.smoothing
+        && !(l.is_finite() && l > 0.0)
+    {
+        return Err(CalibError::Invalid {
+            key: "smoothing".into(),
+            message: format!("must be > 0, got {l}"),
+        });
+    }
+    if let Some((i, m)) = marks.iter().enumerate().find(|(_, m)| {
+        ![m.x_cmd, m.y_cmd, m.h_mm, m.x_meas, m.y_meas]
+            .iter()
+            .all(|v| v.is_finite())
+            || m.h_mm.abs() > MAX_HEIGHT_FRACTION * f
+    }) {
+        return Err(CalibError::Invalid {
+            key: format!("mark {}", i + 1),
+            message: format!(
+                "every value must be finite and |h| at most {:.1} mm, got {m:?}",
+                MAX_HEIGHT_FRACTION * f
+            ),
         });
     }
     let half = marks
@@ -426,108 +640,88 @@ pub fn fit_field(
             "every mark was commanded at the field centre".into(),
         ));
     }
-    // Enough marks per cell: at most one cell per two mark columns.
-    let distinct_x = {
-        let mut xs: Vec<i64> = marks
+    // Enough marks per cell: at most one cell per two mark columns (and rows).
+    let distinct = |key: fn(&Mark) -> f64| {
+        let mut v: Vec<i64> = marks
             .iter()
-            .map(|m| (m.x_cmd * 1e3).round() as i64)
+            .map(|m| (key(m) * COMMAND_KEY_PER_MM).round() as i64)
             .collect();
-        xs.sort_unstable();
-        xs.dedup();
-        xs.len()
+        v.sort_unstable();
+        v.dedup();
+        v.len()
     };
-    let cells = settings.cells.min((distinct_x / 2).max(1));
+    let columns = distinct(|m| m.x_cmd).min(distinct(|m| m.y_cmd));
+    if columns < 4 {
+        return Err(CalibError::Degenerate(format!(
+            "the marks span {columns} distinct commanded x or y values; a field needs a grid of \
+             at least 4 × 4"
+        )));
+    }
+    let cells = settings.cells.min(columns / 2).max(1);
     let basis = Basis { half, cells };
-    let penalty = basis.penalty();
+    let design = Design::new(&basis, marks, settings.penalty_order);
     let off_plane = marks.iter().filter(|m| m.h_mm != 0.0).count();
-    let lambdas: Vec<f64> = match settings.smoothing {
-        Some(l) => vec![l],
-        None => (-8..=2).map(|e| 10f64.powi(e)).collect(),
-    };
-    let best_lambda = |pivot: f64| -> Option<(f64, Solved)> {
-        let mut best: Option<(f64, f64, Solved)> = None;
-        for &l in &lambdas {
-            let s = solve(&basis, marks, pivot, l, &penalty)?;
-            let (loo_rms, _) = loo(&s);
-            if best.as_ref().is_none_or(|b| loo_rms < b.0) {
-                best = Some((loo_rms, l, s));
-            }
-        }
-        best.map(|(_, l, s)| (l, s))
-    };
-    let fit_rms = |pivot: f64| -> f64 {
-        solve(
-            &basis,
-            marks,
-            pivot,
-            lambdas[lambdas.len() / 2].min(1e-3),
-            &penalty,
-        )
-        .map_or(f64::INFINITY, |s| {
-            rms_max_um(s.residual.iter().map(|r| r[0].hypot(r[1]))).0
-        })
-    };
+    let lambdas = settings.smoothing.map_or_else(lambda_grid, |l| vec![l]);
+    let singular =
+        || CalibError::Degenerate("the marks do not determine the field (singular fit)".into());
+    let mut sm = choose_smoother(&design, marks, &lambdas, f).ok_or_else(singular)?;
     let pivot = if off_plane > 0 {
-        // Golden-section search of L over [½, 2] × the focal length.
-        let (mut a, mut b) = (
-            0.5 * settings.focal_length_mm,
-            2.0 * settings.focal_length_mm,
-        );
-        let g = (5f64.sqrt() - 1.0) / 2.0;
-        let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
-        let (mut fc, mut fd) = (fit_rms(c), fit_rms(d));
-        for _ in 0..80 {
-            if fc < fd {
-                b = d;
-                d = c;
-                fd = fc;
-                c = b - g * (b - a);
-                fc = fit_rms(c);
-            } else {
-                a = c;
-                c = d;
-                fc = fd;
-                d = a + g * (b - a);
-                fd = fit_rms(d);
-            }
-        }
-        Some(0.5 * (a + b))
+        let mut l = search_pivot(&design, &sm, marks, f);
+        sm = choose_smoother(&design, marks, &lambdas, l).ok_or_else(singular)?;
+        l = search_pivot(&design, &sm, marks, f);
+        Some(l)
     } else {
         None
     };
-    let l = pivot.unwrap_or(settings.focal_length_mm);
-    let (lambda, solved) = best_lambda(l).ok_or_else(|| {
-        CalibError::Degenerate("the marks do not determine the field (singular fit)".into())
-    })?;
+    let l = pivot.unwrap_or(f);
+    let solved = solve(&design, &sm, marks, l);
+    let pivot_std_mm = pivot.map(|l| {
+        // var(L) = 2σ²/RSS''(L), σ² the per-coordinate noise from the residual.
+        let dof = (2.0 * marks.len() as f64 - 2.0 * sm.trace - 1.0).max(1.0);
+        let sigma2 = solved.rss() / dof;
+        let dl = 1e-3 * l;
+        let rss = |x: f64| solve(&design, &sm, marks, x).rss();
+        let curvature = (rss(l + dl) - 2.0 * rss(l) + rss(l - dl)) / (dl * dl);
+        if curvature > 0.0 {
+            (2.0 * sigma2 / curvature).sqrt()
+        } else {
+            f64::INFINITY
+        }
+    });
     let before = rms_max_um(marks.iter().map(|m| {
-        let s = height_scale(settings.focal_length_mm, m.h_mm);
+        let s = height_scale(f, m.h_mm);
         (m.x_meas - m.x_cmd * s).hypot(m.y_meas - m.y_cmd * s)
     }));
-    let after = rms_max_um(solved.residual.iter().map(|r| r[0].hypot(r[1])));
-    let (loo_rms_um, loo_max_um) = loo(&solved);
-    let delta = |c: [f64; 2]| -> [f64; 2] {
-        let mut d = [0.0; 2];
+    let after = rms_max_um(solved.measured());
+    let (loo_rms_um, loo_max_um) = rms_max_um(loo_residuals(&design, &sm, &solved).into_iter());
+    let land = |c: [f64; 2]| {
+        let mut d = c;
         for (k, v) in basis.row(c) {
             d[0] += v * solved.coef[0][k];
             d[1] += v * solved.coef[1][k];
         }
         d
     };
-    let land = |c: [f64; 2]| {
-        let d = delta(c);
-        [c[0] + d[0], c[1] + d[1]]
-    };
     let mut field = FieldCorrection::sample(half, settings.grid_nodes, land);
     field.pivot_to_focal_plane_mm = pivot;
+    // The similarity part at the centre: offset, rotation and scale of the Jacobian.
     let offset = land([0.0, 0.0]);
-    let e = 1.0;
-    let (lx, ly) = (land([e, 0.0]), land([0.0, e]));
-    let rotation_deg = ((lx[1] - offset[1]) - (ly[0] - offset[0]))
-        .atan2((lx[0] - offset[0]) + (ly[1] - offset[1]))
-        .to_degrees();
+    let e = 0.5;
+    let (xp, xm, yp, ym) = (
+        land([e, 0.0]),
+        land([-e, 0.0]),
+        land([0.0, e]),
+        land([0.0, -e]),
+    );
+    let j = [
+        [(xp[0] - xm[0]) / (2.0 * e), (yp[0] - ym[0]) / (2.0 * e)],
+        [(xp[1] - xm[1]) / (2.0 * e), (yp[1] - ym[1]) / (2.0 * e)],
+    ];
+    let (cos_part, sin_part) = (0.5 * (j[0][0] + j[1][1]), 0.5 * (j[1][0] - j[0][1]));
     let report = FieldFitReport {
         marks: marks.len(),
         marks_off_plane: off_plane,
+        commands: design.groups.len(),
         rms_before_um: before.0,
         max_before_um: before.1,
         rms_after_um: after.0,
@@ -535,12 +729,20 @@ pub fn fit_field(
         loo_rms_um,
         loo_max_um,
         pivot_to_focal_plane_mm: pivot,
+        pivot_std_mm,
         offset_mm: offset,
-        rotation_deg,
-        smoothing: lambda,
+        rotation_deg: sin_part.atan2(cos_part).to_degrees(),
+        scale: cos_part.hypot(sin_part),
+        smoothing: sm.lambda,
+        penalty_order: settings.penalty_order,
+        cells,
+        effective_parameters: sm.trace,
         half_field_mm: half,
     };
-    field.fit = serde_json::to_value(&report).unwrap_or(serde_json::Value::Null);
+    field.fit = serde_json::to_value(&report).map_err(|e| CalibError::Invalid {
+        key: "fit report".into(),
+        message: e.to_string(),
+    })?;
     Ok((field, report))
 }
 
