@@ -70,6 +70,15 @@ pub fn fit_sphere(points: &[Point3], radius_mm: f64, seed: u64) -> Result<Sphere
             got: points.len(),
         });
     }
+    if let Some(i) = points
+        .iter()
+        .position(|p| !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()))
+    {
+        return Err(CalibError::Invalid {
+            key: format!("point {i}"),
+            message: "is not finite".into(),
+        });
+    }
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let score_set: Vec<&Point3> = if points.len() > SCORE_POINTS {
         (0..SCORE_POINTS)
@@ -236,5 +245,9 @@ mod tests {
             .collect();
         assert!(fit_sphere(&pts, 12.7, 1).is_err());
         assert!(fit_sphere(&pts[..10], 12.7, 1).is_err());
+        let mut nan = pts.clone();
+        nan[7].y = f64::NAN;
+        let e = fit_sphere(&nan, 12.7, 1).expect_err("NaN").to_string();
+        assert!(e.contains("point 7"), "{e}");
     }
 }

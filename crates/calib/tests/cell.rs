@@ -143,3 +143,49 @@ fn degenerate_pose_sets_are_refused_naming_the_axis() {
         "{e}"
     );
 }
+
+#[test]
+fn converges_from_nominal_for_a_cell_far_off_it() {
+    // 1° scanner rotation, 5 mm scanner translation, 0.1° axis tilts, 1 mm axis offsets.
+    let nominal = TableModel::nominal(&MachineSettings::default());
+    let mut table = nominal;
+    table.tilt = tilt(
+        &nominal.tilt,
+        Vector3::new(0.0, 1.0, 0.5),
+        0.1,
+        Vector3::new(0.0, 0.7, -0.7),
+    );
+    table.rotary = tilt(
+        &nominal.rotary,
+        Vector3::new(1.0, 1.0, 0.0),
+        0.1,
+        Vector3::new(0.8, -0.6, 0.0),
+    );
+    let scanner = ScannerPose {
+        rotation: rotation_about(&Vector3::new(0.5, -1.0, 0.7), 1.0),
+        translation_mm: Vector3::new(3.0, -3.0, 2.6),
+    };
+    let sphere = Point3::new(40.0, 30.0, 25.0);
+    let poses = default_poses(&nominal, &sphere);
+    let art = synth_artefacts(
+        &ArtefactTruth {
+            table,
+            scanner,
+            sphere_table_mm: sphere,
+            diameter_mm: DIAMETER_MM,
+            tool_offset_mm: [0.0, 0.0],
+        },
+        &poses,
+        0.010,
+        9,
+    );
+    let obs = observe(&art, DIAMETER_MM).expect("spheres");
+    let cal = calibrate_cell(&nominal, &obs, &art.tool_mark_mm).expect("solve");
+    assert!(direction_error_deg(&cal.table.tilt.direction, &table.tilt.direction) <= 0.003);
+    assert!(direction_error_deg(&cal.table.rotary.direction, &table.rotary.direction) <= 0.003);
+    assert!(line_offset_mm(&table.tilt, &cal.table.tilt, &sphere) <= 0.005);
+    assert!(line_offset_mm(&table.rotary, &cal.table.rotary, &sphere) <= 0.005);
+    assert!(rotation_error_deg(&cal.scanner.rotation, &scanner.rotation) <= 0.003);
+    assert!((cal.scanner.translation_mm - scanner.translation_mm).norm() <= 0.005);
+    assert!(cal.report.rms_um < 3.0, "{:?}", cal.report);
+}
