@@ -1,12 +1,14 @@
 //! `trimctl calibrate field --marks marks.csv --out field.json`: the galvo field correction
-//! (`trim_calib::field`).
+//! (`trim_calib::field`), optionally as the controller's 65 × 65 table
+//! (`trim_plan::lens::CorrectionTable`, docs/protocols/correction-table.md) and as an SVG of the
+//! residual vectors.
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use trim_calib::field::{FieldFitSettings, Mark, fit_field, read_marks};
-use trim_plan::lens::FieldCorrection;
+use trim_calib::field::{FieldFitReport, FieldFitSettings, Mark, fit_field, read_marks};
+use trim_plan::lens::{CorrectionTable, FieldCorrection, height_scale};
 
 /// Arguments of `trimctl calibrate field`.
 #[derive(clap::Args, Debug)]
@@ -19,12 +21,24 @@ pub struct Args {
     /// `calibration.field_correction` in job.toml.
     #[arg(long)]
     pub out: PathBuf,
-    /// The lens's focal length (mm): the nominal L and the centre of L's search.
+    /// The lens's focal length (mm): the nominal L (the "before" model, L when no row is off
+    /// the focal plane) and the centre of L's search.
     #[arg(long, default_value_t = trim_plan::Beam::default().focal_length_mm)]
     pub focal_length_mm: f64,
-    /// An SVG of the residual vectors before and after, magnified.
+    /// Also write the controller's 65 × 65 correction table: the BJJCZ/EzCad `.cor` integer
+    /// layout when the name ends in `.cor`, a plain text table otherwise.
+    #[arg(long)]
+    pub table_out: Option<PathBuf>,
+    /// The side of the field the table spans (mm); default: the marked range.
+    #[arg(long, requires = "table_out")]
+    pub table_field_mm: Option<f64>,
+    /// An SVG of the residual vectors at each mark, before (nominal lens) and after the fit,
+    /// each magnified to be seen.
     #[arg(long)]
     pub svg: Option<PathBuf>,
+    /// The penalty weight of the smooth part; default: chosen by leave-one-out.
+    #[arg(long)]
+    pub smoothing: Option<f64>,
 }
 
 /// Runs the command.
@@ -32,98 +46,217 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let marks = read_marks(&args.marks)?;
     let settings = FieldFitSettings {
         focal_length_mm: args.focal_length_mm,
+        smoothing: args.smoothing,
         ..FieldFitSettings::default()
     };
     let (field, r) = fit_field(&marks, &settings)
         .with_context(|| format!("fitting the field to {}", args.marks.display()))?;
-    field
-        .write(&args.out)
-        .with_context(|| format!("writing {}", args.out.display()))?;
-    if let Some(svg) = &args.svg {
-        std::fs::write(svg, residual_svg(&marks, &field, args.focal_length_mm))
-            .with_context(|| format!("writing {}", svg.display()))?;
-    }
+    field.write(&args.out)?;
     println!(
-        "{}: {} marks ({} off the focal plane) over ±{:.1} mm",
+        "{}: {} marks at {} commands ({} off the focal plane) over ±{:.1} mm",
         args.marks.display(),
         r.marks,
+        r.commands,
         r.marks_off_plane,
         r.half_field_mm
     );
     println!(
-        "residual before (nominal lens, no correction): RMS {:.1} µm, max {:.1} µm",
+        "residual before (nominal lens, no correction): RMS {:8.2} µm, max {:8.2} µm",
         r.rms_before_um, r.max_before_um
     );
     println!(
-        "residual after:                                RMS {:.2} µm, max {:.2} µm",
+        "residual after:                                RMS {:8.2} µm, max {:8.2} µm",
         r.rms_after_um, r.max_after_um
     );
     println!(
-        "leave-one-out (each mark unseen by its fit):   RMS {:.2} µm, max {:.2} µm",
+        "leave-one-out (each command held out):         RMS {:8.2} µm, max {:8.2} µm",
         r.loo_rms_um, r.loo_max_um
     );
     println!(
-        "offset ({:.4}, {:.4}) mm, rotation {:.4}°, {}",
-        r.offset_mm[0],
-        r.offset_mm[1],
-        r.rotation_deg,
-        match r.pivot_to_focal_plane_mm {
-            Some(l) => format!(
-                "pivot height L = {l:.2} mm (fitted from the off-plane rows; nominal {:.2} mm)",
-                args.focal_length_mm
-            ),
-            None => "no off-plane rows: L is left to the job".to_owned(),
-        }
+        "offset ({:.4}, {:.4}) mm, rotation {:.4}°, scale {:.6}",
+        r.offset_mm[0], r.offset_mm[1], r.rotation_deg, r.scale
+    );
+    match (r.pivot_to_focal_plane_mm, r.pivot_std_mm) {
+        (Some(l), std) => println!(
+            "pivot height L = {l:.2} ± {:.2} mm (fitted from the off-plane rows; nominal {:.2} mm)",
+            std.unwrap_or(f64::NAN),
+            args.focal_length_mm
+        ),
+        (None, _) => println!(
+            "no off-plane rows: L is left to the job (calibration.lens.pivot_to_focal_plane_mm, \
+             else the focal length {:.2} mm)",
+            args.focal_length_mm
+        ),
+    }
+    println!(
+        "smooth part: penalty {:.1e} (order {}), {} × {} cells, {:.1} effective parameters per \
+         axis",
+        r.smoothing, r.penalty_order, r.cells, r.cells, r.effective_parameters
     );
     println!("wrote {}", args.out.display());
+    if let Some(table_out) = &args.table_out {
+        let side = args.table_field_mm.unwrap_or(2.0 * r.half_field_mm);
+        let table = CorrectionTable::from_field(&field, side)
+            .with_context(|| format!("building the table for {}", table_out.display()))?;
+        table.write(table_out)?;
+        println!(
+            "wrote {} (65 × 65 nodes over {side:.2} mm, {:.3} bits/mm)",
+            table_out.display(),
+            table.bits_per_mm
+        );
+    }
+    if let Some(svg) = &args.svg {
+        std::fs::write(svg, residual_svg(&marks, &field, &r, args.focal_length_mm))
+            .with_context(|| format!("cannot write {}", svg.display()))?;
+        println!("wrote {}", svg.display());
+    }
     Ok(())
 }
 
-/// The marks' residual vectors before (grey: nominal lens) and after (red: the fit), drawn
-/// ×200 at each commanded position.
-fn residual_svg(marks: &[Mark], field: &FieldCorrection, focal_length_mm: f64) -> String {
-    const SIZE: f64 = 800.0;
-    const MAGNIFY: f64 = 200.0;
-    let half = field.half_field_mm * 1.1;
-    let px = |x: f64| (x + half) / (2.0 * half) * SIZE;
-    let py = |y: f64| (half - y) / (2.0 * half) * SIZE;
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{SIZE}" height="{}" viewBox="0 0 {SIZE} {}">"#,
-        SIZE + 40.0,
-        SIZE + 40.0
-    );
-    let _ = writeln!(
-        s,
-        r#"<text x="10" y="{}" font-family="sans-serif" font-size="14">marks: residual ×{MAGNIFY} — grey: nominal lens (L = {focal_length_mm} mm, no correction), red: after the fit</text>"#,
-        SIZE + 25.0
-    );
+/// One residual vector (mm) at a commanded position (mm).
+struct Arrow {
+    at: [f64; 2],
+    v: [f64; 2],
+}
+
+/// Two panels of the marks' residual vectors (head frame, +y up): before (measured minus the
+/// nominal lens: identity field, L the focal length) and after (measured minus the fit), each
+/// magnified so its longest arrow spans 0.8 of the mark spacing, with a scale bar.
+fn residual_svg(
+    marks: &[Mark],
+    field: &FieldCorrection,
+    r: &FieldFitReport,
+    focal_length_mm: f64,
+) -> String {
+    const PANEL: f64 = 520.0;
+    const MARGIN: f64 = 30.0;
     let l = field.pivot_to_focal_plane_mm.unwrap_or(focal_length_mm);
+    let mut before = Vec::with_capacity(marks.len());
+    let mut after = Vec::with_capacity(marks.len());
     for m in marks {
-        let (x, y) = (m.x_cmd, m.y_cmd);
-        let sn = trim_plan::lens::height_scale(focal_length_mm, m.h_mm);
-        let before = [m.x_meas - x * sn, m.y_meas - y * sn];
-        let d = field.land([x, y]);
-        let sa = trim_plan::lens::height_scale(l, m.h_mm);
-        let after = [m.x_meas - d[0] * sa, m.y_meas - d[1] * sa];
-        for (v, colour) in [(before, "#999"), (after, "#d22")] {
-            let _ = writeln!(
-                s,
-                r#"<line x1="{:.1}" y1="{:.1}" x2="{:.1}" y2="{:.1}" stroke="{colour}" stroke-width="1.2"/>"#,
-                px(x),
-                py(y),
-                px(x + v[0] * MAGNIFY),
-                py(y + v[1] * MAGNIFY)
-            );
-        }
+        let c = [m.x_cmd, m.y_cmd];
+        let sn = height_scale(focal_length_mm, m.h_mm);
+        before.push(Arrow {
+            at: c,
+            v: [m.x_meas - c[0] * sn, m.y_meas - c[1] * sn],
+        });
+        let d = field.land(c);
+        let sa = height_scale(l, m.h_mm);
+        after.push(Arrow {
+            at: c,
+            v: [m.x_meas - d[0] * sa, m.y_meas - d[1] * sa],
+        });
+    }
+    // The mark spacing: the smallest non-zero distance between distinct commanded x values.
+    let mut xs: Vec<f64> = marks.iter().map(|m| m.x_cmd).collect();
+    xs.sort_by(f64::total_cmp);
+    let spacing = xs
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|d| *d > 1e-6)
+        .fold(f64::INFINITY, f64::min);
+    let spacing = if spacing.is_finite() {
+        spacing
+    } else {
+        r.half_field_mm
+    };
+    let half = r.half_field_mm + spacing;
+    let mut s = String::new();
+    let width = 2.0 * PANEL + 3.0 * MARGIN;
+    let height = PANEL + 4.0 * MARGIN;
+    let _ = writeln!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="13">"#
+    );
+    let _ = writeln!(
+        s,
+        r##"<defs><marker id="head" viewBox="0 0 10 10" refX="9" refY="5" markerWidth="5" markerHeight="5" orient="auto"><path d="M0,0 L10,5 L0,10 z" fill="context-stroke"/></marker></defs>"##
+    );
+    let panels = [
+        (
+            &before,
+            "#777",
+            format!(
+                "before (nominal lens): RMS {:.1} µm, max {:.1} µm",
+                r.rms_before_um, r.max_before_um
+            ),
+        ),
+        (
+            &after,
+            "#c22",
+            format!(
+                "after: RMS {:.2} µm, max {:.2} µm; LOO RMS {:.2} µm",
+                r.rms_after_um, r.max_after_um, r.loo_rms_um
+            ),
+        ),
+    ];
+    for (k, (arrows, colour, title)) in panels.into_iter().enumerate() {
+        let x0 = MARGIN + k as f64 * (PANEL + MARGIN);
+        let y0 = 2.0 * MARGIN;
+        let px = |x: f64| x0 + (x + half) / (2.0 * half) * PANEL;
+        let py = |y: f64| y0 + (half - y) / (2.0 * half) * PANEL;
+        let longest = arrows
+            .iter()
+            .map(|a| a.v[0].hypot(a.v[1]))
+            .fold(0.0, f64::max)
+            .max(1e-6);
+        let magnify = nice_magnification(0.8 * spacing / longest);
+        let _ = writeln!(s, r#"<text x="{x0}" y="{:.1}">{title}</text>"#, MARGIN);
         let _ = writeln!(
             s,
-            r#"<circle cx="{:.1}" cy="{:.1}" r="1.5" fill="black"/>"#,
-            px(x),
-            py(y)
+            r##"<rect x="{x0}" y="{y0}" width="{PANEL}" height="{PANEL}" fill="none" stroke="#ccc"/>"##
+        );
+        for a in arrows.iter() {
+            let (x, y) = (a.at[0], a.at[1]);
+            let _ = writeln!(
+                s,
+                r#"<circle cx="{:.1}" cy="{:.1}" r="1.6" fill="black"/><line x1="{:.1}" y1="{:.1}" x2="{:.1}" y2="{:.1}" stroke="{colour}" stroke-width="1.3" marker-end="url(#head)"/>"#,
+                px(x),
+                py(y),
+                px(x),
+                py(y),
+                px(x + a.v[0] * magnify),
+                py(y + a.v[1] * magnify)
+            );
+        }
+        // Scale bar: a round length near the mark spacing once magnified.
+        let bar_um = nice_length_um(spacing / magnify * 1e3);
+        let bar_px = bar_um * 1e-3 * magnify / (2.0 * half) * PANEL;
+        let yb = y0 + PANEL + MARGIN;
+        let _ = writeln!(
+            s,
+            r#"<line x1="{x0}" y1="{yb:.1}" x2="{:.1}" y2="{yb:.1}" stroke="{colour}" stroke-width="3"/><text x="{:.1}" y="{:.1}">{bar_um} µm (arrows ×{magnify})</text>"#,
+            x0 + bar_px,
+            x0 + bar_px + 8.0,
+            yb + 4.0
         );
     }
     s.push_str("</svg>\n");
     s
+}
+
+/// The largest 1-2-5 multiple of a power of ten not above `x` (at least 1).
+fn nice_magnification(x: f64) -> f64 {
+    if !(x.is_finite() && x > 1.0) {
+        return 1.0;
+    }
+    let p = 10f64.powf(x.log10().floor());
+    [5.0, 2.0, 1.0]
+        .into_iter()
+        .map(|m| m * p)
+        .find(|v| *v <= x)
+        .unwrap_or(p)
+}
+
+/// A round length (1-2-5 × 10ⁿ µm) not above `x_um`.
+fn nice_length_um(x_um: f64) -> f64 {
+    if !(x_um.is_finite() && x_um > 0.0) {
+        return 1.0;
+    }
+    let p = 10f64.powf(x_um.log10().floor());
+    [5.0, 2.0, 1.0]
+        .into_iter()
+        .map(|m| m * p)
+        .find(|v| *v <= x_um)
+        .unwrap_or(p)
 }
