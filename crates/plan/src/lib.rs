@@ -4,6 +4,7 @@
 //! - [`cell`]: the calibrated cell: rotary axis lines, scanner pose, lens calibration.
 //! - [`piece`]: contours as pieces (contours split where their feature vectors spread).
 //! - [`zoning`]: k-means zoning with the incidence limit and automatic k.
+//! - [`hatch`]: surface hatching: equal-spacing tracks on a scanned freeform surface.
 //! - [`frame`]: local zone frames (paper Eq. 11–13, right-handed).
 //! - [`layer`]: layers by paper Eq. 14 and the galvo projection.
 //! - [`field`]: scan-field sections and the lens ray angle.
@@ -21,6 +22,7 @@ pub mod cell;
 pub mod error;
 pub mod field;
 pub mod frame;
+pub mod hatch;
 pub mod job;
 pub mod kinematics;
 pub mod layer;
