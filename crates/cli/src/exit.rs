@@ -7,7 +7,9 @@
 //! | 2 | device fault (the laser was switched off first; the cell is safe) |
 //! | 3 | interrupted (Ctrl-C; the laser was switched off first; resume with `--resume`) |
 //!
-//! Commands return `anyhow::Result<()>`. An error that is not a [`Failure`] exits with 1.
+//! Commands return `anyhow::Result<()>`. An error that is not a [`Failure`] exits with 1. A
+//! command line clap cannot parse is bad input too (1, not clap's own 2, which would read as a
+//! device fault); `--help` and `--version` exit with 0 ([`code_for_usage`]).
 
 use std::process::ExitCode;
 
@@ -52,6 +54,17 @@ pub fn init_logging() {
         .with_writer(std::io::stderr)
         .with_target(false)
         .try_init();
+}
+
+/// The exit code of a command line clap did not accept: 0 for `--help`/`--version` (printed on
+/// stdout), 1 for a usage error (printed on stderr, with clap's usage hint).
+pub fn code_for_usage(e: &clap::Error) -> ExitCode {
+    let _ = e.print();
+    if e.use_stderr() {
+        ExitCode::from(Exit::Refused as u8)
+    } else {
+        ExitCode::SUCCESS
+    }
 }
 
 /// The exit code of a command's result; prints the error as one line on stderr.

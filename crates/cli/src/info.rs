@@ -3,12 +3,13 @@
 //! Keys: `file`; `kind` ("points", "mesh" or "path"); `points` (points, mesh vertices or path
 //! points); `has_normals` (whether the file stores a normal per point: meshes and paths never
 //! do); `bounds_min` and `bounds_max` (`[x, y, z]` in the file's units, millimetres for trimctl's
-//! own files; `null` for an empty cloud). Paths add `contours`; meshes add `triangles`,
+//! own files). Paths add `contours`; meshes add `triangles`,
 //! `degenerate_triangles` and `area_mm2`.
 //!
 //! The kind comes from the extension: `.csv` → path, `.stl` → mesh, `.ply` → mesh if it has
 //! faces, else points; `.pcd`, `.xyz`, `.txt` → points. A file that cannot be read is an error
-//! (exit 1) naming the file and the line or element.
+//! (exit 1) naming the file and the line or element; so is a point file with no points
+//! ("FILE: no points").
 
 use std::path::PathBuf;
 

@@ -53,7 +53,10 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => return exit::code_for_usage(&e),
+    };
     exit::init_logging();
     let result = match cli.command {
         Command::Run(a) => run::run(a),

@@ -16,7 +16,7 @@ use trim_geom::synth::{SynthParams, generate};
 use trim_geom::{Path as TrimPath, PointCloud};
 use trim_io::cell::{Cell, CellAddresses, SimCell, SimOptions, Timeouts};
 use trim_io::executor::{ExecError, ExecOptions, Executor, Progress, RunSummary, StopCause};
-use trim_io::journal::Entry;
+use trim_io::journal::{CutLayer, Entry};
 use trim_io::laser::Profile;
 use trim_io::record::{Recorder, SharedRecorder, device_tap};
 use trim_io::tap::Tap;
@@ -74,6 +74,12 @@ pub struct Args {
     /// Continue the interrupted run in RUN_DIR at its first unfinished layer.
     #[arg(long, value_name = "RUN_DIR", conflicts_with_all = ["job", "out"])]
     resume: Option<PathBuf>,
+    /// With --resume: what to do with a layer cut at a point nobody can tell (the galvo lost
+    /// its list to a restart, or trimctl was killed mid-layer): `redo` marks it again (the
+    /// vectors it had marked are marked twice), `skip` leaves it out (the report lists it).
+    /// The choice is journaled. Not used when the cut point is known.
+    #[arg(long, value_enum, value_name = "redo|skip", requires = "resume")]
+    cut_layer: Option<CutLayerArg>,
     /// The CNC (LinuxCNC linuxcncrsh) as HOST:PORT, overriding `cell.cnc`.
     #[arg(long, value_name = "HOST:PORT")]
     cnc: Option<String>,
@@ -99,6 +105,24 @@ pub struct Args {
     /// Simulated devices: real seconds per simulated second (1 = real time).
     #[arg(long, default_value_t = DEFAULT_SIM_TIME_SCALE)]
     sim_time_scale: f64,
+}
+
+/// `--cut-layer`.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CutLayerArg {
+    /// Mark the layer again.
+    Redo,
+    /// Leave the layer out.
+    Skip,
+}
+
+impl From<CutLayerArg> for CutLayer {
+    fn from(a: CutLayerArg) -> CutLayer {
+        match a {
+            CutLayerArg::Redo => CutLayer::Redo,
+            CutLayerArg::Skip => CutLayer::Skip,
+        }
+    }
 }
 
 /// Wall time of each stage (s).
@@ -526,6 +550,8 @@ fn finish(
     }
 }
 
+/// The exit code and message of a run that did not finish: interrupted 3; stopped by a fault
+/// (a device, or the journal's disk) 2; refused before anything was switched on 1.
 fn exec_failure(e: ExecError, run_dir: &Path) -> anyhow::Error {
     let exit = match &e {
         ExecError::Stopped(s) if s.cause == StopCause::Cancelled => Exit::Interrupted,
@@ -538,6 +564,13 @@ fn exec_failure(e: ExecError, run_dir: &Path) -> anyhow::Error {
             anyhow::anyhow!(
                 "{e}; the laser is off; continue with: trimctl run --resume {}",
                 run_dir.display()
+            ),
+        ),
+        ExecError::ResumeUnknown { .. } => Failure::with_exit(
+            exit,
+            anyhow::anyhow!(
+                "{e}: trimctl run --resume {dir} --cut-layer redo, or trimctl run --resume {dir} --cut-layer skip",
+                dir = run_dir.display()
             ),
         ),
         other => Failure::with_exit(exit, other),
@@ -565,6 +598,10 @@ fn resume(run_dir: &Path, args: &Args) -> anyhow::Result<()> {
     if let Some(r) = &spots {
         print!("{}", r.line());
     }
+    // A refusal before anything was switched on leaves the run folder as it was.
+    if !matches!(outcome, Err(ExecError::ResumeUnknown { .. })) {
+        append_resume_report(run_dir, &job, &outcome, wall_s)?;
+    }
     match outcome {
         Ok(run) => {
             print!("{}", summary::execution(&run, &job));
@@ -581,6 +618,42 @@ fn resume(run_dir: &Path, args: &Args) -> anyhow::Result<()> {
 /// What an execution gave: the executor's outcome and, with the digital twin, the spot
 /// errors on the true part.
 type Executed = (Result<RunSummary, ExecError>, Option<SpotReport>);
+
+/// Appends a resume's outcome to the run's report (`report.md`) and records it in
+/// `summary.json` under `resumes`.
+fn append_resume_report(
+    run_dir: &Path,
+    job: &Job,
+    outcome: &Result<RunSummary, ExecError>,
+    wall_s: f64,
+) -> anyhow::Result<()> {
+    let report_path = run_dir.join(files::REPORT);
+    let mut report = std::fs::read_to_string(&report_path).unwrap_or_default();
+    let summary_path = run_dir.join(files::SUMMARY);
+    let mut json: serde_json::Value = std::fs::read_to_string(&summary_path)
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
+        .unwrap_or_else(|| serde_json::json!({}));
+    let resumes = json
+        .as_object_mut()
+        .context("summary.json is not a JSON object")?
+        .entry("resumes")
+        .or_insert_with(|| serde_json::json!([]));
+    let n = resumes.as_array().map_or(0, Vec::len) + 1;
+    report.push_str(&summary::resume_markdown(n, job, outcome, wall_s));
+    if let Some(list) = resumes.as_array_mut() {
+        list.push(serde_json::json!({
+            "wall_s": wall_s,
+            "run": outcome.as_ref().ok(),
+            "stopped": outcome.as_ref().err().map(ToString::to_string),
+        }));
+    }
+    std::fs::write(&report_path, report)
+        .with_context(|| format!("cannot write {}", report_path.display()))?;
+    std::fs::write(&summary_path, serde_json::to_string_pretty(&json)?)
+        .with_context(|| format!("cannot write {}", summary_path.display()))?;
+    Ok(())
+}
 
 /// Connects the cell (starting simulators where the config says "sim"), then runs or resumes.
 /// The outer error: the cell could not be set up; the inner: the execution stopped.
@@ -674,6 +747,7 @@ fn execute(
         )
         .with_options(ExecOptions {
             timeouts,
+            cut_layer: args.cut_layer.map(CutLayer::from),
             ..ExecOptions::default()
         });
         let result = if resuming {

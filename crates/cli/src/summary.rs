@@ -4,7 +4,8 @@
 
 use std::fmt::Write as _;
 
-use trim_io::executor::RunSummary;
+use trim_io::executor::{ExecError, RunSummary};
+use trim_io::journal::CutLayer;
 use trim_plan::Job;
 use trim_plan::planner::PlanOutput;
 use trim_register::regional::QualityReport;
@@ -129,9 +130,63 @@ pub fn zone_table(plan: &PlanOutput) -> String {
     s
 }
 
-/// The execution result against the estimate.
+/// The execution result against the estimate, then the cut layer resume redid or skipped and
+/// the layers left out.
 #[must_use]
 pub fn execution(run: &RunSummary, job: &Job) -> String {
+    let mut s = execution_line(run, job);
+    if let Some(c) = &run.cut_layer {
+        let _ = match c.choice {
+            CutLayer::Redo => writeln!(
+                s,
+                "cut layer {}: progress unknown; redone from vector {} of {}: up to {} vectors may be marked twice",
+                c.key, c.first_vector, c.vectors, c.vectors_maybe_twice
+            ),
+            CutLayer::Skip => writeln!(
+                s,
+                "cut layer {}: progress unknown; skipped (left out, not marked again)",
+                c.key
+            ),
+        };
+    }
+    if !run.layers_left_out.is_empty() {
+        let keys: Vec<String> = run
+            .layers_left_out
+            .iter()
+            .map(ToString::to_string)
+            .collect();
+        let _ = writeln!(
+            s,
+            "layers left out (--cut-layer skip), not marked: {}",
+            keys.join(", ")
+        );
+    }
+    s
+}
+
+/// A resume's section of the run report.
+#[must_use]
+pub fn resume_markdown(
+    n: usize,
+    job: &Job,
+    outcome: &Result<RunSummary, ExecError>,
+    wall_s: f64,
+) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "\n## Resume {n}\n");
+    match outcome {
+        Ok(run) => {
+            let _ = writeln!(s, "- outcome: finished in {wall_s:.1} s\n");
+            let _ = writeln!(s, "```\n{}```", execution(run, job));
+        }
+        Err(e) => {
+            let _ = writeln!(s, "- outcome: stopped: {e}");
+        }
+    }
+    s
+}
+
+fn execution_line(run: &RunSummary, job: &Job) -> String {
     let overhead: Vec<f64> = run.layers.iter().map(|l| l.overhead_s).collect();
     let mean_overhead = if overhead.is_empty() {
         0.0

@@ -188,3 +188,55 @@ fn refuses_bad_files_with_one_line_naming_the_place() {
 
     assert!(info_err(&dir.path().join("missing.ply")).contains("missing.ply"));
 }
+
+#[test]
+fn a_point_file_with_no_points_is_refused_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let empty = PointCloud::default();
+    let files = [
+        ("empty.xyz", Vec::new()),
+        ("blank.xyz", b"\n  \n".to_vec()),
+        (
+            "empty.ply",
+            formats::encode_ply(&empty, PlyEncoding::Ascii, formats::PlyScalar::Double),
+        ),
+        (
+            "empty_binary.ply",
+            formats::encode_ply(
+                &empty,
+                PlyEncoding::BinaryLittleEndian,
+                formats::PlyScalar::Float,
+            ),
+        ),
+        ("empty.pcd", formats::encode_pcd(&empty, PcdEncoding::Ascii)),
+        (
+            "empty_binary.pcd",
+            formats::encode_pcd(&empty, PcdEncoding::Binary),
+        ),
+    ];
+    for (name, bytes) in files {
+        let file = dir.path().join(name);
+        std::fs::write(&file, bytes).unwrap();
+        let e = info_err(&file);
+        assert!(e.contains(&format!("{name}: no points")), "{name}: {e}");
+        // Everything else that needs points refuses it the same way.
+        let e = formats::read_points(&file).unwrap_err().to_string();
+        assert!(e.ends_with(&format!("{name}: no points")), "{name}: {e}");
+    }
+    // `trimctl register` with an empty scan stops before registering, naming the file.
+    let scan = dir.path().join("empty.xyz");
+    let out = Command::new(env!("CARGO_BIN_EXE_trimctl"))
+        .args(["register", "--cad"])
+        .arg(dir.path().join("empty.ply"))
+        .arg("--scan")
+        .arg(&scan)
+        .arg("--path")
+        .arg(dir.path().join("none.csv"))
+        .arg("--out")
+        .arg(dir.path().join("out.csv"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains(": no points"), "{stderr}");
+}

@@ -1,6 +1,7 @@
 //! `trimctl run` end to end: the demo part on the simulated cell leaves a complete run folder;
-//! a run killed midway resumes without marking any layer twice; bad job files are refused with
-//! one line naming the key.
+//! a run killed midway resumes without marking any layer twice; a layer cut at a point nobody
+//! can tell is redone or skipped by the operator's choice; bad job files are refused with one
+//! line naming the key.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -148,8 +149,17 @@ fn killed_run_resumes_without_marking_a_layer_twice() {
         "the kill came after the last layer"
     );
 
+    // The in-process simulators died with the run: when the kill landed mid-layer, nobody can
+    // tell how far that layer got, and `redo` marks it again (between layers it is not used).
     let result = Command::new(TRIMCTL)
-        .args(["run", "--sim-time-scale", "0.01", "--resume"])
+        .args([
+            "run",
+            "--sim-time-scale",
+            "0.01",
+            "--cut-layer",
+            "redo",
+            "--resume",
+        ])
         .arg(&out)
         .output()
         .unwrap();
@@ -213,4 +223,260 @@ fn bad_job_files_get_one_line_naming_the_key() {
             "{text:?}: a refused job must not create a run folder"
         );
     }
+}
+
+/// `trimctl sim all` as a child process: its addresses, read from its stdout.
+struct SimServer {
+    child: std::process::Child,
+    galvo: String,
+    cnc: String,
+    laser: String,
+}
+
+impl SimServer {
+    /// Starts the simulators on free ports, 100× faster than real time, with `faults`.
+    fn start(faults: &[&str]) -> SimServer {
+        use std::io::BufRead as _;
+        let mut cmd = Command::new(TRIMCTL);
+        cmd.args([
+            "sim",
+            "all",
+            "--galvo-port",
+            "0",
+            "--cnc-port",
+            "0",
+            "--galvo-time-scale",
+            "0.01",
+            "--cnc-time-scale",
+            "0.01",
+        ]);
+        for f in faults {
+            cmd.args(["--fault", f]);
+        }
+        let mut child = cmd
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
+        let (mut galvo, mut cnc, mut laser) = (None, None, None);
+        while galvo.is_none() || cnc.is_none() || laser.is_none() {
+            let line = lines
+                .next()
+                .expect("trimctl sim printed its addresses")
+                .unwrap();
+            let v: serde_json::Value = serde_json::from_str(&line).unwrap();
+            let get = |k: &str| v[k].as_str().map(str::to_owned);
+            galvo = galvo.or_else(|| get("galvo"));
+            cnc = cnc.or_else(|| get("cnc"));
+            laser = laser.or_else(|| get("laser"));
+        }
+        SimServer {
+            child,
+            galvo: galvo.unwrap_or_default(),
+            cnc: cnc.unwrap_or_default(),
+            laser: laser.unwrap_or_default(),
+        }
+    }
+
+    /// `trimctl run` arguments that point at these simulators.
+    fn cell_args(&self) -> Vec<String> {
+        [
+            "--galvo",
+            &self.galvo,
+            "--cnc",
+            &self.cnc,
+            "--laser",
+            &self.laser,
+        ]
+        .iter()
+        .map(|s| (*s).to_owned())
+        .collect()
+    }
+
+    /// Stops it as an operator's power switch would: no clean shutdown, all state lost.
+    fn power_off(mut self) {
+        self.child.kill().unwrap();
+        self.child.wait().unwrap();
+    }
+}
+
+impl Drop for SimServer {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn journal_kinds(dir: &Path) -> Vec<String> {
+    journal_entries(dir)
+        .iter()
+        .map(|e| e["kind"].as_str().unwrap_or("?").to_owned())
+        .collect()
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), target).unwrap();
+        }
+    }
+}
+
+#[test]
+fn a_layer_cut_at_an_unknown_point_resumes_by_the_operators_choice() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+
+    // The galvo stops answering at the 5th EXECUTE (layer index 4): the run stops, exit 2.
+    let sim = SimServer::start(&["galvo=stall@EXECUTE#5"]);
+    let result = Command::new(TRIMCTL)
+        .args(["run", "--out"])
+        .arg(&out)
+        .args(sim.cell_args())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr).into_owned();
+    assert_eq!(result.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("trimctl run --resume"), "{stderr}");
+    let planned = planned_layers(&out);
+    let cut = planned[4];
+    let begins: Vec<serde_json::Value> = journal_entries(&out)
+        .into_iter()
+        .filter(|e| e["kind"] == "layer_begin")
+        .collect();
+    let last_begin = begins.last().expect("a layer began").clone();
+    assert_eq!(
+        (
+            last_begin["key"]["zone"].as_u64(),
+            last_begin["key"]["layer"].as_u64()
+        ),
+        (Some(cut.0), Some(cut.1))
+    );
+    let vectors = last_begin["vectors"].as_u64().unwrap();
+    let cut_name = format!("zone {} layer {}", cut.0, cut.1);
+
+    // The operator power-cycles the galvo controller: it forgets its lists.
+    sim.power_off();
+    let sim = SimServer::start(&[]);
+
+    // Resume cannot tell how far the layer got: refused (exit 1), nothing switched on, the
+    // choices named.
+    let result = Command::new(TRIMCTL)
+        .args(["run", "--resume"])
+        .arg(&out)
+        .args(sim.cell_args())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr).into_owned();
+    assert_eq!(result.status.code(), Some(1), "{stderr}");
+    for expected in [
+        format!("cannot tell how far {cut_name} got"),
+        format!("up to {vectors} of its {vectors} vectors may be marked twice"),
+        "--cut-layer redo".to_owned(),
+        "--cut-layer skip".to_owned(),
+    ] {
+        assert!(
+            stderr.contains(&expected),
+            "{expected:?} missing:\n{stderr}"
+        );
+    }
+    assert!(!journal_kinds(&out).contains(&"cut_layer_choice".to_owned()));
+    let skip_dir = tmp.path().join("run-skip");
+    copy_dir(&out, &skip_dir);
+
+    // redo: the layer is marked again from its first vector; the journal and the report say so.
+    let result = Command::new(TRIMCTL)
+        .args(["run", "--resume"])
+        .arg(&out)
+        .args(["--cut-layer", "redo"])
+        .args(sim.cell_args())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&result.stdout).into_owned();
+    assert!(
+        result.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let choices: Vec<serde_json::Value> = journal_entries(&out)
+        .into_iter()
+        .filter(|e| e["kind"] == "cut_layer_choice")
+        .collect();
+    assert_eq!(choices.len(), 1, "{choices:?}");
+    assert_eq!(choices[0]["choice"], "redo");
+    assert_eq!(choices[0]["vectors_maybe_twice"].as_u64(), Some(vectors));
+    let done = layers_done(&out);
+    for key in &planned {
+        assert_eq!(done.get(key), Some(&1), "redo: layer {key:?}");
+    }
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let line = format!(
+        "cut layer {cut_name}: progress unknown; redone from vector 0 of {vectors}: up to {vectors} vectors may be marked twice"
+    );
+    assert!(
+        stdout.contains(&line),
+        "{line:?} missing from stdout:\n{stdout}"
+    );
+    assert!(report.contains("## Resume 1"), "{report}");
+    assert!(
+        report.contains(&line),
+        "{line:?} missing from report:\n{report}"
+    );
+
+    // skip: the layer is left out, never marked; every other layer is marked once; the
+    // journal and the report list it.
+    let result = Command::new(TRIMCTL)
+        .args(["run", "--resume"])
+        .arg(&skip_dir)
+        .args(["--cut-layer", "skip"])
+        .args(sim.cell_args())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&result.stdout).into_owned();
+    assert!(
+        result.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let choices: Vec<serde_json::Value> = journal_entries(&skip_dir)
+        .into_iter()
+        .filter(|e| e["kind"] == "cut_layer_choice")
+        .collect();
+    assert_eq!(choices.len(), 1, "{choices:?}");
+    assert_eq!(choices[0]["choice"], "skip");
+    assert_eq!(choices[0]["vectors_maybe_twice"].as_u64(), Some(0));
+    let done = layers_done(&skip_dir);
+    for key in &planned {
+        let want = if *key == cut { None } else { Some(&1) };
+        assert_eq!(done.get(key), want, "skip: layer {key:?}");
+    }
+    let report = std::fs::read_to_string(skip_dir.join("report.md")).unwrap();
+    let line = format!("layers left out (--cut-layer skip), not marked: {cut_name}");
+    assert!(
+        stdout.contains(&line),
+        "{line:?} missing from stdout:\n{stdout}"
+    );
+    assert!(
+        report.contains(&line),
+        "{line:?} missing from report:\n{report}"
+    );
+
+    // A later resume keeps the layer left out without asking again.
+    let result = Command::new(TRIMCTL)
+        .args(["run", "--resume"])
+        .arg(&skip_dir)
+        .args(sim.cell_args())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&result.stdout).into_owned();
+    assert!(result.status.success(), "{stdout}");
+    assert!(stdout.contains(&line), "{line:?} missing:\n{stdout}");
+    assert_eq!(layers_done(&skip_dir), done);
+    drop(sim);
 }

@@ -63,6 +63,13 @@ pub enum GeomError {
         /// What was found.
         message: String,
     },
+    /// A point-cloud file holds no points (an empty XYZ, a PLY with 0 vertices, a PCD with 0
+    /// points): nothing that needs points can use it.
+    #[error("{}: no points", path.display())]
+    NoPoints {
+        /// The file.
+        path: PathBuf,
+    },
     /// An in-memory value is NaN or infinite.
     #[error("{what} {index} is not finite")]
     NonFinite {

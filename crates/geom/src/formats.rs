@@ -105,7 +105,8 @@ fn in_file(name: &FsPath, e: GeomError) -> GeomError {
         ),
         e @ (GeomError::Parse { .. }
         | GeomError::Io { .. }
-        | GeomError::UnsupportedFormat { .. }) => e,
+        | GeomError::UnsupportedFormat { .. }
+        | GeomError::NoPoints { .. }) => e,
         other => GeomError::parse(name, Location::End, other.to_string()),
     }
 }
@@ -122,7 +123,8 @@ fn write_file(path: &FsPath, bytes: &[u8]) -> Result<()> {
 
 /// Reads a point cloud, by extension: `.ply` (ascii or binary; faces ignored), `.pcd` (ascii or
 /// binary), `.xyz` or `.txt` (`x y z [nx ny nz]` per line). A `.stl` is refused with a pointer to
-/// [`read_mesh`]; other extensions are refused by name.
+/// [`read_mesh`]; other extensions are refused by name. A file with no points is refused
+/// ([`GeomError::NoPoints`], naming it): every use of a cloud needs points.
 pub fn read_points(path: &FsPath) -> Result<PointCloud> {
     match format_of(path)? {
         Format::Ply | Format::Pcd | Format::Xyz => read_points_from_bytes(&read_file(path)?, path),
@@ -133,11 +135,21 @@ pub fn read_points(path: &FsPath) -> Result<PointCloud> {
 /// [`read_points`] on bytes already in memory; `name` gives the format (by extension) and is the
 /// file named in errors.
 pub fn read_points_from_bytes(bytes: &[u8], name: &FsPath) -> Result<PointCloud> {
-    match format_of(name)? {
-        Format::Ply => Ok(ply::parse(bytes, name)?.cloud),
-        Format::Pcd => pcd::parse(bytes, name),
-        Format::Xyz => xyz::parse(bytes, name),
-        other => Err(wrong_kind(name, other, "a point cloud")),
+    let cloud = match format_of(name)? {
+        Format::Ply => ply::parse(bytes, name)?.cloud,
+        Format::Pcd => pcd::parse(bytes, name)?,
+        Format::Xyz => xyz::parse(bytes, name)?,
+        other => return Err(wrong_kind(name, other, "a point cloud")),
+    };
+    non_empty(cloud, name)
+}
+
+/// The cloud, or [`GeomError::NoPoints`] naming the file when it has none.
+fn non_empty(cloud: PointCloud, name: &FsPath) -> Result<PointCloud> {
+    if cloud.is_empty() {
+        Err(GeomError::NoPoints { path: name.into() })
+    } else {
+        Ok(cloud)
     }
 }
 
@@ -198,7 +210,8 @@ pub fn read_path_from_bytes(bytes: &[u8], name: &FsPath) -> Result<Path> {
 }
 
 /// Reads whatever the file holds, by extension: `.csv` → path, `.stl` → mesh, `.ply` → mesh if it
-/// has at least one face, else points; `.pcd`, `.xyz`, `.txt` → points.
+/// has at least one face, else points; `.pcd`, `.xyz`, `.txt` → points. A point cloud with no
+/// points is refused as in [`read_points`].
 pub fn read_geometry(path: &FsPath) -> Result<Geometry> {
     format_of(path)?;
     read_geometry_from_bytes(&read_file(path)?, path)
@@ -212,13 +225,13 @@ pub fn read_geometry_from_bytes(bytes: &[u8], name: &FsPath) -> Result<Geometry>
         Format::Ply => {
             let data = ply::parse(bytes, name)?;
             if data.faces.is_empty() {
-                Ok(Geometry::Points(data.cloud))
+                non_empty(data.cloud, name).map(Geometry::Points)
             } else {
                 ply::into_mesh(data, name).map(|m| Geometry::Mesh(Box::new(m)))
             }
         }
-        Format::Pcd => pcd::parse(bytes, name).map(Geometry::Points),
-        Format::Xyz => xyz::parse(bytes, name).map(Geometry::Points),
+        Format::Pcd => non_empty(pcd::parse(bytes, name)?, name).map(Geometry::Points),
+        Format::Xyz => non_empty(xyz::parse(bytes, name)?, name).map(Geometry::Points),
     }
 }
 

@@ -152,8 +152,9 @@ fn pcd_and_xyz_round_trip() {
     }
 }
 
+/// An empty cloud can be written, but reading a file with no points is refused, naming it.
 #[test]
-fn empty_clouds_round_trip() {
+fn empty_clouds_are_refused_when_read() {
     let empty = PointCloud::default();
     for (bytes, name) in [
         (
@@ -167,8 +168,14 @@ fn empty_clouds_round_trip() {
         (encode_pcd(&empty, PcdEncoding::Binary), "e.pcd"),
         (formats::encode_xyz(&empty), "e.xyz"),
     ] {
-        let back = read_points_from_bytes(&bytes, FsPath::new(name)).unwrap();
-        assert!(back.is_empty(), "{name}");
+        let e = read_points_from_bytes(&bytes, FsPath::new(name)).unwrap_err();
+        assert!(
+            matches!(&e, trim_geom::GeomError::NoPoints { path } if path == FsPath::new(name)),
+            "{name}: {e:?}"
+        );
+        assert_eq!(e.to_string(), format!("{name}: no points"));
+        let e = formats::read_geometry_from_bytes(&bytes, FsPath::new(name)).unwrap_err();
+        assert!(matches!(e, trim_geom::GeomError::NoPoints { .. }), "{name}");
     }
 }
 

@@ -100,24 +100,34 @@ proptest! {
 
     #[test]
     fn clouds_round_trip_through_every_point_format(c in cloud()) {
+        // A file with no points is refused on reading (tested in formats.rs): `read` checks that
+        // the error names the file, else the cloud comes back as written.
+        let read = |bytes: &[u8], name: &str| -> Result<Option<PointCloud>, TestCaseError> {
+            match read_points_from_bytes(bytes, FsPath::new(name)) {
+                Ok(back) => Ok(Some(back)),
+                Err(e) => {
+                    prop_assert!(c.is_empty(), "{}: {}", name, e);
+                    prop_assert_eq!(e.to_string(), format!("{name}: no points"));
+                    Ok(None)
+                }
+            }
+        };
         for encoding in [
             PlyEncoding::Ascii,
             PlyEncoding::BinaryLittleEndian,
             PlyEncoding::BinaryBigEndian,
         ] {
-            let bytes = encode_ply(&c, encoding, PlyScalar::Double);
-            assert_same(&read_points_from_bytes(&bytes, FsPath::new("c.ply")).unwrap(), &c)?;
+            if let Some(back) = read(&encode_ply(&c, encoding, PlyScalar::Double), "c.ply")? {
+                assert_same(&back, &c)?;
+            }
         }
         for encoding in [PcdEncoding::Ascii, PcdEncoding::Binary] {
-            let bytes = encode_pcd(&c, encoding);
-            assert_same(&read_points_from_bytes(&bytes, FsPath::new("c.pcd")).unwrap(), &c)?;
+            if let Some(back) = read(&encode_pcd(&c, encoding), "c.pcd")? {
+                assert_same(&back, &c)?;
+            }
         }
-        let from_xyz = read_points_from_bytes(&encode_xyz(&c), FsPath::new("c.xyz")).unwrap();
-        if c.is_empty() {
-            // XYZ tells normals by the column count of its rows: an empty file has neither.
-            prop_assert!(from_xyz.is_empty());
-        } else {
-            assert_same(&from_xyz, &c)?;
+        if let Some(back) = read(&encode_xyz(&c), "c.xyz")? {
+            assert_same(&back, &c)?;
         }
     }
 

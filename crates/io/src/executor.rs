@@ -10,9 +10,14 @@
 //!   await;
 //! - on any fault, timeout, lost link, bad reply or cancel: **laser off first** (the serial
 //!   emission-off command and the galvo laser signals off, together), **then** the galvo list is
-//!   stopped, **then** motion is stopped; then the layer is journaled as cut, with how far it got;
+//!   stopped, **then** motion is stopped; then the layer is journaled as cut, with how far it got.
+//!   Host-side failures after preparation (a journal write, the list encoding) take the same way
+//!   down: nothing returns early past [`Phase::Prepare`];
 //! - a finished layer is journaled (fsync) before the next begins; [`Executor::resume`] continues
-//!   at the first unfinished layer, from the first vector the galvo did not mark.
+//!   at the first unfinished layer, from the first vector the galvo did not mark. When neither
+//!   the galvo nor the journal can tell how far a cut layer got, resume refuses to start unless
+//!   the operator chose ([`ExecOptions::cut_layer`]): redo the layer or leave it out; the choice
+//!   is journaled before anything is switched on.
 
 use std::collections::BTreeSet;
 use std::future::Future;
@@ -27,7 +32,7 @@ use crate::cell::{Cell, Timeouts};
 use crate::galvo::list::{layer_list, vector_count};
 use crate::galvo::protocol::{ControllerState, NO_LIST, StatusBlock};
 use crate::galvo::timing::{list_time_s, polylines_time_s};
-use crate::journal::{Entry, Journal, JournalError, JournalState};
+use crate::journal::{CutLayer, Entry, Journal, JournalError, JournalSink, JournalState};
 use crate::record::{LogLevel, SharedRecorder};
 use crate::tap::{Device, now_ns};
 
@@ -137,6 +142,16 @@ pub enum StopCause {
         /// What happened.
         message: String,
     },
+    /// The journal could not be written (a full disk, an I/O error).
+    Journal {
+        /// What happened.
+        message: String,
+    },
+    /// A layer's list could not be built.
+    Job {
+        /// What happened.
+        message: String,
+    },
 }
 
 impl std::fmt::Display for StopCause {
@@ -145,6 +160,8 @@ impl std::fmt::Display for StopCause {
             StopCause::Cancelled => f.write_str("cancelled"),
             StopCause::Link { device, message } => write!(f, "{device} link: {message}"),
             StopCause::Fault { device, message } => write!(f, "{device} fault: {message}"),
+            StopCause::Journal { message } => write!(f, "journal: {message}"),
+            StopCause::Job { message } => write!(f, "job: {message}"),
         }
     }
 }
@@ -200,14 +217,34 @@ pub enum ExecError {
     /// The job cannot be sent to the galvo.
     #[error("job: {0}")]
     Job(String),
-    /// Resume cannot tell how far the cut layer got.
-    #[error("resume: cannot tell how far {key} got: {reason}")]
+    /// Resume cannot tell how far the cut layer got and no choice was given
+    /// ([`ExecOptions::cut_layer`]); nothing was switched on.
+    #[error("resume: cannot tell how far {key} got: {reason}. Choose what to do with the layer: redo (marks it again from vector {first_vector}: up to {} of its {vectors} vectors may be marked twice) or skip (leaves it out, unmarked; the report lists it)", vectors - first_vector)]
     ResumeUnknown {
         /// The layer.
         key: LayerKey,
         /// Why.
         reason: String,
+        /// The first vector of the attempt whose progress is unknown.
+        first_vector: u32,
+        /// Vectors in the layer.
+        vectors: u32,
     },
+}
+
+/// What resume did with a layer it could not tell the progress of.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct CutLayerOutcome {
+    /// The layer.
+    pub key: LayerKey,
+    /// The operator's choice.
+    pub choice: CutLayer,
+    /// The first vector of the attempt whose progress was unknown (redo starts there).
+    pub first_vector: u32,
+    /// Vectors in the layer.
+    pub vectors: u32,
+    /// Redo: vectors that may have been marked twice; skip: 0.
+    pub vectors_maybe_twice: u32,
 }
 
 /// One layer's timing (wall clock, s).
@@ -241,6 +278,10 @@ pub struct RunSummary {
     pub vectors_marked: u64,
     /// The cut layer this run continued, and the vector it continued from.
     pub resumed_from: Option<(LayerKey, u32)>,
+    /// The cut layer this run redid or skipped because its progress was unknown.
+    pub cut_layer: Option<CutLayerOutcome>,
+    /// Layers left out by a `skip` choice (this run's and earlier), never marked.
+    pub layers_left_out: Vec<LayerKey>,
     /// Wall time (s).
     pub wall_s: f64,
     /// The galvo's modelled time of this run's lists (s).
@@ -261,6 +302,10 @@ pub struct ExecOptions {
     /// How often the laser's faults are checked while a list runs (also once right after
     /// `EXECUTE`).
     pub laser_poll: Duration,
+    /// On resume, what to do with a cut layer whose progress neither the galvo nor the journal
+    /// can tell (`None`: refuse with [`ExecError::ResumeUnknown`]). Not used when the progress
+    /// is known.
+    pub cut_layer: Option<CutLayer>,
 }
 
 impl Default for ExecOptions {
@@ -269,9 +314,13 @@ impl Default for ExecOptions {
             timeouts: Timeouts::default(),
             laser_power_pct: None,
             laser_poll: Duration::from_millis(LASER_POLL_MS),
+            cut_layer: None,
         }
     }
 }
+
+/// Replaces the journal's sink (see [`Executor::with_journal_sink`]).
+type SinkWrap = Box<dyn FnOnce(Box<dyn JournalSink>) -> Box<dyn JournalSink> + Send>;
 
 /// Runs a Job on a Cell.
 pub struct Executor {
@@ -282,9 +331,21 @@ pub struct Executor {
     options: ExecOptions,
     progress: Option<UnboundedSender<Progress>>,
     cancel: CancellationToken,
+    journal_wrap: Option<SinkWrap>,
 }
 
 type Step<T> = Result<T, StopCause>;
+
+/// Where a resumed run starts the cut layer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum CutStart {
+    /// No cut layer.
+    None,
+    /// Continue the layer from this vector (known from the galvo or the journal).
+    Continue(LayerKey, u32),
+    /// The operator's choice for a layer of unknown progress.
+    Chosen(LayerKey, CutLayer, u32),
+}
 
 impl Executor {
     /// An executor for `job` on `cell`, journaling to `journal_path`, recording to `recorder`.
@@ -303,6 +364,24 @@ impl Executor {
             options: ExecOptions::default(),
             progress: None,
             cancel: CancellationToken::new(),
+            journal_wrap: None,
+        }
+    }
+
+    /// Wraps the journal's sink once it is open (`wrap(file)`): for tests that inject journal
+    /// write failures.
+    #[must_use]
+    pub fn with_journal_sink(
+        mut self,
+        wrap: impl FnOnce(Box<dyn JournalSink>) -> Box<dyn JournalSink> + Send + 'static,
+    ) -> Executor {
+        self.journal_wrap = Some(Box::new(wrap));
+        self
+    }
+
+    fn wrap_journal(&mut self, journal: &mut Journal) {
+        if let Some(wrap) = self.journal_wrap.take() {
+            journal.wrap_sink(wrap);
         }
     }
 
@@ -322,7 +401,8 @@ impl Executor {
         self.cancel = cancel;
         self.progress = progress;
         self.check_job()?;
-        let journal = Journal::create(&self.journal_path, &self.job)?;
+        let mut journal = Journal::create(&self.journal_path, &self.job)?;
+        self.wrap_journal(&mut journal);
         self.execute(journal, JournalState::default()).await
     }
 
@@ -336,7 +416,8 @@ impl Executor {
         self.cancel = cancel;
         self.progress = progress;
         self.check_job()?;
-        let (journal, state) = Journal::resume(&self.journal_path, &self.job)?;
+        let (mut journal, state) = Journal::resume(&self.journal_path, &self.job)?;
+        self.wrap_journal(&mut journal);
         self.execute(journal, state).await
     }
 
@@ -500,44 +581,86 @@ impl Executor {
         report
     }
 
-    /// Where the cut layer continues: the first vector the galvo did not mark.
+    /// Where the cut layer continues: the first vector the galvo did not mark, or the vector
+    /// the journal's cut entry names; when neither can tell, the operator's choice
+    /// ([`ExecOptions::cut_layer`]), journaled here, or [`ExecError::ResumeUnknown`]. Runs before
+    /// anything is switched on.
     async fn resume_point(
         &self,
         state: &JournalState,
-    ) -> Result<Option<(LayerKey, u32)>, ExecError> {
+        journal: &mut Journal,
+    ) -> Result<(CutStart, Option<CutLayerOutcome>), ExecError> {
         let Some(Entry::LayerBegin {
             key,
             first_vector,
             tag,
-            ..
+            vectors,
         }) = &state.open_begin
         else {
-            return Ok(None);
+            return Ok((CutStart::None, None));
         };
         let cut = match &state.open_cut {
             Some(Entry::LayerCut { vectors_done, .. }) => *vectors_done,
             _ => None,
         };
         let status = self.galvo_status().await.ok();
-        let done = match status {
-            Some(s) if s.list != NO_LIST && s.tag == *tag => first_vector + s.marks_done,
+        let known = match status {
+            Some(s) if s.list != NO_LIST && s.tag == *tag => Some(first_vector + s.marks_done),
             // The controller's last list is an earlier one of this run: this one never ran.
             Some(s) if s.list != NO_LIST && s.tag >> 16 == tag >> 16 && s.tag < *tag => {
-                cut.unwrap_or(*first_vector)
+                Some(cut.unwrap_or(*first_vector))
             }
-            _ => match cut {
-                Some(v) => v,
-                None => {
-                    return Err(ExecError::ResumeUnknown {
-                        key: *key,
-                        reason: format!(
-                            "the galvo does not report list tag {tag} (status {status:?}) and the journal has no count"
-                        ),
-                    });
-                }
-            },
+            _ => cut,
         };
-        Ok(Some((*key, done)))
+        if let Some(done) = known {
+            return Ok((CutStart::Continue(*key, done), None));
+        }
+        let reason = match status {
+            Some(s) if s.list == NO_LIST => format!(
+                "the galvo does not report list tag {tag} (it has run no list since it started: restarted?) and the journal has no count"
+            ),
+            Some(s) => format!(
+                "the galvo does not report list tag {tag} (it reports list {} tag {}) and the journal has no count",
+                s.list, s.tag
+            ),
+            None => format!(
+                "the galvo does not answer its status for list tag {tag} and the journal has no count"
+            ),
+        };
+        let Some(choice) = self.options.cut_layer else {
+            return Err(ExecError::ResumeUnknown {
+                key: *key,
+                reason,
+                first_vector: *first_vector,
+                vectors: *vectors,
+            });
+        };
+        let vectors_maybe_twice = match choice {
+            CutLayer::Redo => vectors.saturating_sub(*first_vector),
+            CutLayer::Skip => 0,
+        };
+        journal.append(&Entry::CutLayerChoice {
+            key: *key,
+            choice,
+            first_vector: *first_vector,
+            vectors: *vectors,
+            vectors_maybe_twice,
+            reason: reason.clone(),
+        })?;
+        self.log(
+            LogLevel::Warning,
+            &format!("resume: {key}: {reason}; operator chose {choice} ({vectors_maybe_twice} vectors may be marked twice)"),
+        );
+        Ok((
+            CutStart::Chosen(*key, choice, *first_vector),
+            Some(CutLayerOutcome {
+                key: *key,
+                choice,
+                first_vector: *first_vector,
+                vectors: *vectors,
+                vectors_maybe_twice,
+            }),
+        ))
     }
 
     #[expect(
@@ -576,6 +699,14 @@ impl Executor {
             ),
         );
 
+        // Decided before anything is switched on: a refusal leaves the cell as it was.
+        let (cut_start, cut_layer) = self.resume_point(&state, &mut journal).await?;
+        let mut left_out = state.left_out.clone();
+        if let CutStart::Chosen(key, CutLayer::Skip, _) = cut_start {
+            left_out.insert(key);
+        }
+
+        // From here on every error takes the way down (`stop`): no `?`.
         if let Err(cause) = self.prepare().await {
             return Err(self
                 .stop(
@@ -586,10 +717,14 @@ impl Executor {
                     None,
                     0,
                     finished.len(),
+                    false,
                 )
                 .await);
         }
-        let resumed_from = self.resume_point(&state).await?;
+        let resumed_from = match cut_start {
+            CutStart::Continue(k, v) => Some((k, v)),
+            CutStart::None | CutStart::Chosen(..) => None,
+        };
         let elapsed0 = self.galvo_status().await.map(|s| s.elapsed_ns).unwrap_or(0);
         let mut summary = RunSummary {
             layers_total: total_layers,
@@ -597,6 +732,8 @@ impl Executor {
             layers_skipped: 0,
             vectors_marked: 0,
             resumed_from,
+            cut_layer,
+            layers_left_out: Vec::new(),
             wall_s: 0.0,
             galvo_modelled_s: 0.0,
             galvo_estimate_s: 0.0,
@@ -626,30 +763,24 @@ impl Executor {
                 self.record_layer(key, "skipped", n, n, false);
                 continue;
             }
-            let first = match resumed_from {
-                Some((k, v)) if k == key => v.min(n),
+            if left_out.contains(&key) {
+                summary.layers_left_out.push(key);
+                self.emit(Progress::LayerSkipped { key });
+                self.record_layer(key, "left_out", 0, n, false);
+                continue;
+            }
+            let first = match cut_start {
+                CutStart::Continue(k, v) | CutStart::Chosen(k, CutLayer::Redo, v) if k == key => {
+                    v.min(n)
+                }
                 _ => 0,
             };
             let settings = self.job.settings.galvo;
             let t_layer = Instant::now();
-            if first >= n {
-                // Every vector was marked before the cut: only the journal entry was missing.
-                journal.append(&Entry::LayerDone { key, vectors: n })?;
-                finished_count += 1;
-                summary.layers_marked += 1;
-                self.record_layer(key, "done", n, n, true);
-                self.emit(Progress::LayerDone { key, index });
-                continue;
-            }
-            let c = self.cancel.clone();
-            let t = self.options.timeouts;
-            let phase_of = |p: Phase| Progress::Phase {
-                key,
-                index,
-                phase: p,
-            };
 
-            // On failure: how far the layer got, then the way down (see `stop`).
+            // On failure: how far the layer got, then the way down (see `stop`). `began`: a
+            // list for this layer may have been loaded in this run (its `layer_begin` is
+            // journaled), so the galvo is asked how far it got and the cut is journaled.
             macro_rules! step {
                 ($phase:expr, $began:expr, $e:expr) => {
                     match $e {
@@ -672,12 +803,39 @@ impl Executor {
                                     done,
                                     n,
                                     finished_count,
+                                    began,
                                 )
                                 .await);
                         }
                     }
                 };
             }
+            let journal_failed = |e: JournalError| StopCause::Journal {
+                message: e.to_string(),
+            };
+
+            if first >= n {
+                // Every vector was marked before the cut: only the journal entry was missing.
+                step!(
+                    Phase::Journal,
+                    false,
+                    journal
+                        .append(&Entry::LayerDone { key, vectors: n })
+                        .map_err(journal_failed)
+                );
+                finished_count += 1;
+                summary.layers_marked += 1;
+                self.record_layer(key, "done", n, n, true);
+                self.emit(Progress::LayerDone { key, index });
+                continue;
+            }
+            let c = self.cancel.clone();
+            let t = self.options.timeouts;
+            let phase_of = |p: Phase| Progress::Phase {
+                key,
+                index,
+                phase: p,
+            };
 
             self.emit(phase_of(Phase::Move));
             self.record_layer(key, "started", first, n, false);
@@ -709,16 +867,27 @@ impl Executor {
             let motion_s = t_layer.elapsed().as_secs_f64();
 
             self.emit(phase_of(Phase::LoadList));
-            let commands = layer_list(&layer, &settings, first)
-                .map_err(|e| ExecError::Job(format!("{key}: {e}")))?;
+            let commands = step!(
+                Phase::LoadList,
+                false,
+                layer_list(&layer, &settings, first).map_err(|e| StopCause::Job {
+                    message: format!("{key}: {e}")
+                })
+            );
             let modelled_list_s = list_time_s(&commands);
             let tag = journal.next_tag();
-            journal.append(&Entry::LayerBegin {
-                key,
-                first_vector: first,
-                vectors: n,
-                tag,
-            })?;
+            step!(
+                Phase::LoadList,
+                false,
+                journal
+                    .append(&Entry::LayerBegin {
+                        key,
+                        first_vector: first,
+                        vectors: n,
+                        tag,
+                    })
+                    .map_err(journal_failed)
+            );
             let frames = u32::try_from(
                 commands
                     .len()
@@ -878,7 +1047,13 @@ impl Executor {
             );
 
             self.emit(phase_of(Phase::Journal));
-            journal.append(&Entry::LayerDone { key, vectors: n })?;
+            step!(
+                Phase::Journal,
+                true,
+                journal
+                    .append(&Entry::LayerDone { key, vectors: n })
+                    .map_err(journal_failed)
+            );
             finished_count += 1;
             summary.layers_marked += 1;
             summary.vectors_marked += u64::from(expected_marks);
@@ -958,11 +1133,12 @@ impl Executor {
         vectors_done: Option<u32>,
         vectors: u32,
         layers_finished: usize,
+        journal_cut: bool,
     ) -> ExecError {
         let detected_at = Instant::now();
         let shutdown = self.shut_down().await;
         if let Some(key) = key
-            && phase >= Phase::LoadList
+            && journal_cut
         {
             if let Err(e) = journal.append(&Entry::LayerCut {
                 key,

@@ -3,8 +3,12 @@
 //!
 //! Entries: `start` (the job's digest), `layer_begin` (a list for a layer is about to be loaded:
 //! its first vector and its galvo tag), `layer_done`, `layer_cut` (a layer stopped midway, with
-//! how many of its vectors were marked when known). A torn last line (a crash mid-write,
-//! no newline) is ignored and cut off on resume; any other bad line is an error.
+//! how many of its vectors were marked when known), `cut_layer_choice` (resume could not tell how
+//! far a cut layer got, and the operator chose to redo or skip it). A torn last line (a crash
+//! mid-write, no newline) is ignored and cut off on resume; any other bad line is an error.
+//!
+//! Lines go to a [`JournalSink`]: the file (write, then `fsync`), or in tests a stand-in that
+//! fails on demand ([`Journal::wrap_sink`]).
 
 use std::collections::BTreeSet;
 use std::fs::{File, OpenOptions};
@@ -57,6 +61,56 @@ pub enum Entry {
         /// Why it stopped.
         reason: String,
     },
+    /// Resume could not tell how far a cut layer got (the galvo lost its list: a controller
+    /// restart, a crash of the host) and the operator chose what to do with it.
+    CutLayerChoice {
+        /// The layer.
+        key: LayerKey,
+        /// Redo or skip.
+        choice: CutLayer,
+        /// The first vector of the attempt whose progress is unknown (vectors before it were
+        /// marked by earlier attempts, as journaled).
+        first_vector: u32,
+        /// Vectors in the layer.
+        vectors: u32,
+        /// Redo: how many vectors may be marked twice (`vectors − first_vector`); skip: 0.
+        vectors_maybe_twice: u32,
+        /// Why resume could not tell.
+        reason: String,
+    },
+}
+
+/// What to do with a layer cut at a point resume cannot tell (`trimctl run --cut-layer`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CutLayer {
+    /// Mark the layer again from the first vector of the unknown attempt: vectors that attempt
+    /// did mark are marked twice.
+    Redo,
+    /// Leave the layer out (never marked by this run); the run's report lists it.
+    Skip,
+}
+
+impl std::fmt::Display for CutLayer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            CutLayer::Redo => "redo",
+            CutLayer::Skip => "skip",
+        })
+    }
+}
+
+/// Where journal lines go.
+pub trait JournalSink: Send {
+    /// Writes one whole line (with its newline) and makes it durable before returning.
+    fn append_line(&mut self, line: &[u8]) -> std::io::Result<()>;
+}
+
+impl JournalSink for File {
+    fn append_line(&mut self, line: &[u8]) -> std::io::Result<()> {
+        self.write_all(line)?;
+        self.sync_data()
+    }
 }
 
 /// A journal that cannot be used.
@@ -107,6 +161,8 @@ pub struct JournalState {
     pub open_begin: Option<Entry>,
     /// The last `layer_cut` for that layer.
     pub open_cut: Option<Entry>,
+    /// Layers left out by a `cut_layer_choice` of `skip`.
+    pub left_out: BTreeSet<LayerKey>,
     /// `layer_begin` entries so far (the next tag counts on from it).
     pub begins: u32,
     /// Whether the last line was torn (ignored).
@@ -118,12 +174,30 @@ pub struct JournalState {
 }
 
 /// An open journal (append only).
-#[derive(Debug)]
 pub struct Journal {
     path: PathBuf,
-    file: File,
+    sink: Box<dyn JournalSink>,
     digest: String,
     begins: u32,
+}
+
+impl std::fmt::Debug for Journal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Journal")
+            .field("path", &self.path)
+            .field("digest", &self.digest)
+            .field("begins", &self.begins)
+            .finish_non_exhaustive()
+    }
+}
+
+/// A placeholder sink while [`Journal::wrap_sink`] swaps sinks; it is never written to.
+struct NullSink;
+
+impl JournalSink for NullSink {
+    fn append_line(&mut self, _line: &[u8]) -> std::io::Result<()> {
+        Err(std::io::Error::other("journal sink being replaced"))
+    }
 }
 
 /// FNV-1a 64 of the job's JSON, hex.
@@ -193,7 +267,18 @@ pub fn read(path: &Path) -> Result<JournalState, JournalError> {
                 }
             }
             Entry::LayerCut { .. } => st.open_cut = Some(entry.clone()),
-            Entry::Start { .. } => {}
+            Entry::CutLayerChoice {
+                key,
+                choice: CutLayer::Skip,
+                ..
+            } => {
+                st.left_out.insert(*key);
+                if matches!(&st.open_begin, Some(Entry::LayerBegin { key: k, .. }) if k == key) {
+                    st.open_begin = None;
+                    st.open_cut = None;
+                }
+            }
+            Entry::CutLayerChoice { .. } | Entry::Start { .. } => {}
         }
         st.good_len += line.len() as u64;
         st.entries.push(entry);
@@ -217,7 +302,7 @@ impl Journal {
             })?;
         let mut j = Journal {
             path: path.to_owned(),
-            file,
+            sink: Box::new(file),
             digest: job_digest(job),
             begins: 0,
         };
@@ -259,7 +344,7 @@ impl Journal {
         }
         let mut j = Journal {
             path: path.to_owned(),
-            file,
+            sink: Box::new(file),
             digest,
             begins: st.begins,
         };
@@ -293,11 +378,16 @@ impl Journal {
             source: std::io::Error::other(e),
         })?;
         line.push('\n');
-        self.file
-            .write_all(line.as_bytes())
-            .map_err(io(&self.path))?;
-        self.file.sync_data().map_err(io(&self.path))?;
-        Ok(())
+        self.sink
+            .append_line(line.as_bytes())
+            .map_err(io(&self.path))
+    }
+
+    /// Replaces where lines go by `wrap(current)`: tests wrap the file in a sink that fails
+    /// on demand (a full disk, an I/O error).
+    pub fn wrap_sink(&mut self, wrap: impl FnOnce(Box<dyn JournalSink>) -> Box<dyn JournalSink>) {
+        let current = std::mem::replace(&mut self.sink, Box::new(NullSink));
+        self.sink = wrap(current);
     }
 
     /// The file.

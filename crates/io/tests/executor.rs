@@ -35,6 +35,7 @@ fn options() -> ExecOptions {
         laser_power_pct: Some(80.0),
         // One laser check per layer (right after EXECUTE), so fault triggers count exactly.
         laser_poll: Duration::from_secs(60),
+        cut_layer: None,
     }
 }
 
@@ -511,4 +512,140 @@ async fn a_planned_job_runs_and_the_simulated_galvo_time_matches_the_planners_es
         "simulated {} s vs planned {planned_s} s",
         summary.galvo_modelled_s
     );
+}
+
+/// A journal on a disk that fills up: lines from the `fail_from`-th (0-based) on fail with
+/// ENOSPC; the time of the first failure is kept.
+struct FullDisk {
+    inner: Box<dyn journal::JournalSink>,
+    lines: usize,
+    fail_from: usize,
+    failed_at: std::sync::Arc<std::sync::Mutex<Option<Instant>>>,
+}
+
+impl journal::JournalSink for FullDisk {
+    fn append_line(&mut self, line: &[u8]) -> std::io::Result<()> {
+        let i = self.lines;
+        self.lines += 1;
+        if i >= self.fail_from {
+            self.failed_at
+                .lock()
+                .unwrap()
+                .get_or_insert_with(Instant::now);
+            return Err(std::io::Error::from_raw_os_error(28)); // ENOSPC
+        }
+        self.inner.append_line(line)
+    }
+}
+
+/// Position of the first tapped command after `after` that satisfies `pred`.
+fn first_command(
+    log: &[(Instant, trim_io::tap::DeviceIo)],
+    after: Instant,
+    pred: impl Fn(&trim_io::tap::DeviceIo) -> bool,
+) -> usize {
+    log.iter()
+        .position(|(t, io)| {
+            *t >= after && io.direction == trim_io::tap::Direction::Command && pred(io)
+        })
+        .unwrap_or_else(|| panic!("no such command after the failure: {log:#?}"))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_journal_write_failure_mid_run_takes_the_way_down_laser_first() {
+    // Journal lines of `demo_job(2)` after the start line (written before the sink is
+    // wrapped): 0–1 layer index 0, 2–3 layer index 1, then layer index 2 (zone 1 layer 0): 4 its
+    // layer_begin (the CNC is at its pose, laser signals on), 5 its layer_done (its 5 vectors
+    // marked, the galvo's laser signals still on).
+    let target = LayerKey { zone: 1, layer: 0 };
+    for (fail_from, phase, done) in [(5, Phase::Journal, Some(5)), (4, Phase::LoadList, None)] {
+        let label = format!("journal full from line {fail_from}");
+        let sim = sim_cell("monaco").await;
+        let job = demo_job(2);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.journal");
+        let log = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+        let log2 = log.clone();
+        let tap = Tap::new(move |io| log2.lock().unwrap().push((Instant::now(), io)));
+        let failed_at = std::sync::Arc::new(std::sync::Mutex::new(None));
+        let failed2 = failed_at.clone();
+        let err = Executor::new(job.clone(), connect(&sim, tap).await, &path, None)
+            .with_options(options())
+            .with_journal_sink(move |inner| {
+                Box::new(FullDisk {
+                    inner,
+                    lines: 0,
+                    fail_from,
+                    failed_at: failed2,
+                })
+            })
+            .run(CancellationToken::new(), None)
+            .await
+            .expect_err(&label);
+        let ExecError::Stopped(s) = err else {
+            panic!("{label}: not stopped through the way down: {err}")
+        };
+        assert!(
+            matches!(&s.cause, trim_io::executor::StopCause::Journal { message } if message.contains("os error 28")),
+            "{label}: {:?}",
+            s.cause
+        );
+        // The layer it stopped in is reported with how far it got (the galvo's count).
+        assert_eq!(
+            (s.key, s.phase, s.vectors_done, s.vectors),
+            (Some(target), phase, done, 5),
+            "{label}"
+        );
+        assert_eq!(s.layers_finished, 2, "{label}");
+        assert!(
+            s.shutdown.laser_off_ok
+                && s.shutdown.galvo_signals_off_ok
+                && s.shutdown.galvo_stop_ok
+                && s.shutdown.cnc_abort_ok,
+            "{label}: {:?}",
+            s.shutdown
+        );
+        // The way down in order: laser off (serial and galvo signals), then galvo stop, then
+        // motion stop; nothing else was sent to a device in between.
+        let failed = failed_at.lock().unwrap().expect("the sink failed");
+        let log = log.lock().unwrap().clone();
+        let laser_off = first_command(&log, failed, |io| io.device == Device::Laser);
+        let signals_off = first_command(&log, failed, |io| {
+            io.device == Device::Galvo && io.text.starts_with("LaserSignals { enable: false }")
+        });
+        let galvo_stop = first_command(&log, failed, |io| {
+            io.device == Device::Galvo && io.text.starts_with("Stop")
+        });
+        let cnc = first_command(&log, failed, |io| io.device == Device::Cnc);
+        assert_eq!(log[laser_off].1.text, "L=0", "{label}");
+        assert!(
+            laser_off.max(signals_off) < galvo_stop && galvo_stop < cnc,
+            "{label}: laser off #{laser_off}, signals off #{signals_off}, galvo stop #{galvo_stop}, CNC #{cnc}"
+        );
+        assert!(!sim.laser.state().emission, "{label}: emission left on");
+        assert!(!sim.monitor.light(), "{label}");
+        assert!(
+            sim.monitor.violations().is_empty(),
+            "{label}: {:?}",
+            sim.monitor.violations()
+        );
+        // The journal holds what was written before the disk filled up.
+        let st = journal::read(&path).unwrap();
+        assert_eq!(st.entries.len(), 1 + fail_from, "{label}");
+        assert_eq!(st.finished.len(), 2, "{label}");
+
+        // With room on the disk again, resume finishes; nothing is marked twice (the galvo
+        // still reports the target layer's list when its layer_done was lost).
+        let summary = resume(&sim, &job, &path).await;
+        assert_eq!(summary.layers_skipped, 2, "{label}");
+        if fail_from == 5 {
+            assert_eq!(summary.resumed_from, Some((target, 5)), "{label}");
+        }
+        assert_eq!(
+            assert_marked_exactly_once(&job, &sim.galvo.marks()),
+            0,
+            "{label}"
+        );
+        assert_eq!(journal::read(&path).unwrap().finished.len(), 4, "{label}");
+    }
 }

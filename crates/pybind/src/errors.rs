@@ -66,9 +66,10 @@ pub fn value_error(name: &str, message: impl std::fmt::Display) -> PyErr {
 /// Maps a geometry error: file problems to `FileFormatError`, bad values to `ValueError`.
 pub fn geom_error(e: GeomError) -> PyErr {
     match e {
-        GeomError::Io { .. } | GeomError::Parse { .. } | GeomError::UnsupportedFormat { .. } => {
-            FileFormatError::new_err(e.to_string())
-        }
+        GeomError::Io { .. }
+        | GeomError::Parse { .. }
+        | GeomError::UnsupportedFormat { .. }
+        | GeomError::NoPoints { .. } => FileFormatError::new_err(e.to_string()),
         other => PyValueError::new_err(other.to_string()),
     }
 }
