@@ -194,7 +194,8 @@ fn blade() -> Surf {
 }
 
 /// The top face of the synthetic core, deformed and re-posed as scanned; the region lies
-/// between the slot ends and the end holes (u ∈ [−14, 14], v ∈ [−34, −28.6]).
+/// between the slot ends and the end holes (u ∈ [−13, 13], v ∈ [−33.3, −29]), at least 1 mm
+/// from every hole wall (a wall within the fit radius of the boundary biases the height field).
 fn core() -> (Surf, PointCloud) {
     let params = SynthParams {
         seed: 7,
@@ -210,12 +211,12 @@ fn core() -> (Surf, PointCloud) {
     let (sfc, def) = (case.scan_from_cad_true, case.deformation);
     let map = move |u: f64, v: f64| sfc * def.apply(&design_point(u, v, top));
     let polygon_uv = vec![
-        [-14.0, -34.0],
-        [14.0, -34.0],
-        [14.0, -29.6],
-        [9.0, -28.6],
-        [-12.0, -28.6],
-        [-14.0, -30.0],
+        [-13.0, -33.3],
+        [13.0, -33.3],
+        [13.0, -29.8],
+        [9.0, -29.0],
+        [-11.0, -29.0],
+        [-13.0, -30.0],
     ];
     let (lo, hi) = boxed(polygon_uv.clone(), 0.5);
     let surf = Surf {
@@ -405,7 +406,6 @@ fn check(surf: &Surf, cloud: &PointCloud, pitch: f64, angle_deg: f64) {
             angle_deg,
             method,
             step_mm: Some(0.1),
-            grid_mm: std::env::var("HATCH_GRID").ok().map(|v| v.parse().unwrap()),
             ..HatchSettings::default()
         };
         let start = std::time::Instant::now();
