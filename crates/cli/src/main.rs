@@ -8,6 +8,7 @@ mod calibrate_field;
 mod config;
 mod config_cmd;
 mod exit;
+mod hatch;
 mod info;
 mod plan;
 mod progress;
@@ -50,6 +51,8 @@ enum Command {
     Config(config_cmd::Args),
     /// Calibrate the cell: rotary axes and scanner pose (`cell`), galvo field (`field`).
     Calibrate(calibrate::Args),
+    /// Hatch a region of a scanned surface with equally spaced tracks.
+    Hatch(hatch::Args),
 }
 
 fn main() -> ExitCode {
@@ -68,6 +71,7 @@ fn main() -> ExitCode {
         Command::Sim(a) => sim::run(a),
         Command::Config(a) => config_cmd::run(a),
         Command::Calibrate(a) => calibrate::run(a),
+        Command::Hatch(a) => hatch::run(a),
     };
     exit::code_for(result)
 }

@@ -12,7 +12,8 @@
 //! the scan points within a radius (weights `(1 − d²/r²)²`), then refitted without points whose
 //! residual exceeds three robust standard deviations (outliers, hole walls). The surface at
 //! `(s, t)` is the bilinear blend of the four surrounding nodes' quadratics, each evaluated at
-//! `(s, t)`: exact for quadratic surfaces, and smooth enough for normals.
+//! `(s, t)` (exact for quadratic surfaces); its gradient, for normals, is the bilinear blend of
+//! the nodes' fitted gradients (their curvature terms are too noisy to extrapolate).
 
 use nalgebra::{Matrix3, Matrix6, SymmetricEigen, Vector6};
 use rayon::prelude::*;
@@ -335,8 +336,9 @@ impl Surface {
                 + 0.5 * q[3] * ds * ds
                 + q[4] * ds * dt
                 + 0.5 * q[5] * dt * dt;
-            let gs = q[1] + q[3] * ds + q[4] * dt;
-            let gt = q[2] + q[4] * ds + q[5] * dt;
+            // The gradient blends the nodes' own gradients: each node's second-order terms
+            // are noisy (σ/r²), and evaluating them up to h√2 away tilts normals by degrees.
+            let (gs, gt) = (q[1], q[2]);
             let w = w.max(1e-12);
             sum_w += w;
             f += w * value;
