@@ -583,7 +583,9 @@ impl SynthCase {
 
     /// Writes the case into `dir` (created if missing): `cad.stl`, `cad_points.ply` (with
     /// normals), `path.csv`, `scan.ply`, `truth.csv`, and `case.json` (parameters, scanner
-    /// position and the true transforms, for tests and for `trimctl register --config`).
+    /// position and the true transforms: `scanner_in_scan_mm` is what `trimctl register
+    /// --viewpoint` takes, `scan_from_cad_nominal` the 16 numbers `--initial` reads from a text
+    /// file, the rest is for tests).
     pub fn write_case(&self, dir: &std::path::Path) -> Result<()> {
         use crate::formats::{PlyEncoding, write_path, write_ply, write_stl};
         std::fs::create_dir_all(dir).map_err(|e| GeomError::io(dir, e))?;
