@@ -1,11 +1,13 @@
 //! The executor: a state machine over the Job (DESIGN.md "Execution and devices", paper §3).
 //!
-//! Per layer, in job order: [`Phase::Move`] → [`Phase::WaitInPosition`] → [`Phase::LoadList`]
-//! → [`Phase::EnableEmission`] → [`Phase::Execute`] → [`Phase::WaitDone`] → [`Phase::GateOff`]
+//! Per layer, in job order: [`Phase::Move`] → [`Phase::LoadList`] (into the other list
+//! buffer, while the CNC moves: preloading) → [`Phase::WaitInPosition`] →
+//! [`Phase::EnableEmission`] → [`Phase::Execute`] → [`Phase::WaitDone`] → [`Phase::GateOff`]
 //! → [`Phase::Journal`]. Interlocks:
 //! - emission is enabled only after the CNC is in position and the list is loaded, and disabled
 //!   before the next move, so the laser never emits while the CNC moves; the galvo gate opens
-//!   only while its list marks;
+//!   only while its list marks; loading a list while the CNC moves is not emitting (the
+//!   emission stays off until in position);
 //! - every device await has a timeout ([`Timeouts`]), and a cancel (Ctrl-C) is honoured at every
 //!   await;
 //! - on any fault, timeout, lost link, bad reply or cancel: **laser off first** (the serial
@@ -69,8 +71,8 @@ impl Phase {
     /// The phases of one layer, in order.
     pub const LAYER: [Phase; 8] = [
         Phase::Move,
-        Phase::WaitInPosition,
         Phase::LoadList,
+        Phase::WaitInPosition,
         Phase::EnableEmission,
         Phase::Execute,
         Phase::WaitDone,
@@ -252,16 +254,30 @@ pub struct CutLayerOutcome {
 pub struct LayerTiming {
     /// The layer.
     pub key: LayerKey,
-    /// Move and wait in position.
+    /// Move and wait in position (the list is loaded meanwhile).
     pub motion_s: f64,
+    /// `LOAD_LIST`, overlapped with the move (hidden when shorter than `motion_s`).
+    pub load_s: f64,
+    /// From "in position" to `EXECUTE` acknowledged (emission on, execute): the galvo idle
+    /// before the list runs.
+    pub to_execute_s: f64,
+    /// From done seen to the layer journaled (emission off, journal fsync, record).
+    pub after_done_s: f64,
+    /// Of `overhead_s`: awaiting the laser's replies to emission on and off (`EXECUTE`'s reply
+    /// counts in `list_s`).
+    pub device_replies_s: f64,
+    /// Of `after_done_s`: the `layer_done` journal write and its fsync (the disk's time; the
+    /// next layer begins only after it). The rest of the overhead is the host's own time.
+    pub journal_s: f64,
     /// From `EXECUTE` to done seen.
     pub list_s: f64,
     /// The galvo's modelled time of the list.
     pub modelled_s: f64,
     /// The whole layer.
     pub total_s: f64,
-    /// `total − motion − list`: the executor's own per-layer overhead (load, emission on/off,
-    /// journal, polling granularity).
+    /// `total − motion − list`: the executor's per-layer overhead outside the CNC's motion and
+    /// the galvo's list (emission on/off, `EXECUTE`, journal, record; a load longer than the
+    /// move shows in `motion_s`).
     pub overhead_s: f64,
 }
 
@@ -787,9 +803,18 @@ impl Executor {
                         Ok(v) => v,
                         Err(cause) => {
                             let began: bool = $began;
-                            let done = if began {
+                            // Before `EXECUTE` this attempt marked nothing, whatever the
+                            // galvo reports (a preloaded list is not a marked layer).
+                            let executed = !matches!(
+                                $phase,
+                                Phase::Move
+                                    | Phase::LoadList
+                                    | Phase::WaitInPosition
+                                    | Phase::EnableEmission
+                            );
+                            let done = if began && executed {
                                 self.marked_so_far(first, journal.current_tag()).await
-                            } else if first > 0 {
+                            } else if began || first > 0 {
                                 Some(first)
                             } else {
                                 None
@@ -851,21 +876,10 @@ impl Executor {
                 )
                 .await
             );
-            self.emit(phase_of(Phase::WaitInPosition));
-            step!(
-                Phase::WaitInPosition,
-                false,
-                Self::guard(
-                    &c,
-                    t.cnc_motion + Duration::from_secs(1),
-                    Device::Cnc,
-                    "wait in position",
-                    self.cell.cnc.wait_in_position(t.cnc_motion)
-                )
-                .await
-            );
-            let motion_s = t_layer.elapsed().as_secs_f64();
-
+            // Preloading: the list goes into the other buffer while the CNC moves (the emission
+            // stays off; loading a list is not emitting). Its `layer_begin` is journaled first;
+            // until `EXECUTE` the galvo reports the previous list, so a stop here journals the
+            // cut at `first` (a preloaded list is not a marked layer).
             self.emit(phase_of(Phase::LoadList));
             let commands = step!(
                 Phase::LoadList,
@@ -895,20 +909,45 @@ impl Executor {
             )
             .unwrap_or(u32::MAX)
             .max(1);
-            step!(
-                Phase::LoadList,
-                true,
+            let load_timeout = self.galvo_timeout() * frames;
+            let (galvo, cnc) = (&self.cell.galvo, &mut self.cell.cnc);
+            let load = async {
+                let t0 = Instant::now();
                 Self::guard(
                     &c,
-                    self.galvo_timeout() * frames,
+                    load_timeout,
                     Device::Galvo,
                     "LOAD_LIST",
-                    self.cell.galvo.load_list(list_buf, tag, &commands)
+                    galvo.load_list(list_buf, tag, &commands),
                 )
                 .await
-            );
+                .map(|()| t0.elapsed().as_secs_f64())
+                .map_err(|e| (Phase::LoadList, e))
+            };
+            let wait = async {
+                Self::guard(
+                    &c,
+                    t.cnc_motion + Duration::from_secs(1),
+                    Device::Cnc,
+                    "wait in position",
+                    cnc.wait_in_position(t.cnc_motion),
+                )
+                .await
+                .map(|_| Instant::now())
+                .map_err(|e| (Phase::WaitInPosition, e))
+            };
+            // The first failure stops both (the other is dropped) and takes the way down.
+            let joined = tokio::try_join!(load, wait);
+            self.emit(phase_of(Phase::WaitInPosition));
+            let failed_in = joined
+                .as_ref()
+                .err()
+                .map_or(Phase::WaitInPosition, |(p, _)| *p);
+            let (load_s, in_position_at) = step!(failed_in, true, joined.map_err(|(_, e)| e));
+            let motion_s = (in_position_at - t_layer).as_secs_f64();
 
             self.emit(phase_of(Phase::EnableEmission));
+            let t_on = Instant::now();
             step!(
                 Phase::EnableEmission,
                 true,
@@ -924,6 +963,7 @@ impl Executor {
 
             self.emit(phase_of(Phase::Execute));
             let t_exec = Instant::now();
+            let emission_on_s = (t_exec - t_on).as_secs_f64();
             step!(
                 Phase::Execute,
                 true,
@@ -937,6 +977,7 @@ impl Executor {
                 .await
             );
 
+            let to_execute_s = in_position_at.elapsed().as_secs_f64();
             self.emit(phase_of(Phase::WaitDone));
             let deadline = t_exec
                 + Duration::from_secs_f64(modelled_list_s * t.list_time_factor)
@@ -1013,7 +1054,8 @@ impl Executor {
                     () = tokio::time::sleep(Duration::from_millis(STATUS_POLL_MS)) => {}
                 }
             };
-            let list_s = t_exec.elapsed().as_secs_f64();
+            let t_done = Instant::now();
+            let list_s = (t_done - t_exec).as_secs_f64();
             if done_status.marks_done != expected_marks
                 || done_status.commands_done as usize != commands.len()
             {
@@ -1033,6 +1075,7 @@ impl Executor {
             }
 
             self.emit(phase_of(Phase::GateOff));
+            let t_gate = Instant::now();
             step!(
                 Phase::GateOff,
                 true,
@@ -1046,7 +1089,9 @@ impl Executor {
                 .await
             );
 
+            let gate_off_s = t_gate.elapsed().as_secs_f64();
             self.emit(phase_of(Phase::Journal));
+            let t_journal = Instant::now();
             step!(
                 Phase::Journal,
                 true,
@@ -1054,6 +1099,7 @@ impl Executor {
                     .append(&Entry::LayerDone { key, vectors: n })
                     .map_err(journal_failed)
             );
+            let journal_s = t_journal.elapsed().as_secs_f64();
             finished_count += 1;
             summary.layers_marked += 1;
             summary.vectors_marked += u64::from(expected_marks);
@@ -1067,6 +1113,11 @@ impl Executor {
             summary.layers.push(LayerTiming {
                 key,
                 motion_s,
+                load_s,
+                to_execute_s,
+                after_done_s: t_done.elapsed().as_secs_f64(),
+                device_replies_s: emission_on_s + gate_off_s,
+                journal_s,
                 list_s,
                 modelled_s: modelled_list_s,
                 total_s,
