@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import trimctl
-from conftest import SHARED_DATA
+from conftest import TEST_DATA
 
 
 def similarity(scale, axis_angle, translation):
@@ -52,9 +52,9 @@ def test_icp_recovers_a_known_similarity(rng):
 
 
 def test_umeyama_recovers_the_car_scale_to_1e9():
-    a = np.loadtxt(SHARED_DATA / "car-similarity" / "car_cloud400.csv", delimiter=",",
+    a = np.loadtxt(TEST_DATA / "car-similarity" / "car_cloud400.csv", delimiter=",",
                    skiprows=1)[:, :3]
-    b = np.loadtxt(SHARED_DATA / "car-similarity" / "car_cloud400_scaled.csv", delimiter=",",
+    b = np.loadtxt(TEST_DATA / "car-similarity" / "car_cloud400_scaled.csv", delimiter=",",
                    skiprows=1)[:, :3]
     m, scale, rmse = trimctl.umeyama(a, b, scale=True)
     assert abs(scale - 1.04) < 1e-9

@@ -1,4 +1,4 @@
-//! Registration on peers' real test data (../shared/data, see each folder's README).
+//! Registration on peers' real test data (tests/data, see each folder's README).
 
 use std::path::PathBuf;
 
@@ -14,7 +14,7 @@ use trim_register::umeyama::umeyama;
 
 fn data(rel: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data")
+        .join("../../tests/data")
         .join(rel)
 }
 
