@@ -12,8 +12,8 @@ pub fn workspace_root() -> PathBuf {
         .unwrap_or_default()
 }
 
-/// The shared real-data folder (`../shared/data` beside the checkout).
+/// The real data the tests read, in the repository (`tests/data`, see its README).
 #[must_use]
-pub fn shared_data() -> PathBuf {
-    workspace_root().join("../shared/data")
+pub fn test_data() -> PathBuf {
+    workspace_root().join("tests/data")
 }

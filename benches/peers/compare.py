@@ -1,7 +1,7 @@
 """Point-to-plane ICP: Open3D vs small_gicp vs trimctl on the same clouds (see ./run).
 
 Data:
-- lidar-pair: small_gicp's real 70k-point scan pair with ground truth (../shared/data), metres,
+- lidar-pair: small_gicp's real 70k-point scan pair with ground truth (tests/data), metres,
   0.25 m voxels, normals from 10 neighbours, correspondences within 1 m, from the identity.
 - synthetic: a trimctl synthetic core (rigid re-pose only: 2 deg, 1 mm), its scan onto its CAD
   points, mm, 0.5 mm voxels, correspondences within 2 mm, from the nominal pose.
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
-DATA = ROOT.parent / "shared" / "data"
+DATA = ROOT / "tests" / "data"
 ICP_BENCH = ROOT / "target" / "release" / "examples" / "icp_bench"
 TRIMCTL = ROOT / "target" / "release" / "trimctl"
 MAX_ITERATIONS = 30

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
-SHARED_DATA = ROOT.parent / "shared" / "data"
+# The real data the tests read, in the repository (tests/data/README.md).
+TEST_DATA = ROOT / "tests" / "data"
 
 
 @pytest.fixture

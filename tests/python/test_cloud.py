@@ -70,11 +70,11 @@ def test_points_round_trip_through_ply(tmp_path, plane_points):
 
 
 def test_read_points_of_real_scans():
-    from conftest import SHARED_DATA
+    from conftest import TEST_DATA
 
-    pts, normals = trimctl.read_points(SHARED_DATA / "bunny" / "bun0.pcd")
+    pts, normals = trimctl.read_points(TEST_DATA / "bunny" / "bun0.pcd")
     assert pts.shape == (397, 3) and normals is not None
-    pts, normals = trimctl.read_points(SHARED_DATA / "lidar-pair" / "source.ply")
+    pts, normals = trimctl.read_points(TEST_DATA / "lidar-pair" / "source.ply")
     assert pts.shape == (69792, 3) and normals is None
 
 

@@ -1,8 +1,10 @@
 """The scripting workflow: beam figures, demo case, registration, planning, and agreement with
 the CLI."""
 
+import copy
 import json
 import os
+import pathlib
 import subprocess
 
 import numpy as np
@@ -111,9 +113,10 @@ def test_plan_errors(registration):
 
 
 def test_python_plan_equals_the_cli(tmp_path, registration):
-    exe = ROOT / "target" / "debug" / "trimctl"
+    target = pathlib.Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
+    exe = target / "debug" / "trimctl"
     if not exe.exists():
-        exe = ROOT / "target" / "release" / "trimctl"
+        exe = target / "release" / "trimctl"
     assert exe.exists(), "build trimctl first (the test command runs cargo test before pytest)"
     csv = tmp_path / "registered.csv"
     trimctl.write_path(csv, registration.path)
@@ -123,3 +126,40 @@ def test_python_plan_equals_the_cli(tmp_path, registration):
     cli = json.loads(out.read_text())
     py = trimctl.plan(trimctl.read_path(csv))
     assert py.job == cli
+
+
+def test_settings_are_honoured_and_the_callers_dict_is_left_unchanged(case, registration):
+    settings = {
+        "max_incidence_deg": 3,
+        "layers": {"step_mm": 0.5},
+        "galvo": {"field_mm": [80.0, 80.0]},
+    }
+    before = copy.deepcopy(settings)
+    p = trimctl.plan(registration.path, settings=settings)
+    # No keyword given: settings= decides (the keyword defaults used to overwrite these).
+    assert p.job["settings"]["max_incidence_deg"] == 3
+    assert p.job["settings"]["galvo"]["field_mm"] == [80.0, 80.0]
+    assert p.layer_step_mm == pytest.approx(0.5)
+    assert all(z.max_incidence_deg <= 3.0 + 1e-9 for z in p.zones)
+    assert settings == before
+    # A keyword that is given overrides its key, in a copy: the caller's nested dicts stay.
+    p = trimctl.plan(
+        registration.path, settings=settings, max_incidence_deg=4.0, layer_step=0.4,
+        field=(90.0, 90.0), k=None,
+    )
+    assert p.job["settings"]["max_incidence_deg"] == 4.0
+    assert p.job["settings"]["galvo"]["field_mm"] == [90.0, 90.0]
+    assert p.layer_step_mm == pytest.approx(0.4)
+    assert settings == before
+    # An out-of-range value in settings= is seen, not overwritten by a default.
+    with pytest.raises(ValueError, match="max_incidence_deg"):
+        trimctl.plan(registration.path, settings={"max_incidence_deg": 90})
+
+    reg_settings = {"mode": "sideways", "cad_sample_points": 60_000}
+    reg_before = copy.deepcopy(reg_settings)
+    with pytest.raises(ValueError, match="mode"):
+        trimctl.register_path(
+            case.cad_points, case.scan, case.path, cad_normals=case.cad_normals,
+            init=case.scan_from_cad_nominal, settings=reg_settings,
+        )
+    assert reg_settings == reg_before

@@ -6,7 +6,10 @@ use std::process::{Command, Output};
 const TRIMCTL: &str = env!("CARGO_BIN_EXE_trimctl");
 
 fn trimctl(args: &[&str]) -> Output {
-    Command::new(TRIMCTL).args(args).output().unwrap()
+    Command::new(TRIMCTL)
+        .args(args)
+        .output()
+        .expect("trimctl runs")
 }
 
 fn text(o: &Output) -> String {

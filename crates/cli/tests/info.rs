@@ -44,9 +44,10 @@ fn info_err(file: &FsPath) -> String {
     stderr
 }
 
-fn shared_data(rel: &str) -> PathBuf {
+/// A file of the repository's real test data (tests/data).
+fn test_data(rel: &str) -> PathBuf {
     FsPath::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data")
+        .join("../../tests/data")
         .join(rel)
 }
 
@@ -142,11 +143,11 @@ fn describes_points_meshes_and_paths() {
 }
 
 #[test]
-fn describes_the_shared_data() {
-    let v = info_ok(&shared_data("bunny/bun0.pcd"));
+fn describes_the_real_test_data() {
+    let v = info_ok(&test_data("bunny/bun0.pcd"));
     assert_eq!(v["points"], 397);
     assert_eq!(v["has_normals"], true);
-    let v = info_ok(&shared_data("lidar-pair/target.ply"));
+    let v = info_ok(&test_data("lidar-pair/target.ply"));
     assert_eq!(v["kind"], "points");
     assert_eq!(v["points"], 69_088);
 }

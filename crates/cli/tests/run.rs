@@ -257,15 +257,16 @@ impl SimServer {
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
             .spawn()
-            .unwrap();
-        let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
+            .expect("trimctl sim starts");
+        let mut lines = std::io::BufReader::new(child.stdout.take().expect("piped stdout")).lines();
         let (mut galvo, mut cnc, mut laser) = (None, None, None);
         while galvo.is_none() || cnc.is_none() || laser.is_none() {
             let line = lines
                 .next()
                 .expect("trimctl sim printed its addresses")
-                .unwrap();
-            let v: serde_json::Value = serde_json::from_str(&line).unwrap();
+                .expect("stdout is readable");
+            let v: serde_json::Value =
+                serde_json::from_str(&line).expect("an address line is JSON");
             let get = |k: &str| v[k].as_str().map(str::to_owned);
             galvo = galvo.or_else(|| get("galvo"));
             cnc = cnc.or_else(|| get("cnc"));
@@ -296,8 +297,8 @@ impl SimServer {
 
     /// Stops it as an operator's power switch would: no clean shutdown, all state lost.
     fn power_off(mut self) {
-        self.child.kill().unwrap();
-        self.child.wait().unwrap();
+        self.child.kill().expect("kill trimctl sim");
+        self.child.wait().expect("reap trimctl sim");
     }
 }
 
@@ -316,14 +317,14 @@ fn journal_kinds(dir: &Path) -> Vec<String> {
 }
 
 fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
+    std::fs::create_dir_all(to).expect("create the copy");
+    for entry in std::fs::read_dir(from).expect("read the run folder") {
+        let entry = entry.expect("a directory entry");
         let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
+        if entry.file_type().expect("a file type").is_dir() {
             copy_dir(&entry.path(), &target);
         } else {
-            std::fs::copy(entry.path(), target).unwrap();
+            std::fs::copy(entry.path(), target).expect("copy a file");
         }
     }
 }

@@ -1,4 +1,4 @@
-//! Round trips through every format, the real data files in ../shared/data, and the error for
+//! Round trips through every format, the real data files in tests/data, and the error for
 //! each kind of bad input (the message must name the file and the line or element).
 #![expect(
     clippy::unwrap_used,
@@ -66,7 +66,7 @@ fn assert_same(read: &PointCloud, written: &PointCloud) {
 
 fn data(rel: &str) -> PathBuf {
     FsPath::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data")
+        .join("../../tests/data")
         .join(rel)
 }
 

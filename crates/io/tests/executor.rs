@@ -530,7 +530,7 @@ impl journal::JournalSink for FullDisk {
         if i >= self.fail_from {
             self.failed_at
                 .lock()
-                .expect("the failure time's lock")
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
                 .get_or_insert_with(Instant::now);
             return Err(std::io::Error::from_raw_os_error(28)); // ENOSPC
         }

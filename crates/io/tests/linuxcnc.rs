@@ -1,5 +1,5 @@
 //! Integration test against a real, headless LinuxCNC (xyzac-trt sim config) started through
-//! `scripts/linuxcnc-sim`, following ../shared/cnc/LINUXCNC.md. Fails with a clear message when
+//! `scripts/linuxcnc-sim`, following docs/cnc/LINUXCNC.md. Fails with a clear message when
 //! LinuxCNC is not installed, unless `TRIMCTL_SKIP_LINUXCNC=1`.
 //!
 //! Everything runs in one test function: LinuxCNC is one instance per machine.

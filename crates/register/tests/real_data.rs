@@ -1,4 +1,4 @@
-//! Registration on peers' real test data (../shared/data, see each folder's README).
+//! Registration on peers' real test data (tests/data, see each folder's README).
 
 use std::path::PathBuf;
 
@@ -14,9 +14,16 @@ use trim_register::umeyama::umeyama;
 
 fn data(rel: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data")
+        .join("../../tests/data")
         .join(rel)
 }
+
+/// PCL's test accepts each entry within 1e-3 and (0,1) within 1e-2 (README); it does not say
+/// why, and a 1e-2 slack on a 0.036 entry would let a visibly different rotation pass. The matrix
+/// is printed to four decimals (rounding ≤ 5e-5 per entry) and Open3D matches it to four
+/// decimals; trimctl's result differs by at most 4.4e-5 (entry (2,2)) and 7.7e-7 at (0,1). So
+/// every entry is held to the printed precision.
+const PCL_MATRIX_TOL: f64 = 1e-4;
 
 /// PCL's `IterativeClosestPoint` settings (README): point-to-point from the identity, at most 50
 /// iterations, correspondences within 0.05, transformation epsilon 1e-8.
@@ -54,9 +61,8 @@ fn bunny_point_to_point_gives_pcls_matrix() {
     let got = r.target_from_source.to_homogeneous();
     for i in 0..4 {
         for j in 0..4 {
-            let tol = if (i, j) == (0, 1) { 1e-2 } else { 1e-3 };
             assert!(
-                (got[(i, j)] - expected[(i, j)]).abs() < tol,
+                (got[(i, j)] - expected[(i, j)]).abs() < PCL_MATRIX_TOL,
                 "entry ({i},{j}): got {} expected {}\n{got}",
                 got[(i, j)],
                 expected[(i, j)]

@@ -12,6 +12,9 @@ use trim_register::regional::{Flag, RegisterSettings, register};
 const CROSS_EDGE_P95_MM: f64 = 0.020;
 const CROSS_EDGE_MAX_MM: f64 = 0.050;
 const POINTWISE_P95_MM: f64 = 0.030;
+/// The coarse stage's isotropic scale against the best similarity of the true deformation
+/// (see the test for the measured values).
+const SCALE_TOL: f64 = 0.0015;
 
 /// Small enough for the test profile, dense enough for the targets.
 #[expect(
@@ -64,12 +67,25 @@ fn meets_the_accuracy_targets_on_mild_and_large_deformation() {
                 && e.pointwise_p95_mm <= POINTWISE_P95_MM,
             "seed {seed} large {large}: {e:?}"
         );
-        // The coarse stage absorbed the fixture error and the scale.
-        let true_scale = c.deformation.scale.mean();
+        // The coarse stage absorbed the fixture error and the scale. Reference: the best single
+        // similarity for the true deformation, an independent closed form (Umeyama on every CAD
+        // point and its deformed position). The coarse fit is not that least-squares fit
+        // (point-to-plane, scan side only, Huber), and sag and twist pull on it: measured
+        // |fitted − reference| = 0.00038 (mild) and 0.00099 (large). SCALE_TOL is 1.5× the
+        // larger. The synthetic axis scales span ±0.005 (mild) and ±0.02 (large), so the old
+        // 0.03 passed any scale, 1 included; the second check fails a fit that did not absorb
+        // the scale at all (|1 − reference| = 0.0010 mild, 0.0045 large).
+        let cad = c.cad_points.points();
+        let deformed: Vec<_> = cad.iter().map(|p| c.deformation.apply(p)).collect();
+        let reference = trim_register::umeyama::umeyama(cad, &deformed, true)
+            .unwrap()
+            .target_from_source
+            .scaling();
+        let scale = reg.scan_from_cad.scaling();
         assert!(
-            (reg.scan_from_cad.scaling() - true_scale).abs() < 0.03,
-            "scale {}",
-            reg.scan_from_cad.scaling()
+            (scale - reference).abs() < SCALE_TOL
+                && (scale - reference).abs() < (1.0 - reference).abs(),
+            "seed {seed} large {large}: scale {scale}, reference {reference}"
         );
     }
 }

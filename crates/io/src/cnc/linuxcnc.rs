@@ -1,5 +1,5 @@
 //! A client for LinuxCNC's `linuxcncrsh` text protocol (TCP port 5007), following
-//! ../shared/cnc/LINUXCNC.md: `hello`, `set echo off`, `set verbose on` (else `set` gets no
+//! docs/cnc/LINUXCNC.md: `hello`, `set echo off`, `set verbose on` (else `set` gets no
 //! reply), `set enable`, `set set_wait received` on every connect (it is global to the server),
 //! drain `get error`, estop off, machine on, home if not homed, `set mode mdi`, `set mdi M428`
 //! (TCP kinematics), MDI `G0` moves, `set wait done`, `get abs_act_pos` (X Y Z A B C, B padded),

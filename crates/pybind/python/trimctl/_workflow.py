@@ -6,6 +6,7 @@ the same thing, and an unknown or out-of-range key raises ``ValueError`` naming 
 
 from __future__ import annotations
 
+import copy
 import json
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
@@ -29,8 +30,9 @@ __all__ = [
 
 
 def _kw(settings: Optional[Mapping[str, Any]], **given: Any) -> Dict[str, Any]:
-    """Merges keyword options (None = not given) over a settings mapping."""
-    out: Dict[str, Any] = dict(settings or {})
+    """A deep copy of ``settings`` (the caller's dicts, nested ones included, are never changed)
+    with the keyword options that were given (``None`` = not given) set over it."""
+    out: Dict[str, Any] = copy.deepcopy(dict(settings or {}))
     out.update({k: v for k, v in given.items() if v is not None})
     return out
 
@@ -178,27 +180,34 @@ def plan(
     path: Path,
     *,
     beam: Optional[Beam] = None,
-    max_incidence_deg: float = 5.0,
+    max_incidence_deg: Optional[float] = None,
     layer_step: Optional[float] = None,
-    field: Sequence[float] = (100.0, 100.0),
-    kinematics: str = "xyzac-trt",
+    field: Optional[Sequence[float]] = None,
+    kinematics: Optional[str] = None,
     k: Optional[int] = None,
     settings: Optional[Mapping[str, Any]] = None,
 ) -> Plan:
     """Plans zones, layers, galvo polylines and machine poses for a (registered) path.
 
-    ``settings`` takes any planner key of job.toml (``zoning``, ``layers``, ``field``,
-    ``machine``, ``galvo`` tables); the keyword options override it.
+    ``settings`` takes any planner key of job.toml (``max_incidence_deg`` and the ``zoning``,
+    ``layers``, ``field``, ``machine``, ``galvo`` tables). A keyword option that is given
+    overrides its key (``max_incidence_deg``; ``beam`` → ``beam``; ``layer_step`` →
+    ``layers.step_mm``; ``field`` → ``galvo.field_mm``; ``kinematics`` →
+    ``machine.kinematics``; ``k`` → ``zoning.k``); one that is not given leaves the key to
+    ``settings``, else to the job.toml default (5°, 100 × 100 mm, ``xyzac-trt``).
+    ``settings`` itself is not changed.
     """
     s = _kw(settings, max_incidence_deg=max_incidence_deg)
     if beam is not None:
-        s["beam"] = beam.settings
+        s["beam"] = dict(beam.settings)
     if layer_step is not None:
         s.setdefault("layers", {})["step_mm"] = layer_step
     if k is not None:
         s.setdefault("zoning", {})["k"] = k
-    s.setdefault("galvo", {})["field_mm"] = [float(field[0]), float(field[1])]
-    s.setdefault("machine", {})["kinematics"] = kinematics
+    if field is not None:
+        s.setdefault("galvo", {})["field_mm"] = [float(field[0]), float(field[1])]
+    if kinematics is not None:
+        s.setdefault("machine", {})["kinematics"] = kinematics
     job, table, meta = _native.plan_path(path, json.dumps(s))
     m = json.loads(meta)
     return Plan(job=json.loads(job), table=json.loads(table), k=m["k"], automatic_k=m["automatic_k"])
@@ -230,13 +239,14 @@ def register_path(
     cad_normals: np.ndarray,
     scan_normals: Optional[np.ndarray] = None,
     init: Optional[np.ndarray] = None,
-    mode: str = "regional",
+    mode: Optional[str] = None,
     settings: Optional[Mapping[str, Any]] = None,
 ) -> Registration:
     """Registers the CAM ``path`` (CAD frame) onto the ``scan``: coarse similarity from the
     fixture pose ``init`` (4 × 4 ``scan_from_cad``, default identity), then the deformation
     field. ``cad`` are CAD points (N, 3) with outward ``cad_normals``. ``settings`` takes the
-    ``[register]`` keys of job.toml.
+    ``[register]`` keys of job.toml; ``mode``, when given, overrides ``settings["mode"]``
+    (default ``"regional"``). ``settings`` itself is not changed.
     """
     s = _kw(settings, mode=mode)
     registered, report, scan_from_cad = _native.register_path(
