@@ -64,8 +64,8 @@ pub struct HatchReport {
     pub points: usize,
     /// Neighbour spacing across the surface (see the module docs).
     pub spacing: SpacingStats,
-    /// Fraction of the scan points inside the boundary within pitch/2 × 1.05 of a track
-    /// (outline included).
+    /// Fraction of the scan points inside the boundary, taken onto the fitted surface (so scan
+    /// noise does not count as a gap), within pitch/2 × 1.05 of a track (outline included).
     pub coverage: f64,
     /// The same, counting hatch tracks only.
     pub coverage_hatch_only: f64,
@@ -195,7 +195,11 @@ pub fn measure(hatch: &Hatch) -> HatchReport {
         surface
             .inside_points()
             .par_iter()
-            .map(|q| distance_to_tracks(hatch, &tree, &pts, &owner, q))
+            .map(|q| {
+                // The surface point under the scan point: scan noise is not a coverage gap.
+                let on_surface = surface.lift(frame.to_plane(q)).unwrap_or(*q);
+                distance_to_tracks(hatch, &tree, &pts, &owner, &on_surface)
+            })
             .collect()
     };
     let all = gap(false);

@@ -11,6 +11,8 @@ pub struct Polygon {
     ny: usize,
     /// Edge indices per grid cell (row-major).
     cells: Vec<Vec<u32>>,
+    /// Edge indices per horizontal strip of height `cell` (the ray-casting test reads one).
+    strips: Vec<Vec<u32>>,
 }
 
 impl Polygon {
@@ -42,6 +44,7 @@ impl Polygon {
             nx,
             ny,
             cells: vec![Vec::new(); nx * ny],
+            strips: vec![Vec::new(); ny],
         };
         for e in 0..polygon.vertices.len() {
             let (a, b) = polygon.edge(e);
@@ -50,6 +53,7 @@ impl Polygon {
                 for i in i0..=i1 {
                     polygon.cells[j * nx + i].push(e as u32);
                 }
+                polygon.strips[j].push(e as u32);
             }
         }
         polygon
@@ -99,24 +103,27 @@ impl Polygon {
         0.5 * twice.abs()
     }
 
-    /// Whether `p` is inside (even–odd ray casting along +s).
+    /// Whether `p` is inside (even–odd ray casting along +s, over the edges of `p`'s strip:
+    /// an edge the ray can cross spans `p`'s height, so it lies in that strip).
     #[must_use]
     pub fn contains(&self, p: [f64; 2]) -> bool {
         let n = self.vertices.len();
         if n < 3 {
             return false;
         }
+        if !(p[1] >= self.lo[1] && p[1] <= self.lo[1] + self.ny as f64 * self.cell) {
+            return false;
+        }
+        let strip = (((p[1] - self.lo[1]) / self.cell).floor() as usize).min(self.ny - 1);
         let mut inside = false;
-        let mut j = n - 1;
-        for i in 0..n {
-            let (a, b) = (self.vertices[i], self.vertices[j]);
+        for &e in &self.strips[strip] {
+            let (a, b) = self.edge(e as usize);
             if (a[1] > p[1]) != (b[1] > p[1]) {
                 let x = a[0] + (p[1] - a[1]) / (b[1] - a[1]) * (b[0] - a[0]);
                 if p[0] < x {
                     inside = !inside;
                 }
             }
-            j = i;
         }
         inside
     }

@@ -11,13 +11,16 @@ use super::surface::Surface;
 /// Dense points per grid spacing used to measure lengths along a track.
 const DENSE_PER_GRID: f64 = 4.0;
 
+/// A sampled track: plane coordinates (mm), world points (mm) and unit normals (world).
+pub(crate) type Sampled = (Vec<[f64; 2]>, Vec<Point3>, Vec<Vector3>);
+
 /// Samples the plane polyline `line` onto the surface. Returns the plane coordinates, world
 /// points and unit normals; `None` where the surface has no support.
 pub(crate) fn sample_track(
     surface: &Surface,
     line: &[[f64; 2]],
     spacing: PointSpacing,
-) -> Option<(Vec<[f64; 2]>, Vec<Point3>, Vec<Vector3>)> {
+) -> Option<Sampled> {
     let max_len = match spacing {
         PointSpacing::Pitch { step_mm } => (surface.grid_mm() / DENSE_PER_GRID).min(step_mm / 2.0),
         PointSpacing::Chord { .. } => surface.grid_mm() / DENSE_PER_GRID,

@@ -157,7 +157,7 @@ impl Surface {
             let area = polygon.area();
             inside = cloud
                 .points()
-                .iter()
+                .par_iter()
                 .filter(|p| polygon.contains(frame.to_plane(p)))
                 .copied()
                 .collect();
@@ -173,7 +173,7 @@ impl Surface {
             let margin = GRID_MARGIN_CELLS * h;
             near = cloud
                 .points()
-                .iter()
+                .par_iter()
                 .filter(|p| {
                     let st = frame.to_plane(p);
                     polygon.contains(st) || polygon.distance(st) <= margin
