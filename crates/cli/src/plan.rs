@@ -62,7 +62,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         job.layer_step_mm,
     );
     eprintln!(
-        "trimctl plan: validation {}: focus ≤ {:.4} mm, incidence ≤ {:.3}° (lens included), field ≤ {:.3} mm, round trip ≤ {:.2e} mm, commands land ≤ {:.2e} mm; estimate {:.1} s ({:.1} s motion)",
+        "trimctl plan: validation {}: focus ≤ {:.4} mm, incidence ≤ {:.3}° (lens included), field ≤ {:.3} mm, round trip ≤ {:.2e} mm, commands land ≤ {:.2e} mm; estimate {:.1} s ({:.1} s motion of which {:.1} s settle; laser on {:.1} %)",
         if v.passed { "passed" } else { "FAILED" },
         v.max_focus_deviation_mm,
         v.max_incidence_deg,
@@ -71,6 +71,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         v.max_command_error_mm,
         job.estimate.total_s,
         job.estimate.motion_s,
+        job.estimate.settle_s,
+        job.estimate.laser_on_fraction * 1e2,
     );
     for line in &v.violations {
         eprintln!("trimctl plan: violation: {line}");

@@ -980,6 +980,7 @@ fn write_report(
         "stopped": stopped,
         "validation": plan.job.validation,
         "estimate": plan.job.estimate,
+        "cycle_s": run.map(summary::cycle_split),
         "spot_error": spots,
         "calibration": config.calibration,
         "lens": plan.job.settings.lens,

@@ -75,8 +75,13 @@ pub fn plan(plan: &PlanOutput) -> String {
     let e = &job.estimate;
     let _ = writeln!(
         s,
-        "time estimate: {:.1} s (marking {:.1} s, jumps {:.1} s, machine moves {:.1} s)",
-        e.total_s, e.marking_s, e.jumping_s, e.motion_s
+        "time estimate: {:.1} s (marking {:.1} s, jumps {:.1} s, machine moves {:.1} s, settle {:.1} s; laser on {:.1} %)",
+        e.total_s,
+        e.marking_s,
+        e.jumping_s,
+        e.motion_s - e.settle_s,
+        e.settle_s,
+        e.laser_on_fraction * 1e2
     );
     let v = &job.validation;
     let _ = writeln!(
@@ -203,6 +208,69 @@ fn execution_line(run: &RunSummary, job: &Job) -> String {
         run.galvo_estimate_s,
         mean_overhead * 1e3,
         job.estimate.total_s
+    ) + &cycle_line(run)
+}
+
+/// The measured cycle split of a run (wall clock, s): the CNC's moves and settling (move
+/// command to in position; the next list loads meanwhile), the galvo's lists (`EXECUTE` to done
+/// seen) and the executor's overhead (the rest of each layer: emission on/off, journal).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct CycleSplit {
+    /// Moves and settling.
+    pub moves_settle_s: f64,
+    /// Galvo lists (marking and jumps).
+    pub lists_s: f64,
+    /// Executor overhead.
+    pub overhead_s: f64,
+    /// Overhead per layer (ms).
+    pub overhead_per_layer_ms: f64,
+    /// Of it, in position → `EXECUTE` acknowledged, per layer (ms).
+    pub to_execute_per_layer_ms: f64,
+    /// Of it, done seen → journaled, per layer (ms).
+    pub after_done_per_layer_ms: f64,
+    /// The galvo lists' share of the layers' time (the laser's gate opens only within them).
+    pub lists_fraction: f64,
+}
+
+/// The measured cycle split of `run`.
+#[must_use]
+pub fn cycle_split(run: &RunSummary) -> CycleSplit {
+    let sum = |f: fn(&trim_io::executor::LayerTiming) -> f64| run.layers.iter().map(f).sum::<f64>();
+    let per_layer_ms = |v: f64| {
+        if run.layers.is_empty() {
+            0.0
+        } else {
+            v / run.layers.len() as f64 * 1e3
+        }
+    };
+    let (motion, list, overhead) = (
+        sum(|l| l.motion_s),
+        sum(|l| l.list_s),
+        sum(|l| l.overhead_s),
+    );
+    let busy = motion + list + overhead;
+    CycleSplit {
+        moves_settle_s: motion,
+        lists_s: list,
+        overhead_s: overhead,
+        overhead_per_layer_ms: per_layer_ms(overhead),
+        to_execute_per_layer_ms: per_layer_ms(sum(|l| l.to_execute_s)),
+        after_done_per_layer_ms: per_layer_ms(sum(|l| l.after_done_s)),
+        lists_fraction: if busy > 0.0 { list / busy } else { 0.0 },
+    }
+}
+
+fn cycle_line(run: &RunSummary) -> String {
+    let c = cycle_split(run);
+    format!(
+        "cycle (measured): moves + settle {:.2} s, galvo lists {:.2} s, executor overhead {:.3} s ({:.2} ms per layer: in position → executing {:.2} ms, done → journaled {:.2} ms); galvo lists {:.1} % of the layers' time\n",
+        c.moves_settle_s,
+        c.lists_s,
+        c.overhead_s,
+        c.overhead_per_layer_ms,
+        c.to_execute_per_layer_ms,
+        c.after_done_per_layer_ms,
+        c.lists_fraction * 1e2,
     )
 }
 

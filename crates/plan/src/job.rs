@@ -335,10 +335,16 @@ pub struct TimeEstimate {
     pub marking_s: f64,
     /// Galvo jumps, delays included.
     pub jumping_s: f64,
-    /// Machine moves between layers and zones.
+    /// Machine moves between layers and zones, settling included.
     pub motion_s: f64,
     /// Per zone, in job order.
     pub per_zone_s: Vec<f64>,
+    /// Of `motion_s`: settling after each move (`machine.settle_s` per move).
+    #[serde(default)]
+    pub settle_s: f64,
+    /// The fraction of `total_s` the laser marks (`marking_s / total_s`; 0 for an empty job).
+    #[serde(default)]
+    pub laser_on_fraction: f64,
 }
 
 /// Identifies one layer of a job: zone id and layer index.

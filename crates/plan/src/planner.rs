@@ -368,6 +368,9 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
             estimate.marking_s += marking_s;
             estimate.jumping_s += jumping_s;
             estimate.motion_s += motion_s;
+            if motion_s > 0.0 {
+                estimate.settle_s += machine.settle_s;
+            }
             zone_s += marking_s + jumping_s + motion_s;
             previous = *pose;
             layers.push(Layer {
@@ -423,6 +426,9 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
         traces.push(zone_traces);
     }
     estimate.total_s = estimate.marking_s + estimate.jumping_s + estimate.motion_s;
+    if estimate.total_s > 0.0 {
+        estimate.laser_on_fraction = estimate.marking_s / estimate.total_s;
+    }
 
     let mut job = Job {
         version: JOB_VERSION,
