@@ -39,7 +39,7 @@ fn surface(x: f64, y: f64) -> Point3 {
 fn case() -> (PointCloud, Vec<Point3>) {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(SEED);
     let half = HALF_MM + MARGIN_MM;
-    let mut gauss = move |rng: &mut Xoshiro256PlusPlus| {
+    let gauss = move |rng: &mut Xoshiro256PlusPlus| {
         let (u1, u2): (f64, f64) = (rng.random_range(1e-12..1.0), rng.random_range(0.0..1.0));
         (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
     };
