@@ -77,6 +77,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for line in &v.violations {
         eprintln!("trimctl plan: violation: {line}");
     }
+    if !v.unreachable_zones.is_empty() {
+        eprintln!(
+            "trimctl plan: unreachable zones (outside the axis limits; `run` refuses this plan): {:?}",
+            v.unreachable_zones
+        );
+    }
     if !v.passed {
         anyhow::bail!(
             "the plan does not validate ({} violations); {} was written for inspection",

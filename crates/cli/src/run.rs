@@ -462,6 +462,15 @@ fn fresh(args: &Args) -> anyhow::Result<()> {
 
     if !plan.job.validation.passed {
         let lines = plan.job.validation.violations.join("\n  ");
+        let unreachable = &plan.job.validation.unreachable_zones;
+        if !unreachable.is_empty() {
+            return Err(Failure::with_exit(
+                Exit::Refused,
+                anyhow::anyhow!(
+                    "zone(s) {unreachable:?} cannot be reached within the axis limits; refusing to start (--allow-invalid does not override this):\n  {lines}"
+                ),
+            ));
+        }
         if !args.allow_invalid {
             return Err(Failure::with_exit(
                 Exit::Refused,

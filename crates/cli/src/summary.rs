@@ -132,6 +132,13 @@ pub fn zone_table(plan: &PlanOutput) -> String {
             r.contours
         );
     }
+    let unreachable = &plan.job.validation.unreachable_zones;
+    if !unreachable.is_empty() {
+        let _ = writeln!(
+            s,
+            "  UNREACHABLE within the axis limits: zones {unreachable:?} (drawn red in the SVG)"
+        );
+    }
     s
 }
 

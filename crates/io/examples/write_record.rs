@@ -56,6 +56,7 @@ fn job() -> Job {
                     }
                 })
                 .collect(),
+            unreachable: None,
         })
         .collect();
     Job {

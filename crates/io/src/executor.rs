@@ -438,6 +438,15 @@ impl Executor {
     }
 
     fn check_job(&self) -> Result<(), ExecError> {
+        // Never move toward a pose outside the axis limits, whatever validation was overridden.
+        if let Some(z) = self.job.zones.iter().find(|z| z.unreachable.is_some()) {
+            return Err(ExecError::Job(format!(
+                "zone {} (contours {:?}) is unreachable: {}",
+                z.id,
+                z.contours,
+                z.unreachable.as_deref().unwrap_or_default()
+            )));
+        }
         for (key, _, layer) in self.job.layers() {
             layer_list(layer, &self.job.settings.galvo, 0)
                 .map_err(|e| ExecError::Job(format!("{key}: {e}")))?;

@@ -731,3 +731,29 @@ async fn preloading_hides_the_list_load_and_the_overhead_per_layer_is_at_most_1_
         "host overhead {host_median_s} s per layer"
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_with_an_unreachable_zone_is_refused_before_anything_moves_or_emits() {
+    let sim = sim_cell("monaco").await;
+    let mut job = demo_job(2);
+    job.zones[1].unreachable = Some("A would be 180°, outside -100..50".to_owned());
+    let dir = tempfile::tempdir().unwrap();
+    let e = run_fresh(
+        &sim,
+        &job,
+        &dir.path().join("run.journal"),
+        CancellationToken::new(),
+    )
+    .await
+    .expect_err("an unreachable zone must be refused");
+    assert!(matches!(e, ExecError::Job(_)), "{e}");
+    assert!(e.to_string().contains("zone 1"), "{e}");
+    assert!(sim.galvo.marks().is_empty(), "marked before refusing");
+    assert!(
+        !sim.monitor
+            .events()
+            .iter()
+            .any(|(_, e)| matches!(e, trim_io::safety::CellEvent::Emission(true))),
+        "emission switched on before refusing"
+    );
+}

@@ -87,24 +87,6 @@ pub enum PlanError {
         /// linfa's message.
         message: String,
     },
-    /// No machine pose within the axis limits points the beam along a zone's axis.
-    #[error(
-        "zone {zone} (contours {contours:?}): no {kinematics} pose within the axis limits puts the \
-         beam along ({:.4}, {:.4}, {:.4}): {reason}",
-        axis[0], axis[1], axis[2]
-    )]
-    Unreachable {
-        /// The zone id.
-        zone: usize,
-        /// Its contour ids.
-        contours: Vec<ContourId>,
-        /// The kinematics name.
-        kinematics: String,
-        /// The zone axis (work-piece frame, unit).
-        axis: [f64; 3],
-        /// Which limit or why.
-        reason: String,
-    },
 }
 
 impl PlanError {

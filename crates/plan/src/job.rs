@@ -50,6 +50,11 @@ pub struct Zone {
     pub max_pairwise_deg: f64,
     /// Layers, top down (index 0 first).
     pub layers: Vec<Layer>,
+    /// Why no machine pose within the axis limits reaches this zone, when none does. Its layers
+    /// then carry the nearest pose outside the limits (for inspection only) and the job fails
+    /// validation; `trimctl run` refuses it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unreachable: Option<String>,
 }
 
 /// A right-handed orthonormal frame: the axes of the zone frame in work-piece coordinates.
@@ -322,6 +327,9 @@ pub struct ValidationReport {
     /// lens model (height term and field correction) (mm).
     #[serde(default)]
     pub max_command_error_mm: f64,
+    /// The zones no machine pose within the axis limits reaches (ids).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub unreachable_zones: Vec<usize>,
     /// One line per violation, naming zone, layer and contour.
     pub violations: Vec<String>,
 }

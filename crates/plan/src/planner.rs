@@ -306,12 +306,14 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
             .map(|(_, h, _)| p.section.origin + p.axis.into_inner() * *h)
             .collect()
     };
-    let mut provisional = Vec::with_capacity(planned.len());
-    for (i, p) in planned.iter().enumerate() {
-        let poses = zone_poses(machine, &rotary, &focus_points(p), &p.axis, &AxisPose::HOME)
-            .map_err(|reason| unreachable(i, p, &pieces_contours(&p.section), machine, reason))?;
-        provisional.push(poses);
-    }
+    let provisional: Vec<Vec<AxisPose>> = planned
+        .iter()
+        .map(|p| {
+            zone_poses(machine, &rotary, &focus_points(p), &p.axis, &AxisPose::HOME).unwrap_or_else(
+                |_| unlimited_poses(machine, &rotary, &focus_points(p), &p.axis, &AxisPose::HOME),
+            )
+        })
+        .collect();
     let order = crate::order::order(
         planned.len(),
         |j| move_time_s(machine, &AxisPose::HOME, &provisional[j][0]),
@@ -329,8 +331,16 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
     for (zone_id, &idx) in order.iter().enumerate() {
         let p = &planned[idx];
         let contours = pieces_contours(&p.section);
-        let poses = zone_poses(machine, &rotary, &focus_points(p), &p.axis, &previous)
-            .map_err(|reason| unreachable(zone_id, p, &contours, machine, reason))?;
+        // An unreachable zone is planned all the same, with the nearest poses outside the
+        // limits, so that the plan and its SVG show it; validation fails and `run` refuses it.
+        let (poses, unreachable) =
+            match zone_poses(machine, &rotary, &focus_points(p), &p.axis, &previous) {
+                Ok(poses) => (poses, None),
+                Err(reason) => (
+                    unlimited_poses(machine, &rotary, &focus_points(p), &p.axis, &previous),
+                    Some(unreachable_reason(p, machine, &reason)),
+                ),
+            };
         let frame = head_frame_on(&rotary, poses[0].tilt_deg, poses[0].rotary_deg);
         let mut zone_s = 0.0;
         let mut layers = Vec::with_capacity(poses.len());
@@ -391,6 +401,7 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
             max_incidence_deg: max_incidence_rad.to_degrees(),
             max_pairwise_deg: max_pairwise_rad.to_degrees(),
             layers,
+            unreachable,
         };
         let with_lens = zone_traces
             .iter()
@@ -483,20 +494,41 @@ fn pieces_contours(section: &Section) -> Vec<ContourId> {
     ids
 }
 
-fn unreachable(
-    zone: usize,
-    p: &Planned,
-    contours: &[ContourId],
+/// Why a zone has no pose within the limits, for the zone's `unreachable` and the violation.
+fn unreachable_reason(p: &Planned, machine: &MachineSettings, reason: &str) -> String {
+    format!(
+        "no {} pose within the axis limits puts the beam along ({:.4}, {:.4}, {:.4}): {reason}",
+        machine.kinematics.name(),
+        p.axis.x,
+        p.axis.y,
+        p.axis.z
+    )
+}
+
+/// The poses of an unreachable zone's layers, limits ignored: per layer the candidate with the
+/// least rotary travel. A direction the kinematics cannot point at all keeps `previous`.
+fn unlimited_poses(
     machine: &MachineSettings,
-    reason: String,
-) -> PlanError {
-    PlanError::Unreachable {
-        zone,
-        contours: contours.to_vec(),
-        kinematics: machine.kinematics.name().to_owned(),
-        axis: [p.axis.x, p.axis.y, p.axis.z],
-        reason,
-    }
+    table: &TableModel,
+    focus_points: &[Point3],
+    axis: &UnitVector3,
+    previous: &AxisPose,
+) -> Vec<AxisPose> {
+    let mut prev = *previous;
+    focus_points
+        .iter()
+        .map(|f| {
+            let pose = inverse_on(machine, table, f, axis, prev.rotary_deg)
+                .into_iter()
+                .min_by(|a, b| {
+                    crate::kinematics::rotary_travel_deg(a, &prev)
+                        .total_cmp(&crate::kinematics::rotary_travel_deg(b, &prev))
+                })
+                .unwrap_or(prev);
+            prev = pose;
+            pose
+        })
+        .collect()
 }
 
 /// The poses of a zone's layers: one tilt branch for all (so the zone has one frame), the
@@ -612,12 +644,22 @@ fn validate(
             zone.frame.y_axis(),
             zone.frame.z_axis(),
         );
+        if let Some(why) = &zone.unreachable {
+            r.unreachable_zones.push(zone.id);
+            violation(format!(
+                "zone {} (contours {:?}): unreachable: {why}",
+                zone.id, zone.contours
+            ));
+        }
         for (layer, layer_traces) in zone.layers.iter().zip(zone_traces) {
             let at = format!("zone {} layer {}", zone.id, layer.index);
             match AxisPose::from_job_pose(&layer.pose, settings.machine.kinematics) {
                 None => violation(format!("{at}: pose lacks an axis: {:?}", layer.pose)),
                 Some(pose) => {
-                    if let Some(why) = limit_violation(&settings.machine, &pose) {
+                    // An unreachable zone's poses are outside the limits by construction.
+                    if let Some(why) = limit_violation(&settings.machine, &pose)
+                        .filter(|_| zone.unreachable.is_none())
+                    {
                         violation(format!("{at}: pose outside the axis limits: {why}"));
                     }
                     let (tip, dir) = forward_on(&settings.machine, &rotary, &pose);
@@ -819,9 +861,26 @@ mod tests {
         )
         .unwrap();
         let path = Path::new(vec![c]).unwrap();
-        let e = plan(&path, &PlanSettings::default()).unwrap_err();
-        assert!(matches!(e, PlanError::Unreachable { .. }), "{e}");
-        assert!(e.to_string().contains("42"), "{e}");
+        let job = plan(&path, &PlanSettings::default()).unwrap();
+        assert_eq!(job.zones.len(), 1);
+        let why = job.zones[0]
+            .unreachable
+            .as_deref()
+            .expect("marked unreachable");
+        assert!(why.contains("axis limits"), "{why}");
+        let v = &job.validation;
+        assert!(!v.passed);
+        assert_eq!(v.unreachable_zones, vec![0]);
+        assert!(
+            v.violations
+                .iter()
+                .any(|l| l.contains("zone 0") && l.contains("42") && l.contains("unreachable")),
+            "{:?}",
+            v.violations
+        );
+        // The marked zone survives the Job's JSON round trip.
+        let back = Job::from_json(&job.to_json().unwrap()).unwrap();
+        assert_eq!(back.zones[0].unreachable, job.zones[0].unreachable);
     }
 
     #[test]

@@ -78,7 +78,24 @@ fn polyline(out: &mut String, points: &[(f64, f64)], colour: &str, width: f64) {
     );
 }
 
-/// The job as an SVG document.
+/// The colour of zones no pose within the axis limits reaches.
+const UNREACHABLE_COLOUR: &str = "#d00000";
+
+fn unreachable(job: &Job, zone: usize) -> bool {
+    job.zones
+        .iter()
+        .any(|z| z.id == zone && z.unreachable.is_some())
+}
+
+fn xml_escape(text: &str) -> String {
+    text.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+/// The job's SVG: its polylines in top and side views, then a panel per zone with its layers
+/// shaded top (dark) to bottom (light). Unreachable zones are drawn red and their panels say so.
 #[must_use]
 pub fn job_svg(job: &Job) -> String {
     // Every galvo point back on its focal plane, in the work-piece frame.
@@ -127,7 +144,11 @@ pub fn job_svg(job: &Job) -> String {
         );
         for (zone, pts) in &lines {
             let px: Vec<(f64, f64)> = pts.iter().map(|p| map([p[*a], p[*b]])).collect();
-            polyline(&mut out, &px, &zone_colour(*zone), 1.2);
+            if unreachable(job, *zone) {
+                polyline(&mut out, &px, UNREACHABLE_COLOUR, 2.4);
+            } else {
+                polyline(&mut out, &px, &zone_colour(*zone), 1.2);
+            }
         }
     }
     for (i, z) in job.zones.iter().enumerate() {
@@ -152,6 +173,19 @@ pub fn job_svg(job: &Job) -> String {
             z.layers.len(),
             z.max_incidence_deg
         );
+        if let Some(why) = &z.unreachable {
+            let _ = writeln!(
+                out,
+                r#"<rect x="{}" y="{}" width="{}" height="{}" fill="{UNREACHABLE_COLOUR}" fill-opacity="0.12" stroke="{UNREACHABLE_COLOUR}" stroke-width="3"><title>{}</title></rect><text x="{}" y="{}" fill="{UNREACHABLE_COLOUR}" font-weight="bold">UNREACHABLE</text>"#,
+                x0 + 1.5,
+                y0 + 1.5,
+                PANEL_PX - 3.0,
+                PANEL_PX - 3.0,
+                xml_escape(why),
+                x0 + 4.0,
+                y0 + 26.0,
+            );
+        }
         let n = z.layers.len().max(1) as f64;
         for l in &z.layers {
             let lightness = 25.0 + 50.0 * l.index as f64 / n;
@@ -190,5 +224,24 @@ mod tests {
         assert_eq!(svg.matches(" layers · ").count(), job.zones.len());
         assert!(svg.starts_with("<svg") && svg.ends_with("</svg>\n"));
         assert!(!svg.contains("NaN"));
+        assert!(!svg.contains("UNREACHABLE"));
+    }
+
+    #[test]
+    fn marks_unreachable_zones_red_with_their_reason() {
+        let mut job = plan(&synthetic_core_path(10, 3), &PlanSettings::default()).unwrap();
+        job.zones[0].unreachable = Some("A = 120° outside [-100, 50] <&>".to_owned());
+        let svg = job_svg(&job);
+        assert_eq!(svg.matches(">UNREACHABLE<").count(), 1);
+        assert!(svg.contains("<title>A = 120° outside [-100, 50] &lt;&amp;&gt;</title>"));
+        let polylines: usize = job.zones[0].layers.iter().map(|l| l.polylines.len()).sum();
+        // Its polylines in both part views are drawn in the warning colour.
+        assert_eq!(
+            svg.matches(&format!(
+                "stroke=\"{UNREACHABLE_COLOUR}\" stroke-width=\"2.4\""
+            ))
+            .count(),
+            2 * polylines
+        );
     }
 }

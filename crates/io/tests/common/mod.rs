@@ -82,6 +82,7 @@ pub fn demo_job(layers: usize) -> Job {
             max_incidence_deg: 2.0,
             max_pairwise_deg: 3.0,
             layers: zl,
+            unreachable: None,
         });
     }
     Job {
