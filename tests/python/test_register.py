@@ -40,14 +40,14 @@ def test_icp_recovers_a_known_similarity(rng):
     truth = similarity(1.01, [0.01, -0.02, 0.015], [0.2, -0.1, 0.15])
     source = apply(np.linalg.inv(truth), target)
     for method in ("point_to_plane", "point_to_point"):
-        r = trimctl.icp(source, target, method=method, scale=True, max_distance=2.0,
+        r = trimctl.icp(source, target, method=method, scale=True, max_distance_mm=2.0,
                         max_iterations=100)
         assert r.converged, method
         assert abs(r.scale - 1.01) < 1e-4, (method, r.scale)
-        np.testing.assert_allclose(r.transform, truth, atol=2e-3)
-        assert r.rmse < 0.01
+        np.testing.assert_allclose(r.target_from_source, truth, atol=2e-3)
+        assert r.rmse_mm < 0.01
         assert r.fitness > 0.95
-        assert r.transform.shape == (4, 4) and r.transform.dtype == np.float64
+        assert r.target_from_source.shape == (4, 4) and r.target_from_source.dtype == np.float64
         assert len(r.eigenvalues) == 7
 
 
@@ -67,14 +67,14 @@ def test_icp_errors():
     with pytest.raises(ValueError, match="method"):
         trimctl.icp(pts, pts, method="plane")
     with pytest.raises(ValueError, match="max_correspondence_distance_mm"):
-        trimctl.icp(pts, pts, max_distance=-1.0)
+        trimctl.icp(pts, pts, max_distance_mm=-1.0)
     with pytest.raises(ValueError, match="init"):
         trimctl.icp(pts, pts, init=np.diag([1.0, 1.0, -1.0, 1.0]))
     with pytest.raises(ValueError, match="b"):
         trimctl.umeyama(pts, pts[:5])
     far = np.random.default_rng(1).uniform(0, 1, size=(100, 3))
     with pytest.raises(trimctl.RegistrationError, match="correspondences"):
-        trimctl.icp(far, far + 1000.0, method="point_to_point", max_distance=0.5)
+        trimctl.icp(far, far + 1000.0, method="point_to_point", max_distance_mm=0.5)
 
 
 def test_icp_releases_the_gil(rng):
@@ -91,7 +91,7 @@ def test_icp_releases_the_gil(rng):
     t = threading.Thread(target=ticker)
     t.start()
     start = time.perf_counter()
-    trimctl.icp(source, target, max_distance=1.0)
+    trimctl.icp(source, target, max_distance_mm=1.0)
     end = time.perf_counter()
     stop.set()
     t.join()

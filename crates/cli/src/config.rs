@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use toml::Value;
 use trim_io::twin::TruthSettings;
 use trim_plan::cell::{Calibration, ScanPose};
-use trim_plan::field::FieldSettings;
+use trim_plan::field::LensSettings;
 use trim_plan::kinematics::MachineSettings;
 use trim_plan::layer::LayerSettings;
 use trim_plan::planner::PlanSettings;
@@ -34,7 +34,7 @@ pub struct JobConfig {
     /// Layering (paper Eq. 14).
     pub layers: LayerSettings,
     /// Lens and scan-field sectioning.
-    pub field: FieldSettings,
+    pub field: LensSettings,
     /// Machine kinematics, limits and speeds.
     pub machine: MachineSettings,
     /// Galvo field, calibration, speeds and delays.

@@ -8,7 +8,7 @@ use trim_io::executor::{ExecError, RunSummary};
 use trim_io::journal::CutLayer;
 use trim_plan::Job;
 use trim_plan::planner::PlanOutput;
-use trim_register::regional::QualityReport;
+use trim_register::regional::{ContourQuality, QualityReport};
 
 use crate::config::JobConfig;
 
@@ -32,7 +32,9 @@ pub fn registration(report: &QualityReport) -> String {
         report.contours.len()
     );
     let mut worst: Vec<_> = report.contours.iter().collect();
-    worst.sort_by(|a, b| b.residual_rms_mm.total_cmp(&a.residual_rms_mm));
+    // No scan point at all is the worst.
+    let key = |c: &&ContourQuality| c.residual_rms_mm.unwrap_or(f64::INFINITY);
+    worst.sort_by(|a, b| key(b).total_cmp(&key(a)));
     let _ = writeln!(
         s,
         "  worst contours:  id  residual µm  coverage %  degeneracy  flags"
@@ -41,9 +43,10 @@ pub fn registration(report: &QualityReport) -> String {
         let flags: Vec<String> = c.flags.iter().map(|f| format!("{f:?}")).collect();
         let _ = writeln!(
             s,
-            "  {:>17}  {:>11.1}  {:>10.0}  {:>10.3}  {}",
+            "  {:>17}  {:>11}  {:>10.0}  {:>10.3}  {}",
             c.id,
-            c.residual_rms_mm * 1e3,
+            c.residual_rms_mm
+                .map_or("-".to_owned(), |r| format!("{:.1}", r * 1e3)),
             c.coverage * 100.0,
             c.degeneracy_ratio,
             if flags.is_empty() {

@@ -16,7 +16,7 @@ use trim_io::cell::SimCell;
 use trim_io::executor::Executor;
 use trim_io::tap::Tap;
 use trim_io::twin::{SpotStats, TrueCell, TruePart, TruthSettings, Twin};
-use trim_plan::field::FieldSettings;
+use trim_plan::field::LensSettings;
 use trim_plan::kinematics::{KinematicsKind, MachineSettings};
 use trim_plan::planner::{PlanSettings, plan};
 
@@ -87,9 +87,9 @@ async fn a_planner_that_knows_the_true_axes_lands_on_the_line_for_both_kinematic
                 kinematics: kind,
                 ..MachineSettings::default()
             },
-            field: FieldSettings {
+            field: LensSettings {
                 telecentric: true,
-                ..FieldSettings::default()
+                ..LensSettings::default()
             },
             ..PlanSettings::default()
         };

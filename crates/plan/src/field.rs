@@ -30,7 +30,7 @@ pub const MIN_SPLIT_LENGTH_MM: f64 = 0.05;
 /// Lens options (job.toml `[field]`). The field size itself is `GalvoSettings::field_mm`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct FieldSettings {
+pub struct LensSettings {
     /// A telecentric lens: the beam is parallel to the optical axis everywhere in the field.
     pub telecentric: bool,
     /// For a non-telecentric lens: the part of the incidence limit reserved for the lens ray
@@ -39,16 +39,16 @@ pub struct FieldSettings {
     pub lens_ray_budget_deg: f64,
 }
 
-impl Default for FieldSettings {
+impl Default for LensSettings {
     fn default() -> Self {
-        FieldSettings {
+        LensSettings {
             telecentric: false,
             lens_ray_budget_deg: 2.0,
         }
     }
 }
 
-impl FieldSettings {
+impl LensSettings {
     /// Refuses out-of-range values, naming the key. `limit_deg` is the incidence limit.
     pub fn validate(&self, limit_deg: f64) -> Result<(), PlanError> {
         if !self.telecentric {

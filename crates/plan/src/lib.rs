@@ -36,7 +36,7 @@ pub mod zoning;
 
 pub use beam::{Beam, BeamReport};
 pub use error::PlanError;
-pub use field::FieldSettings;
+pub use field::LensSettings;
 pub use job::{Frame, GalvoSettings, Job, JobSettings, Layer, LayerKey, Polyline, Pose, Zone};
 pub use kinematics::{AxisPose, KinematicsKind, MachineSettings, PoseMode};
 pub use layer::LayerSettings;

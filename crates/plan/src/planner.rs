@@ -31,7 +31,7 @@ use trim_geom::{ContourId, Path, Point3, UnitVector3, Vector3};
 use crate::beam::Beam;
 use crate::cell::{Calibration, TableModel};
 use crate::error::{PlanError, require_open_closed};
-use crate::field::{FieldSettings, Lens, Section, sections};
+use crate::field::{Lens, LensSettings, Section, sections};
 use crate::job::{
     FieldCorrectionRecord, GalvoSettings, JOB_VERSION, Job, JobSettings, Layer, LensRecord,
     Polyline, TimeEstimate, ValidationReport, Zone, galvo_to_workpiece,
@@ -75,7 +75,7 @@ pub struct PlanSettings {
     /// Layering.
     pub layers: LayerSettings,
     /// Lens and field sectioning.
-    pub field: FieldSettings,
+    pub field: LensSettings,
     /// Machine kinematics, limits and speeds.
     pub machine: MachineSettings,
     /// Galvo field, speeds and delays.
@@ -91,7 +91,7 @@ impl Default for PlanSettings {
             beam: Beam::default(),
             zoning: ZoningSettings::default(),
             layers: LayerSettings::default(),
-            field: FieldSettings::default(),
+            field: LensSettings::default(),
             machine: MachineSettings::default(),
             galvo: GalvoSettings::default(),
             calibration: Calibration::default(),
@@ -838,9 +838,9 @@ mod tests {
     fn telecentric_zoning_uses_the_full_limit_and_is_deterministic() {
         let path = synthetic_core_path(60, 2);
         let settings = PlanSettings {
-            field: FieldSettings {
+            field: LensSettings {
                 telecentric: true,
-                ..FieldSettings::default()
+                ..LensSettings::default()
             },
             ..PlanSettings::default()
         };

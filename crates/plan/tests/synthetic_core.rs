@@ -3,7 +3,7 @@
 
 use trim_geom::formats::{encode_path, read_path_from_bytes};
 use trim_geom::{Contour, Path, Point3, Vector3};
-use trim_plan::field::FieldSettings;
+use trim_plan::field::LensSettings;
 use trim_plan::kinematics::{KinematicsKind, MachineSettings, PoseMode};
 use trim_plan::planner::{PlanSettings, ROUND_TRIP_TOLERANCE_MM, plan_with_report};
 use trim_plan::testing::synthetic_core_path;
@@ -22,9 +22,9 @@ fn zoning_keeps_five_degrees_with_automatic_k_and_round_trip_holds() {
     let path = core_via_csv();
     for telecentric in [false, true] {
         let settings = PlanSettings {
-            field: FieldSettings {
+            field: LensSettings {
                 telecentric,
-                ..FieldSettings::default()
+                ..LensSettings::default()
             },
             ..PlanSettings::default()
         };

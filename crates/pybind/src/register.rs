@@ -39,11 +39,11 @@ pub fn similarity_from_numpy(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<Sim
 #[pyclass(module = "trimctl", frozen, get_all)]
 pub struct IcpResult {
     /// The 4×4 `target_from_source` transform (scale included).
-    pub transform: Py<PyArray2<f64>>,
+    pub target_from_source: Py<PyArray2<f64>>,
     /// The scale (1.0 for a rigid fit).
     pub scale: f64,
     /// RMS residual over the final correspondences, mm.
-    pub rmse: f64,
+    pub rmse_mm: f64,
     /// Fraction of source points with a correspondence.
     pub fitness: f64,
     /// Number of final correspondences.
@@ -61,8 +61,8 @@ pub struct IcpResult {
 impl IcpResult {
     fn __repr__(&self) -> String {
         format!(
-            "IcpResult(scale={:.9}, rmse={:.6}, fitness={:.4}, iterations={}, converged={})",
-            self.scale, self.rmse, self.fitness, self.iterations, self.converged
+            "IcpResult(scale={:.9}, rmse_mm={:.6}, fitness={:.4}, iterations={}, converged={})",
+            self.scale, self.rmse_mm, self.fitness, self.iterations, self.converged
         )
     }
 }
@@ -90,11 +90,12 @@ fn parse_kernel(kernel: Option<(&str, f64)>) -> PyResult<RobustKernel> {
     }
 }
 
-/// ICP of `source` onto `target` ((N, 3) float64, mm). Point-to-plane uses `target_normals`,
-/// or estimates them from 16 neighbours when not given. Returns an [`IcpResult`].
+/// ICP of `source` onto `target` ((N, 3) float64, mm). Pairs farther apart than
+/// `max_distance_mm` are not correspondences. Point-to-plane uses `target_normals`, or estimates
+/// them from 16 neighbours when not given. Returns an [`IcpResult`].
 #[pyfunction]
 #[pyo3(signature = (
-    source, target, *, method = "point_to_plane", scale = false, max_distance = 1.0,
+    source, target, *, method = "point_to_plane", scale = false, max_distance_mm = 1.0,
     max_iterations = 50, init = None, target_normals = None, kernel = None, trim = 0.0
 ))]
 #[expect(
@@ -107,7 +108,7 @@ pub fn icp(
     target: &Bound<'_, PyAny>,
     method: &str,
     scale: bool,
-    max_distance: f64,
+    max_distance_mm: f64,
     max_iterations: usize,
     init: Option<&Bound<'_, PyAny>>,
     target_normals: Option<&Bound<'_, PyAny>>,
@@ -128,7 +129,7 @@ pub fn icp(
     let settings = IcpSettings {
         method,
         with_scale: scale,
-        max_correspondence_distance_mm: max_distance,
+        max_correspondence_distance_mm: max_distance_mm,
         max_iterations,
         kernel,
         trim_fraction: trim,
@@ -153,9 +154,9 @@ pub fn icp(
     })?
     .map_err(register_error)?;
     Ok(IcpResult {
-        transform: matrix_to_numpy(py, &to_matrix(&result.target_from_source)).unbind(),
+        target_from_source: matrix_to_numpy(py, &to_matrix(&result.target_from_source)).unbind(),
         scale: result.scale,
-        rmse: result.rmse_mm,
+        rmse_mm: result.rmse_mm,
         fitness: result.fitness,
         correspondences: result.correspondences,
         iterations: result.iterations,

@@ -44,6 +44,19 @@ pub enum RegisterError {
         /// The eigenvalues, ascending.
         eigenvalues: Vec<f64>,
     },
+    /// A scaled fit's scale changed beyond what a part can: the scan does not fix it (too flat,
+    /// too little of the part, or the wrong part).
+    #[error(
+        "{stage}: the scale ran away to {to:.4} (from {from:.4}); the scan does not fix it: check that it covers more than one face of the part"
+    )]
+    RunawayScale {
+        /// Which step.
+        stage: String,
+        /// The scale before the step.
+        from: f64,
+        /// The scale the step reached.
+        to: f64,
+    },
     /// Two sequences that must pair up do not.
     #[error("{what}: {expected} entries expected, got {got}")]
     LengthMismatch {

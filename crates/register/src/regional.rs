@@ -121,7 +121,7 @@ impl Default for CoarseSettings {
 /// The deformation-field stage.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct FieldSettings {
+pub struct DeformationSettings {
     /// Control-point spacing, mm.
     pub spacing_mm: f64,
     /// Scan thinning voxel for the fit (one real point kept per voxel), mm.
@@ -138,9 +138,9 @@ pub struct FieldSettings {
     pub smoothness: f64,
 }
 
-impl Default for FieldSettings {
+impl Default for DeformationSettings {
     fn default() -> Self {
-        FieldSettings {
+        DeformationSettings {
             spacing_mm: 20.0,
             voxel_mm: 0.4,
             iterations: 10,
@@ -209,7 +209,7 @@ pub struct RegisterSettings {
     /// The coarse stage.
     pub coarse: CoarseSettings,
     /// The field stage.
-    pub field: FieldSettings,
+    pub field: DeformationSettings,
     /// The quality tests.
     pub quality: QualitySettings,
 }
@@ -223,7 +223,7 @@ impl Default for RegisterSettings {
             facing_min_cos: -0.2,
             cad_sample_points: 300_000,
             coarse: CoarseSettings::default(),
-            field: FieldSettings::default(),
+            field: DeformationSettings::default(),
             quality: QualitySettings::default(),
         }
     }
@@ -363,8 +363,9 @@ pub struct ContourQuality {
     pub scan_points: usize,
     /// Fraction of contour points with a matched scan point within `coverage_radius_mm`.
     pub coverage: f64,
-    /// RMS point-to-plane residual of the patch, mm.
-    pub residual_rms_mm: f64,
+    /// RMS point-to-plane residual of the patch, mm; `None` (JSON `null`) when the patch holds
+    /// no scan point (then `flags` holds `NoScanPoints`).
+    pub residual_rms_mm: Option<f64>,
     /// `λmin/λmax` of the patch's translational normal matrix `Σ n nᵀ` (1: all directions
     /// fixed, 0: sliding freely).
     pub degeneracy_ratio: f64,
@@ -715,13 +716,10 @@ pub fn coarse_fit(
             .ln()
             .abs();
         if scale_change > MAX_COARSE_LOG_SCALE_CHANGE {
-            return Err(RegisterError::Singular {
-                stage: format!(
-                    "coarse level {k}: the scale ran away to {:.4} (from {:.4}); the scan does not fix it",
-                    r.target_from_source.scaling(),
-                    current.scaling()
-                ),
-                eigenvalues: r.eigenvalues.clone(),
+            return Err(RegisterError::RunawayScale {
+                stage: format!("coarse level {k}"),
+                from: current.scaling(),
+                to: r.target_from_source.scaling(),
             });
         }
         current = r.target_from_source;
@@ -931,7 +929,7 @@ fn fit_field(
     points: &[Point3],
     target: &IcpTarget,
     curvature: &[Matrix3<f64>],
-    settings: &FieldSettings,
+    settings: &DeformationSettings,
 ) -> Result<(BSplineField, Vec<Match>)> {
     let bounds = target
         .cloud()
@@ -1159,12 +1157,10 @@ fn contour_quality(
                 crop_near_polyline(&pts, &tree, &moved, q.patch_radius_mm).unwrap_or_default();
             let support =
                 crop_near_polyline(&pts, &tree, &moved, q.support_radius_mm).unwrap_or_default();
-            let residual_rms_mm = if patch.is_empty() {
-                f64::NAN
-            } else {
+            let residual_rms_mm = (!patch.is_empty()).then(|| {
                 (patch.iter().map(|&i| matches[i].r.powi(2)).sum::<f64>() / patch.len() as f64)
                     .sqrt()
-            };
+            });
             let (degeneracy_ratio, weakest, _) =
                 translational_degeneracy(patch.iter().map(|&i| matches[i].n));
             let (_, _, ms) = translational_degeneracy(support.iter().map(|&i| matches[i].n));
@@ -1182,7 +1178,7 @@ fn contour_quality(
             if coverage < q.min_coverage {
                 flags.push(Flag::LowCoverage);
             }
-            if residual_rms_mm > q.max_residual_mm {
+            if residual_rms_mm.is_some_and(|r| r > q.max_residual_mm) {
                 flags.push(Flag::HighResidual);
             }
             if degeneracy_ratio < q.min_degeneracy_ratio {
@@ -1203,11 +1199,7 @@ fn contour_quality(
                 points: c.points().len(),
                 scan_points: patch.len(),
                 coverage,
-                residual_rms_mm: if residual_rms_mm.is_finite() {
-                    residual_rms_mm
-                } else {
-                    -1.0
-                },
+                residual_rms_mm,
                 degeneracy_ratio,
                 weakest_direction: [w.x, w.y, w.z],
                 support_ratio,

@@ -26,9 +26,9 @@ def voxel_downsample(
 ) -> Tuple[Array, Optional[Array]]: ...
 
 class IcpResult:
-    transform: Array
+    target_from_source: Array
     scale: float
-    rmse: float
+    rmse_mm: float
     fitness: float
     correspondences: int
     iterations: int
@@ -41,7 +41,7 @@ def icp(
     *,
     method: str = "point_to_plane",
     scale: bool = False,
-    max_distance: float = 1.0,
+    max_distance_mm: float = 1.0,
     max_iterations: int = 50,
     init: Optional[Array] = None,
     target_normals: Optional[Array] = None,
