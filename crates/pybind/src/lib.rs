@@ -33,5 +33,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(workflow::register_path, m)?)?;
     m.add_function(wrap_pyfunction!(workflow::beam_report, m)?)?;
     m.add_function(wrap_pyfunction!(workflow::plan_path, m)?)?;
+    m.add_function(wrap_pyfunction!(workflow::hatch_surface, m)?)?;
     Ok(())
 }

@@ -7,6 +7,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use trim_geom::PointCloud;
 use trim_geom::synth::{SynthParams, generate};
+use trim_plan::hatch::{HatchError, HatchSettings, hatch};
 use trim_plan::planner::{PlanSettings, plan_with_report};
 use trim_plan::{Beam, PlanError};
 use trim_register::regional::{RegisterSettings, register};
@@ -149,4 +150,46 @@ pub fn plan_path(
     })
     .to_string();
     Ok((job, table, meta))
+}
+
+/// Plans equal-spacing hatch tracks on a scanned surface (`trim_plan::hatch`). `points` (N, 3)
+/// and optional `normals` (N, 3): the surface scan, mm; `boundary` (M, 3): a closed polyline on
+/// it (the last row repeats the first); `settings_json`: the `[[hatch]]` keys (`pitch_mm`,
+/// `angle_deg`, `method`, `step_mm`, `chord_tolerance_mm`, `outline`, `grid_mm`). Returns the
+/// tracks as a Path: contour = track id in serpentine order, features = unit surface normals.
+#[pyfunction]
+#[pyo3(signature = (points, boundary, settings_json, normals = None))]
+pub fn hatch_surface(
+    py: Python<'_>,
+    points: &Bound<'_, PyAny>,
+    boundary: &Bound<'_, PyAny>,
+    settings_json: &str,
+    normals: Option<&Bound<'_, PyAny>>,
+) -> PyResult<PyPath> {
+    let settings: HatchSettings = settings_from_json("hatch settings", settings_json)?;
+    settings.validate().map_err(hatch_error)?;
+    let points = arrays::points("points", points)?;
+    let boundary = arrays::points("boundary", boundary)?;
+    let cloud = match normals {
+        Some(n) => PointCloud::with_normals(points, arrays::vectors("normals", n)?),
+        None => PointCloud::new(points),
+    }
+    .map_err(geom_error)?;
+    let planned =
+        run_detached(py, move || hatch(&cloud, &boundary, &settings))?.map_err(hatch_error)?;
+    let inner = planned.to_path().map_err(hatch_error)?;
+    Ok(PyPath { inner })
+}
+
+/// Maps a hatching error: bad settings and inputs to `ValueError`, the rest to `PlanningError`.
+fn hatch_error(e: HatchError) -> PyErr {
+    match e {
+        HatchError::InvalidSetting { .. }
+        | HatchError::NonFinite { .. }
+        | HatchError::EmptyScan
+        | HatchError::BoundaryTooShort { .. }
+        | HatchError::BoundaryNotClosed { .. }
+        | HatchError::BoundaryOffSurface { .. } => value_error("hatch", e),
+        other => PlanningError::new_err(other.to_string()),
+    }
 }

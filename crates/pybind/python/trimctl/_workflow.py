@@ -23,6 +23,7 @@ __all__ = [
     "Plan",
     "Registration",
     "Zone",
+    "hatch",
     "plan",
     "register_path",
     "synth",
@@ -287,3 +288,59 @@ def synth(seed: int = 1, **params: Any) -> DemoCase:
         scan_from_cad_nominal=d["scan_from_cad_nominal"],
         scan_from_cad_true=d["scan_from_cad_true"],
     )
+
+
+def hatch(
+    points: np.ndarray,
+    boundary: np.ndarray,
+    *,
+    pitch: Optional[float] = None,
+    spot_diameter: Optional[float] = None,
+    overlap: Optional[float] = None,
+    normals: Optional[np.ndarray] = None,
+    angle_deg: Optional[float] = None,
+    method: Optional[str] = None,
+    step: Optional[float] = None,
+    chord_tolerance: Optional[float] = None,
+    outline: Optional[bool] = None,
+    settings: Optional[Mapping[str, Any]] = None,
+) -> Path:
+    """Equal-spacing hatch tracks on a scanned surface (``trimctl hatch``; the cladding paper's
+    method done better).
+
+    ``points`` (N, 3) is the surface scan in mm, ``normals`` (N, 3) its normals if known (else
+    they come from the surface fit); ``boundary`` (M, 3) a closed polyline lying on the surface
+    (the last row repeats the first). The track pitch is ``pitch`` mm, or
+    ``spot_diameter × (1 − overlap)``. ``angle_deg`` turns the hatch direction in the patch's
+    best-fit plane from world X; ``method`` is ``"geodesic"`` (default) or ``"slab"`` (the
+    paper's); points along a track are ``step`` mm apart (default: the pitch), or placed by
+    ``chord_tolerance`` mm for vector marking; ``outline=False`` leaves out the track along the
+    boundary. ``settings`` takes the same keys as job.toml's ``[[hatch]]`` (``pitch_mm``,
+    ``angle_deg``, ``method``, ``step_mm``, ``chord_tolerance_mm``, ``outline``, ``grid_mm``); a
+    keyword that is given overrides its key.
+
+    Returns a :class:`Path`: one contour per track, in serpentine order (the outline last), each
+    point's feature vector the unit surface normal. Raises ``ValueError`` for bad input (naming
+    it) and ``PlanningError`` when the region cannot be hatched.
+    """
+    if pitch is not None and (spot_diameter is not None or overlap is not None):
+        raise ValueError("pitch: give either pitch or spot_diameter and overlap, not both")
+    if (spot_diameter is None) != (overlap is None):
+        raise ValueError("spot_diameter, overlap: give both (pitch = spot_diameter × (1 − overlap))")
+    if spot_diameter is not None:
+        if not (0.0 <= float(overlap) < 1.0):
+            raise ValueError(f"overlap: must be in [0, 1), got {overlap}")
+        pitch = float(spot_diameter) * (1.0 - float(overlap))
+    s = _kw(
+        settings,
+        pitch_mm=pitch,
+        angle_deg=angle_deg,
+        method=method,
+        step_mm=step,
+        chord_tolerance_mm=chord_tolerance,
+        outline=outline,
+    )
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    b = np.ascontiguousarray(boundary, dtype=np.float64)
+    n = None if normals is None else np.ascontiguousarray(normals, dtype=np.float64)
+    return _native.hatch_surface(pts, b, json.dumps(s), n)
