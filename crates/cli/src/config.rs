@@ -701,6 +701,11 @@ pub const KEY_DOCS: &[(&str, &str, Option<&str>)] = &[
         None,
     ),
     (
+        "zoning.method",
+        "\"kmeans\": the paper's k-means zoning under (limit − lens budget), then field sections; \"cover\": pose selection as covering (axis + field centre per pose, incidence checked with the real lens ray), fewer poses.",
+        None,
+    ),
+    (
         "zoning.k",
         "A fixed number of zones; unset: the smallest that keeps the incidence limit.",
         Some("10"),

@@ -4,6 +4,7 @@
 //! - [`cell`]: the calibrated cell: rotary axis lines, scanner pose, lens calibration.
 //! - [`piece`]: contours as pieces (contours split where their feature vectors spread).
 //! - [`zoning`]: k-means zoning with the incidence limit and automatic k.
+//! - [`cover`]: zoning as covering: few poses (axis + field centre) checked with the real ray.
 //! - [`hatch`]: surface hatching: equal-spacing tracks on a scanned freeform surface.
 //! - [`frame`]: local zone frames (paper Eq. 11–13, right-handed).
 //! - [`layer`]: layers by paper Eq. 14 and the galvo projection.
@@ -19,6 +20,7 @@
 
 pub mod beam;
 pub mod cell;
+pub mod cover;
 pub mod error;
 pub mod field;
 pub mod frame;
@@ -41,4 +43,4 @@ pub use job::{Frame, GalvoSettings, Job, JobSettings, Layer, LayerKey, Polyline,
 pub use kinematics::{AxisPose, KinematicsKind, MachineSettings, PoseMode};
 pub use layer::LayerSettings;
 pub use planner::{PlanOutput, PlanSettings, ZoneRow, plan, plan_with_report};
-pub use zoning::ZoningSettings;
+pub use zoning::{ZoningMethod, ZoningSettings};

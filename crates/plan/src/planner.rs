@@ -43,7 +43,7 @@ use crate::kinematics::{
 use crate::layer::{LayerSettings, ZoneLayers, layer_pieces, project};
 use crate::lens::{FieldCorrection, LensModel};
 use crate::piece::{Piece, angle_rad, pieces_of};
-use crate::zoning::{ZoneGroup, Zoning, ZoningSettings, make_group, zone_pieces};
+use crate::zoning::{ZoneGroup, Zoning, ZoningMethod, ZoningSettings, make_group, zone_pieces};
 
 /// The round-trip tolerance (mm): 1 µm.
 pub const ROUND_TRIP_TOLERANCE_MM: f64 = 1e-3;
@@ -226,6 +226,8 @@ pub struct PlanOutput {
     pub pieces: usize,
     /// One row per job zone, in job order.
     pub table: Vec<ZoneRow>,
+    /// With `zoning.method = "cover"`: the covering's figures (its lower bound on the poses).
+    pub cover: Option<crate::cover::CoverReport>,
 }
 
 /// Where every planned point came from, for validation: per job zone, per layer, per polyline.
@@ -261,6 +263,65 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
     let field_radius_mm = 0.5 * settings.galvo.field_mm[0].min(settings.galvo.field_mm[1]);
 
     // (1) pieces; (2) zoning.
+    let machine = &settings.machine;
+    let rotary = settings.table();
+    if settings.zoning.method == ZoningMethod::Cover {
+        // (2–4) covering: poses checked with the real ray; each pose is one section.
+        let reachable = |axis: &UnitVector3, centre: &Point3| {
+            let cands = inverse_on(machine, &rotary, centre, axis, 0.0);
+            choose_pose(machine, &cands, &AxisPose::HOME).is_ok()
+        };
+        let cover = crate::cover::cover(
+            path,
+            &crate::cover::CoverProblem {
+                limit_rad,
+                field_radius_mm: field_radius_mm
+                    - crate::cover::FIELD_MARGIN_MM
+                    - if settings.field.telecentric {
+                        0.0
+                    } else {
+                        0.5 * step_mm * field_radius_mm / lens_model.pivot_to_focal_plane_mm
+                    },
+                lens,
+                fixed_axis: machine.kinematics.fixed_direction(),
+                reachable: &reachable,
+            },
+        )?;
+        let planned = cover
+            .zones
+            .into_iter()
+            .enumerate()
+            .map(|(cluster, z)| {
+                let layers = layer_pieces(&z.pieces, &z.origin, &z.axis, step_mm);
+                Planned {
+                    cluster,
+                    axis: z.axis,
+                    section: Section {
+                        pieces: z.pieces,
+                        origin: z.origin,
+                    },
+                    layers,
+                }
+            })
+            .collect();
+        let zoning = Zoning {
+            groups: Vec::new(),
+            k: cover.report.poses,
+            automatic: true,
+            greedy_splits: 0,
+            merges: cover.report.merges,
+        };
+        let counts = (cover.report.poses, cover.report.atoms);
+        return finish_plan(
+            path,
+            settings,
+            (lens_model, lens_record),
+            planned,
+            &zoning,
+            counts,
+            Some(cover.report),
+        );
+    }
     let pieces = pieces_of(path, zoning_limit_rad, zoning_limit_rad)?;
     let merge_radius_mm = if settings.field.telecentric {
         field_radius_mm
@@ -296,6 +357,32 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
         }
     }
 
+    let clusters = zoning.groups.len();
+    let pieces = pieces.len();
+    finish_plan(
+        path,
+        settings,
+        (lens_model, lens_record),
+        planned,
+        &zoning,
+        (clusters, pieces),
+        None,
+    )
+}
+
+/// Steps (5)–(7) of [`plan_with_report`] on the planned sections.
+fn finish_plan(
+    path: &Path,
+    settings: &PlanSettings,
+    (lens_model, lens_record): (LensModel, LensRecord),
+    planned: Vec<Planned>,
+    zoning: &Zoning,
+    (clusters, pieces): (usize, usize),
+    cover: Option<crate::cover::CoverReport>,
+) -> Result<PlanOutput, PlanError> {
+    let focus_half_length_mm = settings.beam.focus_half_length_mm();
+    let step_mm = settings.layers.step_for(focus_half_length_mm)?;
+    let lens = settings.lens();
     // (5) order and poses.
     let machine = &settings.machine;
     let rotary = settings.table();
@@ -461,11 +548,12 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
         job,
         k: zoning.k,
         automatic_k: zoning.automatic,
-        clusters: zoning.groups.len(),
+        clusters,
         greedy_splits: zoning.greedy_splits,
         merges: zoning.merges,
-        pieces: pieces.len(),
+        pieces,
         table,
+        cover,
     })
 }
 

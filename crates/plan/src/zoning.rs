@@ -58,10 +58,64 @@ pub const DEFAULT_MAX_AUTO_K: usize = 16;
 /// k-means stops when the centroids move less than this (sample units).
 pub const KMEANS_TOLERANCE: f64 = 1e-9;
 
+/// How contours are grouped into zones (job.toml `zoning.method`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub enum ZoningMethod {
+    /// The paper's k-means zoning under (limit − lens budget), then field sections.
+    #[default]
+    Kmeans,
+    /// Pose selection as covering with the real lens ray ([`crate::cover`]).
+    Cover,
+}
+
+impl ZoningMethod {
+    /// The job.toml name.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            ZoningMethod::Kmeans => "kmeans",
+            ZoningMethod::Cover => "cover",
+        }
+    }
+}
+
+impl std::str::FromStr for ZoningMethod {
+    type Err = PlanError;
+
+    fn from_str(s: &str) -> Result<Self, PlanError> {
+        match s {
+            "kmeans" => Ok(ZoningMethod::Kmeans),
+            "cover" => Ok(ZoningMethod::Cover),
+            other => Err(PlanError::setting(
+                "zoning.method",
+                format!("{other:?}"),
+                "must be \"kmeans\" or \"cover\"",
+            )),
+        }
+    }
+}
+
+impl TryFrom<String> for ZoningMethod {
+    type Error = PlanError;
+
+    fn try_from(s: String) -> Result<Self, PlanError> {
+        s.parse()
+    }
+}
+
+impl From<ZoningMethod> for String {
+    fn from(m: ZoningMethod) -> String {
+        m.name().to_owned()
+    }
+}
+
 /// Zoning options (job.toml `[zoning]`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ZoningSettings {
+    /// `"kmeans"` (the paper's zoning) or `"cover"` (pose selection as covering).
+    pub method: ZoningMethod,
     /// A fixed number of zones; unset: the smallest that keeps the incidence limit.
     pub k: Option<usize>,
     /// The weight of the (extent-scaled) positions against the unit feature vectors.
@@ -82,6 +136,7 @@ pub struct ZoningSettings {
 impl Default for ZoningSettings {
     fn default() -> Self {
         ZoningSettings {
+            method: ZoningMethod::default(),
             k: None,
             position_weight: DEFAULT_POSITION_WEIGHT,
             restarts: 10,

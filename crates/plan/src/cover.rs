@@ -1,0 +1,852 @@
+//! Pose selection as covering (`zoning.method = "cover"`, issue 15 part 1).
+//!
+//! A *pose* is a head axis `a` (unit, work-piece frame) plus a field centre `c`. It *covers* a
+//! contour piece when every point `p` of the piece, with `d = (p − c)` projected across `a`:
+//! - lies inside the field: `|d| ≤ R`, with R the field's inscribed circle radius less a margin
+//!   for the lens height term (a circle, because the in-plane rotation of the field is fixed
+//!   later by the machine pose);
+//! - meets the incidence limit with the *real* ray at that field position: the angle between
+//!   the point's feature vector and [`Lens::ray`] at `d` is within the limit (no fixed lens
+//!   budget). This is the check validation makes, since the ray does not depend on the in-plane
+//!   rotation or on the layer;
+//! - fits the layer stack: the layers are cut along `a` afterwards, each point lies within ΔH/2
+//!   of a focal plane by construction; the margin on R keeps the height-shifted galvo command
+//!   inside the field.
+//!
+//! The procedure:
+//! 1. **Atoms.** Contours are cut into pieces of at most [`ATOM_MAX_LENGTH_MM`] (equal lengths
+//!    per contour, so short contours such as holes stay whole) whose feature vectors stay within
+//!    half the limit of their mean; an atom that no pose covers alone is halved again. The pieces
+//!    of a contour share their boundary points, as [`crate::piece`] does.
+//! 2. **Fit.** For a set of points the pose is found by alternating: the centre is the centre of
+//!    the points' bounding box across the axis; each point asks for the axis `a_p` whose ray
+//!    would meet it head on (`f·a_p ∝ λ·n + d`, solved exactly for λ), and the axis becomes the
+//!    minimax direction of those ([`crate::zoning::zone_axis`]). To first order only the spread
+//!    of `n + d/f` decides the incidence, so the centre is free for the field.
+//! 3. **Candidates.** From every atom (for large inputs, from every atom not yet inside a few
+//!    candidates) a pose is grown: the other atoms in order of how far they lie from it
+//!    (normalised by the limit and by R) join while a refitted pose still covers every member.
+//!    Each candidate then covers, exactly, every atom it covers.
+//! 4. **Greedy set cover** over the candidates, then **local improvement**: merge pairs of poses
+//!    whose needed atoms one refitted pose covers, drop poses whose atoms others cover, repeat.
+//! 5. **Assignment.** Each atom goes to one chosen pose that covers it, whole contours first,
+//!    then runs along the contour; consecutive atoms of a contour in one pose become one piece.
+//! 6. **Lower bound.** A greedy set of atoms pairwise incompatible: no candidate covers both and
+//!    the fit of the pair fails. Every pose covers at most one of them, so the pose count is at
+//!    least its size. The incompatibility is decided by the fitter, so the bound holds for poses
+//!    of that form (it is not a proof over every axis and centre).
+
+use std::f64::consts::PI;
+
+use trim_geom::{Path, Point3, UnitVector3, Vector3};
+
+use crate::error::PlanError;
+use crate::field::Lens;
+use crate::frame::paper_frame;
+use crate::piece::{Piece, angle_rad, pieces_of};
+use crate::zoning::zone_axis;
+
+/// The longest atom (mm). Longer contours are cut into equal atoms no longer than this.
+pub const ATOM_MAX_LENGTH_MM: f64 = 10.0;
+
+/// An atom's feature vectors stay within this fraction of the limit of their mean.
+pub const ATOM_SPREAD_FRACTION: f64 = 0.5;
+
+/// How often an atom no pose covers alone is halved again.
+pub const MAX_ATOM_SPLITS: usize = 8;
+
+/// Atoms shorter than this (mm) are not cut further.
+pub const MIN_ATOM_LENGTH_MM: f64 = 0.05;
+
+/// Incidence kept below the limit by this much (radians) for the points validation adds by
+/// interpolation at layer boundaries.
+pub const INCIDENCE_MARGIN_RAD: f64 = 1e-4;
+
+/// Field radius kept free (mm) besides the height term.
+pub const FIELD_MARGIN_MM: f64 = 0.05;
+
+/// Alternations of centre and axis in a fit.
+pub const FIT_ITERATIONS: usize = 4;
+
+/// Points per atom the fits use (evenly spaced, both ends included); the checks use all.
+pub const REPRESENTATIVES: usize = 9;
+
+/// Atoms farther than this (in units of the limit and of R) from a growing pose are not tried.
+pub const GROW_REACH: f64 = 2.2;
+
+/// Refits a growing pose may try before it stops.
+pub const MAX_REFITS: usize = 24;
+
+/// Above this many atoms, an atom already inside this many candidates is not grown from.
+pub const SEED_ALL_BELOW: usize = 400;
+
+/// See [`SEED_ALL_BELOW`].
+pub const SEED_SKIP_COVERED: usize = 3;
+
+/// Directions in which [`CoverProblem::prune`] keeps the extreme points.
+pub const PRUNE_DIRECTIONS: usize = 16;
+
+/// [`CoverProblem::prune`] keeps every point beyond this fraction of the largest distance.
+pub const PRUNE_KEEP: f64 = 0.85;
+
+/// A point's in-plane position and its wanted axis in tangent coordinates.
+type Coords = ([f64; 2], [f64; 2]);
+
+/// One pose: the head axis and the field centre (work-piece frame).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CoverPose {
+    /// The head axis (from the part toward the lens).
+    pub axis: UnitVector3,
+    /// The field centre (on the optical axis).
+    pub centre: Point3,
+    x: Vector3,
+    y: Vector3,
+}
+
+impl CoverPose {
+    /// A pose from its axis and centre.
+    #[must_use]
+    pub fn new(axis: UnitVector3, centre: Point3) -> CoverPose {
+        let f = paper_frame(&axis);
+        CoverPose {
+            axis,
+            centre,
+            x: f.x_axis(),
+            y: f.y_axis(),
+        }
+    }
+
+    fn in_plane(&self, p: &Point3) -> [f64; 2] {
+        let d = p - self.centre;
+        [d.dot(&self.x), d.dot(&self.y)]
+    }
+}
+
+/// What the covering must respect.
+pub struct CoverProblem<'a> {
+    /// The incidence limit (radians).
+    pub limit_rad: f64,
+    /// The usable field radius (mm).
+    pub field_radius_mm: f64,
+    /// The lens (for the real ray).
+    pub lens: Lens,
+    /// A machine whose beam direction is fixed: every pose uses it.
+    pub fixed_axis: Option<UnitVector3>,
+    /// Whether the machine reaches a pose (axis, centre) within its limits.
+    pub reachable: &'a (dyn Fn(&UnitVector3, &Point3) -> bool + Sync),
+}
+
+/// One zone of the covering: a pose and the pieces it processes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CoverZone {
+    /// The head axis.
+    pub axis: UnitVector3,
+    /// The field centre: the zone origin.
+    pub origin: Point3,
+    /// The pieces (parts of contours sharing boundary points).
+    pub pieces: Vec<Piece>,
+}
+
+/// Figures of a covering, for the report.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct CoverReport {
+    /// Atoms the contours were cut into.
+    pub atoms: usize,
+    /// Candidate poses generated.
+    pub candidates: usize,
+    /// Poses after the greedy set cover.
+    pub greedy_poses: usize,
+    /// Poses after the local improvement (the zones).
+    pub poses: usize,
+    /// Pairs merged by the local improvement.
+    pub merges: usize,
+    /// Poses dropped as redundant.
+    pub dropped: usize,
+    /// Atoms no candidate covers (planned alone; validation reports them).
+    pub uncovered_atoms: usize,
+    /// The lower bound on the pose count (see the module docs).
+    pub lower_bound: usize,
+}
+
+/// The covering: zones in the order of their first atom, and the report.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Cover {
+    /// The zones.
+    pub zones: Vec<CoverZone>,
+    /// The figures.
+    pub report: CoverReport,
+}
+
+struct Atom {
+    piece: Piece,
+    /// Index of its contour in the path; atoms of a contour are consecutive, in order.
+    contour: usize,
+    rep: Vec<(Point3, Vector3)>,
+    centroid: Point3,
+    mean: Vector3,
+    /// The largest distance of a point from the centroid (mm).
+    radius: f64,
+}
+
+impl Atom {
+    fn new(piece: Piece, contour: usize) -> Atom {
+        let n = piece.points.len();
+        let k = REPRESENTATIVES.min(n);
+        let mut idx: Vec<usize> = (0..k)
+            .map(|i| {
+                if k <= 1 {
+                    0
+                } else {
+                    (i * (n - 1) + (k - 1) / 2) / (k - 1)
+                }
+            })
+            .collect();
+        idx.dedup();
+        let rep = idx
+            .iter()
+            .map(|&i| (piece.points[i], piece.features[i]))
+            .collect();
+        let centroid = piece.centroid();
+        let radius = piece
+            .points
+            .iter()
+            .map(|p| (p - centroid).norm())
+            .fold(0.0, f64::max);
+        let mean = piece.feature().into_inner();
+        Atom {
+            piece,
+            contour,
+            rep,
+            centroid,
+            mean,
+            radius,
+        }
+    }
+}
+
+impl CoverProblem<'_> {
+    fn covers_point(&self, pose: &CoverPose, p: &Point3, n: &Vector3) -> bool {
+        let uv = pose.in_plane(p);
+        if uv[0].hypot(uv[1]) > self.field_radius_mm {
+            return false;
+        }
+        let ray = self.lens.ray(&pose.x, &pose.y, &pose.axis, uv);
+        angle_rad(n, &ray) <= self.limit_rad - INCIDENCE_MARGIN_RAD
+    }
+
+    fn covers_atom(&self, pose: &CoverPose, atom: &Atom) -> bool {
+        // Cheap refusal: the whole atom is outside the field.
+        let uv = pose.in_plane(&atom.centroid);
+        if uv[0].hypot(uv[1]) - atom.radius > self.field_radius_mm {
+            return false;
+        }
+        atom.piece
+            .points
+            .iter()
+            .zip(&atom.piece.features)
+            .all(|(p, n)| self.covers_point(pose, p, n))
+    }
+
+    fn covers_rep(&self, pose: &CoverPose, rep: &[(Point3, Vector3)]) -> bool {
+        rep.iter().all(|(p, n)| self.covers_point(pose, p, n))
+    }
+
+    /// The axis whose ray at in-plane offset `d` meets feature `n` head on.
+    fn ideal_axis(&self, n: &Vector3, d: &Vector3) -> Vector3 {
+        if self.lens.telecentric {
+            return *n;
+        }
+        let f = self.lens.focal_length_mm;
+        let nd = n.dot(d);
+        let disc = nd * nd - d.norm_squared() + f * f;
+        if disc <= 0.0 {
+            return *n;
+        }
+        let lambda = -nd + disc.sqrt();
+        (n * lambda + d).normalize()
+    }
+
+    /// How far an atom lies from a pose: the larger of its axis distance over the limit and its
+    /// in-plane distance over R.
+    fn distance(&self, pose: &CoverPose, atom: &Atom) -> f64 {
+        let uv = pose.in_plane(&atom.centroid);
+        let d = pose.x * uv[0] + pose.y * uv[1];
+        let wanted = self.ideal_axis(&atom.mean, &d);
+        let angular = angle_rad(&wanted, &pose.axis) / self.limit_rad;
+        let radial = uv[0].hypot(uv[1]) / self.field_radius_mm;
+        angular.max(radial)
+    }
+
+    /// The pose fitted to a set of points (see the module docs), `None` when unreachable.
+    fn fit(&self, pts: &[(Point3, Vector3)], start: Option<&UnitVector3>) -> Option<CoverPose> {
+        if pts.is_empty() {
+            return None;
+        }
+        let mut axis = match (self.fixed_axis, start) {
+            (Some(a), _) => a,
+            (None, Some(a)) => *a,
+            (None, None) => {
+                let normals: Vec<Vector3> = pts.iter().map(|p| p.1).collect();
+                zone_axis(&normals).0
+            }
+        };
+        let mut pose = centred(axis, pts);
+        if self.fixed_axis.is_none() {
+            let mut wanted = Vec::with_capacity(pts.len());
+            for _ in 0..FIT_ITERATIONS {
+                wanted.clear();
+                for (p, n) in pts {
+                    let uv = pose.in_plane(p);
+                    let d = pose.x * uv[0] + pose.y * uv[1];
+                    wanted.push(self.ideal_axis(n, &d));
+                }
+                let next = zone_axis(&wanted).0;
+                let moved = angle_rad(&next, &axis);
+                axis = next;
+                pose = centred(axis, pts);
+                if moved < 1e-9 {
+                    break;
+                }
+            }
+        }
+        (self.reachable)(&pose.axis, &pose.centre).then_some(pose)
+    }
+
+    /// The points that can decide a fit near `pose`: the extremes of the in-plane positions
+    /// and of the wanted axes (tangent coordinates) in [`PRUNE_DIRECTIONS`] directions, and
+    /// every point within [`PRUNE_KEEP`] of the largest distance of either. The fit of the rest
+    /// is nearly the fit of all; the checks always use all points.
+    fn prune(&self, pose: &CoverPose, pts: &[(Point3, Vector3)]) -> Vec<(Point3, Vector3)> {
+        if pts.len() <= 4 * PRUNE_DIRECTIONS {
+            return pts.to_vec();
+        }
+        let coords: Vec<Coords> = pts
+            .iter()
+            .map(|(p, n)| {
+                let uv = pose.in_plane(p);
+                let d = pose.x * uv[0] + pose.y * uv[1];
+                let w = self.ideal_axis(n, &d);
+                (uv, [w.dot(&pose.x), w.dot(&pose.y)])
+            })
+            .collect();
+        let mut keep = vec![false; pts.len()];
+        let (mut max_q, mut max_g): (f64, f64) = (0.0, 0.0);
+        for (q, g) in &coords {
+            max_q = max_q.max(q[0].hypot(q[1]));
+            max_g = max_g.max(g[0].hypot(g[1]));
+        }
+        for (i, (q, g)) in coords.iter().enumerate() {
+            if q[0].hypot(q[1]) >= PRUNE_KEEP * max_q || g[0].hypot(g[1]) >= PRUNE_KEEP * max_g {
+                keep[i] = true;
+            }
+        }
+        for k in 0..PRUNE_DIRECTIONS {
+            let t = std::f64::consts::TAU * k as f64 / PRUNE_DIRECTIONS as f64;
+            let (s, c) = t.sin_cos();
+            let arg = |f: &dyn Fn(&Coords) -> f64| {
+                (0..coords.len())
+                    .max_by(|&a, &b| f(&coords[a]).total_cmp(&f(&coords[b])).then(b.cmp(&a)))
+                    .unwrap_or(0)
+            };
+            keep[arg(&|x| x.0[0] * c + x.0[1] * s)] = true;
+            keep[arg(&|x| x.1[0] * c + x.1[1] * s)] = true;
+        }
+        pts.iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(p, _)| *p)
+            .collect()
+    }
+
+    /// Grows a pose from a seed atom over the atoms near it.
+    fn grow(&self, atoms: &[Atom], seed: usize) -> Option<(CoverPose, Vec<usize>)> {
+        let mut pts = atoms[seed].rep.clone();
+        let mut pose = self.fit(&pts, None)?;
+        if !self.covers_rep(&pose, &pts) {
+            return None;
+        }
+        let mut near: Vec<(f64, usize)> = atoms
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| *j != seed)
+            .map(|(j, a)| (self.distance(&pose, a), j))
+            .filter(|(d, _)| *d <= GROW_REACH)
+            .collect();
+        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut members = vec![seed];
+        let mut refits = 0;
+        for (_, j) in near {
+            if self.covers_rep(&pose, &atoms[j].rep) {
+                members.push(j);
+                pts.extend_from_slice(&atoms[j].rep);
+                if pts.len() > 8 * PRUNE_DIRECTIONS {
+                    pts = self.prune(&pose, &pts);
+                }
+                continue;
+            }
+            if refits >= MAX_REFITS {
+                continue;
+            }
+            refits += 1;
+            let mut trial = pts.clone();
+            trial.extend_from_slice(&atoms[j].rep);
+            if let Some(next) = self.fit(&trial, Some(&pose.axis)) {
+                if self.covers_rep(&next, &trial) {
+                    pose = next;
+                    pts = self.prune(&pose, &trial);
+                    members.push(j);
+                }
+            }
+        }
+        Some((pose, members))
+    }
+
+    /// Every atom a pose covers (all points checked).
+    fn coverage(&self, atoms: &[Atom], pose: &CoverPose) -> Vec<usize> {
+        (0..atoms.len())
+            .filter(|&j| self.covers_atom(pose, &atoms[j]))
+            .collect()
+    }
+
+    /// The pose refitted to a set of atoms, if it covers all of them.
+    fn fit_atoms(
+        &self,
+        atoms: &[Atom],
+        set: &[usize],
+        start: Option<&UnitVector3>,
+    ) -> Option<CoverPose> {
+        let mut pts: Vec<(Point3, Vector3)> =
+            set.iter().flat_map(|&j| atoms[j].rep.clone()).collect();
+        let mut tries: Vec<Option<&UnitVector3>> = vec![None];
+        if let Some(a) = start {
+            tries.insert(0, start);
+            pts = self.prune(&centred(*a, &pts), &pts);
+        }
+        for s in tries {
+            if let Some(pose) = self.fit(&pts, s) {
+                if set.iter().all(|&j| self.covers_atom(&pose, &atoms[j])) {
+                    return Some(pose);
+                }
+            }
+        }
+        None
+    }
+}
+
+/// The pose with `axis` centred on the points' bounding box across it.
+fn centred(axis: UnitVector3, pts: &[(Point3, Vector3)]) -> CoverPose {
+    let probe = CoverPose::new(axis, Point3::origin());
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    let mut along = 0.0;
+    for (p, _) in pts {
+        let uv = probe.in_plane(p);
+        for k in 0..2 {
+            lo[k] = lo[k].min(uv[k]);
+            hi[k] = hi[k].max(uv[k]);
+        }
+        along += p.coords.dot(&axis);
+    }
+    along /= pts.len() as f64;
+    let centre = Point3::from(
+        probe.x * (0.5 * (lo[0] + hi[0]))
+            + probe.y * (0.5 * (lo[1] + hi[1]))
+            + axis.into_inner() * along,
+    );
+    CoverPose::new(axis, centre)
+}
+
+/// A piece cut at the given arc lengths (mm, increasing, inside the piece); the cut points are
+/// shared by neighbours. Cuts at (or within 1e-9 of a segment from) a vertex cut there.
+fn cut_at(p: &Piece, cuts: &[f64]) -> Vec<Piece> {
+    const AT_VERTEX: f64 = 1e-9;
+    let last = p.points.len() - 1;
+    let mut pts: Vec<(Point3, Vector3, f64)> = vec![(p.points[0], p.features[0], p.source[0])];
+    let mut breaks: Vec<usize> = Vec::new();
+    let mut walked = 0.0;
+    let mut k = 0;
+    for i in 0..last {
+        let seg = (p.points[i + 1] - p.points[i]).norm();
+        let mut break_at_end = false;
+        while k < cuts.len() && cuts[k] <= walked + seg {
+            let t = if seg > 0.0 {
+                ((cuts[k] - walked) / seg).clamp(0.0, 1.0)
+            } else {
+                1.0
+            };
+            k += 1;
+            if t <= AT_VERTEX {
+                if pts.len() > 1 && breaks.last() != Some(&(pts.len() - 1)) {
+                    breaks.push(pts.len() - 1);
+                }
+            } else if t >= 1.0 - AT_VERTEX {
+                break_at_end = true;
+            } else {
+                let point = p.points[i] + (p.points[i + 1] - p.points[i]) * t;
+                let feature = (p.features[i] * (1.0 - t) + p.features[i + 1] * t).normalize();
+                let source = p.source[i] + (p.source[i + 1] - p.source[i]) * t;
+                pts.push((point, feature, source));
+                breaks.push(pts.len() - 1);
+            }
+        }
+        walked += seg;
+        pts.push((p.points[i + 1], p.features[i + 1], p.source[i + 1]));
+        if break_at_end && i + 1 < last && breaks.last() != Some(&(pts.len() - 1)) {
+            breaks.push(pts.len() - 1);
+        }
+    }
+    let mut out = Vec::with_capacity(breaks.len() + 1);
+    let mut from = 0;
+    for b in breaks.into_iter().chain(std::iter::once(pts.len() - 1)) {
+        if b <= from {
+            continue;
+        }
+        let part = &pts[from..=b];
+        out.push(Piece {
+            contour: p.contour,
+            points: part.iter().map(|q| q.0).collect(),
+            features: part.iter().map(|q| q.1).collect(),
+            source: part.iter().map(|q| q.2).collect(),
+        });
+        from = b;
+    }
+    out
+}
+
+/// Cuts a piece into `n` parts of equal length.
+fn cut_equal(p: &Piece, n: usize) -> Vec<Piece> {
+    if n <= 1 {
+        return vec![p.clone()];
+    }
+    let len = p.length_mm();
+    let cuts: Vec<f64> = (1..n).map(|k| len * k as f64 / n as f64).collect();
+    cut_at(p, &cuts)
+}
+
+fn spread_rad(p: &Piece) -> f64 {
+    let mean = p.feature().into_inner();
+    p.features
+        .iter()
+        .map(|f| angle_rad(f, &mean))
+        .fold(0.0, f64::max)
+}
+
+/// Contour pieces into atoms (see the module docs, step 1).
+fn atomize(whole: &[Piece], limit_rad: f64) -> Vec<(Piece, usize)> {
+    let mut out = Vec::new();
+    for (c, p) in whole.iter().enumerate() {
+        let n = (p.length_mm() / ATOM_MAX_LENGTH_MM).ceil().max(1.0) as usize;
+        let mut stack: Vec<Piece> = cut_equal(p, n).into_iter().rev().collect();
+        while let Some(q) = stack.pop() {
+            if spread_rad(&q) > ATOM_SPREAD_FRACTION * limit_rad
+                && q.length_mm() >= 2.0 * MIN_ATOM_LENGTH_MM
+            {
+                let parts = cut_equal(&q, 2);
+                if parts.len() == 2 {
+                    stack.extend(parts.into_iter().rev());
+                    continue;
+                }
+            }
+            out.push((q, c));
+        }
+    }
+    out
+}
+
+/// Plans the covering of a path (see the module docs).
+pub fn cover(path: &Path, problem: &CoverProblem<'_>) -> Result<Cover, PlanError> {
+    let whole = pieces_of(path, PI, PI)?;
+    let mut atoms: Vec<Atom> = Vec::new();
+    for (piece, c) in atomize(&whole, problem.limit_rad) {
+        // An atom no pose covers alone is halved again.
+        let mut stack = vec![(piece, 0usize)];
+        while let Some((q, depth)) = stack.pop() {
+            let atom = Atom::new(q, c);
+            let alone = problem
+                .fit(&atom.rep, None)
+                .is_some_and(|pose| problem.covers_atom(&pose, &atom));
+            if alone
+                || depth >= MAX_ATOM_SPLITS
+                || atom.piece.length_mm() < 2.0 * MIN_ATOM_LENGTH_MM
+            {
+                atoms.push(atom);
+                continue;
+            }
+            let parts = cut_equal(&atom.piece, 2);
+            if parts.len() != 2 {
+                atoms.push(atom);
+                continue;
+            }
+            for part in parts.into_iter().rev() {
+                stack.push((part, depth + 1));
+            }
+        }
+    }
+    let n = atoms.len();
+
+    // (3) candidates.
+    let mut candidates: Vec<(CoverPose, Vec<usize>)> = Vec::new();
+    let mut inside = vec![0usize; n];
+    for seed in 0..n {
+        if n > SEED_ALL_BELOW && inside[seed] >= SEED_SKIP_COVERED {
+            continue;
+        }
+        let Some((pose, _)) = problem.grow(&atoms, seed) else {
+            continue;
+        };
+        let covered = problem.coverage(&atoms, &pose);
+        if covered.is_empty() {
+            continue;
+        }
+        for &j in &covered {
+            inside[j] += 1;
+        }
+        candidates.push((pose, covered));
+    }
+    candidates.sort_by(|a, b| a.1.cmp(&b.1));
+    candidates.dedup_by(|a, b| a.1 == b.1);
+
+    // (4) greedy set cover.
+    let mut covered = vec![false; n];
+    let mut chosen: Vec<(CoverPose, Vec<usize>)> = Vec::new();
+    loop {
+        let best = candidates
+            .iter()
+            .enumerate()
+            .map(|(i, c)| (c.1.iter().filter(|&&j| !covered[j]).count(), c.1.len(), i))
+            .filter(|g| g.0 > 0)
+            .max_by(|a, b| a.0.cmp(&b.0).then(a.1.cmp(&b.1)).then(b.2.cmp(&a.2)));
+        let Some((_, _, i)) = best else { break };
+        for &j in &candidates[i].1 {
+            covered[j] = true;
+        }
+        chosen.push(candidates[i].clone());
+    }
+    let uncovered: Vec<usize> = (0..n).filter(|&j| !covered[j]).collect();
+    for &j in &uncovered {
+        // No candidate covers it: a pose of its own (validation reports what fails).
+        let pose = problem
+            .fit(&atoms[j].rep, None)
+            .unwrap_or_else(|| centred(UnitVector3::new_normalize(atoms[j].mean), &atoms[j].rep));
+        chosen.push((pose, vec![j]));
+    }
+    let greedy_poses = chosen.len();
+
+    // (4) local improvement.
+    let (mut merges, mut dropped) = (0, 0);
+    loop {
+        dropped += drop_redundant(&mut chosen, n);
+        if !merge_one(problem, &atoms, &mut chosen) {
+            break;
+        }
+        merges += 1;
+    }
+
+    // (6) lower bound.
+    let lower_bound = lower_bound(problem, &atoms, &candidates);
+
+    // (5) assignment.
+    let owner = assign(&atoms, &chosen, n);
+    let mut zones: Vec<(usize, CoverZone)> = chosen
+        .iter()
+        .map(|(pose, _)| {
+            (
+                usize::MAX,
+                CoverZone {
+                    axis: pose.axis,
+                    origin: pose.centre,
+                    pieces: Vec::new(),
+                },
+            )
+        })
+        .collect();
+    let mut j = 0;
+    while j < n {
+        let z = owner[j];
+        let mut piece = atoms[j].piece.clone();
+        let mut k = j + 1;
+        while k < n && owner[k] == z && atoms[k].contour == atoms[j].contour {
+            piece.points.extend_from_slice(&atoms[k].piece.points[1..]);
+            piece
+                .features
+                .extend_from_slice(&atoms[k].piece.features[1..]);
+            piece.source.extend_from_slice(&atoms[k].piece.source[1..]);
+            k += 1;
+        }
+        zones[z].0 = zones[z].0.min(j);
+        zones[z].1.pieces.push(piece);
+        j = k;
+    }
+    zones.retain(|z| !z.1.pieces.is_empty());
+    zones.sort_by_key(|z| z.0);
+    let zones: Vec<CoverZone> = zones.into_iter().map(|z| z.1).collect();
+    Ok(Cover {
+        report: CoverReport {
+            atoms: n,
+            candidates: candidates.len(),
+            greedy_poses,
+            poses: zones.len(),
+            merges,
+            dropped,
+            uncovered_atoms: uncovered.len(),
+            lower_bound,
+        },
+        zones,
+    })
+}
+
+/// Drops poses every atom of which another chosen pose covers, fewest atoms first.
+fn drop_redundant(chosen: &mut Vec<(CoverPose, Vec<usize>)>, n: usize) -> usize {
+    let mut count = vec![0usize; n];
+    for (_, c) in chosen.iter() {
+        for &j in c {
+            count[j] += 1;
+        }
+    }
+    let mut order: Vec<usize> = (0..chosen.len()).collect();
+    order.sort_by_key(|&i| (chosen[i].1.len(), i));
+    let mut keep = vec![true; chosen.len()];
+    let mut dropped = 0;
+    for i in order {
+        if chosen[i].1.iter().all(|&j| count[j] >= 2) {
+            for &j in &chosen[i].1 {
+                count[j] -= 1;
+            }
+            keep[i] = false;
+            dropped += 1;
+        }
+    }
+    let mut it = keep.iter();
+    chosen.retain(|_| *it.next().unwrap_or(&true));
+    dropped
+}
+
+/// Replaces one pair of chosen poses by one pose covering the atoms only they cover; whether it
+/// found one. Pairs are tried closest first.
+fn merge_one(
+    problem: &CoverProblem<'_>,
+    atoms: &[Atom],
+    chosen: &mut Vec<(CoverPose, Vec<usize>)>,
+) -> bool {
+    let n = atoms.len();
+    let mut count = vec![0usize; n];
+    for (_, c) in chosen.iter() {
+        for &j in c {
+            count[j] += 1;
+        }
+    }
+    let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+    for a in 0..chosen.len() {
+        for b in a + 1..chosen.len() {
+            let (pa, pb) = (&chosen[a].0, &chosen[b].0);
+            let angular = angle_rad(&pa.axis, &pb.axis) / problem.limit_rad;
+            let uv = pa.in_plane(&pb.centre);
+            let radial = uv[0].hypot(uv[1]) / problem.field_radius_mm;
+            let d = angular.max(radial);
+            if d <= 2.0 * GROW_REACH {
+                pairs.push((d, a, b));
+            }
+        }
+    }
+    pairs.sort_by(|p, q| p.0.total_cmp(&q.0).then(p.1.cmp(&q.1)).then(p.2.cmp(&q.2)));
+    for (_, a, b) in pairs {
+        // Atoms only a or b covers.
+        let mut needed: Vec<usize> = chosen[a]
+            .1
+            .iter()
+            .chain(&chosen[b].1)
+            .copied()
+            .filter(|&j| {
+                let in_a = chosen[a].1.binary_search(&j).is_ok();
+                let in_b = chosen[b].1.binary_search(&j).is_ok();
+                count[j] == usize::from(in_a) + usize::from(in_b)
+            })
+            .collect();
+        needed.sort_unstable();
+        needed.dedup();
+        if needed.is_empty() {
+            continue;
+        }
+        let start = UnitVector3::new_normalize(
+            chosen[a].0.axis.into_inner() + chosen[b].0.axis.into_inner(),
+        );
+        if let Some(pose) = problem.fit_atoms(atoms, &needed, Some(&start)) {
+            let covered = problem.coverage(atoms, &pose);
+            let (hi, lo) = (a.max(b), a.min(b));
+            chosen.remove(hi);
+            chosen[lo] = (pose, covered);
+            return true;
+        }
+    }
+    false
+}
+
+/// Each atom's chosen pose (see the module docs, step 5).
+fn assign(atoms: &[Atom], chosen: &[(CoverPose, Vec<usize>)], n: usize) -> Vec<usize> {
+    let mut covers: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (z, (_, c)) in chosen.iter().enumerate() {
+        for &j in c {
+            covers[j].push(z);
+        }
+    }
+    let mut owner = vec![usize::MAX; n];
+    let mut j = 0;
+    while j < n {
+        let c = atoms[j].contour;
+        let mut end = j;
+        while end < n && atoms[end].contour == c {
+            end += 1;
+        }
+        // Walk the contour: at each atom, the pose covering the longest run from here (the
+        // current one if it still covers).
+        let mut k = j;
+        let mut current: Option<usize> = None;
+        while k < end {
+            let run = |z: usize| (k..end).take_while(|&i| covers[i].contains(&z)).count();
+            let pick = match current {
+                Some(z) if covers[k].contains(&z) => z,
+                _ => covers[k]
+                    .iter()
+                    .copied()
+                    .max_by(|a, b| run(*a).cmp(&run(*b)).then(b.cmp(a)))
+                    .unwrap_or(0),
+            };
+            owner[k] = pick;
+            current = Some(pick);
+            k += 1;
+        }
+        j = end;
+    }
+    owner
+}
+
+/// The lower bound (see the module docs, step 6).
+fn lower_bound(
+    problem: &CoverProblem<'_>,
+    atoms: &[Atom],
+    candidates: &[(CoverPose, Vec<usize>)],
+) -> usize {
+    let n = atoms.len();
+    let mut in_candidates: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (i, (_, c)) in candidates.iter().enumerate() {
+        for &j in c {
+            in_candidates[j].push(i);
+        }
+    }
+    let together = |a: usize, b: usize| {
+        let (x, y) = (&in_candidates[a], &in_candidates[b]);
+        x.iter().any(|i| y.binary_search(i).is_ok())
+    };
+    // Atoms in few candidates are the hardest to combine: try them first.
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_by_key(|&j| (in_candidates[j].len(), j));
+    let mut set: Vec<usize> = Vec::new();
+    for j in order {
+        let independent = set
+            .iter()
+            .all(|&k| !together(j, k) && problem.fit_atoms(atoms, &[j, k], None).is_none());
+        if independent {
+            set.push(j);
+        }
+    }
+    set.len()
+}

@@ -1,0 +1,193 @@
+//! Issue 15 part 1: pose selection as covering (`zoning.method = "cover"`) against the paper's
+//! k-means zoning, on the synthetic cores and the built-in demo part.
+
+use std::collections::BTreeMap;
+
+use trim_geom::Path;
+use trim_plan::cover::{CoverProblem, cover};
+use trim_plan::field::Lens;
+use trim_plan::planner::{PlanOutput, PlanSettings, plan_with_report};
+use trim_plan::testing::synthetic_core_path;
+use trim_plan::zoning::{ZoningMethod, ZoningSettings};
+
+fn settings(method: ZoningMethod) -> PlanSettings {
+    PlanSettings {
+        zoning: ZoningSettings {
+            method,
+            ..ZoningSettings::default()
+        },
+        ..PlanSettings::default()
+    }
+}
+
+fn plan(path: &Path, method: ZoningMethod) -> PlanOutput {
+    plan_with_report(path, &settings(method)).expect("plans")
+}
+
+/// The built-in demo part's path (`trimctl run` without a job file): 52 contours on the
+/// cambered, twisted slab.
+fn demo_path() -> Path {
+    let params = trim_geom::synth::SynthParams {
+        scan_points: 2_000,
+        cad_points: 2_000,
+        ..trim_geom::synth::SynthParams::default()
+    };
+    trim_geom::synth::generate(&params).expect("demo part").path
+}
+
+fn check_cover(name: &str, path: &Path, out: &PlanOutput, most: usize) {
+    let v = &out.job.validation;
+    let report = out.cover.expect("cover report");
+    eprintln!(
+        "{name}: cover {} poses (lower bound {}, greedy {}, {} merges, {} dropped, {} atoms, {} candidates), \
+         incidence ≤ {:.3}° with the real ray, estimate {:.1} s, passed {}",
+        out.job.zones.len(),
+        report.lower_bound,
+        report.greedy_poses,
+        report.merges,
+        report.dropped,
+        report.atoms,
+        report.candidates,
+        v.max_incidence_deg,
+        out.job.estimate.total_s,
+        v.passed
+    );
+    assert!(v.passed, "{name}: {:?}", v.violations);
+    assert!(v.max_incidence_deg <= 5.0 + 1e-9);
+    assert_eq!(report.poses, out.job.zones.len());
+    assert!(report.lower_bound >= 1);
+    assert!(report.lower_bound <= report.poses, "{report:?}");
+    assert_eq!(report.uncovered_atoms, 0);
+    assert!(
+        out.job.zones.len() <= most,
+        "{name}: {} poses",
+        out.job.zones.len()
+    );
+    // Every contour appears in some zone (validation checks each is covered exactly once).
+    let mut ids: Vec<i64> = out
+        .job
+        .zones
+        .iter()
+        .flat_map(|z| z.contours.clone())
+        .collect();
+    ids.sort_unstable();
+    ids.dedup();
+    assert_eq!(ids.len(), path.len());
+}
+
+#[test]
+fn cover_plans_the_synthetic_cores_into_few_poses_that_validate() {
+    for (n, seed) in [(52, 1), (60, 1), (60, 0x5eed_0060)] {
+        let path = synthetic_core_path(n, seed);
+        let out = plan(&path, ZoningMethod::Cover);
+        check_cover(&format!("core {n}/{seed}"), &path, &out, 20);
+    }
+}
+
+#[test]
+fn cover_plans_the_demo_part_into_at_most_20_poses() {
+    let path = demo_path();
+    assert_eq!(path.len(), 52);
+    let kmeans = plan(&path, ZoningMethod::Kmeans);
+    let out = plan(&path, ZoningMethod::Cover);
+    eprintln!(
+        "demo: kmeans {} zones (estimate {:.1} s)",
+        kmeans.job.zones.len(),
+        kmeans.job.estimate.total_s
+    );
+    check_cover("demo", &path, &out, 20);
+    assert!(out.job.zones.len() < kmeans.job.zones.len());
+}
+
+#[test]
+fn kmeans_keeps_its_zone_counts() {
+    for (n, seed, zones) in [(52, 1, 20), (60, 1, 22), (60, 0x5eed_0060, 24)] {
+        let out = plan(&synthetic_core_path(n, seed), ZoningMethod::Kmeans);
+        assert!(out.cover.is_none());
+        assert!(out.job.validation.passed);
+        assert_eq!(out.job.zones.len(), zones, "core {n}/{seed}");
+    }
+}
+
+#[test]
+fn every_piece_is_covered_exactly_once() {
+    let path = synthetic_core_path(60, 3);
+    let always = |_: &trim_geom::UnitVector3, _: &trim_geom::Point3| true;
+    let problem = CoverProblem {
+        limit_rad: 5f64.to_radians(),
+        field_radius_mm: 49.9,
+        lens: Lens {
+            telecentric: false,
+            focal_length_mm: 259.4,
+        },
+        fixed_axis: None,
+        reachable: &always,
+    };
+    let c = cover(&path, &problem).expect("covers");
+    assert_eq!(c.report.poses, c.zones.len());
+    assert!(c.report.lower_bound <= c.zones.len());
+    let mut spans: BTreeMap<i64, Vec<(f64, f64)>> = BTreeMap::new();
+    for z in &c.zones {
+        assert!(!z.pieces.is_empty());
+        for p in &z.pieces {
+            assert!(p.points.len() >= 2);
+            spans
+                .entry(p.contour)
+                .or_default()
+                .push((p.source[0], *p.source.last().unwrap()));
+        }
+    }
+    for contour in path.contours() {
+        let mut s = spans.remove(&contour.id()).expect("contour planned");
+        s.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut reach = 0.0;
+        for (a, b) in s {
+            assert!(
+                (a - reach).abs() < 1e-9,
+                "contour {}: gap or overlap",
+                contour.id()
+            );
+            assert!(b > a);
+            reach = b;
+        }
+        let last = (contour.points().len() - 1) as f64;
+        assert!(
+            (reach - last).abs() < 1e-9,
+            "contour {} ends short",
+            contour.id()
+        );
+    }
+    assert!(spans.is_empty());
+}
+
+#[test]
+fn unknown_method_is_refused_by_key() {
+    let e = "bogus".parse::<ZoningMethod>().expect_err("unknown method");
+    assert!(e.to_string().contains("zoning.method"), "{e}");
+    let e = serde_json::from_str::<PlanSettings>(r#"{"zoning": {"method": "bogus"}}"#)
+        .expect_err("unknown method");
+    assert!(e.to_string().contains("zoning.method"), "{e}");
+    for m in [ZoningMethod::Kmeans, ZoningMethod::Cover] {
+        let s = settings(m);
+        let back: PlanSettings = serde_json::from_str(&serde_json::to_string(&s).unwrap()).unwrap();
+        assert_eq!(back, s);
+    }
+}
+
+/// Planning time for 2,000 contours, both methods (run with `--ignored --nocapture`, release).
+#[test]
+#[ignore = "timing: run in release with --nocapture"]
+fn planning_time_for_2000_contours() {
+    let path = synthetic_core_path(2000, 1);
+    for m in [ZoningMethod::Kmeans, ZoningMethod::Cover] {
+        let t = std::time::Instant::now();
+        let out = plan(&path, m);
+        eprintln!(
+            "2000 contours, {m:?}: {} zones, passed {}, {:?} lower bound, planned in {:.3} s",
+            out.job.zones.len(),
+            out.job.validation.passed,
+            out.cover.map(|c| c.lower_bound),
+            t.elapsed().as_secs_f64()
+        );
+    }
+}
