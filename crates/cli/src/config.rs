@@ -10,6 +10,7 @@ use toml::Value;
 use trim_io::twin::TruthSettings;
 use trim_plan::cell::{Calibration, ScanPose};
 use trim_plan::field::LensSettings;
+use trim_plan::hatch::HatchSettings;
 use trim_plan::kinematics::MachineSettings;
 use trim_plan::layer::LayerSettings;
 use trim_plan::planner::PlanSettings;
@@ -47,6 +48,58 @@ pub struct JobConfig {
     pub sim: SimConfig,
     /// Where the run folder goes.
     pub output: OutputConfig,
+    /// Regions to hatch (`[[hatch]]`), planned beside the contours.
+    pub hatch: Vec<HatchRegion>,
+}
+
+/// One region to hatch (a `[[hatch]]` table): a boundary file plus the hatching keys
+/// (`trim_plan::hatch::HatchSettings`: `pitch_mm`, `angle_deg`, `method`, `step_mm`,
+/// `chord_tolerance_mm`, `outline`, `grid_mm`), all in one flat table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HatchRegion {
+    /// Path CSV with one closed contour lying on the part's surface, in the CAD frame (like
+    /// `part.path`): registration carries it onto the scan. Relative to the job file.
+    pub boundary: PathBuf,
+    /// How to hatch it.
+    pub settings: HatchSettings,
+}
+
+impl Serialize for HatchRegion {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::Error as _;
+        let settings = match Value::try_from(&self.settings).map_err(S::Error::custom)? {
+            Value::Table(t) => t,
+            other => return Err(S::Error::custom(format!("hatch settings: {other}"))),
+        };
+        // The boundary first, as a reader expects.
+        let mut table = toml::Table::new();
+        table.insert(
+            "boundary".to_owned(),
+            Value::String(self.boundary.display().to_string()),
+        );
+        table.extend(settings);
+        table.serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for HatchRegion {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        use serde::de::Error as _;
+        let mut table = toml::Table::deserialize(d)?;
+        let boundary = match table.remove("boundary") {
+            Some(Value::String(s)) => PathBuf::from(s),
+            Some(other) => {
+                return Err(D::Error::custom(format!(
+                    "boundary: expected a file name, got {other}"
+                )));
+            }
+            None => return Err(D::Error::missing_field("boundary")),
+        };
+        let settings: HatchSettings = Value::Table(table)
+            .try_into()
+            .map_err(|e: toml::de::Error| D::Error::custom(e.message().trim()))?;
+        Ok(HatchRegion { boundary, settings })
+    }
 }
 
 impl Default for JobConfig {
@@ -66,6 +119,7 @@ impl Default for JobConfig {
             cell: CellConfig::default(),
             sim: SimConfig::default(),
             output: OutputConfig::default(),
+            hatch: Vec::new(),
         }
     }
 }
@@ -161,6 +215,11 @@ impl JobConfig {
                 *p = base.join(&*p);
             }
         }
+        for h in &mut config.hatch {
+            if h.boundary.is_relative() {
+                h.boundary = base.join(&h.boundary);
+            }
+        }
         Ok(config)
     }
 
@@ -223,6 +282,11 @@ impl JobConfig {
                 self.cell.laser_profile
             );
         }
+        for (i, h) in self.hatch.iter().enumerate() {
+            h.settings
+                .validate()
+                .map_err(|e| anyhow::anyhow!("hatch[{i}] ({}): {e}", h.boundary.display()))?;
+        }
         let parts = [&self.part.cad, &self.part.path, &self.part.scan];
         let given = parts.iter().filter(|p| p.is_some()).count();
         if given != 0 && given != 3 {
@@ -281,6 +345,11 @@ const HEADER: &str = "\
 /// One comment per key (dotted path) and, for keys unset by default, an example value shown
 /// commented out. A test checks that every key of the default file has one.
 pub const KEY_DOCS: &[(&str, &str, Option<&str>)] = &[
+    (
+        "hatch",
+        "Regions to hatch beside the contours, each a [[hatch]] table: boundary = a path CSV with one closed contour on the part's surface, CAD frame (registration carries it onto the scan), plus the hatching keys pitch_mm (default 0.05), angle_deg (0), method (\"geodesic\" or \"slab\"), step_mm or chord_tolerance_mm (point placement along a track; default a step of one pitch), outline (true) and grid_mm. The tracks (surface normals as feature vectors) are zoned, layered and projected like contours. The built-in demo part hatches one region of its top face when this is empty.",
+        None,
+    ),
     (
         "part",
         "The part's files, relative to this file. Leave all three out for the built-in demo part.",
@@ -985,6 +1054,47 @@ mod tests {
             };
             let parsed: Result<JobConfig, _> = toml::from_str(&text);
             assert!(parsed.is_ok(), "{key} = {example}: {parsed:?}");
+        }
+    }
+
+    #[test]
+    fn hatch_regions_parse_flat_refuse_bad_keys_by_name_and_round_trip() {
+        let c = JobConfig::parse(
+            "[[hatch]]\nboundary = \"face.csv\"\npitch_mm = 0.08\nmethod = \"slab\"\n\n[[hatch]]\nboundary = \"hole.csv\"\nchord_tolerance_mm = 0.002\n",
+        )
+        .unwrap();
+        assert_eq!(c.hatch.len(), 2);
+        assert_eq!(c.hatch[0].boundary, PathBuf::from("face.csv"));
+        assert!((c.hatch[0].settings.pitch_mm - 0.08).abs() < 1e-12);
+        assert_eq!(
+            c.hatch[0].settings.method,
+            trim_plan::hatch::HatchMethod::Slab
+        );
+        assert_eq!(c.hatch[1].settings.chord_tolerance_mm, Some(0.002));
+        assert_eq!(
+            c.hatch[1].settings.pitch_mm,
+            HatchSettings::default().pitch_mm
+        );
+        // The effective job file a run writes reads back the same.
+        let back = JobConfig::parse(&toml::to_string(&c).unwrap()).unwrap();
+        assert_eq!(back, c);
+        for (text, named) in [
+            (
+                "[[hatch]]\nboundary = \"a.csv\"\npich_mm = 0.1\n",
+                "pich_mm",
+            ),
+            ("[[hatch]]\npitch_mm = 0.1\n", "boundary"),
+            (
+                "[[hatch]]\nboundary = \"a.csv\"\npitch_mm = -1\n",
+                "pitch_mm",
+            ),
+            (
+                "[[hatch]]\nboundary = \"a.csv\"\nmethod = \"zigzag\"\n",
+                "zigzag",
+            ),
+        ] {
+            let e = format!("{:#}", JobConfig::parse(text).unwrap_err());
+            assert!(e.contains("hatch") && e.contains(named), "{text}: {e}");
         }
     }
 

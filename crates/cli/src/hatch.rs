@@ -16,8 +16,8 @@ use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use trim_geom::formats::{read_path, read_points, write_path};
 use trim_plan::hatch::{
-    Hatch, HatchMethod, HatchReport, HatchSettings, HatchStage, TrackKind, hatch_with_progress,
-    measure,
+    Hatch, HatchMethod, HatchReport, HatchSettings, HatchStage, TrackKind, hatch,
+    hatch_with_progress, measure,
 };
 
 /// Arguments of `trimctl hatch`.
@@ -266,4 +266,114 @@ fn error_colour(relative: f64) -> String {
     let t = (relative / 0.05).clamp(-1.0, 1.0);
     let hue = 120.0 - 120.0 * t; // +5 % → 0 (red), −5 % → 240 (blue)
     format!("hsl({hue:.0},80%,40%)")
+}
+
+/// Hatch tracks take negative contour ids, so they never collide with a CAM path's: region `r`,
+/// track `t` is `−(1 + r·TRACKS_PER_REGION + t)`.
+pub const TRACKS_PER_REGION: i64 = 100_000;
+
+/// The contour id of track `track` of region `region`.
+#[must_use]
+pub fn track_id(region: usize, track: usize) -> i64 {
+    -(1 + region as i64 * TRACKS_PER_REGION + track as i64)
+}
+
+/// Refuses a path whose contour ids would collide with hatch tracks (negative ids).
+pub fn check_path_ids(path: &trim_geom::Path, what: &FsPath) -> anyhow::Result<()> {
+    if let Some(c) = path.contours().iter().find(|c| c.id() < 0) {
+        bail!(
+            "{}: contour {} has a negative id; hatch tracks take the negative ids, so give the path's contours ids ≥ 0",
+            what.display(),
+            c.id()
+        );
+    }
+    Ok(())
+}
+
+/// Renumbers tracks (path CSV from `trimctl hatch`, or a fresh hatch) as region `region`'s.
+pub fn as_region_tracks(
+    tracks: &trim_geom::Path,
+    region: usize,
+) -> anyhow::Result<Vec<trim_geom::Contour>> {
+    if tracks.len() as i64 >= TRACKS_PER_REGION {
+        bail!(
+            "{} tracks in one region: at most {}",
+            tracks.len(),
+            TRACKS_PER_REGION - 1
+        );
+    }
+    tracks
+        .contours()
+        .iter()
+        .enumerate()
+        .map(|(t, c)| {
+            trim_geom::Contour::with_features(
+                track_id(region, t),
+                c.points().to_vec(),
+                c.features().to_vec(),
+            )
+            .map_err(anyhow::Error::from)
+        })
+        .collect()
+}
+
+/// One hatched region of a job.
+pub struct RegionHatch {
+    /// The region's tracks, ids from [`track_id`], work-piece frame.
+    pub tracks: Vec<trim_geom::Contour>,
+    /// One line for the operator: tracks, spacing, coverage, boundary, time.
+    pub summary: String,
+}
+
+/// Hatches `[[hatch]]` regions on the registered scan: each boundary (CAD frame) is carried
+/// onto the scan by `to_scan` (registration), hatched there, and written to
+/// `out_dir/hatch_{r}.csv` and `.svg`.
+pub fn hatch_regions(
+    regions: &[crate::config::HatchRegion],
+    scan: &trim_geom::PointCloud,
+    to_scan: &dyn Fn(&trim_geom::Point3) -> trim_geom::Point3,
+    out_dir: &FsPath,
+) -> anyhow::Result<Vec<RegionHatch>> {
+    let mut out = Vec::with_capacity(regions.len());
+    for (r, region) in regions.iter().enumerate() {
+        let file = &region.boundary;
+        let boundary: Vec<trim_geom::Point3> = read_boundary(file)
+            .with_context(|| format!("hatch[{r}]"))?
+            .iter()
+            .map(to_scan)
+            .collect();
+        let start = Instant::now();
+        let planned = hatch(scan, &boundary, &region.settings).with_context(|| {
+            format!(
+                "hatch[{r}]: hatching inside {} on the registered scan",
+                file.display()
+            )
+        })?;
+        let elapsed = start.elapsed().as_secs_f64();
+        let report = measure(&planned);
+        let csv = out_dir.join(format!("hatch_{r}.csv"));
+        write_path(&csv, &planned.to_path()?)?;
+        let svg = out_dir.join(format!("hatch_{r}.svg"));
+        std::fs::write(&svg, render_svg(&planned, &report))
+            .with_context(|| format!("{}: cannot write", svg.display()))?;
+        let s = report.spacing;
+        let summary = format!(
+            "hatch[{r}] {}: {} tracks ({} method, pitch {} mm), spacing mean {:.4} mm CV {:.2} %, coverage {:.2} %, boundary ≤ {:.4} mm, {:.2} s → {}",
+            file.display(),
+            report.tracks,
+            planned.method,
+            planned.pitch_mm,
+            s.mean_mm,
+            100.0 * s.cv,
+            100.0 * report.coverage,
+            report.boundary_error_mm,
+            elapsed,
+            svg.display()
+        );
+        out.push(RegionHatch {
+            tracks: as_region_tracks(&planned.to_path()?, r)?,
+            summary,
+        });
+    }
+    Ok(out)
 }

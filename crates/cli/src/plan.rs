@@ -23,6 +23,11 @@ pub struct Args {
     /// Where to write an SVG of the zones and their layers.
     #[arg(long)]
     pub svg: Option<PathBuf>,
+    /// Hatch tracks to plan beside the contours: a tracks CSV from `trimctl hatch`, in the
+    /// path's frame (repeatable). The tracks take negative contour ids: −(1 + 100000·r + t) for
+    /// track t of the r-th file.
+    #[arg(long, value_name = "TRACKS.csv")]
+    pub hatch: Vec<PathBuf>,
 }
 
 /// Runs the command.
@@ -31,7 +36,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(path) => JobConfig::load(path)?.plan_settings(),
         None => PlanSettings::default(),
     };
-    let path = trim_geom::formats::read_path(&args.path)?;
+    let mut path = trim_geom::formats::read_path(&args.path)?;
+    if !args.hatch.is_empty() {
+        crate::hatch::check_path_ids(&path, &args.path)?;
+        let mut contours = path.contours().to_vec();
+        for (r, file) in args.hatch.iter().enumerate() {
+            let tracks = trim_geom::formats::read_path(file)?;
+            contours.extend(
+                crate::hatch::as_region_tracks(&tracks, r)
+                    .with_context(|| format!("--hatch {}", file.display()))?,
+            );
+        }
+        path = trim_geom::Path::new(contours)?;
+    }
     let output = plan_with_report(&path, &settings)
         .with_context(|| format!("planning {}", args.path.display()))?;
     let job = &output.job;
@@ -115,6 +132,7 @@ mod tests {
             config: None,
             out: out.clone(),
             svg: Some(svg.clone()),
+            hatch: Vec::new(),
         })
         .expect("plans");
         let job =
@@ -140,6 +158,7 @@ mod tests {
             config: Some(config),
             out: out.clone(),
             svg: None,
+            hatch: Vec::new(),
         })
         .expect("plans");
         let job = Job::from_json(&std::fs::read_to_string(&out).expect("json")).expect("job");
@@ -156,6 +175,7 @@ mod tests {
             config: None,
             out: out.clone(),
             svg: None,
+            hatch: Vec::new(),
         })
         .expect_err("refused");
         let text = format!("{e:#}");

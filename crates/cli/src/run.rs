@@ -25,7 +25,7 @@ use trim_plan::Job;
 use trim_plan::planner::{PlanOutput, plan_with_report};
 use trim_register::regional::{Registration, register};
 
-use crate::config::{JobConfig, SIM};
+use crate::config::{HatchRegion, JobConfig, SIM};
 use crate::exit::{Exit, Failure};
 use crate::progress::{JobProgress, stage};
 use crate::summary;
@@ -130,6 +130,7 @@ impl From<CutLayerArg> for CutLayer {
 struct Timings {
     load_s: f64,
     register_s: f64,
+    hatch_s: f64,
     plan_s: f64,
     execute_s: f64,
 }
@@ -170,6 +171,8 @@ struct Inputs {
     cad: PointCloud,
     scan: PointCloud,
     path: TrimPath,
+    /// The regions to hatch: `[[hatch]]`, or the demo part's own region.
+    hatch: Vec<HatchRegion>,
     scan_from_cad_initial: Similarity3,
     description: String,
 }
@@ -204,7 +207,22 @@ fn load_inputs(config: &JobConfig, args: &Args, run_dir: &Path) -> anyhow::Resul
             &case.cad_points,
             formats::PlyEncoding::BinaryLittleEndian,
         )?;
+        // The demo hatches a flash film on its top face unless the job names its own regions.
+        let hatch = if config.hatch.is_empty() {
+            let boundary = dir.join(DEMO_HATCH_BOUNDARY);
+            formats::write_path(
+                &boundary,
+                &TrimPath::new(vec![trim_geom::synth::demo_hatch_boundary()?])?,
+            )?;
+            vec![HatchRegion {
+                boundary,
+                settings: demo_hatch_settings(),
+            }]
+        } else {
+            config.hatch.clone()
+        };
         return Ok(Inputs {
+            hatch,
             description: format!(
                 "built-in demo part (synthetic ceramic core, seed {}, {} contours, {} scan points)",
                 args.demo_seed,
@@ -242,7 +260,11 @@ fn load_inputs(config: &JobConfig, args: &Args, run_dir: &Path) -> anyhow::Resul
     };
     let scan = config.scan_to_workpiece(&formats::read_points(scan_file)?);
     let path = formats::read_path(path_file)?;
+    if !config.hatch.is_empty() {
+        crate::hatch::check_path_ids(&path, path_file)?;
+    }
     Ok(Inputs {
+        hatch: config.hatch.clone(),
         description: format!(
             "CAD {}, path {} ({} contours), scan {} ({} points)",
             cad_file.display(),
@@ -256,6 +278,20 @@ fn load_inputs(config: &JobConfig, args: &Args, run_dir: &Path) -> anyhow::Resul
         path,
         scan_from_cad_initial: Similarity3::identity(),
     })
+}
+
+/// The demo's hatch boundary file, in the run folder's inputs.
+const DEMO_HATCH_BOUNDARY: &str = "hatch_boundary.csv";
+
+/// The demo region's hatching: 0.05 mm pitch across the top face's camber (the planner splits
+/// tracks where the incidence limit requires), points placed by a 2 µm chord tolerance (vector
+/// marking).
+fn demo_hatch_settings() -> trim_plan::hatch::HatchSettings {
+    trim_plan::hatch::HatchSettings {
+        pitch_mm: 0.05,
+        chord_tolerance_mm: Some(0.002),
+        ..trim_plan::hatch::HatchSettings::default()
+    }
 }
 
 /// The true trimming line the twin measures the spot error against: `[sim.truth] path`, or the
@@ -276,47 +312,99 @@ fn truth_line(config: &JobConfig, run_dir: &Path) -> anyhow::Result<Option<TrimP
     ))
 }
 
-/// The twin's spot errors of a run: overall and per zone (µm).
+/// The twin's spot errors of a run: overall and per zone (µm), over the spots of contours on
+/// the true trimming line (hatch tracks have no line to be measured against).
 #[derive(Debug, Clone, Serialize)]
 pub struct SpotReport {
-    /// Over every landed spot.
+    /// Over every landed spot of a trimming-line contour.
     pub overall: SpotStats,
     /// Per zone id, in job order.
     pub per_zone: Vec<(usize, SpotStats)>,
+    /// Spots left out: on contours the true line does not hold (hatch tracks).
+    pub excluded_spots: usize,
 }
 
 impl SpotReport {
-    /// Groups spots by zone through the journal's list tags.
-    fn new(spots: &[Spot], journal: &Path) -> SpotReport {
-        let mut zone_of_tag = std::collections::HashMap::new();
+    /// Finds each spot's layer through the journal's list tags and its contour through the
+    /// layer's vectors (each polyline of n points is n − 1 vectors; a resumed list starts at the
+    /// journaled `first_vector`), then keeps the spots of `line_ids`' contours.
+    fn new(
+        spots: &[Spot],
+        journal: &Path,
+        job: &Job,
+        line_ids: &std::collections::HashSet<i64>,
+    ) -> SpotReport {
+        let layers: std::collections::HashMap<_, _> =
+            job.layers().map(|(key, _, layer)| (key, layer)).collect();
+        let mut list_of_tag = std::collections::HashMap::new();
         if let Ok(text) = std::fs::read_to_string(journal) {
             for line in text.lines() {
-                if let Ok(Entry::LayerBegin { key, tag, .. }) = serde_json::from_str(line) {
-                    zone_of_tag.insert(tag, key.zone);
+                if let Ok(Entry::LayerBegin {
+                    key,
+                    tag,
+                    first_vector,
+                    ..
+                }) = serde_json::from_str(line)
+                {
+                    list_of_tag.insert(tag, (key, first_vector));
                 }
             }
         }
+        let contour_of = |s: &Spot| -> Option<(usize, i64)> {
+            let (key, first) = list_of_tag.get(&s.tag)?;
+            let layer = layers.get(key)?;
+            let mut v = u64::from(*first) + u64::from(s.vector);
+            for p in &layer.polylines {
+                let n = p.points.len().saturating_sub(1) as u64;
+                if v < n {
+                    return Some((key.zone, p.contour));
+                }
+                v -= n;
+            }
+            None
+        };
         let mut per: std::collections::BTreeMap<usize, Vec<f64>> = Default::default();
+        let mut all = Vec::with_capacity(spots.len());
+        let mut excluded_spots = 0;
         for s in spots {
-            if let Some(z) = zone_of_tag.get(&s.tag) {
-                per.entry(*z).or_default().push(s.error_mm);
+            match contour_of(s) {
+                Some((zone, contour)) if line_ids.contains(&contour) => {
+                    per.entry(zone).or_default().push(s.error_mm);
+                    all.push(s.error_mm);
+                }
+                _ => excluded_spots += 1,
             }
         }
-        let all: Vec<f64> = spots.iter().map(|s| s.error_mm).collect();
         SpotReport {
             overall: SpotStats::of_mm(&all),
             per_zone: per
                 .into_iter()
                 .map(|(z, e)| (z, SpotStats::of_mm(&e)))
                 .collect(),
+            excluded_spots,
         }
     }
 
     fn line(&self) -> String {
         format!(
-            "spot error on the true part (digital twin, registration included): P95 {:.1} µm, max {:.1} µm, mean {:.1} µm over {} spots\n",
-            self.overall.p95_um, self.overall.max_um, self.overall.mean_um, self.overall.spots
+            "spot error on the true part (digital twin, registration included): P95 {:.1} µm, max {:.1} µm, mean {:.1} µm over {} spots{}\n",
+            self.overall.p95_um,
+            self.overall.max_um,
+            self.overall.mean_um,
+            self.overall.spots,
+            self.excluded_note()
         )
+    }
+
+    fn excluded_note(&self) -> String {
+        if self.excluded_spots == 0 {
+            String::new()
+        } else {
+            format!(
+                " (the {} spots of hatch tracks, which have no line, left out)",
+                self.excluded_spots
+            )
+        }
     }
 
     fn markdown(&self) -> String {
@@ -324,8 +412,12 @@ impl SpotReport {
             "\n## Spot error (digital twin)\n\nDistance from each landed spot to the true trimming line, on the true cell of `[sim.truth]`; registration error included.\n\n",
         );
         out.push_str(&format!(
-            "Overall: P95 {:.1} µm, max {:.1} µm, mean {:.1} µm ({} spots).\n\n| zone | spots | P95 µm | max µm |\n|---|---|---|---|\n",
-            self.overall.p95_um, self.overall.max_um, self.overall.mean_um, self.overall.spots
+            "Overall: P95 {:.1} µm, max {:.1} µm, mean {:.1} µm ({} spots{}).\n\n| zone | spots | P95 µm | max µm |\n|---|---|---|---|\n",
+            self.overall.p95_um,
+            self.overall.max_um,
+            self.overall.mean_um,
+            self.overall.spots,
+            self.excluded_note()
         ));
         for (z, s) in &self.per_zone {
             out.push_str(&format!(
@@ -451,6 +543,27 @@ fn fresh(args: &Args) -> anyhow::Result<()> {
                 run_dir.join(files::REGISTRATION).display()
             ),
         ));
+    };
+    // Hatch tracks, on the registered scan, planned beside the contours.
+    let to_plan = if inputs.hatch.is_empty() {
+        to_plan
+    } else {
+        let t = Instant::now();
+        let spinner = stage("hatching regions on the registered scan");
+        let regions = crate::hatch::hatch_regions(
+            &inputs.hatch,
+            &inputs.scan,
+            &|p| registration.scan_from_cad_point(p),
+            &run_dir,
+        )?;
+        drop(spinner);
+        timings.hatch_s = t.elapsed().as_secs_f64();
+        let mut contours = to_plan.contours().to_vec();
+        for r in regions {
+            println!("{}", r.summary);
+            contours.extend(r.tracks);
+        }
+        TrimPath::new(contours)?
     };
     let t = Instant::now();
     let spinner = stage("planning zones and layers");
@@ -675,15 +788,15 @@ fn execute(
     resuming: bool,
 ) -> anyhow::Result<Executed> {
     // The twin lands the galvo simulator's vectors on the true part ([sim.truth]).
-    let twin = if config.cell.galvo == SIM {
-        truth_line(config, run_dir)?.map(|line| {
-            Twin::new(
+    let (twin, line_ids) = match truth_line(config, run_dir)? {
+        Some(line) if config.cell.galvo == SIM => (
+            Some(Twin::new(
                 TrueCell::new(&config.sim.truth, &config.plan_settings()),
                 TruePart::new(&line),
-            )
-        })
-    } else {
-        None
+            )),
+            line.contours().iter().map(trim_geom::Contour::id).collect(),
+        ),
+        _ => (None, std::collections::HashSet::new()),
     };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
@@ -767,7 +880,7 @@ fn execute(
         let _ = bars.await;
         let spots = twin
             .as_ref()
-            .map(|t| SpotReport::new(&t.spots(), &run_dir.join(files::JOURNAL)))
+            .map(|t| SpotReport::new(&t.spots(), &run_dir.join(files::JOURNAL), job, &line_ids))
             .filter(|r| r.overall.spots > 0);
         if let Some(rec) = recorder {
             if let Some(report) = &spots {
@@ -975,6 +1088,7 @@ fn write_report(
         &[
             ("load", timings.load_s),
             ("register", timings.register_s),
+            ("hatch", timings.hatch_s),
             ("plan", timings.plan_s),
             ("execute", timings.execute_s),
         ],

@@ -64,13 +64,16 @@ fn unreachable_zones_are_written_marked_and_run_refuses_them() {
         "nothing may start on a plan with unreachable zones"
     );
 
-    // plan: the same zones, written and listed, exit 1.
+    // plan (the same contours and the demo's hatch tracks): the same zones, written and listed,
+    // exit 1.
     let plan_json = tmp.path().join("job.json");
     let plan_svg = tmp.path().join("job.svg");
     let out = Command::new(TRIMCTL)
         .arg("plan")
         .arg("--path")
         .arg(run_dir.join("registered.csv"))
+        .arg("--hatch")
+        .arg(run_dir.join("hatch_0.csv"))
         .arg("--config")
         .arg(&job)
         .arg("--out")
@@ -90,4 +93,98 @@ fn unreachable_zones_are_written_marked_and_run_refuses_them() {
     );
     let svg = std::fs::read_to_string(&plan_svg).expect("the SVG is written");
     assert_eq!(svg.matches(">UNREACHABLE<").count(), from_run.len());
+}
+
+/// Writes the synthetic core's path and three straight hatch tracks above its middle.
+fn path_and_tracks(
+    dir: &std::path::Path,
+    negative_id: bool,
+) -> (std::path::PathBuf, std::path::PathBuf) {
+    let mut path = trim_plan::testing::synthetic_core_path(20, 5);
+    if negative_id {
+        let mut contours = path.contours().to_vec();
+        let c = &contours[0];
+        contours[0] =
+            trim_geom::Contour::with_features(-7, c.points().to_vec(), c.features().to_vec())
+                .expect("contour");
+        path = trim_geom::Path::new(contours).expect("path");
+    }
+    let z = path.contours()[0].points()[0].z;
+    let tracks = (0..3)
+        .map(|t| {
+            let y = 0.5 * f64::from(t);
+            trim_geom::Contour::new(
+                t.into(),
+                (0..=20)
+                    .map(|i| trim_geom::Point3::new(-5.0 + 0.5 * f64::from(i), y, z))
+                    .collect(),
+                trim_geom::Vector3::z(),
+            )
+            .expect("track")
+        })
+        .collect();
+    let path_csv = dir.join("path.csv");
+    let tracks_csv = dir.join("tracks.csv");
+    trim_geom::formats::write_path(&path_csv, &path).expect("path CSV");
+    trim_geom::formats::write_path(&tracks_csv, &trim_geom::Path::new(tracks).expect("tracks"))
+        .expect("tracks CSV");
+    (path_csv, tracks_csv)
+}
+
+#[test]
+fn plan_takes_hatch_tracks_beside_the_contours() {
+    let tmp = tempfile::tempdir().expect("temp dir");
+    let (path, tracks) = path_and_tracks(tmp.path(), false);
+    let job = tmp.path().join("job.json");
+    let out = Command::new(TRIMCTL)
+        .arg("plan")
+        .arg("--path")
+        .arg(&path)
+        .arg("--hatch")
+        .arg(&tracks)
+        .arg("--out")
+        .arg(&job)
+        .output()
+        .expect("trimctl runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let plan: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&job).expect("job")).expect("JSON");
+    let mut ids: Vec<i64> = plan["zones"]
+        .as_array()
+        .expect("zones")
+        .iter()
+        .flat_map(|z| z["contours"].as_array().expect("contours").clone())
+        .map(|v| v.as_i64().expect("id"))
+        .filter(|id| *id < 0)
+        .collect();
+    ids.sort_unstable();
+    ids.dedup();
+    assert_eq!(
+        ids,
+        vec![-3, -2, -1],
+        "track t of the first file is −(1 + t)"
+    );
+
+    // A path that already uses negative ids would collide: refused, naming the file.
+    let (path, tracks) = path_and_tracks(tmp.path(), true);
+    let out = Command::new(TRIMCTL)
+        .arg("plan")
+        .arg("--path")
+        .arg(&path)
+        .arg("--hatch")
+        .arg(&tracks)
+        .arg("--out")
+        .arg(&job)
+        .output()
+        .expect("trimctl runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("path.csv") && stderr.contains("-7"),
+        "{stderr}"
+    );
 }

@@ -115,6 +115,60 @@ fn demo_runs_to_the_end_and_leaves_a_complete_run_folder() {
         b"\x89MCAP0\r\n",
         "run.mcap starts with the MCAP magic"
     );
+    demo_hatch_is_planned_and_marked(&out, &stdout);
+}
+
+/// The demo's hatched region: its tracks are equally spaced, planned beside the contours (split
+/// into pieces where the incidence limit requires) and marked; the twin's spot error counts the
+/// trimming line only.
+fn demo_hatch_is_planned_and_marked(out: &Path, stdout: &str) {
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("hatch[0]"))
+        .unwrap_or_else(|| panic!("no hatch line in:\n{stdout}"));
+    assert!(line.contains("coverage 100.00 %"), "{line}");
+    for file in ["hatch_0.csv", "hatch_0.svg", "inputs/hatch_boundary.csv"] {
+        assert!(out.join(file).is_file(), "{file} missing");
+    }
+    let tracks = std::fs::read_to_string(out.join("hatch_0.csv")).unwrap();
+    let n_tracks = tracks
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split(',').next())
+        .collect::<std::collections::BTreeSet<_>>()
+        .len();
+    // 3 mm across at a 0.05 mm pitch, plus the outline; the part lies turned by its fixture
+    // error, so tracks along the machine's X cross the 16 mm long region a little diagonally.
+    assert!((60..=80).contains(&n_tracks), "{n_tracks} tracks");
+    let text = std::fs::read_to_string(out.join("plan.json")).unwrap();
+    let plan: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let mut hatch_ids = std::collections::BTreeSet::new();
+    let mut hatch_polylines = 0;
+    for z in plan["zones"].as_array().unwrap() {
+        for l in z["layers"].as_array().unwrap() {
+            for p in l["polylines"].as_array().unwrap() {
+                let id = p["contour"].as_i64().unwrap();
+                if id < 0 {
+                    hatch_ids.insert(id);
+                    hatch_polylines += 1;
+                }
+            }
+        }
+    }
+    assert_eq!(hatch_ids.len(), n_tracks, "every track is planned");
+    assert!(
+        hatch_polylines > n_tracks,
+        "tracks across the cambered face are split by the incidence limit"
+    );
+    assert_eq!(plan["validation"]["passed"], true);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let spots = &summary["spot_error"];
+    assert!(spots["excluded_spots"].as_u64().unwrap() > 0, "{spots}");
+    assert!(
+        spots["overall"]["max_um"].as_f64().unwrap() < 50.0,
+        "{spots}"
+    );
 }
 
 #[test]

@@ -692,6 +692,42 @@ fn template_path(cutouts: &[Cutout]) -> Result<Path> {
     Path::new(contours)
 }
 
+/// The demo's flash-film region on the top face, CAD frame: the rectangle `|u| ≤ 8`,
+/// `30.5 ≤ v ≤ 33.5` mm, 3 mm clear of the slot ends and 1.3 mm of the end holes (no cutout inside), as a closed
+/// contour (last point = first) with the face normal as feature vector, a point every
+/// `PATH_STEP_MM`.
+pub fn demo_hatch_boundary() -> Result<Contour> {
+    let top = THICKNESS_MM / 2.0;
+    let corners: [[f64; 2]; 5] = [
+        [-8.0, 30.5],
+        [8.0, 30.5],
+        [8.0, 33.5],
+        [-8.0, 33.5],
+        [-8.0, 30.5],
+    ];
+    let mut domain = Vec::new();
+    for w in corners.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let n = ((b[0] - a[0]).hypot(b[1] - a[1]) / PATH_STEP_MM).ceil() as usize;
+        for k in 0..n {
+            let t = k as f64 / n as f64;
+            domain.push(Point3::new(
+                a[0] + t * (b[0] - a[0]),
+                a[1] + t * (b[1] - a[1]),
+                top,
+            ));
+        }
+    }
+    domain.push(domain[0]);
+    let design = |p: &Point3| design_point(p.x, p.y, p.z);
+    let points = domain.iter().map(design).collect();
+    let features = domain
+        .iter()
+        .map(|d| mapped_normal(&design, d, &Vector3::z()))
+        .collect();
+    Contour::with_features(0, points, features)
+}
+
 /// The contour under a point map, with feature vectors mapped as normals (`J⁻ᵀ`).
 fn map_contour(c: &Contour, map: &impl Fn(&Point3) -> Point3) -> Result<Contour> {
     let points: Vec<Point3> = c.points().iter().map(map).collect();

@@ -276,6 +276,9 @@ fn segment_distance(p: &Point3, a: &Point3, b: &Point3) -> f64 {
 pub struct Spot {
     /// The galvo list tag of the vector.
     pub tag: u32,
+    /// The vector's index among the list's mark vectors (0-based; add the layer's
+    /// `first_vector` for its index in the layer).
+    pub vector: u32,
     /// Where it landed on the true part (work-piece frame, mm).
     pub landed_mm: [f64; 3],
     /// Its distance to the true trimming line (mm).
@@ -327,8 +330,9 @@ impl Twin {
             .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(source);
     }
 
-    /// A marked vector (galvo bits, from → to) of list `tag`: lands both ends on the true part.
-    pub fn on_mark(&self, tag: u32, from_bits: [i32; 2], to_bits: [i32; 2]) {
+    /// Mark vector `vector` (0-based in the list; galvo bits, from → to) of list `tag`: lands
+    /// both ends on the true part.
+    pub fn on_mark(&self, tag: u32, vector: u32, from_bits: [i32; 2], to_bits: [i32; 2]) {
         let Some((position, tcp)) = self
             .pose
             .lock()
@@ -348,6 +352,7 @@ impl Twin {
             if let Some((spot, error_mm)) = self.part.land(&p, &d) {
                 out.push(Spot {
                     tag,
+                    vector,
                     landed_mm: [spot.x, spot.y, spot.z],
                     error_mm,
                 });

@@ -655,7 +655,7 @@ async fn run_list(shared: Arc<Shared>, commands: Vec<ListCommand>, tag: u32, run
                 if lit != Lit::Dry
                     && let Some(twin) = &shared.config.twin
                 {
-                    twin.on_mark(tag, from, pos);
+                    twin.on_mark(tag, marks_in_list, from, pos);
                 }
             }
             if !running {

@@ -180,15 +180,26 @@ pub fn measure(hatch: &Hatch) -> HatchReport {
     // Coverage.
     let radius = 0.5 * pitch * COVERAGE_FACTOR;
     let gap = |hatch_only: bool| -> Vec<f64> {
+        // Samples along every segment, at most a quarter pitch apart, each owned by its
+        // segment: the nearest samples find the nearest segments also where points are placed
+        // far apart (chord tolerance).
         let mut pts = Vec::new();
         let mut owner = Vec::new();
+        let sample_mm = 0.25 * pitch;
         for (k, t) in hatch.tracks.iter().enumerate() {
             if hatch_only && level_of(k).is_none() {
                 continue;
             }
-            for (i, p) in t.points.iter().enumerate() {
-                pts.push(*p);
-                owner.push((k, i));
+            if t.points.len() == 1 {
+                pts.push(t.points[0]);
+                owner.push((k, 0));
+            }
+            for (j, w) in t.points.windows(2).enumerate() {
+                let n = ((w[1] - w[0]).norm() / sample_mm).ceil().max(1.0) as usize;
+                for i in 0..=n {
+                    pts.push(w[0] + (w[1] - w[0]) * (i as f64 / n as f64));
+                    owner.push((k, j));
+                }
             }
         }
         let tree = KdTree::build(&pts);
@@ -249,12 +260,10 @@ fn distance_to_tracks(
     let mut best = f64::INFINITY;
     for n in tree.knn(q, 4) {
         best = best.min(n.distance_sq.sqrt());
-        let (k, i) = owner[n.index];
+        let (k, j) = owner[n.index];
         let track = &hatch.tracks[k].points;
-        for j in [i.saturating_sub(1), i] {
-            if j + 1 < track.len() {
-                best = best.min(segment_distance_3d(q, &track[j], &track[j + 1]));
-            }
+        if j + 1 < track.len() {
+            best = best.min(segment_distance_3d(q, &track[j], &track[j + 1]));
         }
     }
     let _ = pts;
