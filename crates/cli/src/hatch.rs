@@ -185,24 +185,30 @@ fn render_svg(h: &Hatch, report: &HatchReport) -> String {
     const SIZE_PX: f64 = 800.0;
     const MARGIN_PX: f64 = 20.0;
     const MAX_DOTS: usize = 20_000;
+    const MIN_WIDTH_PX: f64 = 560.0;
+    const CAPTION_PX: f64 = 40.0;
     let frame = h.frame();
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
     for v in &h.boundary_plane {
         lo = [lo[0].min(v[0]), lo[1].min(v[1])];
         hi = [hi[0].max(v[0]), hi[1].max(v[1])];
     }
+    // The longer side spans the picture; the other keeps the region's aspect ratio.
     let scale = (SIZE_PX - 2.0 * MARGIN_PX) / (hi[0] - lo[0]).max(hi[1] - lo[1]).max(1e-9);
+    let width_px = 2.0 * MARGIN_PX + (hi[0] - lo[0]) * scale;
+    let plot_px = 2.0 * MARGIN_PX + (hi[1] - lo[1]) * scale;
     let px = |st: [f64; 2]| {
         (
             MARGIN_PX + (st[0] - lo[0]) * scale,
-            SIZE_PX - MARGIN_PX - (st[1] - lo[1]) * scale,
+            plot_px - MARGIN_PX - (st[1] - lo[1]) * scale,
         )
     };
     let mut out = String::new();
     let _ = writeln!(
         out,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{SIZE_PX}" height="{h_px}" viewBox="0 0 {SIZE_PX} {h_px}">"#,
-        h_px = SIZE_PX + 30.0
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w:.0}" height="{h_px:.0}" viewBox="0 0 {w:.0} {h_px:.0}">"#,
+        w = width_px.max(MIN_WIDTH_PX),
+        h_px = plot_px + CAPTION_PX
     );
     let _ = writeln!(out, r#"<rect width="100%" height="100%" fill="white"/>"#);
     let inside = h.surface.inside_points();
@@ -240,7 +246,7 @@ fn render_svg(h: &Hatch, report: &HatchReport) -> String {
             let (a, b) = (px(frame.to_plane(&w[0])), px(frame.to_plane(&w[1])));
             let _ = writeln!(
                 out,
-                r#"<line x1="{:.2}" y1="{:.2}" x2="{:.2}" y2="{:.2}" stroke="{colour}" stroke-width="1"/>"#,
+                r#"<line x1="{:.2}" y1="{:.2}" x2="{:.2}" y2="{:.2}" stroke="{colour}" stroke-width="0.8"/>"#,
                 a.0, a.1, b.0, b.1
             );
         }
@@ -248,8 +254,8 @@ fn render_svg(h: &Hatch, report: &HatchReport) -> String {
     let s = report.spacing;
     let _ = writeln!(
         out,
-        r#"<text x="{MARGIN_PX}" y="{:.0}" font-family="sans-serif" font-size="12">{} tracks, {} method, pitch {} mm: spacing mean {:.4} mm, CV {:.2} % (blue −5 % … green 0 … red +5 %), coverage {:.2} %</text>"#,
-        SIZE_PX + 18.0,
+        r#"<text x="{MARGIN_PX}" y="{:.0}" font-family="sans-serif" font-size="12">{} tracks, {} method, pitch {} mm: spacing mean {:.4} mm, CV {:.2} %, coverage {:.2} %<tspan x="{MARGIN_PX}" dy="15">local spacing error: blue −5 % … green 0 … red +5 %; outline grey</tspan></text>"#,
+        plot_px + 12.0,
         report.tracks,
         h.method,
         h.pitch_mm,
