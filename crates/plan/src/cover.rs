@@ -27,8 +27,10 @@
 //!    candidates) a pose is grown: the other atoms in order of how far they lie from it
 //!    (normalised by the limit and by R) join while a refitted pose still covers every member.
 //!    Each candidate then covers, exactly, every atom it covers.
-//! 4. **Greedy set cover** over the candidates, then **local improvement**: merge pairs of poses
-//!    whose needed atoms one refitted pose covers, drop poses whose atoms others cover, repeat.
+//! 4. **Greedy set cover** over the candidates, then **local improvement**, until nothing
+//!    changes: drop poses whose atoms others cover; merge a pair of poses when one refitted pose
+//!    covers the atoms only they cover; remove a pose when each atom only it covers moves into a
+//!    nearby pose refitted to keep its own atoms as well.
 //! 5. **Assignment.** Each atom goes to one chosen pose that covers it, whole contours first,
 //!    then runs along the contour; consecutive atoms of a contour in one pose become one piece.
 //! 6. **Lower bound.** A greedy set of atoms pairwise incompatible: no candidate covers both and
@@ -44,7 +46,6 @@ use crate::error::PlanError;
 use crate::field::Lens;
 use crate::frame::paper_frame;
 use crate::piece::{Piece, angle_rad, pieces_of};
-use crate::zoning::zone_axis;
 
 /// The longest atom (mm). Longer contours are cut into equal atoms no longer than this.
 pub const ATOM_MAX_LENGTH_MM: f64 = 10.0;
@@ -88,6 +89,11 @@ pub const PRUNE_DIRECTIONS: usize = 16;
 
 /// [`CoverProblem::prune`] keeps every point beyond this fraction of the largest distance.
 pub const PRUNE_KEEP: f64 = 0.85;
+
+/// The length of a 2-D vector (no `hypot`: its extra precision is slow and not needed here).
+fn len2(v: [f64; 2]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1]).sqrt()
+}
 
 /// A point's in-plane position and its wanted axis in tangent coordinates.
 type Coords = ([f64; 2], [f64; 2]);
@@ -162,6 +168,8 @@ pub struct CoverReport {
     pub merges: usize,
     /// Poses dropped as redundant.
     pub dropped: usize,
+    /// Poses removed by moving their atoms into refitted neighbours.
+    pub absorbed: usize,
     /// Atoms no candidate covers (planned alone; validation reports them).
     pub uncovered_atoms: usize,
     /// The lower bound on the pose count (see the module docs).
@@ -227,17 +235,23 @@ impl Atom {
 impl CoverProblem<'_> {
     fn covers_point(&self, pose: &CoverPose, p: &Point3, n: &Vector3) -> bool {
         let uv = pose.in_plane(p);
-        if uv[0].hypot(uv[1]) > self.field_radius_mm {
+        if uv[0] * uv[0] + uv[1] * uv[1] > self.field_radius_mm * self.field_radius_mm {
             return false;
         }
         let ray = self.lens.ray(&pose.x, &pose.y, &pose.axis, uv);
+        // Near the limit the exact angle decides; far inside or outside the cosine does.
+        let c = n.dot(&ray);
+        let cos_limit = (self.limit_rad - INCIDENCE_MARGIN_RAD).cos();
+        if (c - cos_limit).abs() > 1e-9 {
+            return c > cos_limit;
+        }
         angle_rad(n, &ray) <= self.limit_rad - INCIDENCE_MARGIN_RAD
     }
 
     fn covers_atom(&self, pose: &CoverPose, atom: &Atom) -> bool {
         // Cheap refusal: the whole atom is outside the field.
         let uv = pose.in_plane(&atom.centroid);
-        if uv[0].hypot(uv[1]) - atom.radius > self.field_radius_mm {
+        if len2(uv) - atom.radius > self.field_radius_mm {
             return false;
         }
         atom.piece
@@ -273,7 +287,7 @@ impl CoverProblem<'_> {
         let d = pose.x * uv[0] + pose.y * uv[1];
         let wanted = self.ideal_axis(&atom.mean, &d);
         let angular = angle_rad(&wanted, &pose.axis) / self.limit_rad;
-        let radial = uv[0].hypot(uv[1]) / self.field_radius_mm;
+        let radial = len2(uv) / self.field_radius_mm;
         angular.max(radial)
     }
 
@@ -287,7 +301,13 @@ impl CoverProblem<'_> {
             (None, Some(a)) => *a,
             (None, None) => {
                 let normals: Vec<Vector3> = pts.iter().map(|p| p.1).collect();
-                zone_axis(&normals).0
+                let sum: Vector3 = normals.iter().sum();
+                let mean = if sum.norm() > 1e-12 {
+                    UnitVector3::new_normalize(sum)
+                } else {
+                    UnitVector3::new_normalize(normals[0])
+                };
+                minimax_axis(&mean, &normals)
             }
         };
         let mut pose = centred(axis, pts);
@@ -300,7 +320,7 @@ impl CoverProblem<'_> {
                     let d = pose.x * uv[0] + pose.y * uv[1];
                     wanted.push(self.ideal_axis(n, &d));
                 }
-                let next = zone_axis(&wanted).0;
+                let next = minimax_axis(&axis, &wanted);
                 let moved = angle_rad(&next, &axis);
                 axis = next;
                 pose = centred(axis, pts);
@@ -332,11 +352,11 @@ impl CoverProblem<'_> {
         let mut keep = vec![false; pts.len()];
         let (mut max_q, mut max_g): (f64, f64) = (0.0, 0.0);
         for (q, g) in &coords {
-            max_q = max_q.max(q[0].hypot(q[1]));
-            max_g = max_g.max(g[0].hypot(g[1]));
+            max_q = max_q.max(len2(*q));
+            max_g = max_g.max(len2(*g));
         }
         for (i, (q, g)) in coords.iter().enumerate() {
-            if q[0].hypot(q[1]) >= PRUNE_KEEP * max_q || g[0].hypot(g[1]) >= PRUNE_KEEP * max_g {
+            if len2(*q) >= PRUNE_KEEP * max_q || len2(*g) >= PRUNE_KEEP * max_g {
                 keep[i] = true;
             }
         }
@@ -375,12 +395,15 @@ impl CoverProblem<'_> {
         near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         let mut members = vec![seed];
         let mut refits = 0;
+        // Pruned when the points double, so pruning costs O(1) per point.
+        let mut pruned_len = 4 * PRUNE_DIRECTIONS;
         for (_, j) in near {
             if self.covers_rep(&pose, &atoms[j].rep) {
                 members.push(j);
                 pts.extend_from_slice(&atoms[j].rep);
-                if pts.len() > 8 * PRUNE_DIRECTIONS {
+                if pts.len() > 2 * pruned_len {
                     pts = self.prune(&pose, &pts);
+                    pruned_len = pts.len().max(4 * PRUNE_DIRECTIONS);
                 }
                 continue;
             }
@@ -394,6 +417,7 @@ impl CoverProblem<'_> {
                 if self.covers_rep(&next, &trial) {
                     pose = next;
                     pts = self.prune(&pose, &trial);
+                    pruned_len = pts.len().max(4 * PRUNE_DIRECTIONS);
                     members.push(j);
                 }
             }
@@ -433,26 +457,108 @@ impl CoverProblem<'_> {
     }
 }
 
-/// The pose with `axis` centred on the points' bounding box across it.
+/// The pose with `axis` centred on the smallest circle around the points across it.
 fn centred(axis: UnitVector3, pts: &[(Point3, Vector3)]) -> CoverPose {
     let probe = CoverPose::new(axis, Point3::origin());
-    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    let mut along = 0.0;
-    for (p, _) in pts {
-        let uv = probe.in_plane(p);
-        for k in 0..2 {
-            lo[k] = lo[k].min(uv[k]);
-            hi[k] = hi[k].max(uv[k]);
-        }
-        along += p.coords.dot(&axis);
-    }
-    along /= pts.len() as f64;
-    let centre = Point3::from(
-        probe.x * (0.5 * (lo[0] + hi[0]))
-            + probe.y * (0.5 * (lo[1] + hi[1]))
-            + axis.into_inner() * along,
-    );
+    let uv: Vec<[f64; 2]> = pts.iter().map(|(p, _)| probe.in_plane(p)).collect();
+    let along = pts.iter().map(|(p, _)| p.coords.dot(&axis)).sum::<f64>() / pts.len() as f64;
+    let (c, _) = min_circle(&uv);
+    let centre = Point3::from(probe.x * c[0] + probe.y * c[1] + axis.into_inner() * along);
     CoverPose::new(axis, centre)
+}
+
+/// The direction that minimises the largest angle to unit vectors near `around`: the centre of
+/// the smallest circle around their gnomonic projections on the plane across `around`, twice
+/// (the second pass about the first result, where the projection is nearly isometric).
+fn minimax_axis(around: &UnitVector3, dirs: &[Vector3]) -> UnitVector3 {
+    let mut axis = *around;
+    for _ in 0..2 {
+        let probe = CoverPose::new(axis, Point3::origin());
+        let z = axis.into_inner();
+        let g: Vec<[f64; 2]> = dirs
+            .iter()
+            .filter(|d| d.dot(&z) > 1e-6)
+            .map(|d| {
+                let w = d.dot(&z);
+                [d.dot(&probe.x) / w, d.dot(&probe.y) / w]
+            })
+            .collect();
+        if g.is_empty() {
+            break;
+        }
+        let (c, _) = min_circle(&g);
+        axis = UnitVector3::new_normalize(z + probe.x * c[0] + probe.y * c[1]);
+    }
+    axis
+}
+
+/// The smallest circle around 2-D points (centre, radius): the incremental algorithm of Welzl's
+/// bounds, the points visited in a fixed pseudo-random order (expected linear time).
+fn min_circle(pts: &[[f64; 2]]) -> ([f64; 2], f64) {
+    const EPS: f64 = 1e-12;
+    let n = pts.len();
+    if n == 0 {
+        return ([0.0; 2], 0.0);
+    }
+    // A deterministic shuffle (splitmix64).
+    let mut order: Vec<usize> = (0..n).collect();
+    let mut state: u64 = 0x9e37_79b9_7f4a_7c15 ^ n as u64;
+    for i in (1..n).rev() {
+        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^= z >> 31;
+        order.swap(i, (z % (i as u64 + 1)) as usize);
+    }
+    let p: Vec<[f64; 2]> = order.iter().map(|&i| pts[i]).collect();
+    // Circles as (centre, squared radius): no square roots in the loops.
+    let dist2 = |a: &[f64; 2], b: &[f64; 2]| {
+        let (x, y) = (a[0] - b[0], a[1] - b[1]);
+        x * x + y * y
+    };
+    let two = |a: &[f64; 2], b: &[f64; 2]| {
+        let c = [0.5 * (a[0] + b[0]), 0.5 * (a[1] + b[1])];
+        (c, dist2(&c, a))
+    };
+    let three = |a: &[f64; 2], b: &[f64; 2], c: &[f64; 2]| {
+        let (bx, by) = (b[0] - a[0], b[1] - a[1]);
+        let (cx, cy) = (c[0] - a[0], c[1] - a[1]);
+        let d = 2.0 * (bx * cy - by * cx);
+        if d.abs() < EPS {
+            // Collinear: the circle on the farthest pair.
+            let cands = [two(a, b), two(a, c), two(b, c)];
+            return cands
+                .into_iter()
+                .max_by(|x, y| x.1.total_cmp(&y.1))
+                .unwrap_or(two(a, b));
+        }
+        let (b2, c2) = (bx * bx + by * by, cx * cx + cy * cy);
+        let ux = (cy * b2 - by * c2) / d;
+        let uy = (bx * c2 - cx * b2) / d;
+        ([a[0] + ux, a[1] + uy], ux * ux + uy * uy)
+    };
+    let outside =
+        |c: &([f64; 2], f64), q: &[f64; 2]| dist2(&c.0, q) > c.1 * (1.0 + 1e-12) + EPS * EPS;
+    let mut circle = (p[0], 0.0);
+    for i in 1..n {
+        if !outside(&circle, &p[i]) {
+            continue;
+        }
+        circle = (p[i], 0.0);
+        for j in 0..i {
+            if !outside(&circle, &p[j]) {
+                continue;
+            }
+            circle = two(&p[i], &p[j]);
+            for k in 0..j {
+                if outside(&circle, &p[k]) {
+                    circle = three(&p[i], &p[j], &p[k]);
+                }
+            }
+        }
+    }
+    (circle.0, circle.1.sqrt())
 }
 
 /// A piece cut at the given arc lengths (mm, increasing, inside the piece); the cut points are
@@ -632,13 +738,16 @@ pub fn cover(path: &Path, problem: &CoverProblem<'_>) -> Result<Cover, PlanError
     let greedy_poses = chosen.len();
 
     // (4) local improvement.
-    let (mut merges, mut dropped) = (0, 0);
+    let (mut merges, mut dropped, mut absorbed) = (0, 0, 0);
     loop {
         dropped += drop_redundant(&mut chosen, n);
-        if !merge_one(problem, &atoms, &mut chosen) {
+        if merge_one(problem, &atoms, &mut chosen) {
+            merges += 1;
+        } else if absorb_one(problem, &atoms, &mut chosen) {
+            absorbed += 1;
+        } else {
             break;
         }
-        merges += 1;
     }
 
     // (6) lower bound.
@@ -687,6 +796,7 @@ pub fn cover(path: &Path, problem: &CoverProblem<'_>) -> Result<Cover, PlanError
             poses: zones.len(),
             merges,
             dropped,
+            absorbed,
             uncovered_atoms: uncovered.len(),
             lower_bound,
         },
@@ -740,7 +850,7 @@ fn merge_one(
             let (pa, pb) = (&chosen[a].0, &chosen[b].0);
             let angular = angle_rad(&pa.axis, &pb.axis) / problem.limit_rad;
             let uv = pa.in_plane(&pb.centre);
-            let radial = uv[0].hypot(uv[1]) / problem.field_radius_mm;
+            let radial = len2(uv) / problem.field_radius_mm;
             let d = angular.max(radial);
             if d <= 2.0 * GROW_REACH {
                 pairs.push((d, a, b));
@@ -774,6 +884,87 @@ fn merge_one(
             let (hi, lo) = (a.max(b), a.min(b));
             chosen.remove(hi);
             chosen[lo] = (pose, covered);
+            return true;
+        }
+    }
+    false
+}
+
+/// How many chosen poses cover each atom.
+fn cover_counts(chosen: &[(CoverPose, Vec<usize>)], n: usize) -> Vec<usize> {
+    let mut count = vec![0usize; n];
+    for (_, c) in chosen {
+        for &j in c {
+            count[j] += 1;
+        }
+    }
+    count
+}
+
+/// Removes one chosen pose by moving each atom only it covers into a nearby pose refitted to
+/// keep its own needed atoms too; whether it found one. Poses with the fewest needed atoms are
+/// tried first; the result is checked to cover every atom.
+fn absorb_one(
+    problem: &CoverProblem<'_>,
+    atoms: &[Atom],
+    chosen: &mut Vec<(CoverPose, Vec<usize>)>,
+) -> bool {
+    const TRY_POSES: usize = 4;
+    let n = atoms.len();
+    let count = cover_counts(chosen, n);
+    let needed = |q: usize| -> Vec<usize> {
+        chosen[q]
+            .1
+            .iter()
+            .copied()
+            .filter(|&j| count[j] == 1)
+            .collect()
+    };
+    let mut order: Vec<(usize, usize)> = (0..chosen.len()).map(|p| (needed(p).len(), p)).collect();
+    order.sort_unstable();
+    for (_, p) in order {
+        let mut sets: std::collections::BTreeMap<usize, (CoverPose, Vec<usize>)> =
+            std::collections::BTreeMap::new();
+        let mut ok = true;
+        for j in needed(p) {
+            let current = |q: usize| sets.get(&q).map_or(chosen[q].0, |s| s.0);
+            let mut qs: Vec<(f64, usize)> = (0..chosen.len())
+                .filter(|&q| q != p)
+                .map(|q| (problem.distance(&current(q), &atoms[j]), q))
+                .filter(|(d, _)| *d <= GROW_REACH)
+                .collect();
+            qs.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            let mut placed = false;
+            for &(_, q) in qs.iter().take(TRY_POSES) {
+                let pose = current(q);
+                let mut set = sets.get(&q).map_or_else(|| needed(q), |s| s.1.clone());
+                set.push(j);
+                if problem.covers_atom(&pose, &atoms[j]) {
+                    sets.insert(q, (pose, set));
+                    placed = true;
+                    break;
+                }
+                if let Some(next) = problem.fit_atoms(atoms, &set, Some(&pose.axis)) {
+                    sets.insert(q, (next, set));
+                    placed = true;
+                    break;
+                }
+            }
+            if !placed {
+                ok = false;
+                break;
+            }
+        }
+        if !ok {
+            continue;
+        }
+        let mut next = chosen.clone();
+        for (q, (pose, _)) in sets {
+            next[q] = (pose, problem.coverage(atoms, &pose));
+        }
+        next.remove(p);
+        if cover_counts(&next, n).iter().all(|&c| c > 0) {
+            *chosen = next;
             return true;
         }
     }

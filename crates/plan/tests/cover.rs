@@ -191,3 +191,30 @@ fn planning_time_for_2000_contours() {
         );
     }
 }
+
+/// Pose counts, validation and time of both methods (run with `--ignored --nocapture`).
+#[test]
+#[ignore = "report: run in release with --nocapture"]
+fn report_pose_counts() {
+    let mut paths = vec![("demo".to_string(), demo_path())];
+    for (n, seed) in [(52, 1), (60, 1), (2000, 1)] {
+        paths.push((format!("core {n} {seed}"), synthetic_core_path(n, seed)));
+    }
+    for (name, path) in &paths {
+        for m in [ZoningMethod::Kmeans, ZoningMethod::Cover] {
+            let t = std::time::Instant::now();
+            let out = plan(path, m);
+            let v = &out.job.validation;
+            eprintln!(
+                "{name} {m:?}: pieces {} zones {} passed {} inc {:.3} est {:.1} s in {:?} {:?}",
+                out.pieces,
+                out.job.zones.len(),
+                v.passed,
+                v.max_incidence_deg,
+                out.job.estimate.total_s,
+                t.elapsed(),
+                out.cover
+            );
+        }
+    }
+}
