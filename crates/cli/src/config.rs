@@ -1,6 +1,8 @@
 //! `job.toml`: one serde schema for a whole job. Defaults live in code; `trimctl config --dump`
-//! prints the full default file with a comment on every key ([`dump_default`], from
-//! [`KEY_DOCS`]); unknown keys and out-of-range values are refused with the key named.
+//! prints the full default file with a comment on every key ([`dump_default`]). The comments
+//! are the settings types' doc comments, read back through the JSON Schema ([`key_docs`]), so a
+//! key is documented in one place. Unknown keys and out-of-range values are refused with the
+//! key named.
 
 use std::path::{Path, PathBuf};
 
@@ -19,36 +21,46 @@ use trim_register::regional::RegisterSettings;
 
 /// A whole job: part files, registration, planning (incidence limit, beam, zoning, layers, lens
 /// field, machine, galvo), the cell and the output folder. Each table is one section of job.toml.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct JobConfig {
-    /// The part's files.
+    /// The part's files, relative to this file. Leave all three out for the built-in demo part.
     pub part: PartConfig,
-    /// Registration of the CAM path onto the scan.
+    /// Registration of the CAM path onto the scan (docs/DESIGN.md "Registration").
     pub register: RegisterSettings,
-    /// The incidence limit (degrees).
+    /// Incidence limit: the largest angle between a contour's feature vector and the beam, lens ray
+    /// angle included.
     pub max_incidence_deg: f64,
-    /// Beam optics (paper §2.1–2.2).
+    /// Laser and lens (paper §2.1-2.2); the defaults are the paper's cell.
     pub beam: Beam,
-    /// Zoning (paper §2.4).
+    /// k-means zoning under the incidence limit (paper §2.4).
     pub zoning: ZoningSettings,
-    /// Layering (paper Eq. 14).
+    /// Layers along each zone axis (paper Eq. 14).
     pub layers: LayerSettings,
-    /// Lens and scan-field sectioning.
+    /// The lens and the galvo field.
     pub field: LensSettings,
-    /// Machine kinematics, limits and speeds.
+    /// Machine kinematics, travel limits and speeds (LinuxCNC names).
     pub machine: MachineSettings,
     /// Galvo field, calibration, speeds and delays.
     pub galvo: GalvoSettings,
-    /// The cell as calibrated (`trimctl calibrate`): axis lines, scanner pose, field, lens.
+    /// The cell as measured by `trimctl calibrate cell` / `calibrate field` (docs/DESIGN.md "Frames
+    /// and the calibration chain"). A missing key is the nominal value of [machine] (axis lines),
+    /// the identity (scanner) or none (field correction).
     pub calibration: Calibration,
-    /// Where the devices are.
+    /// Where the devices are: "sim" starts the built-in simulator for that device.
     pub cell: CellConfig,
-    /// The built-in simulators (the digital twin's true cell).
+    /// The built-in simulators used where [cell] says "sim".
     pub sim: SimConfig,
-    /// Where the run folder goes.
+    /// Where runs are recorded.
     pub output: OutputConfig,
-    /// Regions to hatch (`[[hatch]]`), planned beside the contours.
+    /// Regions to hatch beside the contours, each a [[hatch]] table: boundary = a path CSV with one
+    /// closed contour on the part's surface, CAD frame (registration carries it onto the scan),
+    /// plus the hatching keys pitch_mm (default 0.05), angle_deg (0), method ("geodesic" or
+    /// "slab"), step_mm or chord_tolerance_mm (point placement along a track; default a step of one
+    /// pitch), outline (true) and grid_mm. The tracks (surface normals as feature vectors) are
+    /// zoned, layered and projected like contours. The built-in demo part hatches one region of its
+    /// top face when this is empty.
+    #[schemars(with = "Vec<serde_json::Value>")]
     pub hatch: Vec<HatchRegion>,
 }
 
@@ -126,38 +138,41 @@ impl Default for JobConfig {
 
 /// The part's input files. Relative paths are relative to the job file's folder. With no CAD,
 /// path and scan, `trimctl run` uses the built-in demo part.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PartConfig {
-    /// The CAD model: STL or PLY mesh, or a point cloud (PLY, PCD, XYZ).
+    /// CAD model: STL or PLY mesh, or a PLY/PCD/XYZ point cloud with normals.
     pub cad: Option<PathBuf>,
-    /// The CAM template path (path CSV).
+    /// CAM template path: CSV with columns contour,x,y,z,u,v,w (mm, unit feature vector).
     pub path: Option<PathBuf>,
-    /// The scan of the clamped part (PLY, PCD, XYZ), in the scanner frame.
+    /// Scan of the clamped part: PLY, PCD or XYZ (normals optional).
     pub scan: Option<PathBuf>,
-    /// The machine pose the scan was taken at.
+    /// The machine pose the scan was taken at: linear joint positions (the tool point, machine
+    /// frame) and rotary axes. The scan is mapped into the work-piece frame through [calibration].
     pub scan_pose: ScanPose,
 }
 
 /// The built-in simulators (job.toml `[sim]`).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct SimConfig {
-    /// The true cell the simulators carry (the digital twin); the nominal cell when empty.
+    /// The digital twin: the true cell the simulators carry, which may differ from the nominal one
+    /// and from [calibration]. The galvo simulator lands every marked vector on the true part and
+    /// the run reports the spot error. Empty: a perfect nominal cell.
     pub truth: TruthSettings,
 }
 
 /// Device addresses. `"sim"` starts the built-in simulator for that device.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct CellConfig {
-    /// The CNC (LinuxCNC linuxcncrsh) as HOST:PORT, or "sim".
+    /// LinuxCNC linuxcncrsh as HOST:PORT (e.g. "127.0.0.1:5007"), or "sim".
     pub cnc: String,
-    /// The galvo controller as HOST:PORT, or "sim".
+    /// Galvo controller as HOST:PORT, or "sim".
     pub galvo: String,
-    /// The laser's serial device (e.g. /dev/ttyUSB0), or "sim".
+    /// Laser serial device (e.g. "/dev/ttyUSB0"), or "sim".
     pub laser: String,
-    /// The laser command profile: "monaco" or "ipg".
+    /// Laser command profile: "monaco" (Coherent-Monaco-like) or "ipg" (IPG-like).
     pub laser_profile: String,
 }
 
@@ -176,10 +191,10 @@ impl Default for CellConfig {
 pub const SIM: &str = "sim";
 
 /// Where runs are recorded.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct OutputConfig {
-    /// The folder under which each run gets a new time-stamped folder.
+    /// Each run writes a new time-stamped folder here (or the folder given with --out).
     pub runs_dir: PathBuf,
 }
 
@@ -342,595 +357,116 @@ const HEADER: &str = "\
 # `trimctl config --dump > job.toml` writes this file; `trimctl run job.toml` runs it.
 ";
 
-/// One comment per key (dotted path) and, for keys unset by default, an example value shown
-/// commented out. A test checks that every key of the default file has one.
-pub const KEY_DOCS: &[(&str, &str, Option<&str>)] = &[
-    (
-        "hatch",
-        "Regions to hatch beside the contours, each a [[hatch]] table: boundary = a path CSV with one closed contour on the part's surface, CAD frame (registration carries it onto the scan), plus the hatching keys pitch_mm (default 0.05), angle_deg (0), method (\"geodesic\" or \"slab\"), step_mm or chord_tolerance_mm (point placement along a track; default a step of one pitch), outline (true) and grid_mm. The tracks (surface normals as feature vectors) are zoned, layered and projected like contours. The built-in demo part hatches one region of its top face when this is empty.",
-        None,
-    ),
-    (
-        "part",
-        "The part's files, relative to this file. Leave all three out for the built-in demo part.",
-        None,
-    ),
-    (
-        "part.cad",
-        "CAD model: STL or PLY mesh, or a PLY/PCD/XYZ point cloud with normals.",
-        Some("\"cad.stl\""),
-    ),
-    (
-        "part.path",
-        "CAM template path: CSV with columns contour,x,y,z,u,v,w (mm, unit feature vector).",
-        Some("\"path.csv\""),
-    ),
-    (
-        "part.scan",
-        "Scan of the clamped part: PLY, PCD or XYZ (normals optional).",
-        Some("\"scan.ply\""),
-    ),
-    (
-        "part.scan_pose",
-        "The machine pose the scan was taken at: linear joint positions (the tool point, machine frame) and rotary axes. The scan is mapped into the work-piece frame through [calibration].",
-        None,
-    ),
-    (
-        "part.scan_pose.xyz_mm",
-        "X, Y, Z joint positions, mm.",
-        None,
-    ),
-    (
-        "part.scan_pose.tilt_deg",
-        "The tilting axis (A, or B on a B/C cell), degrees.",
-        None,
-    ),
-    ("part.scan_pose.c_deg", "C, degrees.", None),
-    (
-        "calibration",
-        "The cell as measured by `trimctl calibrate cell` / `calibrate field` (docs/DESIGN.md \"Frames and the calibration chain\"). A missing key is the nominal value of [machine] (axis lines), the identity (scanner) or none (field correction).",
-        None,
-    ),
-    (
-        "calibration.a_axis_point_mm",
-        "A point on the A line at A = C = 0, machine frame, mm (xyzac-trt).",
-        Some("[0.0, 20.0, 10.0]"),
-    ),
-    (
-        "calibration.a_axis_direction",
-        "The A line's unit direction (right-hand rule); nominal +X.",
-        Some("[1.0, 0.0, 0.0]"),
-    ),
-    (
-        "calibration.b_axis_point_mm",
-        "A point on the B line at B = C = 0, machine frame, mm (xyzbc-trt).",
-        Some("[-20.0, 0.0, -15.0]"),
-    ),
-    (
-        "calibration.b_axis_direction",
-        "The B line's unit direction; nominal +Y.",
-        Some("[0.0, 1.0, 0.0]"),
-    ),
-    (
-        "calibration.c_axis_point_mm",
-        "A point on the C line, given at A (B) = 0, machine frame, mm.",
-        Some("[0.0, 0.0, 0.0]"),
-    ),
-    (
-        "calibration.c_axis_direction",
-        "The C line's unit direction; nominal +Z.",
-        Some("[0.0, 0.0, 1.0]"),
-    ),
+/// Commented-out examples that `--dump` shows for the keys without a default value (unset
+/// `Option`s): (dotted key, TOML value). Each key's description is its doc comment in code
+/// ([`key_docs`]).
+const EXAMPLES: &[(&str, &str)] = &[
+    ("part.cad", "\"cad.stl\""),
+    ("part.path", "\"path.csv\""),
+    ("part.scan", "\"scan.ply\""),
+    ("calibration.a_axis_point_mm", "[0.0, 20.0, 10.0]"),
+    ("calibration.a_axis_direction", "[1.0, 0.0, 0.0]"),
+    ("calibration.b_axis_point_mm", "[-20.0, 0.0, -15.0]"),
+    ("calibration.b_axis_direction", "[0.0, 1.0, 0.0]"),
+    ("calibration.c_axis_point_mm", "[0.0, 0.0, 0.0]"),
+    ("calibration.c_axis_direction", "[0.0, 0.0, 1.0]"),
     (
         "calibration.scanner_rotation",
-        "R of the scanner on the head (3×3, rows): a scanner point s is at (X, Y, Z) + R·s + t.",
-        Some("[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]"),
+        "[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]",
     ),
-    (
-        "calibration.scanner_translation_mm",
-        "t of the scanner on the head, mm.",
-        Some("[0.0, 0.0, 0.0]"),
-    ),
-    (
-        "calibration.field_correction",
-        "The galvo field correction from `trimctl calibrate field` (field.json), relative to this file.",
-        Some("\"field.json\""),
-    ),
-    ("calibration.lens", "The lens.", None),
-    (
-        "calibration.lens.pivot_to_focal_plane_mm",
-        "L: the scan pivot's height above the focal plane, mm. A point h above the focal plane is reached at (L − h)/L of its focal-plane position. Unset: the field correction's value, else beam.focal_length_mm. Ignored for a telecentric lens.",
-        Some("254.0"),
-    ),
-    (
-        "sim",
-        "The built-in simulators used where [cell] says \"sim\".",
-        None,
-    ),
-    (
-        "sim.truth",
-        "The digital twin: the true cell the simulators carry, which may differ from the nominal one and from [calibration]. The galvo simulator lands every marked vector on the true part and the run reports the spot error. Empty: a perfect nominal cell.",
-        None,
-    ),
-    (
-        "sim.truth.a_axis_point_mm",
-        "The true A line's point, machine frame, mm.",
-        Some("[0.05, 20.08, 9.97]"),
-    ),
-    (
-        "sim.truth.a_axis_direction",
-        "The true A line's direction.",
-        Some("[1.0, 0.0003, -0.0002]"),
-    ),
-    (
-        "sim.truth.b_axis_point_mm",
-        "The true B line's point (xyzbc-trt), mm.",
-        Some("[-20.05, 0.0, -15.03]"),
-    ),
-    (
-        "sim.truth.b_axis_direction",
-        "The true B line's direction (xyzbc-trt).",
-        Some("[0.0002, 1.0, 0.0003]"),
-    ),
-    (
-        "sim.truth.c_axis_point_mm",
-        "The true C line's point, mm.",
-        Some("[-0.04, 0.06, 0.0]"),
-    ),
-    (
-        "sim.truth.c_axis_direction",
-        "The true C line's direction.",
-        Some("[0.0004, -0.0001, 1.0]"),
-    ),
+    ("calibration.scanner_translation_mm", "[0.0, 0.0, 0.0]"),
+    ("calibration.field_correction", "\"field.json\""),
+    ("calibration.lens.pivot_to_focal_plane_mm", "254.0"),
+    ("sim.truth.a_axis_point_mm", "[0.05, 20.08, 9.97]"),
+    ("sim.truth.a_axis_direction", "[1.0, 0.0003, -0.0002]"),
+    ("sim.truth.b_axis_point_mm", "[-20.05, 0.0, -15.03]"),
+    ("sim.truth.b_axis_direction", "[0.0002, 1.0, 0.0003]"),
+    ("sim.truth.c_axis_point_mm", "[-0.04, 0.06, 0.0]"),
+    ("sim.truth.c_axis_direction", "[0.0004, -0.0001, 1.0]"),
     (
         "sim.truth.scanner_rotation",
-        "The scanner's true rotation on the head (3×3, rows).",
-        Some("[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]"),
-    ),
-    (
-        "sim.truth.scanner_translation_mm",
-        "The scanner's true translation on the head, mm.",
-        Some("[0.3, -0.2, 0.15]"),
-    ),
-    (
-        "sim.truth.pivot_to_focal_plane_mm",
-        "The lens's true pivot height L, mm (unset: beam.focal_length_mm).",
-        Some("262.0"),
-    ),
-    (
-        "sim.truth.path",
-        "The true trimming line (path CSV, work-piece frame) the spot error is measured against; the built-in demo part brings its own.",
-        Some("\"truth.csv\""),
-    ),
-    (
-        "sim.truth.head",
-        "The galvo head's true field: where a command c lands on the focal plane, offset + rotation·(c·(1 + barrel·|c|²) + trapezoid terms).",
-        None,
-    ),
-    (
-        "sim.truth.head.offset_mm",
-        "Where the zero command lands, head frame, mm.",
-        None,
-    ),
-    (
-        "sim.truth.head.rotation_deg",
-        "The head's rotation about the beam axis, degrees.",
-        None,
-    ),
-    (
-        "sim.truth.head.barrel_per_mm2",
-        "Radial distortion k: c ↦ c·(1 + k·|c|²), 1/mm².",
-        None,
-    ),
-    (
-        "sim.truth.head.trapezoid_per_mm",
-        "Keystone: x gains x·(tx·y), y gains y·(ty·x), 1/mm.",
-        None,
-    ),
-    (
-        "max_incidence_deg",
-        "Incidence limit: the largest angle between a contour's feature vector and the beam, lens ray angle included.",
-        None,
-    ),
-    ("output", "Where runs are recorded.", None),
-    (
-        "output.runs_dir",
-        "Each run writes a new time-stamped folder here (or the folder given with --out).",
-        None,
-    ),
-    (
-        "cell",
-        "Where the devices are: \"sim\" starts the built-in simulator for that device.",
-        None,
-    ),
-    (
-        "cell.cnc",
-        "LinuxCNC linuxcncrsh as HOST:PORT (e.g. \"127.0.0.1:5007\"), or \"sim\".",
-        None,
-    ),
-    (
-        "cell.galvo",
-        "Galvo controller as HOST:PORT, or \"sim\".",
-        None,
-    ),
-    (
-        "cell.laser",
-        "Laser serial device (e.g. \"/dev/ttyUSB0\"), or \"sim\".",
-        None,
-    ),
-    (
-        "cell.laser_profile",
-        "Laser command profile: \"monaco\" (Coherent-Monaco-like) or \"ipg\" (IPG-like).",
-        None,
-    ),
-    (
-        "register",
-        "Registration of the CAM path onto the scan (docs/DESIGN.md \"Registration\").",
-        None,
-    ),
-    (
-        "register.coarse",
-        "The coarse stage: a global similarity from the fixture pose.",
-        None,
-    ),
-    (
-        "register.field",
-        "The field stage: a smooth deformation field over the part.",
-        None,
-    ),
-    (
-        "register.quality",
-        "The quality tests that flag a contour untrustworthy.",
-        None,
-    ),
-    (
-        "beam",
-        "Laser and lens (paper §2.1-2.2); the defaults are the paper's cell.",
-        None,
-    ),
-    (
-        "zoning",
-        "k-means zoning under the incidence limit (paper §2.4).",
-        None,
-    ),
-    (
-        "layers",
-        "Layers along each zone axis (paper Eq. 14).",
-        None,
-    ),
-    ("field", "The lens and the galvo field.", None),
-    (
-        "machine",
-        "Machine kinematics, travel limits and speeds (LinuxCNC names).",
-        None,
-    ),
-    (
-        "galvo",
-        "Galvo field, calibration, speeds and delays.",
-        None,
-    ),
-    (
-        "register.mode",
-        "Regional (field) or global (similarity only).",
-        None,
-    ),
-    (
-        "register.scanner_viewpoint_mm",
-        "The scanner's position in the scan frame, mm. When absent the scanner is taken to look along `−view_direction` from infinitely far.",
-        Some("[0.0, 0.0, 500.0]"),
-    ),
-    (
-        "register.view_direction",
-        "Direction toward the scanner in the scan frame (used without a viewpoint).",
-        None,
-    ),
-    (
-        "register.facing_min_cos",
-        "CAD points whose normal makes `cos < facing_min_cos` with the direction to the scanner are culled (−0.2 keeps walls up to 102° off the view).",
-        None,
-    ),
-    (
-        "register.cad_sample_points",
-        "Points sampled from a CAD mesh.",
-        None,
-    ),
-    ("register.coarse.init", "Where to start.", None),
-    (
-        "register.coarse.max_init_rotation_deg",
-        "The principal-axes start is refused beyond this rotation from the nominal pose, degrees.",
-        None,
-    ),
-    (
-        "register.coarse.min_voxel_points",
-        "A voxel must hold this many scan points to count (drops isolated outliers).",
-        None,
-    ),
-    (
-        "register.coarse.levels",
-        "Pyramid levels, coarse to fine (scan voxel size, maximum distance, iterations).",
-        None,
-    ),
-    (
-        "register.coarse.with_scale",
-        "Estimate a uniform scale at the finest level (the coarser levels are rigid: a scan → CAD fit with a free scale at coarse resolution can shrink the scan onto the surface).",
-        None,
-    ),
-    (
-        "register.coarse.huber_fraction",
-        "Huber threshold as a fraction of each level's maximum distance.",
-        None,
-    ),
-    (
-        "register.field.spacing_mm",
-        "Control-point spacing, mm.",
-        None,
-    ),
-    (
-        "register.field.voxel_mm",
-        "Scan thinning voxel for the fit (one real point kept per voxel), mm.",
-        None,
-    ),
-    (
-        "register.field.iterations",
-        "Gauss-Newton iterations.",
-        None,
-    ),
-    (
-        "register.field.max_distance_start_mm",
-        "Maximum correspondence distance at the first iteration, mm.",
-        None,
-    ),
-    (
-        "register.field.max_distance_end_mm",
-        "…shrinking geometrically to this by iteration `iterations − 3`, mm.",
-        None,
-    ),
-    ("register.field.huber_mm", "Huber threshold, mm.", None),
-    (
-        "register.field.smoothness",
-        "Weight of the second-difference prior relative to the mean data weight per unknown.",
-        None,
-    ),
-    (
-        "register.quality.coverage_radius_mm",
-        "A contour point is covered when a matched scan point lies within this, mm.",
-        None,
-    ),
-    (
-        "register.quality.patch_radius_mm",
-        "Scan points within this of a contour make its local patch, mm.",
-        None,
-    ),
-    (
-        "register.quality.min_coverage",
-        "Flag a contour covered on less than this fraction of its points.",
-        None,
-    ),
-    (
-        "register.quality.max_residual_mm",
-        "Flag a contour whose patch residual (RMS, mm) exceeds this.",
-        None,
-    ),
-    (
-        "register.quality.min_degeneracy_ratio",
-        "A patch is degenerate when `λmin/λmax` of its `Σ n nᵀ` is below this.",
-        None,
-    ),
-    (
-        "register.quality.support_radius_mm",
-        "The surroundings (within this, mm) must constrain a degenerate patch's weakest direction.",
-        None,
-    ),
-    (
-        "register.quality.min_overlap",
-        "Refuse the whole registration when fewer than this fraction of scan points lie within `overlap_distance_mm` of the CAD after the coarse stage.",
-        None,
-    ),
-    (
-        "register.quality.overlap_distance_mm",
-        "Distance for the overlap test, mm.",
-        None,
-    ),
-    ("beam.power_w", "Average laser power P (W).", None),
-    (
-        "beam.repetition_rate_hz",
-        "Pulse repetition rate h (Hz).",
-        None,
-    ),
-    ("beam.wavelength_nm", "Wavelength λ (nm).", None),
-    ("beam.m_squared", "Beam quality factor M².", None),
-    (
-        "beam.focal_length_mm",
-        "Effective focal length f of the (f-theta) lens (mm).",
-        None,
-    ),
-    (
-        "beam.beam_diameter_mm",
-        "Beam diameter D at the lens entrance (mm).",
-        None,
-    ),
-    (
-        "beam.fluence_tolerance",
-        "Fluence tolerance t: the fraction of the peak fluence that still processes (0.97 means within 3 % of F0); sets the focus processing length.",
-        None,
-    ),
-    (
-        "beam.fluence_threshold_ratio",
-        "F0/F_th: peak fluence over the material's ablation threshold.",
-        None,
-    ),
-    (
-        "beam.incidence_deg",
-        "The incidence θ at which the spot ratios are reported (degrees).",
-        None,
-    ),
-    (
-        "beam.line_width_tolerance",
-        "The allowed relative change of the spot radius (line width) with incidence, e.g. 0.005 for ±0.5 %; sets [`Beam::max_incidence_for_line_width_rad`].",
-        None,
-    ),
-    (
-        "zoning.method",
-        "\"kmeans\": the paper's k-means zoning under (limit − lens budget), then field sections; \"cover\": pose selection as covering (axis + field centre per pose, incidence checked with the real lens ray), fewer poses.",
-        None,
-    ),
-    (
-        "zoning.k",
-        "A fixed number of zones; unset: the smallest that keeps the incidence limit.",
-        Some("10"),
-    ),
-    (
-        "zoning.position_weight",
-        "The weight of the (extent-scaled) positions against the unit feature vectors.",
-        None,
-    ),
-    (
-        "zoning.restarts",
-        "k-means runs with different k-means++ seeds; the lowest inertia wins.",
-        None,
-    ),
-    (
-        "zoning.seed",
-        "The seed of the k-means random generator.",
-        None,
-    ),
-    (
-        "zoning.max_iterations",
-        "The most Lloyd iterations per run.",
-        None,
-    ),
-    (
-        "zoning.max_auto_k",
-        "The largest k the automatic search tries before splitting zones greedily.",
-        None,
-    ),
-    (
-        "zoning.merge",
-        "Merge zones after an automatic k-means while the union keeps the limits (see the module docs). A fixed k is kept as given.",
-        None,
-    ),
-    (
-        "layers.step_mm",
-        "ΔH (mm); unset: derived from the beam, 2 · focus half length · `step_safety`.",
-        Some("0.3"),
-    ),
-    (
-        "layers.step_safety",
-        "The fraction of the focus processing length a layer may use on each side.",
-        None,
-    ),
-    (
-        "field.telecentric",
-        "A telecentric lens: the beam is parallel to the optical axis everywhere in the field.",
-        None,
-    ),
-    (
-        "field.lens_ray_budget_deg",
-        "For a non-telecentric lens: the part of the incidence limit reserved for the lens ray angle (degrees). Zoning keeps feature vectors within (limit − this) of the zone axis; sectioning then keeps feature-to-ray angles within the full limit.",
-        None,
-    ),
-    ("machine.kinematics", "The kinematics.", None),
-    ("machine.pose_mode", "What the Job's pose values are.", None),
-    (
-        "machine.x_limits_mm",
-        "X travel [min, max] (mm), axis and joint.",
-        None,
-    ),
-    ("machine.y_limits_mm", "Y travel (mm).", None),
-    ("machine.z_limits_mm", "Z travel (mm).", None),
-    ("machine.a_limits_deg", "A travel (degrees).", None),
-    (
-        "machine.b_limits_deg",
-        "B travel (degrees; the sim's joint 3 limits).",
-        None,
-    ),
-    ("machine.c_limits_deg", "C travel (degrees).", None),
-    (
-        "machine.rot_point_mm",
-        "LinuxCNC `x/y/z-rot-point` (mm).",
-        None,
-    ),
-    (
-        "machine.x_offset_mm",
-        "LinuxCNC `x-offset` (B/C only; the sim's xyzbc-trt uses −20) (mm).",
-        None,
-    ),
-    (
-        "machine.y_offset_mm",
-        "LinuxCNC `y-offset` (A/C only) (mm).",
-        None,
-    ),
-    (
-        "machine.z_offset_mm",
-        "LinuxCNC `z-offset` (the sim's xyzac-trt uses 10, xyzbc-trt −15) (mm).",
-        None,
-    ),
-    (
-        "machine.tool_offset_mm",
-        "LinuxCNC `tool-offset`: the tool length of the active tool (mm).",
-        None,
-    ),
-    (
-        "machine.workpiece_origin_mm",
-        "The work-piece frame's origin in the table frame (mm).",
-        None,
-    ),
-    (
-        "machine.linear_speed_mm_per_s",
-        "Linear joint speed for the time estimate (mm/s).",
-        None,
-    ),
-    (
-        "machine.rotary_speed_deg_per_s",
-        "Rotary joint speed for the time estimate (degrees/s).",
-        None,
-    ),
-    (
-        "machine.settle_s",
-        "Time to settle in position after each move (s).",
-        None,
-    ),
-    (
-        "galvo.field_mm",
-        "The usable field, width and height (mm), centred on the optical axis.",
-        None,
-    ),
-    (
-        "galvo.bits_per_mm",
-        "Calibration: galvo bits per millimetre in the field.",
-        None,
-    ),
-    ("galvo.mark_speed_mm_per_s", "Marking speed (mm/s).", None),
-    ("galvo.jump_speed_mm_per_s", "Jump speed (mm/s).", None),
-    (
-        "galvo.laser_on_delay_us",
-        "Delay after the laser is switched on before the mirrors move (µs).",
-        None,
-    ),
-    (
-        "galvo.laser_off_delay_us",
-        "Delay after a mark before the laser is switched off (µs).",
-        None,
-    ),
-    (
-        "galvo.jump_delay_us",
-        "Settling delay after a jump (µs).",
-        None,
-    ),
-    (
-        "galvo.mark_delay_us",
-        "Settling delay after a mark (µs).",
-        None,
-    ),
-    (
-        "galvo.polygon_delay_us",
-        "Delay at each polyline vertex (µs).",
-        None,
-    ),
+        "[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]",
+    ),
+    ("sim.truth.scanner_translation_mm", "[0.3, -0.2, 0.15]"),
+    ("sim.truth.pivot_to_focal_plane_mm", "262.0"),
+    ("sim.truth.path", "\"truth.csv\""),
+    ("register.scanner_viewpoint_mm", "[0.0, 0.0, 500.0]"),
+    ("zoning.k", "10"),
+    ("layers.step_mm", "0.3"),
 ];
 
-fn doc_for(key: &str) -> Option<&'static (&'static str, &'static str, Option<&'static str>)> {
-    KEY_DOCS.iter().find(|(k, _, _)| *k == key)
+/// job.toml's JSON Schema: every key's description is its doc comment in code.
+#[must_use]
+pub fn schema() -> serde_json::Value {
+    schemars::schema_for!(JobConfig).to_value()
+}
+
+/// Every key's description, by dotted key path (tables included): the doc comments of the
+/// settings types in code, read back through job.toml's JSON Schema. The one source of the
+/// `--dump` comments.
+#[must_use]
+pub fn key_docs() -> std::collections::BTreeMap<String, String> {
+    let schema = schema();
+    let empty = serde_json::Map::new();
+    let defs = schema
+        .get("$defs")
+        .and_then(serde_json::Value::as_object)
+        .unwrap_or(&empty);
+    let mut out = std::collections::BTreeMap::new();
+    collect_docs(&schema, defs, "", &mut out);
+    out
+}
+
+/// The schema a property stands for: through `$ref`, and through `anyOf`/`oneOf`/`allOf` (an
+/// `Option` of a table) to the first branch that has properties.
+fn resolve<'a>(
+    schema: &'a serde_json::Value,
+    defs: &'a serde_json::Map<String, serde_json::Value>,
+) -> &'a serde_json::Value {
+    if let Some(name) = schema
+        .get("$ref")
+        .and_then(serde_json::Value::as_str)
+        .and_then(|r| r.strip_prefix("#/$defs/"))
+        && let Some(def) = defs.get(name)
+    {
+        return resolve(def, defs);
+    }
+    for combinator in ["anyOf", "oneOf", "allOf"] {
+        if let Some(branches) = schema.get(combinator).and_then(serde_json::Value::as_array) {
+            for b in branches {
+                let r = resolve(b, defs);
+                if r.get("properties").is_some() {
+                    return r;
+                }
+            }
+        }
+    }
+    schema
+}
+
+fn collect_docs(
+    schema: &serde_json::Value,
+    defs: &serde_json::Map<String, serde_json::Value>,
+    prefix: &str,
+    out: &mut std::collections::BTreeMap<String, String>,
+) {
+    let Some(props) = resolve(schema, defs)
+        .get("properties")
+        .and_then(serde_json::Value::as_object)
+    else {
+        return;
+    };
+    for (name, prop) in props {
+        let key = if prefix.is_empty() {
+            name.clone()
+        } else {
+            format!("{prefix}.{name}")
+        };
+        if let Some(doc) = prop.get("description").and_then(serde_json::Value::as_str) {
+            out.insert(key.clone(), doc.to_owned());
+        }
+        collect_docs(prop, defs, &key, out);
+    }
 }
 
 fn comment(out: &mut String, text: &str) {
@@ -948,11 +484,16 @@ pub fn dump_default() -> String {
     let Ok(Value::Table(root)) = Value::try_from(JobConfig::default()) else {
         return out;
     };
-    render_table(&mut out, "", &root);
+    render_table(&mut out, &key_docs(), "", &root);
     out
 }
 
-fn render_table(out: &mut String, prefix: &str, table: &toml::map::Map<String, Value>) {
+fn render_table(
+    out: &mut String,
+    docs: &std::collections::BTreeMap<String, String>,
+    prefix: &str,
+    table: &toml::map::Map<String, Value>,
+) {
     let join = |k: &str| {
         if prefix.is_empty() {
             k.to_string()
@@ -963,30 +504,29 @@ fn render_table(out: &mut String, prefix: &str, table: &toml::map::Map<String, V
     // Scalars and arrays first (TOML puts them before sub-tables), then the unset keys.
     for (k, v) in table.iter().filter(|(_, v)| !v.is_table()) {
         let key = join(k);
-        if let Some((_, doc, _)) = doc_for(&key) {
+        if let Some(doc) = docs.get(&key) {
             comment(out, doc);
         }
         out.push_str(&format!("{k} = {v}\n"));
     }
-    let depth = prefix.matches('.').count() + usize::from(!prefix.is_empty());
-    for (key, doc, example) in KEY_DOCS {
+    for (key, example) in EXAMPLES {
         let (parent, leaf) = key.rsplit_once('.').unwrap_or(("", key));
-        if parent == prefix && key.matches('.').count() == depth && !table.contains_key(leaf) {
-            if let Some(example) = example {
+        if parent == prefix && !table.contains_key(leaf) {
+            if let Some(doc) = docs.get(*key) {
                 comment(out, doc);
-                out.push_str(&format!("# {leaf} = {example}\n"));
             }
+            out.push_str(&format!("# {leaf} = {example}\n"));
         }
     }
     for (k, v) in table.iter() {
         if let Value::Table(t) = v {
             let key = join(k);
             out.push('\n');
-            if let Some((_, doc, _)) = doc_for(&key) {
+            if let Some(doc) = docs.get(&key) {
                 comment(out, doc);
             }
             out.push_str(&format!("[{key}]\n"));
-            render_table(out, &key, t);
+            render_table(out, docs, &key, t);
         }
     }
 }
@@ -1021,31 +561,46 @@ mod tests {
         };
         let mut keys = Vec::new();
         key_paths("", &root, &mut keys);
-        let missing: Vec<&String> = keys.iter().filter(|k| doc_for(k).is_none()).collect();
+        let docs = key_docs();
+        let missing: Vec<&String> = keys
+            .iter()
+            .filter(|k| docs.get(*k).is_none_or(|d| d.trim().is_empty()))
+            .collect();
         assert!(
             missing.is_empty(),
-            "keys without a comment in KEY_DOCS: {missing:?}"
+            "keys without a doc comment in code: {missing:?}"
         );
-        // Documented keys exist: set or shown as a commented-out example.
-        for (key, _, example) in KEY_DOCS {
-            let leaf = key.rsplit('.').next().unwrap();
-            assert!(
-                keys.contains(&key.to_string()) || example.is_some(),
-                "KEY_DOCS names {key}, which the config does not have"
-            );
-            if let Some(example) = example {
+        let lines: Vec<&str> = dump.lines().collect();
+        for (i, line) in lines.iter().enumerate().skip(1) {
+            if !line.starts_with('#') && (line.contains(" = ") || line.starts_with('[')) {
                 assert!(
-                    dump.contains(&format!("# {leaf} = {example}")),
-                    "{key} example missing"
+                    lines[i - 1].starts_with('#'),
+                    "{line:?} has no comment above it in the dump"
                 );
             }
         }
+        // Every example names a key the schema documents, and the dump shows it.
+        for (key, example) in EXAMPLES {
+            let leaf = key.rsplit('.').next().unwrap();
+            assert!(
+                docs.contains_key(*key),
+                "EXAMPLES names {key}, which the config does not have"
+            );
+            assert!(
+                dump.contains(&format!("# {leaf} = {example}")),
+                "{key} example missing"
+            );
+        }
+        // The descriptions are the code's: one documented field, checked word for word.
+        assert_eq!(
+            docs.get("galvo.polygon_delay_us").map(String::as_str),
+            Some("Delay at each polyline vertex (µs).")
+        );
     }
 
     #[test]
     fn unset_keys_shown_as_examples_are_accepted() {
-        for (key, _, example) in KEY_DOCS {
-            let Some(example) = example else { continue };
+        for (key, example) in EXAMPLES {
             let (section, leaf) = key.rsplit_once('.').unwrap_or(("", key));
             let text = if section.is_empty() {
                 format!("{leaf} = {example}\n")

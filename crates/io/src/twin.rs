@@ -31,30 +31,32 @@ const NEAREST_VERTICES: usize = 8;
 
 /// job.toml `[sim.truth]`: the true cell. A missing key is the nominal value (lines of
 /// `[machine]`, identity scanner, a perfect head, L = the focal length).
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct TruthSettings {
-    /// The true A line's point (machine frame, mm).
+    /// The true A line's point, machine frame, mm.
     pub a_axis_point_mm: Option<[f64; 3]>,
     /// The true A line's direction.
     pub a_axis_direction: Option<[f64; 3]>,
-    /// The true B line's point (machine frame, mm).
+    /// The true B line's point (xyzbc-trt), mm.
     pub b_axis_point_mm: Option<[f64; 3]>,
-    /// The true B line's direction.
+    /// The true B line's direction (xyzbc-trt).
     pub b_axis_direction: Option<[f64; 3]>,
-    /// The true C line's point (machine frame, mm, at A (B) = 0).
+    /// The true C line's point, mm.
     pub c_axis_point_mm: Option<[f64; 3]>,
     /// The true C line's direction.
     pub c_axis_direction: Option<[f64; 3]>,
-    /// The scanner's true rotation R on the head (rows).
+    /// The scanner's true rotation on the head (3×3, rows).
     pub scanner_rotation: Option<[[f64; 3]; 3]>,
-    /// The scanner's true translation t on the head (mm).
+    /// The scanner's true translation on the head, mm.
     pub scanner_translation_mm: Option<[f64; 3]>,
-    /// The lens's true pivot height L (mm); unset: the focal length.
+    /// The lens's true pivot height L, mm (unset: beam.focal_length_mm).
     pub pivot_to_focal_plane_mm: Option<f64>,
-    /// The true trimming line (path CSV, work-piece frame); the demo part brings its own.
+    /// The true trimming line (path CSV, work-piece frame) the spot error is measured against; the
+    /// built-in demo part brings its own.
     pub path: Option<PathBuf>,
-    /// The galvo head's true field.
+    /// The galvo head's true field: where a command c lands on the focal plane, offset +
+    /// rotation·(c·(1 + barrel·|c|²) + trapezoid terms).
     pub head: LensDistortion,
 }
 

@@ -19,7 +19,7 @@ pub const INCIDENCE_SCAN_STEP_RAD: f64 = 0.01 * std::f64::consts::PI / 180.0;
 const INCIDENCE_BISECTION_STEPS: usize = 40;
 
 /// The laser, lens and process figures (paper §2.1–2.2). Defaults are the paper's cell.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Beam {
     /// Average laser power P (W).
@@ -41,8 +41,8 @@ pub struct Beam {
     pub fluence_threshold_ratio: f64,
     /// The incidence θ at which the spot ratios are reported (degrees).
     pub incidence_deg: f64,
-    /// The allowed relative change of the spot radius (line width) with incidence, e.g. 0.005
-    /// for ±0.5 %; sets [`Beam::max_incidence_for_line_width_rad`].
+    /// The allowed relative change of the spot radius (line width) with incidence, e.g. 0.005 for
+    /// ±0.5 %; sets [`Beam::max_incidence_for_line_width_rad`].
     pub line_width_tolerance: f64,
 }
 

@@ -201,40 +201,39 @@ fn normalise_deg(a: f64) -> f64 {
 }
 
 /// The lens calibration (job.toml `[calibration.lens]`).
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct LensCalibration {
-    /// L: the distance from the scan pivot to the focal plane along the optical axis (mm). A
-    /// point h above the focal plane (toward the lens) is reached at (L − h)/L of its
-    /// focal-plane position. Unset: the focal length (`beam.focal_length_mm`), or the value in
-    /// the field correction file when one is named. Ignored for a telecentric lens.
+    /// L: the scan pivot's height above the focal plane, mm. A point h above the focal plane is
+    /// reached at (L − h)/L of its focal-plane position. Unset: the field correction's value, else
+    /// beam.focal_length_mm. Ignored for a telecentric lens.
     pub pivot_to_focal_plane_mm: Option<f64>,
 }
 
 /// job.toml `[calibration]`: the cell as measured by `trimctl calibrate`. Every key is
 /// optional; a missing axis line is the nominal one of `[machine]`, a missing scanner pose the
 /// identity, a missing field correction none.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Calibration {
-    /// A point on the A line (machine frame, mm), at A = C = 0.
+    /// A point on the A line at A = C = 0, machine frame, mm (xyzac-trt).
     pub a_axis_point_mm: Option<[f64; 3]>,
-    /// The A line's unit direction (right-hand rule).
+    /// The A line's unit direction (right-hand rule); nominal +X.
     pub a_axis_direction: Option<[f64; 3]>,
-    /// A point on the B line (machine frame, mm), B/C cells.
+    /// A point on the B line at B = C = 0, machine frame, mm (xyzbc-trt).
     pub b_axis_point_mm: Option<[f64; 3]>,
-    /// The B line's unit direction.
+    /// The B line's unit direction; nominal +Y.
     pub b_axis_direction: Option<[f64; 3]>,
-    /// A point on the C line (machine frame, mm), given at A (B) = 0.
+    /// A point on the C line, given at A (B) = 0, machine frame, mm.
     pub c_axis_point_mm: Option<[f64; 3]>,
-    /// The C line's unit direction.
+    /// The C line's unit direction; nominal +Z.
     pub c_axis_direction: Option<[f64; 3]>,
-    /// R of the scanner pose, rows: a scanner point s is at (X, Y, Z) + R·s + t.
+    /// R of the scanner on the head (3×3, rows): a scanner point s is at (X, Y, Z) + R·s + t.
     pub scanner_rotation: Option<[[f64; 3]; 3]>,
-    /// t of the scanner pose (mm).
+    /// t of the scanner on the head, mm.
     pub scanner_translation_mm: Option<[f64; 3]>,
-    /// The galvo field correction (`trimctl calibrate field` output, field.json), relative to
-    /// the job file.
+    /// The galvo field correction from `trimctl calibrate field` (field.json), relative to this
+    /// file.
     pub field_correction: Option<PathBuf>,
     /// The lens.
     pub lens: LensCalibration,
@@ -495,14 +494,14 @@ impl ScannerPose {
 
 /// Where the scanner was when it took a scan: the machine's joint positions (X, Y, Z in mm,
 /// the tool point in the machine frame) and rotary axes (degrees). job.toml `[part.scan_pose]`.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ScanPose {
-    /// X, Y, Z joint positions (mm).
+    /// X, Y, Z joint positions, mm.
     pub xyz_mm: [f64; 3],
-    /// The tilting axis, A or B (degrees).
+    /// The tilting axis (A, or B on a B/C cell), degrees.
     pub tilt_deg: f64,
-    /// C (degrees).
+    /// C, degrees.
     pub c_deg: f64,
 }
 

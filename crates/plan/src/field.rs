@@ -28,14 +28,14 @@ use crate::piece::{Piece, angle_rad};
 pub const MIN_SPLIT_LENGTH_MM: f64 = 0.05;
 
 /// Lens options (job.toml `[field]`). The field size itself is `GalvoSettings::field_mm`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct LensSettings {
     /// A telecentric lens: the beam is parallel to the optical axis everywhere in the field.
     pub telecentric: bool,
-    /// For a non-telecentric lens: the part of the incidence limit reserved for the lens ray
-    /// angle (degrees). Zoning keeps feature vectors within (limit − this) of the zone axis;
-    /// sectioning then keeps feature-to-ray angles within the full limit.
+    /// For a non-telecentric lens: the part of the incidence limit reserved for the lens ray angle
+    /// (degrees). Zoning keeps feature vectors within (limit − this) of the zone axis; sectioning
+    /// then keeps feature-to-ray angles within the full limit.
     pub lens_ray_budget_deg: f64,
 }
 

@@ -195,7 +195,7 @@ pub struct FieldCorrectionRecord {
 
 /// Galvo motion and laser timing, used for the time estimate and sent to the galvo as list
 /// commands.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct GalvoSettings {
     /// The usable field, width and height (mm), centred on the optical axis.

@@ -56,7 +56,7 @@ pub const FIXED_HEAD_TOLERANCE_RAD: f64 = 1e-9;
 pub const LIMIT_SLACK: f64 = 1e-9;
 
 /// The machine's kinematics.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 pub enum KinematicsKind {
     /// Table rotary-tilting A (about X) carrying C (about Z), LinuxCNC `xyzac-trt-kins`.
     #[serde(rename = "xyzac-trt")]
@@ -101,7 +101,7 @@ impl KinematicsKind {
 }
 
 /// What the pose's axis values mean.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum PoseMode {
     /// World coordinates for TCP kinematics (LinuxCNC `M428`): X/Y/Z = focus in the table frame.
@@ -111,7 +111,7 @@ pub enum PoseMode {
 }
 
 /// The machine (job.toml `[machine]`). Defaults: LinuxCNC's sim `xyzac-trt.ini`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct MachineSettings {
     /// The kinematics.

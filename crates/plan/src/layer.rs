@@ -29,7 +29,7 @@ use crate::piece::Piece;
 pub const MIN_SUBSEGMENT_FRACTION: f64 = 1e-12;
 
 /// Layering options (job.toml `[layers]`).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct LayerSettings {
     /// ΔH (mm); unset: derived from the beam, 2 · focus half length · `step_safety`.

@@ -67,16 +67,16 @@ pub enum LensError {
 
 /// A parametric head field for the digital twin and tests: `D(c) = offset + Rot(θ)·d(c)` with
 /// `d(c) = c·(1 + k·|c|²) + (c_x·t_x·c_y, c_y·t_y·c_x)` (barrel k, keystone t).
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct LensDistortion {
-    /// Where the zero command lands (mm).
+    /// Where the zero command lands, head frame, mm.
     pub offset_mm: [f64; 2],
-    /// The head's rotation about the beam axis (degrees).
+    /// The head's rotation about the beam axis, degrees.
     pub rotation_deg: f64,
-    /// Radial distortion k: c ↦ c·(1 + k·|c|²) (1/mm²; > 0 pincushion, < 0 barrel).
+    /// Radial distortion k: c ↦ c·(1 + k·|c|²), 1/mm².
     pub barrel_per_mm2: f64,
-    /// Keystone: x gains x·t_x·y, y gains y·t_y·x (1/mm).
+    /// Keystone: x gains x·(tx·y), y gains y·(ty·x), 1/mm.
     pub trapezoid_per_mm: [f64; 2],
 }
 

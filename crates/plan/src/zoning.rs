@@ -59,7 +59,9 @@ pub const DEFAULT_MAX_AUTO_K: usize = 16;
 pub const KMEANS_TOLERANCE: f64 = 1e-9;
 
 /// How contours are grouped into zones (job.toml `zoning.method`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(try_from = "String", into = "String")]
 pub enum ZoningMethod {
     /// The paper's k-means zoning under (limit − lens budget), then field sections.
@@ -111,10 +113,12 @@ impl From<ZoningMethod> for String {
 }
 
 /// Zoning options (job.toml `[zoning]`).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ZoningSettings {
-    /// `"kmeans"` (the paper's zoning) or `"cover"` (pose selection as covering).
+    /// "kmeans": the paper's k-means zoning under (limit − lens budget), then field sections;
+    /// "cover": pose selection as covering (axis + field centre per pose, incidence checked with
+    /// the real lens ray), fewer poses.
     pub method: ZoningMethod,
     /// A fixed number of zones; unset: the smallest that keeps the incidence limit.
     pub k: Option<usize>,

@@ -502,7 +502,9 @@ fn finish(
 }
 
 /// One level of a coarse-to-fine pyramid.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema,
+)]
 #[serde(deny_unknown_fields)]
 pub struct PyramidLevel {
     /// Voxel size for down-sampling both clouds, mm (0: full resolution).

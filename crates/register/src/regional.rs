@@ -51,7 +51,17 @@ pub const MAX_INIT_TRANSLATION_MM: f64 = 15.0;
 pub const MIN_AXIS_VARIANCE_RATIO: f64 = 1.3;
 
 /// What the registration does.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+    schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum Mode {
     /// Coarse similarity, then the deformation field (the default).
@@ -62,7 +72,17 @@ pub enum Mode {
 }
 
 /// Where the coarse stage starts.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+    schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum CoarseInit {
     /// The fixture's nominal pose as given.
@@ -78,7 +98,7 @@ pub enum CoarseInit {
 }
 
 /// The coarse stage.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct CoarseSettings {
     /// Where to start.
@@ -89,8 +109,8 @@ pub struct CoarseSettings {
     pub min_voxel_points: usize,
     /// Pyramid levels, coarse to fine (scan voxel size, maximum distance, iterations).
     pub levels: Vec<PyramidLevel>,
-    /// Estimate a uniform scale at the finest level (the coarser levels are rigid: a scan →
-    /// CAD fit with a free scale at coarse resolution can shrink the scan onto the surface).
+    /// Estimate a uniform scale at the finest level (the coarser levels are rigid: a scan → CAD fit
+    /// with a free scale at coarse resolution can shrink the scan onto the surface).
     pub with_scale: bool,
     /// Huber threshold as a fraction of each level's maximum distance.
     pub huber_fraction: f64,
@@ -119,7 +139,9 @@ impl Default for CoarseSettings {
 }
 
 /// The deformation-field stage.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema,
+)]
 #[serde(deny_unknown_fields, default)]
 pub struct DeformationSettings {
     /// Control-point spacing, mm.
@@ -153,7 +175,9 @@ impl Default for DeformationSettings {
 }
 
 /// The per-contour quality tests.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema,
+)]
 #[serde(deny_unknown_fields, default)]
 pub struct QualitySettings {
     /// A contour point is covered when a matched scan point lies within this, mm.
@@ -191,26 +215,26 @@ impl Default for QualitySettings {
 }
 
 /// Registration settings: the `[register]` table of job.toml.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct RegisterSettings {
     /// Regional (field) or global (similarity only).
     pub mode: Mode,
-    /// The scanner's position in the scan frame, mm. When absent the scanner is taken to look
-    /// along `−view_direction` from infinitely far.
+    /// The scanner's position in the scan frame, mm. When absent the scanner is taken to look along
+    /// `−view_direction` from infinitely far.
     pub scanner_viewpoint_mm: Option<[f64; 3]>,
     /// Direction toward the scanner in the scan frame (used without a viewpoint).
     pub view_direction: [f64; 3],
-    /// CAD points whose normal makes `cos < facing_min_cos` with the direction to the scanner
-    /// are culled (−0.2 keeps walls up to 102° off the view).
+    /// CAD points whose normal makes `cos < facing_min_cos` with the direction to the scanner are
+    /// culled (−0.2 keeps walls up to 102° off the view).
     pub facing_min_cos: f64,
     /// Points sampled from a CAD mesh.
     pub cad_sample_points: usize,
-    /// The coarse stage.
+    /// The coarse stage: a global similarity from the fixture pose.
     pub coarse: CoarseSettings,
-    /// The field stage.
+    /// The field stage: a smooth deformation field over the part.
     pub field: DeformationSettings,
-    /// The quality tests.
+    /// The quality tests that flag a contour untrustworthy.
     pub quality: QualitySettings,
 }
 
