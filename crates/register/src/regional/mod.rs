@@ -1,0 +1,225 @@
+//! Regional registration of a trimming path onto a scan of a deformed part (DESIGN.md
+//! "Registration").
+//!
+//! 1. **Visibility.** Only CAD faces that face the scanner (`n·v ≥ facing_min_cos`) take part:
+//!    the far side of the slab and walls turned away can never be in the scan.
+//! 2. **Coarse similarity.** Scan → CAD point-to-plane ICP with scale on a voxel pyramid (coarse
+//!    scan voxels and a large maximum distance, shrinking), from the fixture's nominal pose. The
+//!    scan is the source: every scan point has its counterpart on the (whole, unclipped) CAD, so
+//!    no clip border pulls the fit inward and no unseen face attracts it.
+//! 3. **Deformation field.** A quadratic B-spline displacement field `F(x) = x + d(x)` over the
+//!    part ([`crate::field`]), fitted by Gauss-Newton to scan → CAD point-to-plane residuals
+//!    `r = n'·(F(c) − q)` (CAD normals carried by `F`), with a Huber kernel, a maximum
+//!    distance shrinking from the coarse residual to a few noise levels, and a second-difference
+//!    smoothness prior that leaves affine motion free. Directions that a patch cannot fix (a
+//!    straight strip sliding along itself) are carried by the field from the holes, slot ends
+//!    and corners around it; the path stays continuous because the field is.
+//! 4. **Path.** Each point moves by `scan_from_cad · F`; feature vectors by `(I + ∂d/∂x)⁻ᵀ`.
+//! 5. **Quality.** Per contour: scan coverage, point-to-plane residual, the translational
+//!    degeneracy of the scan near it (eigenvalues of `Σ n nᵀ`), and whether the surroundings
+//!    support its weakest direction. A contour that fails a test is flagged untrustworthy.
+//!
+//! The stages live in the submodules `settings`, `coarse`, `field_fit` and `quality`; their
+//! items are re-exported here.
+
+mod coarse;
+mod field_fit;
+mod quality;
+mod settings;
+
+pub use coarse::*;
+pub use field_fit::*;
+pub use quality::*;
+pub use settings::*;
+
+use crate::banded::solve_banded_spd;
+use crate::error::{RegisterError, Result};
+use crate::field::{BSplineField, SUPPORT};
+use crate::icp::{IcpMethod, IcpResult, IcpSettings, IcpTarget, PyramidLevel, icp};
+use crate::kdtree::{self, Scratch};
+use crate::kernel::RobustKernel;
+use crate::sampling::{View, dense_voxel_centroids, facing_indices, spatial_order, voxel_pick};
+use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen};
+use rayon::prelude::*;
+use std::time::Instant;
+use trim_geom::crop::crop_near_polyline;
+use trim_geom::{Contour, ContourId, KdTree, Path, Point3, PointCloud, Similarity3, Vector3};
+
+/// The registration's result.
+#[derive(Debug, Clone)]
+pub struct Registration {
+    /// The registered path, scan frame.
+    pub path: Path,
+    /// The coarse similarity.
+    pub scan_from_cad: Similarity3,
+    /// The displacement field, CAD frame (none in global mode).
+    pub field: Option<BSplineField>,
+    /// The coarse ICP's result (`target_from_source` is `cad_from_scan`).
+    pub coarse: IcpResult,
+    /// The quality report.
+    pub report: QualityReport,
+}
+
+impl Registration {
+    /// A registered position of a CAD-frame point, scan frame.
+    #[must_use]
+    pub fn scan_from_cad_point(&self, p_cad: &Point3) -> Point3 {
+        let moved = self.field.as_ref().map_or(*p_cad, |f| f.apply(p_cad));
+        self.scan_from_cad * moved
+    }
+}
+
+/// Voxel size of the CAD's spatially coherent order, mm.
+pub const CAD_ORDER_VOXEL_MM: f64 = 1.0;
+
+fn stage<T>(
+    timings: &mut Vec<(String, f64)>,
+    name: &str,
+    f: impl FnOnce() -> Result<T>,
+) -> Result<T> {
+    let t0 = Instant::now();
+    let out = f()?;
+    timings.push((name.to_string(), t0.elapsed().as_secs_f64()));
+    Ok(out)
+}
+
+/// Registers `path` (CAD frame) onto `scan` (scan frame), starting from the fixture's
+/// `initial_scan_from_cad`. `cad` must carry outward normals.
+pub fn register(
+    cad: &PointCloud,
+    scan: &PointCloud,
+    path: &Path,
+    initial_scan_from_cad: &Similarity3,
+    settings: &RegisterSettings,
+) -> Result<Registration> {
+    settings.validate()?;
+    if cad.is_empty() {
+        return Err(RegisterError::EmptyCloud { which: "CAD" });
+    }
+    if scan.is_empty() {
+        return Err(RegisterError::EmptyCloud { which: "scan" });
+    }
+    if !initial_scan_from_cad
+        .to_homogeneous()
+        .iter()
+        .all(|v| v.is_finite())
+    {
+        return Err(RegisterError::NonFinite {
+            what: "initial scan_from_cad".into(),
+        });
+    }
+    let mut timings = Vec::new();
+    let cad_from_scan_initial = initial_scan_from_cad.inverse();
+    let view_in_cad = match settings.scanner_viewpoint_mm {
+        Some(v) => View::From(cad_from_scan_initial * Point3::from(v)),
+        None => View::Along(
+            cad_from_scan_initial.isometry.rotation * Vector3::from(settings.view_direction),
+        ),
+    };
+    let target = stage(&mut timings, "cad visibility + kd-tree", || {
+        let facing = facing_indices(cad, view_in_cad, settings.facing_min_cos)?;
+        if facing.is_empty() {
+            return Err(RegisterError::EmptyCloud {
+                which: "CAD (faces toward the scanner)",
+            });
+        }
+        let visible = cad.select(&facing)?;
+        // Spatially coherent order: the curvature pass walks the CAD in it.
+        let order = spatial_order(visible.points(), CAD_ORDER_VOXEL_MM);
+        IcpTarget::new(visible.select(&order)?)
+    })?;
+
+    // Coarse: scan → CAD, point-to-plane with scale, over a scan pyramid.
+    let coarse = stage(&mut timings, "coarse similarity", || {
+        coarse_fit(scan, &target, &cad_from_scan_initial, &settings.coarse)
+    })?;
+    let cad_from_scan = coarse.target_from_source;
+    let scan_from_cad = cad_from_scan.inverse();
+
+    // Field points: one real scan point per voxel, in the CAD frame.
+    let field_points: Vec<Point3> = stage(&mut timings, "scan thinning", || {
+        let picked = voxel_pick(scan.points(), settings.field.voxel_mm)?;
+        Ok(picked
+            .par_iter()
+            .map(|&i| cad_from_scan * scan.points()[i])
+            .collect())
+    })?;
+    let overlap = overlap_fraction(
+        &field_points,
+        target.tree(),
+        settings.quality.overlap_distance_mm,
+    );
+    if overlap < settings.quality.min_overlap {
+        return Err(RegisterError::NotOverlapping {
+            fraction_pct: 100.0 * overlap,
+            distance_mm: settings.quality.overlap_distance_mm,
+            needed_pct: 100.0 * settings.quality.min_overlap,
+        });
+    }
+
+    let (field, matches) = match settings.mode {
+        Mode::Global => (
+            None,
+            final_matches(
+                &field_points,
+                &target,
+                &[],
+                None,
+                settings.quality.overlap_distance_mm,
+            ),
+        ),
+        Mode::Regional => {
+            let curvature = stage(&mut timings, "cad curvature", || {
+                Ok(shape_operators(target.cloud(), target.tree()))
+            })?;
+            let (f, m) = stage(&mut timings, "deformation field", || {
+                fit_field(&field_points, &target, &curvature, &settings.field)
+            })?;
+            (Some(f), m)
+        }
+    };
+
+    let registered = stage(&mut timings, "apply to path", || {
+        let contours = path
+            .contours()
+            .par_iter()
+            .map(|c| move_contour(c, field.as_ref(), &scan_from_cad))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Path::new(contours)?)
+    })?;
+
+    let contours = stage(&mut timings, "quality", || {
+        Ok(contour_quality(
+            path,
+            field.as_ref(),
+            &matches,
+            &scan_from_cad,
+            &settings.quality,
+        ))
+    })?;
+    let field_rmse_mm = field.as_ref().map(|_| {
+        let n = matches.len().max(1) as f64;
+        (matches.iter().map(|m| m.r * m.r).sum::<f64>() / n).sqrt()
+    });
+    let m = scan_from_cad.to_homogeneous();
+    let report = QualityReport {
+        global: GlobalQuality {
+            scan_from_cad: [0, 1, 2, 3].map(|i| [0, 1, 2, 3].map(|j| m[(i, j)])),
+            scale: scan_from_cad.scaling(),
+            coarse_rmse_mm: coarse.rmse_mm,
+            overlap,
+            field_rmse_mm,
+            field_points: field_points.len(),
+            untrustworthy: contours.iter().filter(|c| !c.trustworthy).count(),
+        },
+        contours,
+        timings_s: timings,
+    };
+    Ok(Registration {
+        path: registered,
+        scan_from_cad,
+        field,
+        coarse,
+        report,
+    })
+}

@@ -1,0 +1,313 @@
+//! The registration's settings (job.toml `[register]`) and their checks.
+
+use super::*;
+
+/// What the registration does.
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+    schemars::JsonSchema,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    /// Coarse similarity, then the deformation field (the default).
+    #[default]
+    Regional,
+    /// Coarse similarity only (a rigid-plus-scale part).
+    Global,
+}
+
+/// Where the coarse stage starts.
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+    schemars::JsonSchema,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum CoarseInit {
+    /// The fixture's nominal pose as given.
+    Nominal,
+    /// The nominal rotation; the translation that matches the centroids of the scan and of the
+    /// visible CAD.
+    Centroid,
+    /// Centroids, and the principal axes of the scan and the visible CAD (the sign choice
+    /// nearest the nominal rotation; the nominal rotation when the axes are ambiguous or more
+    /// than `max_init_rotation_deg` from it).
+    #[default]
+    PrincipalAxes,
+}
+
+/// The coarse stage.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct CoarseSettings {
+    /// Where to start.
+    pub init: CoarseInit,
+    /// The principal-axes start is refused beyond this rotation from the nominal pose, degrees.
+    pub max_init_rotation_deg: f64,
+    /// A voxel must hold this many scan points to count (drops isolated outliers).
+    pub min_voxel_points: usize,
+    /// Pyramid levels, coarse to fine (scan voxel size, maximum distance, iterations).
+    pub levels: Vec<PyramidLevel>,
+    /// Estimate a uniform scale at the finest level (the coarser levels are rigid: a scan → CAD fit
+    /// with a free scale at coarse resolution can shrink the scan onto the surface).
+    pub with_scale: bool,
+    /// Huber threshold as a fraction of each level's maximum distance.
+    pub huber_fraction: f64,
+}
+
+impl Default for CoarseSettings {
+    fn default() -> Self {
+        let level = |voxel_mm, max_correspondence_distance_mm, max_iterations| PyramidLevel {
+            voxel_mm,
+            max_correspondence_distance_mm,
+            max_iterations,
+        };
+        CoarseSettings {
+            init: CoarseInit::PrincipalAxes,
+            max_init_rotation_deg: 15.0,
+            min_voxel_points: 3,
+            levels: vec![
+                level(2.0, 12.0, 30),
+                level(1.0, 4.0, 30),
+                level(0.5, 1.5, 30),
+            ],
+            with_scale: true,
+            huber_fraction: 0.25,
+        }
+    }
+}
+
+/// The deformation-field stage.
+#[derive(
+    Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema,
+)]
+#[serde(deny_unknown_fields, default)]
+pub struct DeformationSettings {
+    /// Control-point spacing, mm.
+    pub spacing_mm: f64,
+    /// Scan thinning voxel for the fit (one real point kept per voxel), mm.
+    pub voxel_mm: f64,
+    /// Gauss-Newton iterations.
+    pub iterations: usize,
+    /// Maximum correspondence distance at the first iteration, mm.
+    pub max_distance_start_mm: f64,
+    /// …shrinking geometrically to this by iteration `iterations − 3`, mm.
+    pub max_distance_end_mm: f64,
+    /// Huber threshold, mm.
+    pub huber_mm: f64,
+    /// Weight of the second-difference prior relative to the mean data weight per unknown.
+    pub smoothness: f64,
+}
+
+impl Default for DeformationSettings {
+    fn default() -> Self {
+        DeformationSettings {
+            spacing_mm: 20.0,
+            voxel_mm: 0.4,
+            iterations: 10,
+            max_distance_start_mm: 1.5,
+            max_distance_end_mm: 0.1,
+            huber_mm: 0.02,
+            smoothness: 0.1,
+        }
+    }
+}
+
+/// The per-contour quality tests.
+#[derive(
+    Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema,
+)]
+#[serde(deny_unknown_fields, default)]
+pub struct QualitySettings {
+    /// A contour point is covered when a matched scan point lies within this, mm.
+    pub coverage_radius_mm: f64,
+    /// Scan points within this of a contour make its local patch, mm.
+    pub patch_radius_mm: f64,
+    /// Flag a contour covered on less than this fraction of its points.
+    pub min_coverage: f64,
+    /// Flag a contour whose patch residual (RMS, mm) exceeds this.
+    pub max_residual_mm: f64,
+    /// A patch is degenerate when `λmin/λmax` of its `Σ n nᵀ` is below this.
+    pub min_degeneracy_ratio: f64,
+    /// The surroundings (within this, mm) must constrain a degenerate patch's weakest direction.
+    pub support_radius_mm: f64,
+    /// Refuse the whole registration when fewer than this fraction of scan points lie within
+    /// `overlap_distance_mm` of the CAD after the coarse stage.
+    pub min_overlap: f64,
+    /// Distance for the overlap test, mm.
+    pub overlap_distance_mm: f64,
+}
+
+impl Default for QualitySettings {
+    fn default() -> Self {
+        QualitySettings {
+            coverage_radius_mm: 0.75,
+            patch_radius_mm: 1.5,
+            min_coverage: 0.6,
+            max_residual_mm: 0.05,
+            min_degeneracy_ratio: 0.02,
+            support_radius_mm: 15.0,
+            min_overlap: 0.3,
+            overlap_distance_mm: 1.0,
+        }
+    }
+}
+
+/// Registration settings: the `[register]` table of job.toml.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct RegisterSettings {
+    /// Regional (field) or global (similarity only).
+    pub mode: Mode,
+    /// The scanner's position in the scan frame, mm. When absent the scanner is taken to look along
+    /// `−view_direction` from infinitely far.
+    pub scanner_viewpoint_mm: Option<[f64; 3]>,
+    /// Direction toward the scanner in the scan frame (used without a viewpoint).
+    pub view_direction: [f64; 3],
+    /// CAD points whose normal makes `cos < facing_min_cos` with the direction to the scanner are
+    /// culled (−0.2 keeps walls up to 102° off the view).
+    pub facing_min_cos: f64,
+    /// Points sampled from a CAD mesh.
+    pub cad_sample_points: usize,
+    /// The coarse stage: a global similarity from the fixture pose.
+    pub coarse: CoarseSettings,
+    /// The field stage: a smooth deformation field over the part.
+    pub field: DeformationSettings,
+    /// The quality tests that flag a contour untrustworthy.
+    pub quality: QualitySettings,
+}
+
+impl Default for RegisterSettings {
+    fn default() -> Self {
+        RegisterSettings {
+            mode: Mode::Regional,
+            scanner_viewpoint_mm: None,
+            view_direction: [0.0, 0.0, 1.0],
+            facing_min_cos: -0.2,
+            cad_sample_points: 300_000,
+            coarse: CoarseSettings::default(),
+            field: DeformationSettings::default(),
+            quality: QualitySettings::default(),
+        }
+    }
+}
+
+pub(crate) fn positive(name: &str, v: f64) -> Result<()> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(RegisterError::setting(
+            name,
+            format!("must be finite and > 0, got {v}"),
+        ))
+    }
+}
+
+pub(crate) fn fraction(name: &str, v: f64) -> Result<()> {
+    if (0.0..=1.0).contains(&v) {
+        Ok(())
+    } else {
+        Err(RegisterError::setting(
+            name,
+            format!("must be in [0, 1], got {v}"),
+        ))
+    }
+}
+
+impl RegisterSettings {
+    /// Refuses out-of-range values, naming the key as in job.toml (`register.field.spacing_mm`).
+    pub fn validate(&self) -> Result<()> {
+        if let Some(v) = self.scanner_viewpoint_mm {
+            if !v.iter().all(|c| c.is_finite()) {
+                return Err(RegisterError::setting(
+                    "scanner_viewpoint_mm",
+                    "must be finite",
+                ));
+            }
+        }
+        let d = Vector3::from(self.view_direction);
+        if !(d.iter().all(|c| c.is_finite()) && d.norm() > 0.0) {
+            return Err(RegisterError::setting(
+                "view_direction",
+                "must be a finite non-zero vector",
+            ));
+        }
+        if !(-1.0..=1.0).contains(&self.facing_min_cos) {
+            return Err(RegisterError::setting(
+                "facing_min_cos",
+                "must be in [−1, 1]",
+            ));
+        }
+        if self.cad_sample_points < 1000 {
+            return Err(RegisterError::setting(
+                "cad_sample_points",
+                "must be at least 1000",
+            ));
+        }
+        if self.coarse.levels.is_empty() {
+            return Err(RegisterError::setting(
+                "coarse.levels",
+                "needs at least one level",
+            ));
+        }
+        for (k, l) in self.coarse.levels.iter().enumerate() {
+            positive(&format!("coarse.levels[{k}].voxel_mm"), l.voxel_mm)?;
+            positive(
+                &format!("coarse.levels[{k}].max_correspondence_distance_mm"),
+                l.max_correspondence_distance_mm,
+            )?;
+            if l.max_iterations == 0 {
+                return Err(RegisterError::setting(
+                    format!("coarse.levels[{k}].max_iterations"),
+                    "must be at least 1",
+                ));
+            }
+        }
+        positive("coarse.huber_fraction", self.coarse.huber_fraction)?;
+        positive(
+            "coarse.max_init_rotation_deg",
+            self.coarse.max_init_rotation_deg,
+        )?;
+        let f = &self.field;
+        positive("field.spacing_mm", f.spacing_mm)?;
+        positive("field.voxel_mm", f.voxel_mm)?;
+        positive("field.max_distance_start_mm", f.max_distance_start_mm)?;
+        positive("field.max_distance_end_mm", f.max_distance_end_mm)?;
+        positive("field.huber_mm", f.huber_mm)?;
+        if !(f.smoothness.is_finite() && f.smoothness >= 0.0) {
+            return Err(RegisterError::setting(
+                "field.smoothness",
+                "must be finite and ≥ 0",
+            ));
+        }
+        if f.iterations == 0 {
+            return Err(RegisterError::setting(
+                "field.iterations",
+                "must be at least 1",
+            ));
+        }
+        let q = &self.quality;
+        positive("quality.coverage_radius_mm", q.coverage_radius_mm)?;
+        positive("quality.patch_radius_mm", q.patch_radius_mm)?;
+        positive("quality.max_residual_mm", q.max_residual_mm)?;
+        positive("quality.support_radius_mm", q.support_radius_mm)?;
+        positive("quality.overlap_distance_mm", q.overlap_distance_mm)?;
+        fraction("quality.min_coverage", q.min_coverage)?;
+        fraction("quality.min_degeneracy_ratio", q.min_degeneracy_ratio)?;
+        fraction("quality.min_overlap", q.min_overlap)?;
+        Ok(())
+    }
+}
