@@ -170,7 +170,8 @@ pub struct CoverReport {
     pub dropped: usize,
     /// Poses removed by moving their atoms into refitted neighbours.
     pub absorbed: usize,
-    /// Atoms no candidate covers (planned alone; validation reports them).
+    /// Atoms no reachable pose covers: grouped into poses without the reach, which the planner
+    /// marks unreachable.
     pub uncovered_atoms: usize,
     /// The lower bound on the pose count (see the module docs).
     pub lower_bound: usize,
@@ -185,6 +186,7 @@ pub struct Cover {
     pub report: CoverReport,
 }
 
+#[derive(Clone)]
 struct Atom {
     piece: Piece,
     /// Index of its contour in the path; atoms of a contour are consecutive, in order.
@@ -658,37 +660,21 @@ fn atomize(whole: &[Piece], limit_rad: f64) -> Vec<(Piece, usize)> {
     out
 }
 
-/// Plans the covering of a path (see the module docs).
-pub fn cover(path: &Path, problem: &CoverProblem<'_>) -> Result<Cover, PlanError> {
-    let whole = pieces_of(path, PI, PI)?;
-    let mut atoms: Vec<Atom> = Vec::new();
-    for (piece, c) in atomize(&whole, problem.limit_rad) {
-        // An atom no pose covers alone is halved again.
-        let mut stack = vec![(piece, 0usize)];
-        while let Some((q, depth)) = stack.pop() {
-            let atom = Atom::new(q, c);
-            let alone = problem
-                .fit(&atom.rep, None)
-                .is_some_and(|pose| problem.covers_atom(&pose, &atom));
-            if alone
-                || depth >= MAX_ATOM_SPLITS
-                || atom.piece.length_mm() < 2.0 * MIN_ATOM_LENGTH_MM
-            {
-                atoms.push(atom);
-                continue;
-            }
-            let parts = cut_equal(&atom.piece, 2);
-            if parts.len() != 2 {
-                atoms.push(atom);
-                continue;
-            }
-            for part in parts.into_iter().rev() {
-                stack.push((part, depth + 1));
-            }
-        }
-    }
-    let n = atoms.len();
+/// What [`select`] chose.
+struct Selection {
+    chosen: Vec<(CoverPose, Vec<usize>)>,
+    candidates: Vec<(CoverPose, Vec<usize>)>,
+    greedy_poses: usize,
+    merges: usize,
+    dropped: usize,
+    absorbed: usize,
+    /// Atoms no candidate covers (no pose chosen for them).
+    uncovered: Vec<usize>,
+}
 
+/// Steps 3 and 4 of the module docs on a set of atoms.
+fn select(problem: &CoverProblem<'_>, atoms: &[Atom]) -> Selection {
+    let n = atoms.len();
     // (3) candidates.
     let mut candidates: Vec<(CoverPose, Vec<usize>)> = Vec::new();
     let mut inside = vec![0usize; n];
@@ -696,10 +682,10 @@ pub fn cover(path: &Path, problem: &CoverProblem<'_>) -> Result<Cover, PlanError
         if n > SEED_ALL_BELOW && inside[seed] >= SEED_SKIP_COVERED {
             continue;
         }
-        let Some((pose, _)) = problem.grow(&atoms, seed) else {
+        let Some((pose, _)) = problem.grow(atoms, seed) else {
             continue;
         };
-        let covered = problem.coverage(&atoms, &pose);
+        let covered = problem.coverage(atoms, &pose);
         if covered.is_empty() {
             continue;
         }
@@ -728,30 +714,100 @@ pub fn cover(path: &Path, problem: &CoverProblem<'_>) -> Result<Cover, PlanError
         chosen.push(candidates[i].clone());
     }
     let uncovered: Vec<usize> = (0..n).filter(|&j| !covered[j]).collect();
-    for &j in &uncovered {
-        // No candidate covers it: a pose of its own (validation reports what fails).
-        let pose = problem
-            .fit(&atoms[j].rep, None)
-            .unwrap_or_else(|| centred(UnitVector3::new_normalize(atoms[j].mean), &atoms[j].rep));
-        chosen.push((pose, vec![j]));
-    }
     let greedy_poses = chosen.len();
 
     // (4) local improvement.
     let (mut merges, mut dropped, mut absorbed) = (0, 0, 0);
     loop {
         dropped += drop_redundant(&mut chosen, n);
-        if merge_one(problem, &atoms, &mut chosen) {
+        if merge_one(problem, atoms, &mut chosen) {
             merges += 1;
-        } else if absorb_one(problem, &atoms, &mut chosen) {
+        } else if absorb_one(problem, atoms, &mut chosen) {
             absorbed += 1;
         } else {
             break;
         }
     }
 
-    // (6) lower bound.
-    let lower_bound = lower_bound(problem, &atoms, &candidates);
+    Selection {
+        chosen,
+        candidates,
+        greedy_poses,
+        merges,
+        dropped,
+        absorbed,
+        uncovered,
+    }
+}
+
+/// Plans the covering of a path (see the module docs).
+pub fn cover(path: &Path, problem: &CoverProblem<'_>) -> Result<Cover, PlanError> {
+    let whole = pieces_of(path, PI, PI)?;
+    let always = |_: &UnitVector3, _: &Point3| true;
+    let unlimited = CoverProblem {
+        limit_rad: problem.limit_rad,
+        field_radius_mm: problem.field_radius_mm,
+        lens: problem.lens,
+        fixed_axis: problem.fixed_axis,
+        reachable: &always,
+    };
+    let mut atoms: Vec<Atom> = Vec::new();
+    for (piece, c) in atomize(&whole, problem.limit_rad) {
+        // An atom no pose covers alone is halved again.
+        let mut stack = vec![(piece, 0usize)];
+        while let Some((q, depth)) = stack.pop() {
+            let atom = Atom::new(q, c);
+            // Whether it fits geometrically: the reach is not the piece's size.
+            let alone = unlimited
+                .fit(&atom.rep, None)
+                .is_some_and(|pose| unlimited.covers_atom(&pose, &atom));
+            if alone
+                || depth >= MAX_ATOM_SPLITS
+                || atom.piece.length_mm() < 2.0 * MIN_ATOM_LENGTH_MM
+            {
+                atoms.push(atom);
+                continue;
+            }
+            let parts = cut_equal(&atom.piece, 2);
+            if parts.len() != 2 {
+                atoms.push(atom);
+                continue;
+            }
+            for part in parts.into_iter().rev() {
+                stack.push((part, depth + 1));
+            }
+        }
+    }
+    let n = atoms.len();
+    let mut sel = select(problem, &atoms);
+    // (6) lower bound, over the atoms some reachable pose covers.
+    let lower_bound = lower_bound(problem, &atoms, &sel.candidates);
+    // Atoms no reachable pose covers: covered again without the reach, so they are grouped;
+    // the planner marks those zones unreachable.
+    let uncovered = std::mem::take(&mut sel.uncovered);
+    if !uncovered.is_empty() {
+        let rest: Vec<Atom> = uncovered.iter().map(|&j| atoms[j].clone()).collect();
+        let more = select(&unlimited, &rest);
+        for (pose, c) in more.chosen {
+            sel.chosen
+                .push((pose, c.iter().map(|&k| uncovered[k]).collect()));
+        }
+        for k in more.uncovered {
+            // No pose covers it at all: a pose of its own (validation reports what fails).
+            let a = &rest[k];
+            let pose = centred(UnitVector3::new_normalize(a.mean), &a.rep);
+            sel.chosen.push((pose, vec![uncovered[k]]));
+        }
+    }
+    let Selection {
+        chosen,
+        candidates,
+        greedy_poses,
+        merges,
+        dropped,
+        absorbed,
+        ..
+    } = sel;
 
     // (5) assignment.
     let owner = assign(&atoms, &chosen, n);
@@ -1028,7 +1084,7 @@ fn lower_bound(
         x.iter().any(|i| y.binary_search(i).is_ok())
     };
     // Atoms in few candidates are the hardest to combine: try them first.
-    let mut order: Vec<usize> = (0..n).collect();
+    let mut order: Vec<usize> = (0..n).filter(|&j| !in_candidates[j].is_empty()).collect();
     order.sort_by_key(|&j| (in_candidates[j].len(), j));
     let mut set: Vec<usize> = Vec::new();
     for j in order {

@@ -218,3 +218,26 @@ fn report_pose_counts() {
         }
     }
 }
+
+/// On a cell whose A axis travels ±5° the demo part cannot be covered by reachable poses
+/// alone: the atoms no reachable pose covers are grouped into poses the planner marks
+/// unreachable (as k-means zones are), and the rest stay reachable.
+#[test]
+fn cover_groups_what_no_reachable_pose_covers_and_marks_it() {
+    let path = demo_path();
+    let mut s = settings(ZoningMethod::Cover);
+    s.machine.a_limits_deg = [-5.0, 5.0];
+    let out = plan_with_report(&path, &s).expect("plans");
+    let v = &out.job.validation;
+    let report = out.cover.expect("cover report");
+    eprintln!(
+        "±5° A: {} poses, unreachable {:?}, {report:?}",
+        out.job.zones.len(),
+        v.unreachable_zones
+    );
+    assert!(!v.passed);
+    assert!(report.uncovered_atoms > 0);
+    assert!(!v.unreachable_zones.is_empty());
+    assert!(v.unreachable_zones.len() < out.job.zones.len());
+    assert!(out.job.zones.len() < report.atoms);
+}
