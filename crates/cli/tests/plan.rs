@@ -131,21 +131,30 @@ fn path_and_tracks(
     (path_csv, tracks_csv)
 }
 
+/// `trimctl plan --path PATH --hatch TRACKS --out JOB`.
+fn plan_with_hatch(
+    path: &std::path::Path,
+    tracks: &std::path::Path,
+    job: &std::path::Path,
+) -> std::process::Output {
+    Command::new(TRIMCTL)
+        .arg("plan")
+        .arg("--path")
+        .arg(path)
+        .arg("--hatch")
+        .arg(tracks)
+        .arg("--out")
+        .arg(job)
+        .output()
+        .expect("trimctl runs")
+}
+
 #[test]
 fn plan_takes_hatch_tracks_beside_the_contours() {
     let tmp = tempfile::tempdir().expect("temp dir");
     let (path, tracks) = path_and_tracks(tmp.path(), false);
     let job = tmp.path().join("job.json");
-    let out = Command::new(TRIMCTL)
-        .arg("plan")
-        .arg("--path")
-        .arg(&path)
-        .arg("--hatch")
-        .arg(&tracks)
-        .arg("--out")
-        .arg(&job)
-        .output()
-        .expect("trimctl runs");
+    let out = plan_with_hatch(&path, &tracks, &job);
     assert!(
         out.status.success(),
         "{}",
@@ -171,16 +180,7 @@ fn plan_takes_hatch_tracks_beside_the_contours() {
 
     // A path that already uses negative ids would collide: refused, naming the file.
     let (path, tracks) = path_and_tracks(tmp.path(), true);
-    let out = Command::new(TRIMCTL)
-        .arg("plan")
-        .arg("--path")
-        .arg(&path)
-        .arg("--hatch")
-        .arg(&tracks)
-        .arg("--out")
-        .arg(&job)
-        .output()
-        .expect("trimctl runs");
+    let out = plan_with_hatch(&path, &tracks, &job);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(
