@@ -241,3 +241,49 @@ fn cover_groups_what_no_reachable_pose_covers_and_marks_it() {
     assert!(v.unreachable_zones.len() < out.job.zones.len());
     assert!(out.job.zones.len() < report.atoms);
 }
+
+/// Seeded cores, both lens kinds, both tilting kinematics and a tighter limit: the covering
+/// always validates, its lower bound holds, and it never needs more poses than k-means.
+#[test]
+fn cover_validates_and_never_needs_more_poses_than_kmeans() {
+    use trim_plan::kinematics::KinematicsKind;
+    let (mut kmeans_total, mut cover_total) = (0, 0);
+    for seed in 1..=3u64 {
+        for n in [20usize, 60] {
+            let path = synthetic_core_path(n, seed);
+            for variant in 0..4 {
+                let (mut c, mut k) = (
+                    settings(ZoningMethod::Cover),
+                    settings(ZoningMethod::Kmeans),
+                );
+                for s in [&mut c, &mut k] {
+                    match variant {
+                        1 => s.field.telecentric = true,
+                        2 => s.machine.kinematics = KinematicsKind::XyzbcTrt,
+                        3 => s.max_incidence_deg = 3.0,
+                        _ => {}
+                    }
+                }
+                let out = plan_with_report(&path, &c).expect("plans");
+                let kmeans = plan_with_report(&path, &k).expect("plans");
+                let report = out.cover.expect("cover report");
+                let at = format!("seed {seed}, {n} contours, variant {variant}");
+                assert!(
+                    out.job.validation.passed,
+                    "{at}: {:?}",
+                    out.job.validation.violations
+                );
+                assert!(report.lower_bound <= report.poses, "{at}: {report:?}");
+                assert!(out.job.zones.len() <= kmeans.job.zones.len(), "{at}");
+                kmeans_total += kmeans.job.zones.len();
+                cover_total += out.job.zones.len();
+            }
+        }
+    }
+    eprintln!("poses over 24 plans: k-means {kmeans_total}, cover {cover_total}");
+    // Issue 15: at least 40 % fewer poses.
+    assert!(
+        cover_total * 10 <= kmeans_total * 6,
+        "{cover_total} vs {kmeans_total}"
+    );
+}
