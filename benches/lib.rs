@@ -1,6 +1,6 @@
 //! Criterion benchmarks of the trimctl hot paths (see `benches/*.rs` and `benches/benches/`).
 //! This library holds the seeded generators the registration benches share; the plan and hatch
-//! benches generate their cases with `trim_plan::testing` and their own surface.
+//! benches generate their cases with `trim_synth::testing` and their own surface.
 
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;

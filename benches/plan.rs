@@ -9,8 +9,8 @@
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use trim_plan::piece::pieces_of;
 use trim_plan::planner::PlanSettings;
-use trim_plan::testing::synthetic_core_path;
 use trim_plan::zoning::zone_pieces;
+use trim_synth::testing::synthetic_core_path;
 
 /// The seed of the synthetic paths.
 const SEED: u64 = 0x7a11_3c0e;

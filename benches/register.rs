@@ -20,7 +20,6 @@
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use rayon::prelude::*;
-use trim_geom::synth::{SynthParams, generate};
 use trim_geom::{Point3, Similarity3};
 use trim_register::icp::{
     IcpMethod, IcpSettings, IcpTarget, icp, icp_step, nearest_correspondences,
@@ -28,6 +27,7 @@ use trim_register::icp::{
 use trim_register::kdtree::KdTree;
 use trim_register::regional::{RegisterSettings, register};
 use trim_register::umeyama::umeyama;
+use trim_synth::{SynthParams, generate};
 use trimctl_benches::{small_motion, wavy_surface};
 
 /// Source points per parallel task, as registration's own correspondence search.

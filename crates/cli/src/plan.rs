@@ -117,7 +117,7 @@ mod tests {
 
     fn write_core(dir: &std::path::Path) -> PathBuf {
         let csv = dir.join("core.csv");
-        let path = trim_plan::testing::synthetic_core_path(60, 11);
+        let path = trim_synth::testing::synthetic_core_path(60, 11);
         trim_geom::formats::write_path(&csv, &path).expect("writes the CSV");
         csv
     }

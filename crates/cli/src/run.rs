@@ -2,7 +2,7 @@
 //! execute on the cell, and leave a complete run folder.
 //!
 //! With no job file it runs the built-in demo part (a synthetic ceramic core, see
-//! `trim_geom::synth`) against the built-in simulated cell.
+//! `trim_synth`) against the built-in simulated cell.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -12,7 +12,6 @@ use serde::Serialize;
 use tokio_util::sync::CancellationToken;
 use trim_geom::formats;
 use trim_geom::math::Similarity3;
-use trim_geom::synth::{SynthParams, generate};
 use trim_geom::{Path as TrimPath, PointCloud};
 use trim_io::cell::{Cell, CellAddresses, SimCell, SimOptions, Timeouts};
 use trim_io::executor::{ExecError, ExecOptions, Executor, Progress, RunSummary, StopCause};
@@ -24,6 +23,7 @@ use trim_io::twin::{Spot, SpotStats, TrueCell, TruePart, Twin};
 use trim_plan::Job;
 use trim_plan::planner::{PlanOutput, plan_with_report};
 use trim_register::regional::{Registration, register};
+use trim_synth::{SynthParams, generate};
 
 use crate::config::{HatchRegion, JobConfig, SIM};
 use crate::exit::{Exit, Failure};
@@ -212,7 +212,7 @@ fn load_inputs(config: &JobConfig, args: &Args, run_dir: &Path) -> anyhow::Resul
             let boundary = dir.join(DEMO_HATCH_BOUNDARY);
             formats::write_path(
                 &boundary,
-                &TrimPath::new(vec![trim_geom::synth::demo_hatch_boundary()?])?,
+                &TrimPath::new(vec![trim_synth::demo_hatch_boundary()?])?,
             )?;
             vec![HatchRegion {
                 boundary,

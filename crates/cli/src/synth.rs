@@ -1,9 +1,9 @@
-//! `trimctl synth`: writes a synthetic ceramic-core-like test case (see `trim_geom::synth`).
+//! `trimctl synth`: writes a synthetic ceramic-core-like test case (see `trim_synth`).
 
 use std::path::PathBuf;
 
 use anyhow::Context;
-use trim_geom::synth::{SynthParams, generate};
+use trim_synth::{SynthParams, generate};
 
 /// Arguments of `trimctl synth`.
 #[derive(clap::Args, Debug)]

@@ -100,7 +100,7 @@ fn path_and_tracks(
     dir: &std::path::Path,
     negative_id: bool,
 ) -> (std::path::PathBuf, std::path::PathBuf) {
-    let mut path = trim_plan::testing::synthetic_core_path(20, 5);
+    let mut path = trim_synth::testing::synthetic_core_path(20, 5);
     if negative_id {
         let mut contours = path.contours().to_vec();
         let c = &contours[0];

@@ -130,7 +130,7 @@ fn demo_hatch_is_planned_and_marked(out: &Path, stdout: &str) {
     for file in ["hatch_0.csv", "hatch_0.svg", "inputs/hatch_boundary.csv"] {
         assert!(out.join(file).is_file(), "{file} missing");
     }
-    let tracks = std::fs::read_to_string(out.join("hatch_0.csv")).unwrap();
+    let tracks = std::fs::read_to_string(out.join("hatch_0.csv")).expect("hatch_0.csv");
     let n_tracks = tracks
         .lines()
         .skip(1)
@@ -140,14 +140,14 @@ fn demo_hatch_is_planned_and_marked(out: &Path, stdout: &str) {
     // 3 mm across at a 0.05 mm pitch, plus the outline; the part lies turned by its fixture
     // error, so tracks along the machine's X cross the 16 mm long region a little diagonally.
     assert!((60..=80).contains(&n_tracks), "{n_tracks} tracks");
-    let text = std::fs::read_to_string(out.join("plan.json")).unwrap();
-    let plan: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let text = std::fs::read_to_string(out.join("plan.json")).expect("plan.json");
+    let plan: serde_json::Value = serde_json::from_str(&text).expect("plan.json is JSON");
     let mut hatch_ids = std::collections::BTreeSet::new();
     let mut hatch_polylines = 0;
-    for z in plan["zones"].as_array().unwrap() {
-        for l in z["layers"].as_array().unwrap() {
-            for p in l["polylines"].as_array().unwrap() {
-                let id = p["contour"].as_i64().unwrap();
+    for z in plan["zones"].as_array().expect("zones") {
+        for l in z["layers"].as_array().expect("layers") {
+            for p in l["polylines"].as_array().expect("polylines") {
+                let id = p["contour"].as_i64().expect("contour id");
                 if id < 0 {
                     hatch_ids.insert(id);
                     hatch_polylines += 1;
@@ -161,12 +161,17 @@ fn demo_hatch_is_planned_and_marked(out: &Path, stdout: &str) {
         "tracks across the cambered face are split by the incidence limit"
     );
     assert_eq!(plan["validation"]["passed"], true);
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("summary.json")).expect("summary.json"),
+    )
+    .expect("summary.json is JSON");
     let spots = &summary["spot_error"];
-    assert!(spots["excluded_spots"].as_u64().unwrap() > 0, "{spots}");
     assert!(
-        spots["overall"]["max_um"].as_f64().unwrap() < 50.0,
+        spots["excluded_spots"].as_u64().expect("excluded_spots") > 0,
+        "{spots}"
+    );
+    assert!(
+        spots["overall"]["max_um"].as_f64().expect("max_um") < 50.0,
         "{spots}"
     );
 }

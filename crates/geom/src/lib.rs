@@ -11,7 +11,6 @@
 //! - [`normals`], [`voxel`], [`crop`]: point-cloud processing.
 //! - [`mesh`]: triangle meshes on parry3d, area-weighted sampling, point-to-mesh distance.
 //! - [`formats`]: PLY, PCD, XYZ, STL and path CSV readers and writers.
-//! - [`synth`]: synthetic ceramic-core-like test cases (CAD, path, deformed scan, ground truth).
 
 pub mod cloud;
 pub mod crop;
@@ -22,7 +21,6 @@ pub mod math;
 pub mod mesh;
 pub mod normals;
 pub mod path;
-pub mod synth;
 pub mod transform;
 pub mod voxel;
 

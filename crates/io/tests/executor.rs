@@ -469,7 +469,7 @@ async fn the_monitor_catches_emission_during_motion_in_the_simulated_cell() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_planned_job_runs_and_the_simulated_galvo_time_matches_the_planners_estimate() {
-    let path = trim_plan::testing::synthetic_core_path(12, 7);
+    let path = trim_synth::testing::synthetic_core_path(12, 7);
     let job = trim_plan::planner::plan(&path, &trim_plan::planner::PlanSettings::default())
         .expect("plan");
     let layers = job.layers().count();

@@ -44,7 +44,7 @@ fn truth(kind: KinematicsKind) -> TruthSettings {
 }
 
 async fn spots(settings: &PlanSettings, truth: &TruthSettings) -> SpotStats {
-    let path = trim_plan::testing::synthetic_core_path(16, 3);
+    let path = trim_synth::testing::synthetic_core_path(16, 3);
     let job = plan(&path, settings).unwrap();
     assert!(job.validation.passed, "{:?}", job.validation.violations);
     let twin = Twin::new(TrueCell::new(truth, settings), TruePart::new(&path));

@@ -14,7 +14,6 @@
 //! - [`order`]: zone ordering (nearest neighbour + 2-opt).
 //! - [`planner`]: [`plan`], validation and the time estimate.
 //! - [`svg`]: SVG plots of a job.
-//! - [`testing`]: a synthetic ceramic-core-like path.
 //! - [`job`]: the Job model, the planner's output.
 //! - [`error`]: the error type, [`PlanError`].
 
@@ -33,7 +32,6 @@ pub mod order;
 pub mod piece;
 pub mod planner;
 pub mod svg;
-pub mod testing;
 pub mod zoning;
 
 pub use beam::{Beam, BeamReport};

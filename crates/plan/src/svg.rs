@@ -207,7 +207,7 @@ pub fn job_svg(job: &Job) -> String {
 mod tests {
     use super::*;
     use crate::planner::{PlanSettings, plan};
-    use crate::testing::synthetic_core_path;
+    use trim_synth::testing::synthetic_core_path;
 
     #[test]
     fn draws_every_polyline_twice_and_a_panel_per_zone() {

@@ -16,9 +16,9 @@
 
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
-use trim_geom::synth::{SynthParams, design_point, generate};
 use trim_geom::{KdTree, Point3, PointCloud, Vector3};
 use trim_plan::hatch::{Hatch, HatchError, HatchMethod, HatchSettings, TrackKind, hatch, measure};
+use trim_synth::{SynthParams, design_point, generate};
 
 /// Scan noise per coordinate, mm.
 const NOISE_MM: f64 = 0.01;
@@ -207,7 +207,7 @@ fn core() -> (Surf, PointCloud) {
         ..SynthParams::default()
     };
     let case = generate(&params).unwrap();
-    let top = trim_geom::synth::THICKNESS_MM / 2.0;
+    let top = trim_synth::THICKNESS_MM / 2.0;
     let (sfc, def) = (case.scan_from_cad_true, case.deformation);
     let map = move |u: f64, v: f64| sfc * def.apply(&design_point(u, v, top));
     let polygon_uv = vec![

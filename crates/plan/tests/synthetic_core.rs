@@ -6,7 +6,7 @@ use trim_geom::{Contour, Path, Point3, Vector3};
 use trim_plan::field::LensSettings;
 use trim_plan::kinematics::{KinematicsKind, MachineSettings, PoseMode};
 use trim_plan::planner::{PlanSettings, ROUND_TRIP_TOLERANCE_MM, plan_with_report};
-use trim_plan::testing::synthetic_core_path;
+use trim_synth::testing::synthetic_core_path;
 
 /// The seed of the synthetic path.
 const SEED: u64 = 0x5eed_0060;

@@ -6,11 +6,11 @@ use numpy::PyArray2;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use trim_geom::PointCloud;
-use trim_geom::synth::{SynthParams, generate};
 use trim_plan::hatch::{HatchError, HatchSettings, hatch};
 use trim_plan::planner::{PlanSettings, plan_with_report};
 use trim_plan::{Beam, PlanError};
 use trim_register::regional::{RegisterSettings, register};
+use trim_synth::{SynthParams, generate};
 
 use crate::arrays;
 use crate::errors::{PlanningError, geom_error, register_error, value_error};

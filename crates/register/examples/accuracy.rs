@@ -5,10 +5,10 @@
 
 use std::time::Instant;
 
-use trim_geom::synth::{SynthParams, generate};
 use trim_register::eval::path_errors;
 use trim_register::paper::{PaperSettings, paper_local_fits, paper_method};
 use trim_register::regional::{RegisterSettings, register};
+use trim_synth::{SynthParams, generate};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();

@@ -111,8 +111,8 @@ pub fn datum_fit(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use trim_geom::synth::{SynthParams, design_point, generate};
     use trim_geom::transform::{rotation_angle_between, translation_distance};
+    use trim_synth::{SynthParams, design_point, generate};
 
     #[test]
     fn recovers_the_pose_of_an_undeformed_part_from_six_datums() {

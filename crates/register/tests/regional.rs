@@ -1,12 +1,12 @@
 //! Regional registration on synthetic ceramic cores: accuracy against ground truth, capture
 //! range, reported failures and determinism.
 
-use trim_geom::synth::{SynthCase, SynthParams, generate};
 use trim_geom::{Path, PointCloud, Similarity3, Vector3};
 use trim_register::RegisterError;
 use trim_register::eval::path_errors;
 use trim_register::paper::{PaperSettings, paper_method};
 use trim_register::regional::{Flag, RegisterSettings, register};
+use trim_synth::{SynthCase, SynthParams, generate};
 
 /// The targets, mm.
 const CROSS_EDGE_P95_MM: f64 = 0.020;

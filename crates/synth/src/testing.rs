@@ -1,6 +1,6 @@
 //! A synthetic ceramic-core-like trimming path for tests and benches (roughly the paper's
 //! Fig. 10): circular holes on a curved surface plus strip contours whose feature vectors turn
-//! along them. The full test case (CAD, scan, ground truth) is `trim_geom::synth`; this is only
+//! along them. The full test case (CAD, scan, ground truth) is `trim_synth`; this is only
 //! the path, sized for planning.
 //!
 //! Geometry (work-piece frame, mm): the surface is a cylinder of radius [`CORE_RADIUS_MM`] about

@@ -1,0 +1,302 @@
+//! A whole test case: what to generate ([`SynthParams`]), the generator ([`generate`]) and what
+//! it gives ([`SynthCase`]: CAD, template path, scan, ground truth, poses), written as files by
+//! [`SynthCase::write_case`].
+
+use nalgebra::{Translation3, UnitQuaternion};
+use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, UnitSphere};
+use rand_xoshiro::Xoshiro256PlusPlus;
+use trim_geom::{GeomError, Path, Point3, PointCloud, Result, Similarity3, Vector3};
+
+use crate::mesh::domain_mesh;
+use crate::part::{
+    Deformation, SurfaceSampler, cutouts, design_point, map_contour, mapped_normal, template_path,
+};
+use crate::scanner::scan_part;
+
+/// What to generate. Angles in degrees and lengths in millimetres (edge units).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SynthParams {
+    /// Seed of every random choice.
+    pub seed: u64,
+    /// Bend: the deformed mid-length rises this much over the ends, mm.
+    pub sag_mm: f64,
+    /// Twist about the long axis, end to end, degrees.
+    pub twist_deg: f64,
+    /// Per-axis scale is drawn from `[1 − r, 1 + r]`.
+    pub scale_range: f64,
+    /// Standard deviation of the Gaussian scan noise per coordinate, mm.
+    pub noise_mm: f64,
+    /// Number of scan points (before outliers are added).
+    pub scan_points: usize,
+    /// Number of CAD points.
+    pub cad_points: usize,
+    /// Fixture rotation error, degrees (drawn in `[½, 1] ×` this, random axis).
+    pub pose_deg: f64,
+    /// Fixture translation error, mm (drawn in `[½, 1] ×` this, random direction).
+    pub pose_mm: f64,
+    /// Outliers added, as a fraction of the scan points.
+    pub outlier_fraction: f64,
+    /// Number of dropout patches (balls of 1.5–3 mm radius with no scan points).
+    pub dropouts: usize,
+    /// Scanner tilt away from the part's +Z, degrees.
+    pub scanner_tilt_deg: f64,
+}
+
+impl Default for SynthParams {
+    fn default() -> Self {
+        SynthParams {
+            seed: 1,
+            sag_mm: 0.3,
+            twist_deg: 0.6,
+            scale_range: 0.01,
+            noise_mm: 0.01,
+            scan_points: 200_000,
+            cad_points: 200_000,
+            pose_deg: 5.0,
+            pose_mm: 3.0,
+            outlier_fraction: 0.01,
+            dropouts: 4,
+            scanner_tilt_deg: 25.0,
+        }
+    }
+}
+
+impl SynthParams {
+    /// Refuses out-of-range values, naming the field.
+    pub fn validate(&self) -> Result<()> {
+        let check = |name: &'static str, ok: bool, what: &str| {
+            if ok {
+                Ok(())
+            } else {
+                Err(GeomError::invalid(name, what.to_string()))
+            }
+        };
+        check(
+            "sag_mm",
+            self.sag_mm.is_finite() && self.sag_mm.abs() <= 5.0,
+            "must be finite, |sag| ≤ 5 mm",
+        )?;
+        check(
+            "twist_deg",
+            self.twist_deg.is_finite() && self.twist_deg.abs() <= 10.0,
+            "must be finite, |twist| ≤ 10°",
+        )?;
+        check(
+            "scale_range",
+            (0.0..0.2).contains(&self.scale_range),
+            "must be in [0, 0.2)",
+        )?;
+        check(
+            "noise_mm",
+            (0.0..=1.0).contains(&self.noise_mm),
+            "must be in [0, 1] mm",
+        )?;
+        check(
+            "scan_points",
+            self.scan_points >= 1000,
+            "must be at least 1000",
+        )?;
+        check(
+            "cad_points",
+            self.cad_points >= 1000,
+            "must be at least 1000",
+        )?;
+        check(
+            "pose_deg",
+            (0.0..=45.0).contains(&self.pose_deg),
+            "must be in [0, 45]°",
+        )?;
+        check(
+            "pose_mm",
+            (0.0..=50.0).contains(&self.pose_mm),
+            "must be in [0, 50] mm",
+        )?;
+        check(
+            "outlier_fraction",
+            (0.0..=0.5).contains(&self.outlier_fraction),
+            "must be in [0, 0.5]",
+        )?;
+        check(
+            "scanner_tilt_deg",
+            (0.0..=60.0).contains(&self.scanner_tilt_deg),
+            "must be in [0, 60]°",
+        )
+    }
+}
+
+/// A generated case. CAD-frame quantities are the nominal design; scan-frame ones are the
+/// deformed, re-posed part.
+#[derive(Debug, Clone)]
+pub struct SynthCase {
+    /// The parameters it was generated from.
+    pub params: SynthParams,
+    /// CAD mesh vertices, CAD frame, mm.
+    pub cad_vertices: Vec<Point3>,
+    /// CAD mesh triangles (indices into `cad_vertices`, counter-clockwise seen from outside).
+    pub cad_triangles: Vec<[u32; 3]>,
+    /// Points sampled uniformly on the exact CAD surface, with exact outward normals, CAD frame.
+    pub cad_points: PointCloud,
+    /// The template path, CAD frame: hole and slot rims on the top face, and the top face's
+    /// outer edges (strip edges); feature vectors are the top-face normal at each point.
+    pub path: Path,
+    /// The scan, scan frame, without normals: visible faces only, noise, outliers, dropouts.
+    pub scan: PointCloud,
+    /// The template path on the deformed, re-posed part, scan frame (the ground truth).
+    pub truth: Path,
+    /// The fixture's nominal pose of the CAD in the scan frame (where registration starts).
+    pub scan_from_cad_nominal: Similarity3,
+    /// The true rigid placement of the deformed part: `scan = scan_from_cad_true · deform(cad)`.
+    pub scan_from_cad_true: Similarity3,
+    /// The deformation applied before the placement.
+    pub deformation: Deformation,
+    /// Where the scanner was, scan frame, mm.
+    pub scanner_in_scan: Point3,
+}
+
+impl SynthCase {
+    /// The CAD as a mesh.
+    pub fn cad_mesh(&self) -> Result<trim_geom::mesh::Mesh> {
+        trim_geom::mesh::Mesh::new(self.cad_vertices.clone(), self.cad_triangles.clone())
+    }
+
+    /// Writes the case into `dir` (created if missing): `cad.stl`, `cad_points.ply` (with
+    /// normals), `path.csv`, `scan.ply`, `truth.csv`, and `case.json` (parameters, scanner
+    /// position and the true transforms: `scanner_in_scan_mm` is what `trimctl register
+    /// --viewpoint` takes, `scan_from_cad_nominal` the 16 numbers `--initial` reads from a text
+    /// file, the rest is for tests).
+    pub fn write_case(&self, dir: &std::path::Path) -> Result<()> {
+        use trim_geom::formats::{PlyEncoding, write_path, write_ply, write_stl};
+        std::fs::create_dir_all(dir).map_err(|e| GeomError::io(dir, e))?;
+        write_stl(&dir.join("cad.stl"), &self.cad_mesh()?)?;
+        write_ply(
+            &dir.join("cad_points.ply"),
+            &self.cad_points,
+            PlyEncoding::BinaryLittleEndian,
+        )?;
+        write_path(&dir.join("path.csv"), &self.path)?;
+        write_ply(
+            &dir.join("scan.ply"),
+            &self.scan,
+            PlyEncoding::BinaryLittleEndian,
+        )?;
+        write_path(&dir.join("truth.csv"), &self.truth)?;
+        let m = |s: &Similarity3| {
+            let h = s.to_homogeneous();
+            [0, 1, 2, 3].map(|i| [0, 1, 2, 3].map(|j| h[(i, j)]))
+        };
+        let meta = CaseInfo {
+            params: self.params.clone(),
+            scanner_in_scan_mm: self.scanner_in_scan.coords.into(),
+            scan_from_cad_nominal: m(&self.scan_from_cad_nominal),
+            scan_from_cad_true: m(&self.scan_from_cad_true),
+            deformation: self.deformation,
+        };
+        let text = serde_json::to_string_pretty(&meta)
+            .map_err(|e| GeomError::invalid("case.json", e.to_string()))?;
+        let path = dir.join("case.json");
+        std::fs::write(&path, text).map_err(|e| GeomError::io(&path, e))
+    }
+
+    /// The true scan-frame position of a CAD-frame point (deformation, then placement).
+    #[must_use]
+    pub fn scan_from_cad_point(&self, p_cad: &Point3) -> Point3 {
+        self.scan_from_cad_true * self.deformation.apply(p_cad)
+    }
+}
+
+/// What `case.json` holds.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CaseInfo {
+    /// The generator's parameters.
+    pub params: SynthParams,
+    /// The scanner position, scan frame, mm.
+    pub scanner_in_scan_mm: [f64; 3],
+    /// The fixture's nominal `scan_from_cad`, row-major 4×4.
+    pub scan_from_cad_nominal: [[f64; 4]; 4],
+    /// The true rigid placement of the deformed part, row-major 4×4.
+    pub scan_from_cad_true: [[f64; 4]; 4],
+    /// The deformation.
+    pub deformation: Deformation,
+}
+
+/// Generates a case (deterministic in `params.seed`).
+pub fn generate(params: &SynthParams) -> Result<SynthCase> {
+    params.validate()?;
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(params.seed);
+    let cutouts = cutouts();
+    let sampler = SurfaceSampler::new(cutouts.clone());
+    let mesh = domain_mesh(&cutouts)?;
+    let cad_vertices: Vec<Point3> = mesh
+        .vertices
+        .iter()
+        .map(|d| design_point(d.x, d.y, d.z))
+        .collect();
+    let design = |d: &Point3| design_point(d.x, d.y, d.z);
+
+    // CAD points: exact surface, exact normals.
+    let mut cad_pts = Vec::with_capacity(params.cad_points);
+    let mut cad_normals = Vec::with_capacity(params.cad_points);
+    for _ in 0..params.cad_points {
+        let s = sampler.sample(&mut rng);
+        cad_pts.push(design(&s.point));
+        cad_normals.push(mapped_normal(&design, &s.point, &s.normal));
+    }
+    let cad_points = PointCloud::with_normals(cad_pts, cad_normals)?;
+    let path = template_path(&cutouts)?;
+
+    // Deformation and placement.
+    let r = params.scale_range;
+    let deformation = Deformation {
+        scale: Vector3::new(
+            1.0 + rng.random_range(-r..=r),
+            1.0 + rng.random_range(-r..=r),
+            1.0 + rng.random_range(-r..=r),
+        ),
+        twist_rad: params.twist_deg.to_radians() * if rng.random_bool(0.5) { 1.0 } else { -1.0 },
+        sag_mm: params.sag_mm * if rng.random_bool(0.5) { 1.0 } else { -1.0 },
+    };
+    let axis: [f64; 3] = UnitSphere.sample(&mut rng);
+    let dir: [f64; 3] = UnitSphere.sample(&mut rng);
+    let angle = params.pose_deg.to_radians() * rng.random_range(0.5..=1.0);
+    let shift = params.pose_mm * rng.random_range(0.5..=1.0);
+    let fixture_error = Similarity3::from_parts(
+        Translation3::from(Vector3::from(dir) * shift),
+        UnitQuaternion::from_scaled_axis(Vector3::from(axis) * angle),
+        1.0,
+    );
+    let scan_from_cad_nominal = Similarity3::identity();
+    let scan_from_cad_true = scan_from_cad_nominal * fixture_error;
+    let scan_from_domain = |d: &Point3| scan_from_cad_true * deformation.apply(&design(d));
+
+    let (scan, scanner_in_scan) = scan_part(
+        params,
+        &mut rng,
+        &sampler,
+        &mesh,
+        &scan_from_domain,
+        &scan_from_cad_true,
+        &deformation,
+    )?;
+    let truth_map = |p: &Point3| scan_from_cad_true * deformation.apply(p);
+    let truth = Path::new(
+        path.contours()
+            .iter()
+            .map(|c| map_contour(c, &truth_map))
+            .collect::<Result<Vec<_>>>()?,
+    )?;
+    Ok(SynthCase {
+        params: params.clone(),
+        cad_vertices,
+        cad_triangles: mesh.triangles,
+        cad_points,
+        path,
+        scan,
+        truth,
+        scan_from_cad_nominal,
+        scan_from_cad_true,
+        deformation,
+        scanner_in_scan,
+    })
+}

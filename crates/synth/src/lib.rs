@@ -1,0 +1,33 @@
+//! Synthetic ceramic-core-like test cases: a twisted, cambered 40 × 100 mm slab with holes and
+//! slots, its trimming path, a deformed and re-posed scan of it, and the ground-truth path.
+//!
+//! The part is built in *domain* coordinates `(u, v, w)`: `u` across the width, `v` along the
+//! length, `w` through the thickness, all millimetres, centred on 0. The design map
+//! [`design_point`](part::design_point) bends this box into the CAD shape (camber across `u`, a design twist about the
+//! long axis). Every sample is placed exactly on the analytic surface (holes and slots are exact
+//! circles and stadiums), with its exact normal from the map's Jacobian (`n' ∝ J⁻ᵀ n`); the
+//! triangle mesh is only for `cad.stl` and for the scanner's occlusion test.
+//!
+//! The deformed part is `deform(cad)` ([`Deformation`](part::Deformation): per-axis scale, twist about the long
+//! axis, bend), placed by `scan_from_cad_true = scan_from_cad_nominal · fixture_error`. The scan
+//! sees only the faces visible from the scanner (back-face and ray-cast occlusion), with Gaussian
+//! noise, outliers and dropout patches. `truth` is the template path under the same map.
+//!
+//! Modules: [`part`] (geometry, design map, deformation), [`mesh`] (the triangle mesh),
+//! [`scanner`] (what the scanner sees), [`case`] (parameters, the generator, files) and
+//! [`testing`] (a planning-sized synthetic path for tests and benches).
+
+pub mod case;
+pub mod mesh;
+pub mod part;
+pub mod scanner;
+pub mod testing;
+
+pub use case::{CaseInfo, SynthCase, SynthParams, generate};
+pub use part::{
+    CAMBER_MM, Cutout, DESIGN_TWIST_DEG, Deformation, LENGTH_MM, THICKNESS_MM, WIDTH_MM, cutouts,
+    demo_hatch_boundary, design_point,
+};
+
+#[cfg(test)]
+mod tests;
