@@ -3,7 +3,9 @@
 //!
 //! Steps: (1) contours → pieces, splitting contours whose feature vectors spread wider than the
 //! zoning limit ([`crate::piece`]); (2) k-means zoning with automatic k ([`crate::zoning`]);
-//! (3) scan-field sections ([`crate::field`]); (4) layers by paper Eq. 14 ([`crate::layer`]);
+//! (3) scan-field sections ([`crate::field`]) — or, with `zoning.method = "cover"` (the
+//! default), (1–3) pose selection as covering, each pose one section ([`crate::cover`]);
+//! (4) layers by paper Eq. 14 ([`crate::layer`]);
 //! (5) zone order (nearest neighbour + 2-opt on machine move time, [`crate::order`]) and machine
 //! poses, the tilt branch chosen per zone within the axis limits with the least rotary travel
 //! ([`crate::kinematics`]); (6) the zone frame is the galvo head's frame at that pose (its Z is
@@ -265,7 +267,8 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
     // (1) pieces; (2) zoning.
     let machine = &settings.machine;
     let rotary = settings.table();
-    if settings.zoning.method == ZoningMethod::Cover {
+    // A fixed k is a number of k-means zones, whatever the method.
+    if settings.zoning.method == ZoningMethod::Cover && settings.zoning.k.is_none() {
         // (2–4) covering: poses checked with the real ray; each pose is one section.
         let reachable = |axis: &UnitVector3, centre: &Point3| {
             let cands = inverse_on(machine, &rotary, centre, axis, 0.0);
@@ -877,12 +880,20 @@ fn validate(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use trim_synth::testing::synthetic_core_path;
+    use crate::testing::synthetic_core_path;
 
     #[test]
     fn synthetic_core_plans_and_validates() {
         let path = synthetic_core_path(60, 1);
-        let out = plan_with_report(&path, &PlanSettings::default()).unwrap();
+        // The k-means zoning's 3° budget is checked below (the covering has no budget).
+        let settings = PlanSettings {
+            zoning: ZoningSettings {
+                method: ZoningMethod::Kmeans,
+                ..ZoningSettings::default()
+            },
+            ..PlanSettings::default()
+        };
+        let out = plan_with_report(&path, &settings).unwrap();
         let v = &out.job.validation;
         assert!(v.passed, "{:?}", v.violations);
         assert!(v.max_round_trip_error_mm <= ROUND_TRIP_TOLERANCE_MM);

@@ -65,9 +65,10 @@ pub const KMEANS_TOLERANCE: f64 = 1e-9;
 #[serde(try_from = "String", into = "String")]
 pub enum ZoningMethod {
     /// The paper's k-means zoning under (limit − lens budget), then field sections.
-    #[default]
     Kmeans,
-    /// Pose selection as covering with the real lens ray ([`crate::cover`]).
+    /// Pose selection as covering with the real lens ray ([`crate::cover`]): the default, it
+    /// plans the demo part into 18 poses against k-means' 50.
+    #[default]
     Cover,
 }
 
@@ -116,11 +117,12 @@ impl From<ZoningMethod> for String {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ZoningSettings {
-    /// "kmeans": the paper's k-means zoning under (limit − lens budget), then field sections;
-    /// "cover": pose selection as covering (axis + field centre per pose, incidence checked with
-    /// the real lens ray), fewer poses.
+    /// "cover" (the default): pose selection as covering (axis + field centre per pose,
+    /// incidence checked with the real lens ray), fewer poses; "kmeans": the paper's k-means
+    /// zoning under (limit − lens budget), then field sections.
     pub method: ZoningMethod,
-    /// A fixed number of zones; unset: the smallest that keeps the incidence limit.
+    /// A fixed number of k-means zones (zoning by k-means whatever the method); unset: the
+    /// method decides (k-means: the smallest k that keeps the incidence limit).
     pub k: Option<usize>,
     /// The weight of the (extent-scaled) positions against the unit feature vectors.
     pub position_weight: f64,
@@ -140,7 +142,7 @@ pub struct ZoningSettings {
 impl Default for ZoningSettings {
     fn default() -> Self {
         ZoningSettings {
-            method: ZoningMethod::default(),
+            method: ZoningMethod::Cover,
             k: None,
             position_weight: DEFAULT_POSITION_WEIGHT,
             restarts: 10,

@@ -7,8 +7,8 @@ use trim_geom::Path;
 use trim_plan::cover::{CoverProblem, cover};
 use trim_plan::field::Lens;
 use trim_plan::planner::{PlanOutput, PlanSettings, plan_with_report};
+use trim_plan::testing::synthetic_core_path;
 use trim_plan::zoning::{ZoningMethod, ZoningSettings};
-use trim_synth::testing::synthetic_core_path;
 
 fn settings(method: ZoningMethod) -> PlanSettings {
     PlanSettings {
@@ -27,12 +27,12 @@ fn plan(path: &Path, method: ZoningMethod) -> PlanOutput {
 /// The built-in demo part's path (`trimctl run` without a job file): 52 contours on the
 /// cambered, twisted slab.
 fn demo_path() -> Path {
-    let params = trim_synth::SynthParams {
+    let params = trim_geom::synth::SynthParams {
         scan_points: 2_000,
         cad_points: 2_000,
-        ..trim_synth::SynthParams::default()
+        ..trim_geom::synth::SynthParams::default()
     };
-    trim_synth::generate(&params).expect("demo part").path
+    trim_geom::synth::generate(&params).expect("demo part").path
 }
 
 fn check_cover(name: &str, path: &Path, out: &PlanOutput, most: usize) {
@@ -97,6 +97,28 @@ fn cover_plans_the_demo_part_into_at_most_20_poses() {
     );
     check_cover("demo", &path, &out, 20);
     assert!(out.job.zones.len() < kmeans.job.zones.len());
+}
+
+#[test]
+fn cover_is_the_default_and_a_fixed_k_zones_by_kmeans() {
+    assert_eq!(ZoningSettings::default().method, ZoningMethod::Cover);
+    let path = synthetic_core_path(60, 1);
+    let out = plan_with_report(&path, &PlanSettings::default()).expect("plans");
+    assert!(out.cover.is_some());
+    assert!(out.job.zones.len() <= 20);
+    // A fixed k is k-means' (too many zones for the pieces: k-means' own refusal).
+    let fixed = PlanSettings {
+        zoning: ZoningSettings {
+            k: Some(10_000),
+            ..ZoningSettings::default()
+        },
+        ..PlanSettings::default()
+    };
+    let e = plan_with_report(&path, &fixed).expect_err("k-means refuses");
+    assert!(
+        matches!(e, trim_plan::PlanError::TooManyZones { k: 10_000, .. }),
+        "{e}"
+    );
 }
 
 #[test]
