@@ -880,7 +880,7 @@ fn validate(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testing::synthetic_core_path;
+    use trim_synth::testing::synthetic_core_path;
 
     #[test]
     fn synthetic_core_plans_and_validates() {

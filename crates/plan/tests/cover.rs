@@ -7,8 +7,8 @@ use trim_geom::Path;
 use trim_plan::cover::{CoverProblem, cover};
 use trim_plan::field::Lens;
 use trim_plan::planner::{PlanOutput, PlanSettings, plan_with_report};
-use trim_plan::testing::synthetic_core_path;
 use trim_plan::zoning::{ZoningMethod, ZoningSettings};
+use trim_synth::testing::synthetic_core_path;
 
 fn settings(method: ZoningMethod) -> PlanSettings {
     PlanSettings {
@@ -27,12 +27,12 @@ fn plan(path: &Path, method: ZoningMethod) -> PlanOutput {
 /// The built-in demo part's path (`trimctl run` without a job file): 52 contours on the
 /// cambered, twisted slab.
 fn demo_path() -> Path {
-    let params = trim_geom::synth::SynthParams {
+    let params = trim_synth::SynthParams {
         scan_points: 2_000,
         cad_points: 2_000,
-        ..trim_geom::synth::SynthParams::default()
+        ..trim_synth::SynthParams::default()
     };
-    trim_geom::synth::generate(&params).expect("demo part").path
+    trim_synth::generate(&params).expect("demo part").path
 }
 
 fn check_cover(name: &str, path: &Path, out: &PlanOutput, most: usize) {
