@@ -1,0 +1,750 @@
+//! The executor: a state machine over the Job (DESIGN.md "Execution and devices", paper §3).
+//!
+//! Per layer, in job order: [`Phase::Move`] → [`Phase::LoadList`] (into the other list
+//! buffer, while the CNC moves: preloading) → [`Phase::WaitInPosition`] →
+//! [`Phase::EnableEmission`] → [`Phase::Execute`] → [`Phase::WaitDone`] → [`Phase::GateOff`]
+//! → [`Phase::Journal`]. Interlocks:
+//! - emission is enabled only after the CNC is in position and the list is loaded, and disabled
+//!   before the next move, so the laser never emits while the CNC moves; the galvo gate opens
+//!   only while its list marks; loading a list while the CNC moves is not emitting (the
+//!   emission stays off until in position);
+//! - every device await has a timeout ([`Timeouts`]), and a cancel (Ctrl-C) is honoured at every
+//!   await;
+//! - on any fault, timeout, lost link, bad reply or cancel: **laser off first** (the serial
+//!   emission-off command and the galvo laser signals off, together), **then** the galvo list is
+//!   stopped, **then** motion is stopped; then the layer is journaled as cut, with how far it got.
+//!   Host-side failures after preparation (a journal write, the list encoding) take the same way
+//!   down: nothing returns early past [`Phase::Prepare`];
+//! - a finished layer is journaled (fsync) before the next begins; [`Executor::resume`] continues
+//!   at the first unfinished layer, from the first vector the galvo did not mark. When neither
+//!   the galvo nor the journal can tell how far a cut layer got, resume refuses to start unless
+//!   the operator chose ([`ExecOptions::cut_layer`]): redo the layer or leave it out; the choice
+//!   is journaled before anything is switched on.
+//!
+//! The module: the public types here, with [`Executor`]'s run loop; `layer` holds one layer's
+//! phases, `resume` where a resumed run starts, `shutdown` the way down and the one exit path
+//! every failure after preparation takes.
+
+use std::collections::BTreeSet;
+use std::future::Future;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use tokio::sync::mpsc::UnboundedSender;
+use tokio_util::sync::CancellationToken;
+use trim_plan::job::{Job, LayerKey};
+
+use crate::cell::{Cell, Timeouts};
+use crate::galvo::list::{layer_list, vector_count};
+use crate::galvo::protocol::StatusBlock;
+use crate::galvo::timing::polylines_time_s;
+use crate::journal::{CutLayer, Journal, JournalError, JournalSink, JournalState};
+use crate::record::{LogLevel, SharedRecorder};
+use crate::tap::{Device, now_ns};
+
+use layer::LayerWork;
+use resume::CutStart;
+use shutdown::Fault;
+
+mod layer;
+mod resume;
+mod shutdown;
+
+/// How often the galvo status is polled while a list runs (ms).
+pub const STATUS_POLL_MS: u64 = 10;
+/// How often the laser's faults are checked while a list runs (ms); also once right after
+/// `EXECUTE`.
+pub const LASER_POLL_MS: u64 = 250;
+
+/// The steps of a layer (and the run's preparation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize)]
+pub enum Phase {
+    /// Before the first layer: reset the galvo, laser off and checked, CNC enabled.
+    Prepare,
+    /// CNC move to the layer's pose.
+    Move,
+    /// Wait until the CNC is in position.
+    WaitInPosition,
+    /// Load the layer's list into a galvo list buffer.
+    LoadList,
+    /// Laser emission on.
+    EnableEmission,
+    /// Start the list.
+    Execute,
+    /// Wait until the list is done.
+    WaitDone,
+    /// Laser emission off.
+    GateOff,
+    /// Journal the finished layer.
+    Journal,
+}
+
+impl Phase {
+    /// The phases of one layer, in order.
+    pub const LAYER: [Phase; 8] = [
+        Phase::Move,
+        Phase::LoadList,
+        Phase::WaitInPosition,
+        Phase::EnableEmission,
+        Phase::Execute,
+        Phase::WaitDone,
+        Phase::GateOff,
+        Phase::Journal,
+    ];
+}
+
+/// Progress events for a progress display.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub enum Progress {
+    /// The run starts.
+    Started {
+        /// Layers in the job.
+        layers: usize,
+        /// Layers already finished (resume).
+        finished_before: usize,
+        /// Vectors in the job.
+        vectors: u64,
+    },
+    /// A layer enters a phase.
+    Phase {
+        /// The layer.
+        key: LayerKey,
+        /// Its position in the job (0-based).
+        index: usize,
+        /// The phase.
+        phase: Phase,
+    },
+    /// Vectors of the running layer marked so far.
+    Vectors {
+        /// The layer.
+        key: LayerKey,
+        /// Marked.
+        done: u32,
+        /// In the layer.
+        total: u32,
+    },
+    /// A layer is finished and journaled.
+    LayerDone {
+        /// The layer.
+        key: LayerKey,
+        /// Its position in the job.
+        index: usize,
+    },
+    /// A layer was finished in an earlier run (resume).
+    LayerSkipped {
+        /// The layer.
+        key: LayerKey,
+    },
+}
+
+/// Why a run stopped.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub enum StopCause {
+    /// Cancelled by the operator.
+    Cancelled,
+    /// A device's link failed (timeout, lost link, garbled or unexpected reply).
+    Link {
+        /// The device.
+        device: Device,
+        /// What happened.
+        message: String,
+    },
+    /// A device refused or reported a fault.
+    Fault {
+        /// The device.
+        device: Device,
+        /// What happened.
+        message: String,
+    },
+    /// The journal could not be written (a full disk, an I/O error).
+    Journal {
+        /// What happened.
+        message: String,
+    },
+    /// A layer's list could not be built.
+    Job {
+        /// What happened.
+        message: String,
+    },
+}
+
+impl std::fmt::Display for StopCause {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StopCause::Cancelled => f.write_str("cancelled"),
+            StopCause::Link { device, message } => write!(f, "{device} link: {message}"),
+            StopCause::Fault { device, message } => write!(f, "{device} fault: {message}"),
+            StopCause::Journal { message } => write!(f, "journal: {message}"),
+            StopCause::Job { message } => write!(f, "job: {message}"),
+        }
+    }
+}
+
+/// What the way down did, in order, and how long the laser-off took (host view).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ShutdownReport {
+    /// The serial emission-off was acknowledged.
+    pub laser_off_ok: bool,
+    /// The galvo laser signals off was acknowledged.
+    pub galvo_signals_off_ok: bool,
+    /// The galvo stop was acknowledged.
+    pub galvo_stop_ok: bool,
+    /// The CNC abort was acknowledged.
+    pub cnc_abort_ok: bool,
+    /// From the fault's detection to both laser-off commands answered or timed out (s).
+    pub laser_off_s: f64,
+    /// From detection to the end of the way down (s).
+    pub total_s: f64,
+}
+
+/// A run that stopped before the end.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Stopped {
+    /// Why.
+    pub cause: StopCause,
+    /// The layer it stopped in (`None`: during preparation).
+    pub key: Option<LayerKey>,
+    /// The phase it stopped in.
+    pub phase: Phase,
+    /// Vectors of that layer marked, when known.
+    pub vectors_done: Option<u32>,
+    /// Vectors in that layer.
+    pub vectors: u32,
+    /// Layers finished (this run and before).
+    pub layers_finished: usize,
+    /// The way down.
+    pub shutdown: ShutdownReport,
+    /// When the fault was detected.
+    #[serde(skip)]
+    pub detected_at: Option<Instant>,
+}
+
+/// A run that did not finish.
+#[derive(Debug, thiserror::Error)]
+pub enum ExecError {
+    /// Stopped by a fault or a cancel; the laser is off, the layer journaled as cut.
+    #[error("run stopped in {} ({phase:?}): {cause}; {done} of {total} vectors of the layer marked", .0.key.map_or("preparation".to_owned(), |k| k.to_string()), phase = .0.phase, cause = .0.cause, done = .0.vectors_done.map_or("unknown".to_owned(), |v| v.to_string()), total = .0.vectors)]
+    Stopped(Box<Stopped>),
+    /// The journal.
+    #[error(transparent)]
+    Journal(#[from] JournalError),
+    /// The job cannot be sent to the galvo.
+    #[error("job: {0}")]
+    Job(String),
+    /// Resume cannot tell how far the cut layer got and no choice was given
+    /// ([`ExecOptions::cut_layer`]); nothing was switched on.
+    #[error("resume: cannot tell how far {key} got: {reason}. Choose what to do with the layer: redo (marks it again from vector {first_vector}: up to {} of its {vectors} vectors may be marked twice) or skip (leaves it out, unmarked; the report lists it)", vectors - first_vector)]
+    ResumeUnknown {
+        /// The layer.
+        key: LayerKey,
+        /// Why.
+        reason: String,
+        /// The first vector of the attempt whose progress is unknown.
+        first_vector: u32,
+        /// Vectors in the layer.
+        vectors: u32,
+    },
+}
+
+/// What resume did with a layer it could not tell the progress of.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct CutLayerOutcome {
+    /// The layer.
+    pub key: LayerKey,
+    /// The operator's choice.
+    pub choice: CutLayer,
+    /// The first vector of the attempt whose progress was unknown (redo starts there).
+    pub first_vector: u32,
+    /// Vectors in the layer.
+    pub vectors: u32,
+    /// Redo: vectors that may have been marked twice; skip: 0.
+    pub vectors_maybe_twice: u32,
+}
+
+/// One layer's timing (wall clock, s).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct LayerTiming {
+    /// The layer.
+    pub key: LayerKey,
+    /// Move and wait in position (the list is loaded meanwhile).
+    pub motion_s: f64,
+    /// `LOAD_LIST`, overlapped with the move (hidden when shorter than `motion_s`).
+    pub load_s: f64,
+    /// From "in position" to `EXECUTE` acknowledged (emission on, execute): the galvo idle
+    /// before the list runs.
+    pub to_execute_s: f64,
+    /// From done seen to the layer journaled (emission off, journal fsync, record).
+    pub after_done_s: f64,
+    /// Of `overhead_s`: awaiting the laser's replies to emission on and off (`EXECUTE`'s reply
+    /// counts in `list_s`).
+    pub device_replies_s: f64,
+    /// Of `after_done_s`: the `layer_done` journal write and its fsync (the disk's time; the
+    /// next layer begins only after it). The rest of the overhead is the host's own time.
+    pub journal_s: f64,
+    /// From `EXECUTE` to done seen.
+    pub list_s: f64,
+    /// The galvo's modelled time of the list.
+    pub modelled_s: f64,
+    /// The whole layer.
+    pub total_s: f64,
+    /// `total − motion − list`: the executor's per-layer overhead outside the CNC's motion and
+    /// the galvo's list (emission on/off, `EXECUTE`, journal, record; a load longer than the
+    /// move shows in `motion_s`).
+    pub overhead_s: f64,
+}
+
+/// A finished run.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RunSummary {
+    /// Layers in the job.
+    pub layers_total: usize,
+    /// Layers marked in this run.
+    pub layers_marked: usize,
+    /// Layers skipped as finished before (resume).
+    pub layers_skipped: usize,
+    /// Vectors marked in this run.
+    pub vectors_marked: u64,
+    /// The cut layer this run continued, and the vector it continued from.
+    pub resumed_from: Option<(LayerKey, u32)>,
+    /// The cut layer this run redid or skipped because its progress was unknown.
+    pub cut_layer: Option<CutLayerOutcome>,
+    /// Layers left out by a `skip` choice (this run's and earlier), never marked.
+    pub layers_left_out: Vec<LayerKey>,
+    /// Wall time (s).
+    pub wall_s: f64,
+    /// The galvo's modelled time of this run's lists (s).
+    pub galvo_modelled_s: f64,
+    /// The timing model's estimate for the layers marked whole in this run (s).
+    pub galvo_estimate_s: f64,
+    /// Per layer.
+    pub layers: Vec<LayerTiming>,
+}
+
+/// Executor settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ExecOptions {
+    /// Timeouts.
+    pub timeouts: Timeouts,
+    /// Laser power to set before the first layer (%), if any.
+    pub laser_power_pct: Option<f64>,
+    /// How often the laser's faults are checked while a list runs (also once right after
+    /// `EXECUTE`).
+    pub laser_poll: Duration,
+    /// On resume, what to do with a cut layer whose progress neither the galvo nor the journal
+    /// can tell (`None`: refuse with [`ExecError::ResumeUnknown`]). Not used when the progress
+    /// is known.
+    pub cut_layer: Option<CutLayer>,
+}
+
+impl Default for ExecOptions {
+    fn default() -> Self {
+        ExecOptions {
+            timeouts: Timeouts::default(),
+            laser_power_pct: None,
+            laser_poll: Duration::from_millis(LASER_POLL_MS),
+            cut_layer: None,
+        }
+    }
+}
+
+/// Replaces the journal's sink (see [`Executor::with_journal_sink`]).
+type SinkWrap = Box<dyn FnOnce(Box<dyn JournalSink>) -> Box<dyn JournalSink> + Send>;
+
+/// Runs a Job on a Cell.
+pub struct Executor {
+    job: Job,
+    cell: Cell,
+    journal_path: PathBuf,
+    recorder: Option<SharedRecorder>,
+    options: ExecOptions,
+    progress: Option<UnboundedSender<Progress>>,
+    cancel: CancellationToken,
+    journal_wrap: Option<SinkWrap>,
+}
+
+type Step<T> = Result<T, StopCause>;
+
+impl Executor {
+    /// An executor for `job` on `cell`, journaling to `journal_path`, recording to `recorder`.
+    #[must_use]
+    pub fn new(
+        job: Job,
+        cell: Cell,
+        journal_path: impl Into<PathBuf>,
+        recorder: Option<SharedRecorder>,
+    ) -> Executor {
+        Executor {
+            job,
+            cell,
+            journal_path: journal_path.into(),
+            recorder,
+            options: ExecOptions::default(),
+            progress: None,
+            cancel: CancellationToken::new(),
+            journal_wrap: None,
+        }
+    }
+
+    /// Wraps the journal's sink once it is open (`wrap(file)`): for tests that inject journal
+    /// write failures.
+    #[must_use]
+    pub fn with_journal_sink(
+        mut self,
+        wrap: impl FnOnce(Box<dyn JournalSink>) -> Box<dyn JournalSink> + Send + 'static,
+    ) -> Executor {
+        self.journal_wrap = Some(Box::new(wrap));
+        self
+    }
+
+    fn wrap_journal(&mut self, journal: &mut Journal) {
+        if let Some(wrap) = self.journal_wrap.take() {
+            journal.wrap_sink(wrap);
+        }
+    }
+
+    /// Replaces the options.
+    #[must_use]
+    pub fn with_options(mut self, options: ExecOptions) -> Executor {
+        self.options = options;
+        self
+    }
+
+    /// Runs the job from the start (the journal must not exist).
+    pub async fn run(
+        mut self,
+        cancel: CancellationToken,
+        progress: Option<UnboundedSender<Progress>>,
+    ) -> Result<RunSummary, ExecError> {
+        self.cancel = cancel;
+        self.progress = progress;
+        self.check_job()?;
+        let mut journal = Journal::create(&self.journal_path, &self.job)?;
+        self.wrap_journal(&mut journal);
+        self.execute(journal, JournalState::default()).await
+    }
+
+    /// Continues a stopped run: skips finished layers, continues the cut layer from the first
+    /// vector not marked, never marks a vector twice.
+    pub async fn resume(
+        mut self,
+        cancel: CancellationToken,
+        progress: Option<UnboundedSender<Progress>>,
+    ) -> Result<RunSummary, ExecError> {
+        self.cancel = cancel;
+        self.progress = progress;
+        self.check_job()?;
+        let (mut journal, state) = Journal::resume(&self.journal_path, &self.job)?;
+        self.wrap_journal(&mut journal);
+        self.execute(journal, state).await
+    }
+
+    fn check_job(&self) -> Result<(), ExecError> {
+        // Never move toward a pose outside the axis limits, whatever validation was overridden.
+        if let Some(z) = self.job.zones.iter().find(|z| z.unreachable.is_some()) {
+            return Err(ExecError::Job(format!(
+                "zone {} (contours {:?}) is unreachable: {}",
+                z.id,
+                z.contours,
+                z.unreachable.as_deref().unwrap_or_default()
+            )));
+        }
+        for (key, _, layer) in self.job.layers() {
+            layer_list(layer, &self.job.settings.galvo, 0)
+                .map_err(|e| ExecError::Job(format!("{key}: {e}")))?;
+        }
+        Ok(())
+    }
+
+    fn emit(&self, p: Progress) {
+        if let Some(tx) = &self.progress {
+            let _ = tx.send(p);
+        }
+    }
+
+    fn log(&self, level: LogLevel, message: &str) {
+        if let Some(r) = &self.recorder {
+            let mut r = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            if let Err(e) = r.log(now_ns(), level, message) {
+                tracing::warn!(error = %e, "record: log lost");
+            }
+        }
+    }
+
+    fn record_layer(&self, key: LayerKey, state: &str, done: u32, total: u32, flush: bool) {
+        if let Some(r) = &self.recorder {
+            let mut r = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            let res = r.layer(now_ns(), key, state, done, total, &self.job);
+            let res = res.and_then(|()| if flush { r.flush() } else { Ok(()) });
+            if let Err(e) = res {
+                tracing::warn!(error = %e, "record: layer message lost");
+            }
+        }
+    }
+
+    /// Awaits a device call with a timeout and the cancel token; maps both error layers.
+    async fn guard<T, E1: std::fmt::Display, E2: std::fmt::Display>(
+        cancel: &CancellationToken,
+        timeout: Duration,
+        device: Device,
+        what: &str,
+        fut: impl Future<Output = Result<Result<T, E2>, E1>>,
+    ) -> Step<T> {
+        tokio::select! {
+            biased;
+            () = cancel.cancelled() => Err(StopCause::Cancelled),
+            r = tokio::time::timeout(timeout, fut) => match r {
+                Err(_) => Err(StopCause::Link { device, message: format!("{what}: no answer within {} ms", timeout.as_millis()) }),
+                Ok(Err(e)) => Err(StopCause::Link { device, message: e.to_string() }),
+                Ok(Ok(Err(f))) => Err(StopCause::Fault { device, message: f.to_string() }),
+                Ok(Ok(Ok(v))) => Ok(v),
+            }
+        }
+    }
+
+    /// A timeout for a galvo request: every attempt's reply timeout plus slack.
+    fn galvo_timeout(&self) -> Duration {
+        let t = &self.options.timeouts;
+        t.galvo_reply * (t.galvo_resends + 1) + Duration::from_millis(100)
+    }
+
+    async fn galvo_status(&self) -> Step<StatusBlock> {
+        Self::guard(
+            &self.cancel,
+            self.galvo_timeout(),
+            Device::Galvo,
+            "STATUS",
+            self.cell.galvo.status(),
+        )
+        .await
+    }
+
+    async fn prepare(&mut self) -> Step<()> {
+        let (c, gt, lt) = (
+            self.cancel.clone(),
+            self.galvo_timeout(),
+            self.options.timeouts.laser_reply,
+        );
+        Self::guard(
+            &c,
+            lt,
+            Device::Laser,
+            "emission off",
+            self.cell.laser.emission(false),
+        )
+        .await?;
+        Self::guard(
+            &c,
+            gt,
+            Device::Galvo,
+            "RESET_ERROR",
+            self.cell.galvo.reset_error(),
+        )
+        .await?;
+        Self::guard(
+            &c,
+            gt,
+            Device::Galvo,
+            "LASER_SIGNALS on",
+            self.cell.galvo.laser_signals(true),
+        )
+        .await?;
+        let queries = self.cell.laser.profile().queries.len().max(1);
+        let lt_all = lt * u32::try_from(queries).unwrap_or(1);
+        Self::guard(&c, lt_all, Device::Laser, "status", self.cell.laser.check()).await?;
+        if let Some(p) = self.options.laser_power_pct {
+            Self::guard(
+                &c,
+                lt,
+                Device::Laser,
+                "set power",
+                self.cell.laser.set_power_pct(p),
+            )
+            .await?;
+        }
+        let enable_timeout = self.options.timeouts.cnc_motion;
+        Self::guard(
+            &c,
+            enable_timeout,
+            Device::Cnc,
+            "enable",
+            self.cell.cnc.enable(),
+        )
+        .await?;
+        Ok(())
+    }
+
+    /// The run: announced, the cut layer decided (before anything is switched on), then the
+    /// cell prepared and the layers marked. Every failure after preparation begins takes the
+    /// way down ([`Executor::stop`]) through the one exit here.
+    async fn execute(
+        mut self,
+        mut journal: Journal,
+        state: JournalState,
+    ) -> Result<RunSummary, ExecError> {
+        let started = Instant::now();
+        self.announce(&state.finished);
+
+        // Decided before anything is switched on: a refusal leaves the cell as it was.
+        let (cut_start, cut_layer) = self.resume_point(&state, &mut journal).await?;
+        let mut left_out = state.left_out.clone();
+        if let CutStart::Chosen(key, CutLayer::Skip, _) = cut_start {
+            left_out.insert(key);
+        }
+        let plan = RunPlan {
+            finished: state.finished.clone(),
+            left_out,
+            cut_start,
+            cut_layer,
+        };
+
+        // From here on every error takes the way down: this is the one exit, no `?` below it.
+        match self.mark_all(&mut journal, plan, started).await {
+            Ok(summary) => Ok(summary),
+            Err(fault) => Err(self.stop(&mut journal, fault).await),
+        }
+    }
+
+    /// Tells the progress display, the record and the log that the run starts.
+    fn announce(&self, finished: &BTreeSet<LayerKey>) {
+        let total_layers = self.job.layers().count();
+        let vectors_total: u64 = self
+            .job
+            .layers()
+            .map(|(_, _, l)| u64::from(vector_count(l)))
+            .sum();
+        self.emit(Progress::Started {
+            layers: total_layers,
+            finished_before: finished.len(),
+            vectors: vectors_total,
+        });
+        if let Some(r) = &self.recorder {
+            let mut r = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            if let Err(e) = r.zone_frames(now_ns(), &self.job) {
+                tracing::warn!(error = %e, "record: zone frames lost");
+            }
+        }
+        self.log(
+            LogLevel::Info,
+            &format!(
+                "run starts: {total_layers} layers, {} finished before",
+                finished.len()
+            ),
+        );
+    }
+
+    /// Prepares the cell, then marks the layers in job order, each through its phases
+    /// ([`Executor::mark_layer`]). The first failure is returned, with how far its layer got,
+    /// for the way down.
+    async fn mark_all(
+        &mut self,
+        journal: &mut Journal,
+        mut plan: RunPlan,
+        started: Instant,
+    ) -> Result<RunSummary, Fault> {
+        let mut finished_count = plan.finished.len();
+        if let Err(cause) = self.prepare().await {
+            return Err(Fault::preparation(cause, finished_count));
+        }
+        let elapsed0 = self.galvo_status().await.map(|s| s.elapsed_ns).unwrap_or(0);
+        let mut summary = RunSummary {
+            layers_total: self.job.layers().count(),
+            layers_marked: 0,
+            layers_skipped: 0,
+            vectors_marked: 0,
+            resumed_from: plan.cut_start.resumed_from(),
+            cut_layer: plan.cut_layer.take(),
+            layers_left_out: Vec::new(),
+            wall_s: 0.0,
+            galvo_modelled_s: 0.0,
+            galvo_estimate_s: 0.0,
+            layers: Vec::new(),
+        };
+        let mut list_buf = 0_u8;
+        for (index, key) in self.layer_keys() {
+            let layer = self.layer_at(index);
+            let n = vector_count(&layer);
+            if self.pass_over(key, n, &plan, &mut summary) {
+                continue;
+            }
+            let first = plan.cut_start.first_vector(key, n);
+            let work = LayerWork::new(key, index, layer, first);
+            let marked = if work.all_marked_before() {
+                self.complete_layer(journal, &work).map(|()| None)
+            } else {
+                self.mark_layer(journal, &work, list_buf).await.map(Some)
+            };
+            let timing = match marked {
+                Ok(timing) => timing,
+                Err(f) => return Err(self.layer_fault(journal, &work, f, finished_count).await),
+            };
+            finished_count += 1;
+            summary.layers_marked += 1;
+            if let Some(timing) = timing {
+                summary.vectors_marked += u64::from(work.vectors - work.first);
+                if work.first == 0 {
+                    let settings = self.job.settings.galvo;
+                    let (m, j) = polylines_time_s(&work.layer.polylines, &settings);
+                    summary.galvo_estimate_s += m + j;
+                }
+                summary.layers.push(timing);
+                list_buf ^= 1;
+            }
+        }
+        Ok(self.finish(summary, elapsed0, started).await)
+    }
+
+    /// After the last layer: the galvo's modelled time, the laser signals off, the log and the
+    /// record flushed.
+    async fn finish(
+        &mut self,
+        mut summary: RunSummary,
+        elapsed0: u64,
+        started: Instant,
+    ) -> RunSummary {
+        let elapsed1 = self
+            .galvo_status()
+            .await
+            .map(|s| s.elapsed_ns)
+            .unwrap_or(elapsed0);
+        summary.galvo_modelled_s = elapsed1.saturating_sub(elapsed0) as f64 * 1e-9;
+        let (c, gt) = (self.cancel.clone(), self.galvo_timeout());
+        if let Err(cause) = Self::guard(
+            &c,
+            gt,
+            Device::Galvo,
+            "LASER_SIGNALS off",
+            self.cell.galvo.laser_signals(false),
+        )
+        .await
+        {
+            tracing::warn!(%cause, "executor: laser signals off at the end failed");
+        }
+        summary.wall_s = started.elapsed().as_secs_f64();
+        self.log(
+            LogLevel::Info,
+            &format!(
+                "run finished: {} layers marked, {} skipped",
+                summary.layers_marked, summary.layers_skipped
+            ),
+        );
+        if let Some(r) = &self.recorder {
+            let _ = r
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .flush();
+        }
+        summary
+    }
+}
+
+/// What a run does with each layer, decided before anything is switched on.
+struct RunPlan {
+    /// Layers finished in earlier runs.
+    finished: BTreeSet<LayerKey>,
+    /// Layers left out by a `skip` choice (earlier runs' and this one's).
+    left_out: BTreeSet<LayerKey>,
+    /// Where the cut layer starts.
+    cut_start: CutStart,
+    /// The operator's choice for a cut layer of unknown progress, if one was made.
+    cut_layer: Option<CutLayerOutcome>,
+}
