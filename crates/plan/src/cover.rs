@@ -19,10 +19,13 @@
 //!    half the limit of their mean; an atom that no pose covers alone is halved again. The pieces
 //!    of a contour share their boundary points, as [`crate::piece`] does.
 //! 2. **Fit.** For a set of points the pose is found by alternating: the centre is the centre of
-//!    the points' bounding box across the axis; each point asks for the axis `a_p` whose ray
-//!    would meet it head on (`f·a_p ∝ λ·n + d`, solved exactly for λ), and the axis becomes the
-//!    minimax direction of those ([`crate::zoning::zone_axis`]). To first order only the spread
-//!    of `n + d/f` decides the incidence, so the centre is free for the field.
+//!    the smallest circle around the points across the axis; each point asks for the axis `a_p`
+//!    whose ray would meet it head on (`f·a_p ∝ λ·n + d`, solved exactly for λ), and the axis
+//!    becomes the centre of the smallest circle around the gnomonic projections of those (the
+//!    minimax direction, Welzl's algorithm). To first order only the spread of `n + d/f` decides
+//!    the incidence, so the centre is free for the field. A fit the machine cannot reach within
+//!    its axis limits (checked at the centre) is refused. Growing poses fit only the points that
+//!    can decide the fit (the extremes, [`PRUNE_DIRECTIONS`]); checks always use every point.
 //! 3. **Candidates.** From every atom (for large inputs, from every atom not yet inside a few
 //!    candidates) a pose is grown: the other atoms in order of how far they lie from it
 //!    (normalised by the limit and by R) join while a refitted pose still covers every member.
@@ -31,12 +34,21 @@
 //!    changes: drop poses whose atoms others cover; merge a pair of poses when one refitted pose
 //!    covers the atoms only they cover; remove a pose when each atom only it covers moves into a
 //!    nearby pose refitted to keep its own atoms as well.
-//! 5. **Assignment.** Each atom goes to one chosen pose that covers it, whole contours first,
-//!    then runs along the contour; consecutive atoms of a contour in one pose become one piece.
+//! 5. **Assignment.** Along each contour an atom stays with the pose of the atom before it while
+//!    that pose covers it, otherwise goes to the pose covering the longest run from it;
+//!    consecutive atoms of a contour in one pose become one piece.
 //! 6. **Lower bound.** A greedy set of atoms pairwise incompatible: no candidate covers both and
 //!    the fit of the pair fails. Every pose covers at most one of them, so the pose count is at
 //!    least its size. The incompatibility is decided by the fitter, so the bound holds for poses
 //!    of that form (it is not a proof over every axis and centre).
+//!
+//! Atoms no reachable pose covers are covered again with the reach ignored, so they are grouped
+//! into a few poses the planner marks unreachable, as it marks k-means zones.
+//!
+//! Figures (release build, 2 cores): the demo part (52 contours) 18 poses against k-means' 50,
+//! lower bound 14, incidence ≤ 4.99° with the real ray; synthetic cores of 52/60 contours 13–15
+//! poses against 20–24; 2,000 contours 19 poses against 82, planned in about 0.45 s (k-means
+//! about 0.77 s).
 
 use std::f64::consts::PI;
 
@@ -84,10 +96,10 @@ pub const SEED_ALL_BELOW: usize = 400;
 /// See [`SEED_ALL_BELOW`].
 pub const SEED_SKIP_COVERED: usize = 3;
 
-/// Directions in which [`CoverProblem::prune`] keeps the extreme points.
+/// Directions in which a growing pose keeps the extreme points of what it fits.
 pub const PRUNE_DIRECTIONS: usize = 16;
 
-/// [`CoverProblem::prune`] keeps every point beyond this fraction of the largest distance.
+/// A growing pose also keeps every point beyond this fraction of the largest distance.
 pub const PRUNE_KEEP: f64 = 0.85;
 
 /// The length of a 2-D vector (no `hypot`: its extra precision is slow and not needed here).
