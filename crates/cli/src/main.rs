@@ -2,6 +2,7 @@
 //! stderr. `main` alone owns the exit codes (see [`exit`]).
 
 mod beam;
+mod cad;
 mod calibrate;
 mod calibrate_cell;
 mod calibrate_field;

@@ -5,19 +5,19 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use trim_geom::formats::{Geometry, read_geometry, read_path, read_points, write_path};
-use trim_geom::normals::{Orientation, estimate_normals};
+use trim_geom::formats::{read_path, read_points, write_path};
 use trim_geom::transform::similarity_from_matrix;
 use trim_geom::{Point3, PointCloud, Similarity3, Vector3};
 use trim_register::datum::datum_fit;
 use trim_register::regional::{RegisterSettings, register};
 use trim_register::sampling::View;
 
+use crate::cad::{CadOptions, WithoutNormals, load_cad};
 use crate::config::JobConfig;
 use crate::summary;
 
-/// Neighbours for estimating the normals of a CAD point cloud given without them.
-const CAD_NORMAL_NEIGHBOURS: usize = 12;
+/// The seed of the area-weighted sampling of a CAD mesh.
+const CAD_SAMPLE_SEED: u64 = 1;
 
 /// Arguments of `trimctl register`.
 #[derive(clap::Args, Debug)]
@@ -78,30 +78,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(p) => read_matrix(p)?,
         None => Similarity3::identity(),
     };
-    let cad = match read_geometry(&args.cad)
-        .with_context(|| format!("reading {}", args.cad.display()))?
-    {
-        Geometry::Mesh(mesh) => mesh.sample_area_weighted(settings.cad_sample_points, 1),
-        Geometry::Points(cloud) if cloud.has_normals() => cloud,
-        Geometry::Points(cloud) => {
-            // Orientation from the cloud's centroid outward: right for closed, convex-ish parts;
-            // point-to-plane residuals do not depend on the sign, visibility culling does.
-            let centre = cloud.bounds().map(|b| b.center()).unwrap_or_default();
-            let normals = estimate_normals(
-                cloud.points(),
-                CAD_NORMAL_NEIGHBOURS,
-                Orientation::AlongReference(Vector3::z()),
-            )?;
-            let oriented = cloud
-                .points()
-                .iter()
-                .zip(normals)
-                .map(|(p, n)| if n.dot(&(p - centre)) < 0.0 { -n } else { n })
-                .collect();
-            PointCloud::with_normals(cloud.points().to_vec(), oriented)?
-        }
-        Geometry::Path(_) => anyhow::bail!("{}: is a path, not a CAD model", args.cad.display()),
-    };
+    let cad = load_cad(
+        &args.cad,
+        &CadOptions {
+            key: "--cad",
+            sample_points: settings.cad_sample_points,
+            seed: CAD_SAMPLE_SEED,
+            without_normals: WithoutNormals::Estimate,
+        },
+    )
+    .with_context(|| format!("reading {}", args.cad.display()))?;
     let scan =
         read_points(&args.scan).with_context(|| format!("reading {}", args.scan.display()))?;
     // With a job file, the scan (scanner frame) goes into the work-piece frame through its

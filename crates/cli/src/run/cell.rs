@@ -1,0 +1,248 @@
+//! The cell of a run: its addresses, the simulators started where the job says "sim" (with the
+//! digital twin in the galvo simulator), the execution with its progress display.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use tokio_util::sync::CancellationToken;
+use trim_geom::Path as TrimPath;
+use trim_geom::formats;
+use trim_io::cell::{Cell, CellAddresses, SimCell, SimOptions, Timeouts};
+use trim_io::executor::{ExecOptions, Executor, Progress};
+use trim_io::journal::CutLayer;
+use trim_io::laser::Profile;
+use trim_io::record::device_tap;
+use trim_io::tap::Tap;
+use trim_io::twin::{TrueCell, TruePart, Twin};
+use trim_plan::Job;
+use trim_register::regional::Registration;
+
+use super::inputs::Inputs;
+use super::record::{
+    finish_recorder, open_recorder, record_calibration, record_inputs, record_spot_error,
+};
+use super::report::SpotReport;
+use super::{Args, Executed, files};
+use crate::config::{JobConfig, SIM};
+use crate::exit::{Exit, Failure};
+use crate::progress::JobProgress;
+
+/// Connects the cell (starting simulators where the config says "sim"), then runs or resumes.
+/// The outer error: the cell could not be set up; the inner: the execution stopped.
+pub(super) fn execute(
+    config: &JobConfig,
+    args: &Args,
+    run_dir: &Path,
+    job: &Job,
+    record: Option<(&Inputs, &Registration)>,
+    resuming: bool,
+) -> anyhow::Result<Executed> {
+    // The twin lands the galvo simulator's vectors on the true part ([sim.truth]).
+    let (twin, line_ids) = match truth_line(config, run_dir)? {
+        Some(line) if config.cell.galvo == SIM => (
+            Some(Twin::new(
+                TrueCell::new(&config.sim.truth, &config.plan_settings()),
+                TruePart::new(&line),
+            )),
+            line.contours().iter().map(trim_geom::Contour::id).collect(),
+        ),
+        _ => (None, std::collections::HashSet::new()),
+    };
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    runtime.block_on(async {
+        let profile = Profile::builtin(&config.cell.laser_profile)
+            .map_err(|e| anyhow::anyhow!("cell.laser_profile: {e}"))?;
+        let any_sim = [&config.cell.cnc, &config.cell.galvo, &config.cell.laser]
+            .iter()
+            .any(|v| v.as_str() == SIM);
+        let sim = if any_sim {
+            let mut options = SimOptions::new(profile.clone());
+            options.galvo_time_scale = args.sim_time_scale;
+            options.cnc_time_scale = args.sim_time_scale;
+            options.twin = twin.clone();
+            Some(
+                SimCell::start(options)
+                    .await
+                    .context("starting the simulated cell")?,
+            )
+        } else {
+            None
+        };
+        let addresses = cell_addresses(config, sim.as_ref(), profile)?;
+        let recorder = open_recorder(run_dir, resuming)?;
+        if let (Some(rec), Some((inputs, registration))) = (&recorder, record) {
+            record_inputs(rec, inputs, registration, job)?;
+        }
+        if let Some(rec) = &recorder {
+            record_calibration(rec, config, job)?;
+        }
+        let tap = recorder.as_ref().map_or_else(Tap::none, device_tap);
+        let timeouts = Timeouts::default();
+        let cell = Cell::connect(&addresses, &timeouts, tap)
+            .await
+            .map_err(|e| {
+                Failure::with_exit(
+                    Exit::DeviceFault,
+                    anyhow::anyhow!("connecting the cell: {e}"),
+                )
+            })?;
+        let cancel = CancellationToken::new();
+        let on_ctrl_c = cancel.clone();
+        tokio::spawn(async move {
+            if tokio::signal::ctrl_c().await.is_ok() {
+                eprintln!("\ntrimctl run: interrupted: switching the laser off and stopping");
+                on_ctrl_c.cancel();
+            }
+        });
+        let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
+        let bars = tokio::spawn(draw_progress(rx, job.clone()));
+        let executor = Executor::new(
+            job.clone(),
+            cell,
+            run_dir.join(files::JOURNAL),
+            recorder.clone(),
+        )
+        .with_options(ExecOptions {
+            timeouts,
+            cut_layer: args.cut_layer.map(CutLayer::from),
+            ..ExecOptions::default()
+        });
+        let result = if resuming {
+            executor.resume(cancel, Some(tx)).await
+        } else {
+            executor.run(cancel, Some(tx)).await
+        };
+        let _ = bars.await;
+        let spots = twin
+            .as_ref()
+            .map(|t| SpotReport::new(&t.spots(), &run_dir.join(files::JOURNAL), job, &line_ids))
+            .filter(|r| r.overall.spots > 0);
+        if let Some(rec) = recorder {
+            if let Some(report) = &spots {
+                record_spot_error(&rec, report)?;
+            }
+            finish_recorder(rec)?;
+        }
+        if let Some(sim) = &sim {
+            let violations = sim.monitor.violations();
+            if !violations.is_empty() {
+                bail!("safety monitor found interlock violations: {violations:?}");
+            }
+        }
+        Ok((result, spots))
+    })
+}
+
+fn cell_addresses(
+    config: &JobConfig,
+    sim: Option<&SimCell>,
+    profile: Profile,
+) -> anyhow::Result<CellAddresses> {
+    let sim_addresses = sim.map(SimCell::addresses);
+    let pick = |value: &str, key: &str| -> anyhow::Result<Option<std::net::SocketAddr>> {
+        if value == SIM {
+            Ok(None)
+        } else {
+            value
+                .parse()
+                .map(Some)
+                .map_err(|_| anyhow::anyhow!("{key}: expected HOST:PORT, got {value:?}"))
+        }
+    };
+    let from_sim = |what: &str| anyhow::anyhow!("{what} is \"sim\" but no simulator was started");
+    let galvo = match pick(&config.cell.galvo, "cell.galvo")? {
+        Some(a) => a,
+        None => {
+            sim_addresses
+                .as_ref()
+                .ok_or_else(|| from_sim("cell.galvo"))?
+                .galvo
+        }
+    };
+    let cnc = match pick(&config.cell.cnc, "cell.cnc")? {
+        Some(a) => a,
+        None => {
+            sim_addresses
+                .as_ref()
+                .ok_or_else(|| from_sim("cell.cnc"))?
+                .cnc
+        }
+    };
+    let laser_path = if config.cell.laser == SIM {
+        sim_addresses
+            .as_ref()
+            .ok_or_else(|| from_sim("cell.laser"))?
+            .laser_path
+            .clone()
+    } else {
+        PathBuf::from(&config.cell.laser)
+    };
+    Ok(CellAddresses {
+        galvo,
+        laser_path,
+        laser_profile: profile,
+        cnc,
+    })
+}
+
+/// The true trimming line the twin measures the spot error against: `[sim.truth] path`, or the
+/// demo part's own (in the run folder).
+fn truth_line(config: &JobConfig, run_dir: &Path) -> anyhow::Result<Option<TrimPath>> {
+    let file = match &config.sim.truth.path {
+        Some(p) => p.clone(),
+        None => {
+            let demo = run_dir.join(files::INPUTS).join(files::TRUTH);
+            if !(config.is_demo() && demo.exists()) {
+                return Ok(None);
+            }
+            demo
+        }
+    };
+    Ok(Some(
+        formats::read_path(&file).context("sim.truth.path: the true trimming line")?,
+    ))
+}
+
+async fn draw_progress(mut rx: tokio::sync::mpsc::UnboundedReceiver<Progress>, job: Job) {
+    let vectors_total: u64 = job
+        .layers()
+        .map(|(_, _, l)| {
+            l.polylines
+                .iter()
+                .map(|p| p.points.len().saturating_sub(1) as u64)
+                .sum::<u64>()
+        })
+        .sum();
+    let layers_total = job.layers().count() as u64;
+    let mut bars = JobProgress::new(job.zones.len() as u64, layers_total, vectors_total);
+    let vectors_of = |key: trim_plan::LayerKey| -> u64 {
+        job.layers()
+            .find(|(k, _, _)| *k == key)
+            .map_or(0, |(_, _, l)| {
+                l.polylines
+                    .iter()
+                    .map(|p| p.points.len().saturating_sub(1) as u64)
+                    .sum()
+            })
+    };
+    let zone_index = |zone: usize| job.zones.iter().position(|z| z.id == zone).unwrap_or(0) as u64;
+    let mut current_zone = None;
+    while let Some(p) = rx.recv().await {
+        match p {
+            Progress::Phase { key, .. } if current_zone != Some(key.zone) => {
+                current_zone = Some(key.zone);
+                bars.zone_started(key.zone, zone_index(key.zone));
+            }
+            Progress::LayerDone { key, .. } => {
+                bars.layer_done(key.zone, key.layer, vectors_of(key))
+            }
+            Progress::LayerSkipped { key } => bars.skip_layers(1, vectors_of(key)),
+            _ => {}
+        }
+    }
+    bars.finish();
+}

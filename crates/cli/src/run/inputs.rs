@@ -1,0 +1,142 @@
+//! The part's inputs for `trimctl run`: the built-in demo part (written into the run folder),
+//! or the job's CAD, scan and path files.
+
+use std::path::Path;
+
+use anyhow::{Context, bail};
+use trim_geom::formats;
+use trim_geom::math::Similarity3;
+use trim_geom::{Path as TrimPath, PointCloud};
+use trim_io::twin::TrueCell;
+use trim_synth::{SynthParams, generate};
+
+use super::{Args, files};
+use crate::cad::{CadOptions, WithoutNormals, load_cad};
+use crate::config::{HatchRegion, JobConfig};
+
+/// The part's inputs: CAD cloud with outward normals, the scan mapped into the work-piece
+/// frame through `[calibration]`, template path, fixture pose.
+pub(super) struct Inputs {
+    pub(super) cad: PointCloud,
+    pub(super) scan: PointCloud,
+    pub(super) path: TrimPath,
+    /// The regions to hatch: `[[hatch]]`, or the demo part's own region.
+    pub(super) hatch: Vec<HatchRegion>,
+    pub(super) scan_from_cad_initial: Similarity3,
+    pub(super) description: String,
+}
+
+pub(super) fn load_inputs(
+    config: &JobConfig,
+    args: &Args,
+    run_dir: &Path,
+) -> anyhow::Result<Inputs> {
+    if config.is_demo() {
+        let params = SynthParams {
+            seed: args.demo_seed,
+            ..SynthParams::default()
+        };
+        let case = generate(&params).context("building the demo part")?;
+        let dir = run_dir.join(files::INPUTS);
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("cannot create {}", dir.display()))?;
+        // The synthetic part lives in the true work-piece frame; the scanner sees it through
+        // the true cell ([sim.truth]) at the scan pose.
+        let truth_cell = TrueCell::new(&config.sim.truth, &config.plan_settings());
+        let scanner_from_workpiece = Similarity3::from_isometry(
+            truth_cell.scanner_from_workpiece(&config.part.scan_pose),
+            1.0,
+        );
+        let scan_in_scanner = case.scan.transformed(&scanner_from_workpiece);
+        formats::write_path(&dir.join("path.csv"), &case.path)?;
+        formats::write_path(&dir.join(files::TRUTH), &case.truth)?;
+        formats::write_ply(
+            &dir.join("scan.ply"),
+            &scan_in_scanner,
+            formats::PlyEncoding::BinaryLittleEndian,
+        )?;
+        formats::write_ply(
+            &dir.join("cad_points.ply"),
+            &case.cad_points,
+            formats::PlyEncoding::BinaryLittleEndian,
+        )?;
+        // The demo hatches a flash film on its top face unless the job names its own regions.
+        let hatch = if config.hatch.is_empty() {
+            let boundary = dir.join(DEMO_HATCH_BOUNDARY);
+            formats::write_path(
+                &boundary,
+                &TrimPath::new(vec![trim_synth::demo_hatch_boundary()?])?,
+            )?;
+            vec![HatchRegion {
+                boundary,
+                settings: demo_hatch_settings(),
+            }]
+        } else {
+            config.hatch.clone()
+        };
+        return Ok(Inputs {
+            hatch,
+            description: format!(
+                "built-in demo part (synthetic ceramic core, seed {}, {} contours, {} scan points)",
+                args.demo_seed,
+                case.path.len(),
+                case.scan.len()
+            ),
+            cad: case.cad_points,
+            scan: config.scan_to_workpiece(&scan_in_scanner),
+            path: case.path,
+            scan_from_cad_initial: case.scan_from_cad_nominal,
+        });
+    }
+    let (Some(cad_file), Some(path_file), Some(scan_file)) =
+        (&config.part.cad, &config.part.path, &config.part.scan)
+    else {
+        bail!("part: give all of cad, path and scan");
+    };
+    let cad = load_cad(
+        cad_file,
+        &CadOptions {
+            key: "part.cad",
+            sample_points: config.register.cad_sample_points,
+            seed: CAD_SAMPLE_SEED,
+            without_normals: WithoutNormals::Refuse,
+        },
+    )?;
+    let scan = config.scan_to_workpiece(&formats::read_points(scan_file)?);
+    let path = formats::read_path(path_file)?;
+    if !config.hatch.is_empty() {
+        crate::hatch::check_path_ids(&path, path_file)?;
+    }
+    Ok(Inputs {
+        hatch: config.hatch.clone(),
+        description: format!(
+            "CAD {}, path {} ({} contours), scan {} ({} points)",
+            cad_file.display(),
+            path_file.display(),
+            path.len(),
+            scan_file.display(),
+            scan.len()
+        ),
+        cad,
+        scan,
+        path,
+        scan_from_cad_initial: Similarity3::identity(),
+    })
+}
+
+/// The demo's hatch boundary file, in the run folder's inputs.
+const DEMO_HATCH_BOUNDARY: &str = "hatch_boundary.csv";
+
+/// The demo region's hatching: 0.05 mm pitch across the top face's camber (the planner splits
+/// tracks where the incidence limit requires), points placed by a 2 µm chord tolerance (vector
+/// marking).
+fn demo_hatch_settings() -> trim_plan::hatch::HatchSettings {
+    trim_plan::hatch::HatchSettings {
+        pitch_mm: 0.05,
+        chord_tolerance_mm: Some(0.002),
+        ..trim_plan::hatch::HatchSettings::default()
+    }
+}
+
+/// The seed of the area-weighted CAD sampling (fixed: the same CAD gives the same samples).
+const CAD_SAMPLE_SEED: u64 = 0x00c4_d5a3;

@@ -1,0 +1,480 @@
+//! `trimctl run`: the whole job from one command. Register, plan, show what will be done,
+//! execute on the cell, and leave a complete run folder.
+//!
+//! With no job file it runs the built-in demo part (a synthetic ceramic core, see
+//! `trim_synth`) against the built-in simulated cell.
+//!
+//! The command's parts: [`inputs`] loads the part (the demo's or the job's files), [`cell`]
+//! connects the cell (simulators where the job says "sim", the digital twin) and executes,
+//! [`record`] writes the MCAP record, [`report`] writes `report.md` and `summary.json`.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use serde::Serialize;
+use trim_geom::Path as TrimPath;
+use trim_geom::formats;
+use trim_io::executor::{ExecError, RunSummary, StopCause};
+use trim_io::journal::CutLayer;
+use trim_plan::Job;
+use trim_plan::planner::{PlanOutput, plan_with_report};
+use trim_register::regional::{Registration, register};
+
+use crate::config::JobConfig;
+use crate::exit::{Exit, Failure};
+use crate::progress::stage;
+use crate::summary;
+
+use cell::execute;
+use inputs::load_inputs;
+use report::{SpotReport, append_resume_report, write_report};
+
+mod cell;
+mod inputs;
+mod record;
+mod report;
+
+/// Files of a run folder.
+pub mod files {
+    /// The effective job file (what resume re-reads).
+    pub const JOB: &str = "job.toml";
+    /// The registered path.
+    pub const REGISTERED: &str = "registered.csv";
+    /// The registration quality report.
+    pub const REGISTRATION: &str = "registration.json";
+    /// The planned job.
+    pub const PLAN: &str = "plan.json";
+    /// The plan's picture.
+    pub const PLAN_SVG: &str = "plan.svg";
+    /// The executor's journal.
+    pub const JOURNAL: &str = "journal.jsonl";
+    /// The MCAP record of the execution.
+    pub const RECORD: &str = "run.mcap";
+    /// The short report.
+    pub const REPORT: &str = "report.md";
+    /// Stage timings and the run summary.
+    pub const SUMMARY: &str = "summary.json";
+    /// The demo part's input files.
+    pub const INPUTS: &str = "inputs";
+    /// The copy of the field correction the run used.
+    pub const FIELD: &str = "field.json";
+    /// The demo part's true trimming line (work-piece frame), under [`INPUTS`].
+    pub const TRUTH: &str = "truth.csv";
+}
+
+/// The simulated cell's default speed: real seconds per simulated second. The demo runs the
+/// galvo and the CNC 20× faster than real time so it ends in seconds, not minutes.
+pub const DEFAULT_SIM_TIME_SCALE: f64 = 0.05;
+
+/// Arguments of `trimctl run`.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The job file. Without one: the built-in demo part on the built-in simulated cell.
+    #[arg(value_name = "JOB.toml")]
+    job: Option<PathBuf>,
+    /// The run folder (default: a new time-stamped folder under `output.runs_dir`).
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// Continue the interrupted run in RUN_DIR at its first unfinished layer.
+    #[arg(long, value_name = "RUN_DIR", conflicts_with_all = ["job", "out"])]
+    resume: Option<PathBuf>,
+    /// With --resume: what to do with a layer cut at a point nobody can tell (the galvo lost
+    /// its list to a restart, or trimctl was killed mid-layer): `redo` marks it again (the
+    /// vectors it had marked are marked twice), `skip` leaves it out (the report lists it).
+    /// The choice is journaled. Not used when the cut point is known.
+    #[arg(long, value_enum, value_name = "redo|skip", requires = "resume")]
+    cut_layer: Option<CutLayerArg>,
+    /// The CNC (LinuxCNC linuxcncrsh) as HOST:PORT, overriding `cell.cnc`.
+    #[arg(long, value_name = "HOST:PORT")]
+    cnc: Option<String>,
+    /// The galvo controller as HOST:PORT, overriding `cell.galvo`.
+    #[arg(long, value_name = "HOST:PORT")]
+    galvo: Option<String>,
+    /// The laser's serial device, overriding `cell.laser`.
+    #[arg(long, value_name = "DEVICE")]
+    laser: Option<String>,
+    /// Start even if the plan fails validation (the violations are printed and recorded).
+    #[arg(long)]
+    allow_invalid: bool,
+    /// Plan without the contours registration flags untrustworthy (they are listed in the
+    /// report) instead of refusing to start.
+    #[arg(long)]
+    skip_untrusted: bool,
+    /// Register and plan, write the run folder, execute nothing.
+    #[arg(long)]
+    dry_run: bool,
+    /// The demo part's seed.
+    #[arg(long, default_value_t = 1)]
+    demo_seed: u64,
+    /// Simulated devices: real seconds per simulated second (1 = real time).
+    #[arg(long, default_value_t = DEFAULT_SIM_TIME_SCALE)]
+    sim_time_scale: f64,
+}
+
+/// `--cut-layer`.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CutLayerArg {
+    /// Mark the layer again.
+    Redo,
+    /// Leave the layer out.
+    Skip,
+}
+
+impl From<CutLayerArg> for CutLayer {
+    fn from(a: CutLayerArg) -> CutLayer {
+        match a {
+            CutLayerArg::Redo => CutLayer::Redo,
+            CutLayerArg::Skip => CutLayer::Skip,
+        }
+    }
+}
+
+/// Wall time of each stage (s).
+#[derive(Debug, Default, Serialize)]
+pub(super) struct Timings {
+    load_s: f64,
+    register_s: f64,
+    hatch_s: f64,
+    plan_s: f64,
+    execute_s: f64,
+}
+
+/// Runs the command.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if !(args.sim_time_scale.is_finite() && args.sim_time_scale > 0.0) {
+        bail!(
+            "--sim-time-scale: must be a number > 0, got {}",
+            args.sim_time_scale
+        );
+    }
+    match args.resume.clone() {
+        Some(dir) => resume(&dir, &args),
+        None => fresh(&args),
+    }
+}
+
+fn apply_overrides(config: &mut JobConfig, args: &Args) -> anyhow::Result<()> {
+    if let Some(c) = &args.cnc {
+        config.cell.cnc.clone_from(c);
+    }
+    if let Some(g) = &args.galvo {
+        config.cell.galvo.clone_from(g);
+    }
+    if let Some(l) = &args.laser {
+        config.cell.laser.clone_from(l);
+    }
+    config
+        .validate()
+        .context("after applying --cnc/--galvo/--laser")?;
+    Ok(())
+}
+
+fn new_run_dir(config: &JobConfig, args: &Args) -> anyhow::Result<PathBuf> {
+    let dir = match &args.out {
+        Some(d) => d.clone(),
+        None => {
+            let stamp = humantime::format_rfc3339_seconds(std::time::SystemTime::now())
+                .to_string()
+                .replace(':', "-");
+            config.output.runs_dir.join(stamp)
+        }
+    };
+    if dir.join(files::JOURNAL).exists() {
+        bail!(
+            "{} already holds a run (journal present): use --resume {} to continue it, or another --out",
+            dir.display(),
+            dir.display()
+        );
+    }
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    Ok(dir)
+}
+
+fn fresh(args: &Args) -> anyhow::Result<()> {
+    let mut timings = Timings::default();
+    let t0 = Instant::now();
+    let mut config = match &args.job {
+        Some(p) => JobConfig::load(p)?,
+        None => JobConfig::default(),
+    };
+    apply_overrides(&mut config, args)?;
+    let run_dir = new_run_dir(&config, args)?;
+    // The run keeps its own copy of the field correction it used (the Job records its
+    // checksum), so the folder alone can be resumed and audited.
+    if let Some(src) = config.calibration.field_correction.clone() {
+        let copy = run_dir.join(files::FIELD);
+        std::fs::copy(&src, &copy).with_context(|| {
+            format!(
+                "calibration.field_correction: cannot copy {}",
+                src.display()
+            )
+        })?;
+        config.calibration.field_correction = Some(copy);
+    }
+    // The effective job file names the copy relative to itself.
+    let mut effective = config.clone();
+    if effective.calibration.field_correction.is_some() {
+        effective.calibration.field_correction = Some(PathBuf::from(files::FIELD));
+    }
+    std::fs::write(
+        run_dir.join(files::JOB),
+        toml::to_string(&effective).context("serialising the job file")?,
+    )?;
+    eprintln!("trimctl run: recording to {}", run_dir.display());
+
+    let spinner = stage("loading the part");
+    let inputs = load_inputs(&config, args, &run_dir)?;
+    drop(spinner);
+    timings.load_s = t0.elapsed().as_secs_f64();
+    println!("part: {}", inputs.description);
+
+    // Register.
+    let t = Instant::now();
+    let spinner = stage("registering the path onto the scan");
+    let registration = register(
+        &inputs.cad,
+        &inputs.scan,
+        &inputs.path,
+        &inputs.scan_from_cad_initial,
+        &config.register,
+    )
+    .context("registration")?;
+    drop(spinner);
+    timings.register_s = t.elapsed().as_secs_f64();
+    formats::write_path(&run_dir.join(files::REGISTERED), &registration.path)?;
+    std::fs::write(
+        run_dir.join(files::REGISTRATION),
+        serde_json::to_string_pretty(&registration.report)?,
+    )?;
+    print!("{}", summary::registration(&registration.report));
+
+    // Plan, without untrustworthy contours if asked.
+    let untrusted: Vec<i64> = registration
+        .report
+        .contours
+        .iter()
+        .filter(|c| !c.trustworthy)
+        .map(|c| c.id)
+        .collect();
+    let to_plan = if untrusted.is_empty() {
+        registration.path.clone()
+    } else if args.skip_untrusted {
+        eprintln!(
+            "trimctl run: planning without {} untrustworthy contour(s): {untrusted:?}",
+            untrusted.len()
+        );
+        let kept: Vec<_> = registration
+            .path
+            .contours()
+            .iter()
+            .filter(|c| !untrusted.contains(&c.id()))
+            .cloned()
+            .collect();
+        TrimPath::new(kept).context("no trustworthy contour left to plan")?
+    } else {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "registration flags {} contour(s) untrustworthy: {untrusted:?} (see {}); refusing to start. Check the scan, or pass --skip-untrusted to trim the others",
+                untrusted.len(),
+                run_dir.join(files::REGISTRATION).display()
+            ),
+        ));
+    };
+    // Hatch tracks, on the registered scan, planned beside the contours.
+    let to_plan = if inputs.hatch.is_empty() {
+        to_plan
+    } else {
+        let t = Instant::now();
+        let spinner = stage("hatching regions on the registered scan");
+        let regions = crate::hatch::hatch_regions(
+            &inputs.hatch,
+            &inputs.scan,
+            &|p| registration.scan_from_cad_point(p),
+            &run_dir,
+        )?;
+        drop(spinner);
+        timings.hatch_s = t.elapsed().as_secs_f64();
+        let mut contours = to_plan.contours().to_vec();
+        for r in regions {
+            println!("{}", r.summary);
+            contours.extend(r.tracks);
+        }
+        TrimPath::new(contours)?
+    };
+    let t = Instant::now();
+    let spinner = stage("planning zones and layers");
+    let plan = plan_with_report(&to_plan, &config.plan_settings()).context("planning")?;
+    drop(spinner);
+    timings.plan_s = t.elapsed().as_secs_f64();
+    write_plan(&run_dir, &plan)?;
+    print!("{}", summary::plan(&plan));
+
+    if !plan.job.validation.passed {
+        let lines = plan.job.validation.violations.join("\n  ");
+        let unreachable = &plan.job.validation.unreachable_zones;
+        if !unreachable.is_empty() {
+            return Err(Failure::with_exit(
+                Exit::Refused,
+                anyhow::anyhow!(
+                    "zone(s) {unreachable:?} cannot be reached within the axis limits; refusing to start (--allow-invalid does not override this):\n  {lines}"
+                ),
+            ));
+        }
+        if !args.allow_invalid {
+            return Err(Failure::with_exit(
+                Exit::Refused,
+                anyhow::anyhow!(
+                    "the plan fails validation; refusing to start (pass --allow-invalid to override):\n  {lines}"
+                ),
+            ));
+        }
+        eprintln!("trimctl run: WARNING: starting a plan that fails validation:\n  {lines}");
+    }
+    if args.dry_run {
+        write_report(
+            &run_dir,
+            &config,
+            &inputs.description,
+            &registration,
+            &plan,
+            &timings,
+            None,
+            None,
+            None,
+        )?;
+        println!(
+            "dry run: nothing executed; run folder {}",
+            run_dir.display()
+        );
+        return Ok(());
+    }
+
+    let t = Instant::now();
+    let record = Some((&inputs, &registration));
+    let outcome = execute(&config, args, &run_dir, &plan.job, record, false);
+    timings.execute_s = t.elapsed().as_secs_f64();
+    finish(
+        &run_dir,
+        &config,
+        &inputs.description,
+        &registration,
+        &plan,
+        &timings,
+        outcome,
+    )
+}
+
+fn write_plan(run_dir: &Path, plan: &PlanOutput) -> anyhow::Result<()> {
+    std::fs::write(run_dir.join(files::PLAN), plan.job.to_json()?)?;
+    std::fs::write(
+        run_dir.join(files::PLAN_SVG),
+        trim_plan::svg::job_svg(&plan.job),
+    )?;
+    Ok(())
+}
+
+fn finish(
+    run_dir: &Path,
+    config: &JobConfig,
+    description: &str,
+    registration: &Registration,
+    plan: &PlanOutput,
+    timings: &Timings,
+    outcome: anyhow::Result<Executed>,
+) -> anyhow::Result<()> {
+    let (outcome, spots) = outcome?;
+    let stopped = outcome.as_ref().err().map(ToString::to_string);
+    write_report(
+        run_dir,
+        config,
+        description,
+        registration,
+        plan,
+        timings,
+        outcome.as_ref().ok(),
+        stopped.as_deref(),
+        spots.as_ref(),
+    )?;
+    if let Some(r) = &spots {
+        print!("{}", r.line());
+    }
+    match outcome {
+        Ok(run) => {
+            print!("{}", summary::execution(&run, &plan.job));
+            println!("done: run folder {}", run_dir.display());
+            Ok(())
+        }
+        Err(e) => Err(exec_failure(e, run_dir)),
+    }
+}
+
+/// The exit code and message of a run that did not finish: interrupted 3; stopped by a fault
+/// (a device, or the journal's disk) 2; refused before anything was switched on 1.
+fn exec_failure(e: ExecError, run_dir: &Path) -> anyhow::Error {
+    let exit = match &e {
+        ExecError::Stopped(s) if s.cause == StopCause::Cancelled => Exit::Interrupted,
+        ExecError::Stopped(_) => Exit::DeviceFault,
+        _ => Exit::Refused,
+    };
+    match e {
+        ExecError::Stopped(_) => Failure::with_exit(
+            exit,
+            anyhow::anyhow!(
+                "{e}; the laser is off; continue with: trimctl run --resume {}",
+                run_dir.display()
+            ),
+        ),
+        ExecError::ResumeUnknown { .. } => Failure::with_exit(
+            exit,
+            anyhow::anyhow!(
+                "{e}: trimctl run --resume {dir} --cut-layer redo, or trimctl run --resume {dir} --cut-layer skip",
+                dir = run_dir.display()
+            ),
+        ),
+        other => Failure::with_exit(exit, other),
+    }
+}
+
+fn resume(run_dir: &Path, args: &Args) -> anyhow::Result<()> {
+    let mut config = JobConfig::load(&run_dir.join(files::JOB))
+        .with_context(|| format!("{} is not a run folder", run_dir.display()))?;
+    apply_overrides(&mut config, args)?;
+    let text = std::fs::read_to_string(run_dir.join(files::PLAN))
+        .with_context(|| format!("cannot read {}", run_dir.join(files::PLAN).display()))?;
+    let job = Job::from_json(&text)
+        .with_context(|| format!("{}", run_dir.join(files::PLAN).display()))?;
+    if !run_dir.join(files::JOURNAL).exists() {
+        bail!(
+            "{}: no journal: the run never started executing; start a new run instead",
+            run_dir.display()
+        );
+    }
+    eprintln!("trimctl run: resuming {}", run_dir.display());
+    let t = Instant::now();
+    let (outcome, spots) = execute(&config, args, run_dir, &job, None, true)?;
+    let wall_s = t.elapsed().as_secs_f64();
+    if let Some(r) = &spots {
+        print!("{}", r.line());
+    }
+    // A refusal before anything was switched on leaves the run folder as it was.
+    if !matches!(outcome, Err(ExecError::ResumeUnknown { .. })) {
+        append_resume_report(run_dir, &job, &outcome, wall_s)?;
+    }
+    match outcome {
+        Ok(run) => {
+            print!("{}", summary::execution(&run, &job));
+            println!(
+                "done: resumed run finished in {wall_s:.1} s; run folder {}",
+                run_dir.display()
+            );
+            Ok(())
+        }
+        Err(e) => Err(exec_failure(e, run_dir)),
+    }
+}
+
+/// What an execution gave: the executor's outcome and, with the digital twin, the spot
+/// errors on the true part.
+pub(super) type Executed = (Result<RunSummary, ExecError>, Option<SpotReport>);

@@ -1,0 +1,222 @@
+//! The run's report: `report.md` and `summary.json` (stage timings, the run summary, the spot
+//! error of the digital twin), and what a resume appends to them.
+
+use std::path::Path;
+
+use anyhow::Context;
+use serde::Serialize;
+use trim_io::executor::{ExecError, RunSummary};
+use trim_io::journal::Entry;
+use trim_io::twin::{Spot, SpotStats};
+use trim_plan::Job;
+use trim_plan::planner::PlanOutput;
+use trim_register::regional::Registration;
+
+use super::{Timings, files};
+use crate::config::JobConfig;
+use crate::summary;
+
+/// The twin's spot errors of a run: overall and per zone (µm), over the spots of contours on
+/// the true trimming line (hatch tracks have no line to be measured against).
+#[derive(Debug, Clone, Serialize)]
+pub struct SpotReport {
+    /// Over every landed spot of a trimming-line contour.
+    pub overall: SpotStats,
+    /// Per zone id, in job order.
+    pub per_zone: Vec<(usize, SpotStats)>,
+    /// Spots left out: on contours the true line does not hold (hatch tracks).
+    pub excluded_spots: usize,
+}
+
+impl SpotReport {
+    /// Finds each spot's layer through the journal's list tags and its contour through the
+    /// layer's vectors (each polyline of n points is n − 1 vectors; a resumed list starts at the
+    /// journaled `first_vector`), then keeps the spots of `line_ids`' contours.
+    pub(super) fn new(
+        spots: &[Spot],
+        journal: &Path,
+        job: &Job,
+        line_ids: &std::collections::HashSet<i64>,
+    ) -> SpotReport {
+        let layers: std::collections::HashMap<_, _> =
+            job.layers().map(|(key, _, layer)| (key, layer)).collect();
+        let mut list_of_tag = std::collections::HashMap::new();
+        if let Ok(text) = std::fs::read_to_string(journal) {
+            for line in text.lines() {
+                if let Ok(Entry::LayerBegin {
+                    key,
+                    tag,
+                    first_vector,
+                    ..
+                }) = serde_json::from_str(line)
+                {
+                    list_of_tag.insert(tag, (key, first_vector));
+                }
+            }
+        }
+        let contour_of = |s: &Spot| -> Option<(usize, i64)> {
+            let (key, first) = list_of_tag.get(&s.tag)?;
+            let layer = layers.get(key)?;
+            let mut v = u64::from(*first) + u64::from(s.vector);
+            for p in &layer.polylines {
+                let n = p.points.len().saturating_sub(1) as u64;
+                if v < n {
+                    return Some((key.zone, p.contour));
+                }
+                v -= n;
+            }
+            None
+        };
+        let mut per: std::collections::BTreeMap<usize, Vec<f64>> = Default::default();
+        let mut all = Vec::with_capacity(spots.len());
+        let mut excluded_spots = 0;
+        for s in spots {
+            match contour_of(s) {
+                Some((zone, contour)) if line_ids.contains(&contour) => {
+                    per.entry(zone).or_default().push(s.error_mm);
+                    all.push(s.error_mm);
+                }
+                _ => excluded_spots += 1,
+            }
+        }
+        SpotReport {
+            overall: SpotStats::of_mm(&all),
+            per_zone: per
+                .into_iter()
+                .map(|(z, e)| (z, SpotStats::of_mm(&e)))
+                .collect(),
+            excluded_spots,
+        }
+    }
+
+    pub(super) fn line(&self) -> String {
+        format!(
+            "spot error on the true part (digital twin, registration included): P95 {:.1} µm, max {:.1} µm, mean {:.1} µm over {} spots{}\n",
+            self.overall.p95_um,
+            self.overall.max_um,
+            self.overall.mean_um,
+            self.overall.spots,
+            self.excluded_note()
+        )
+    }
+
+    fn excluded_note(&self) -> String {
+        if self.excluded_spots == 0 {
+            String::new()
+        } else {
+            format!(
+                " (the {} spots of hatch tracks, which have no line, left out)",
+                self.excluded_spots
+            )
+        }
+    }
+
+    fn markdown(&self) -> String {
+        let mut out = String::from(
+            "\n## Spot error (digital twin)\n\nDistance from each landed spot to the true trimming line, on the true cell of `[sim.truth]`; registration error included.\n\n",
+        );
+        out.push_str(&format!(
+            "Overall: P95 {:.1} µm, max {:.1} µm, mean {:.1} µm ({} spots{}).\n\n| zone | spots | P95 µm | max µm |\n|---|---|---|---|\n",
+            self.overall.p95_um,
+            self.overall.max_um,
+            self.overall.mean_um,
+            self.overall.spots,
+            self.excluded_note()
+        ));
+        for (z, s) in &self.per_zone {
+            out.push_str(&format!(
+                "| {z} | {} | {:.1} | {:.1} |\n",
+                s.spots, s.p95_um, s.max_um
+            ));
+        }
+        out
+    }
+}
+
+/// Appends a resume's outcome to the run's report (`report.md`) and records it in
+/// `summary.json` under `resumes`.
+pub(super) fn append_resume_report(
+    run_dir: &Path,
+    job: &Job,
+    outcome: &Result<RunSummary, ExecError>,
+    wall_s: f64,
+) -> anyhow::Result<()> {
+    let report_path = run_dir.join(files::REPORT);
+    let mut report = std::fs::read_to_string(&report_path).unwrap_or_default();
+    let summary_path = run_dir.join(files::SUMMARY);
+    let mut json: serde_json::Value = std::fs::read_to_string(&summary_path)
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
+        .unwrap_or_else(|| serde_json::json!({}));
+    let resumes = json
+        .as_object_mut()
+        .context("summary.json is not a JSON object")?
+        .entry("resumes")
+        .or_insert_with(|| serde_json::json!([]));
+    let n = resumes.as_array().map_or(0, Vec::len) + 1;
+    report.push_str(&summary::resume_markdown(n, job, outcome, wall_s));
+    if let Some(list) = resumes.as_array_mut() {
+        list.push(serde_json::json!({
+            "wall_s": wall_s,
+            "run": outcome.as_ref().ok(),
+            "stopped": outcome.as_ref().err().map(ToString::to_string),
+        }));
+    }
+    std::fs::write(&report_path, report)
+        .with_context(|| format!("cannot write {}", report_path.display()))?;
+    std::fs::write(&summary_path, serde_json::to_string_pretty(&json)?)
+        .with_context(|| format!("cannot write {}", summary_path.display()))?;
+    Ok(())
+}
+
+#[expect(
+    clippy::too_many_arguments,
+    reason = "the report gathers every stage's result"
+)]
+pub(super) fn write_report(
+    run_dir: &Path,
+    config: &JobConfig,
+    description: &str,
+    registration: &Registration,
+    plan: &PlanOutput,
+    timings: &Timings,
+    run: Option<&RunSummary>,
+    stopped: Option<&str>,
+    spots: Option<&SpotReport>,
+) -> anyhow::Result<()> {
+    let mut report = summary::report_markdown(
+        config,
+        description,
+        &registration.report,
+        plan,
+        run,
+        stopped,
+        &[
+            ("load", timings.load_s),
+            ("register", timings.register_s),
+            ("hatch", timings.hatch_s),
+            ("plan", timings.plan_s),
+            ("execute", timings.execute_s),
+        ],
+    );
+    if let Some(s) = spots {
+        report.push_str(&s.markdown());
+    }
+    std::fs::write(run_dir.join(files::REPORT), report)?;
+    let json = serde_json::json!({
+        "timings_s": timings,
+        "run": run,
+        "stopped": stopped,
+        "validation": plan.job.validation,
+        "estimate": plan.job.estimate,
+        "cycle_s": run.map(summary::cycle_split),
+        "spot_error": spots,
+        "calibration": config.calibration,
+        "lens": plan.job.settings.lens,
+    });
+    std::fs::write(
+        run_dir.join(files::SUMMARY),
+        serde_json::to_string_pretty(&json)?,
+    )?;
+    Ok(())
+}
