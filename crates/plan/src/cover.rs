@@ -47,8 +47,8 @@
 //!
 //! Figures (release build, 2 cores): the demo part (52 contours) 18 poses against k-means' 50,
 //! lower bound 14, incidence ≤ 4.99° with the real ray; synthetic cores of 52/60 contours 13–15
-//! poses against 20–24; 2,000 contours 19 poses against 82, planned in about 0.45 s (k-means
-//! about 0.77 s).
+//! poses against 20–24; 2,000 contours 19 poses against 82, planned in about 0.4 s (k-means
+//! about 0.8–1.0 s).
 
 use std::f64::consts::PI;
 
@@ -79,7 +79,7 @@ pub const INCIDENCE_MARGIN_RAD: f64 = 1e-4;
 pub const FIELD_MARGIN_MM: f64 = 0.05;
 
 /// Alternations of centre and axis in a fit.
-pub const FIT_ITERATIONS: usize = 4;
+pub const FIT_ITERATIONS: usize = 2;
 
 /// Points per atom the fits use (evenly spaced, both ends included); the checks use all.
 pub const REPRESENTATIVES: usize = 9;
