@@ -31,6 +31,21 @@ pub(super) struct Fault {
     pub(super) layers_finished: usize,
     /// The layer's `layer_begin` is journaled in this run: its cut is journaled too.
     pub(super) journal_cut: bool,
+    /// When the failure was seen.
+    pub(super) detected_at: Instant,
+    /// The laser already switched off (before asking the galvo how far the layer got).
+    pub(super) laser_off: Option<LaserOff>,
+}
+
+/// The first step of the way down, done: both laser-off commands answered or timed out.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct LaserOff {
+    /// The serial emission-off was acknowledged.
+    ok: bool,
+    /// The galvo laser signals off was acknowledged.
+    galvo_signals_ok: bool,
+    /// From detection to both answered or timed out (s).
+    after_s: f64,
 }
 
 impl Fault {
@@ -44,6 +59,8 @@ impl Fault {
             vectors: 0,
             layers_finished,
             journal_cut: false,
+            detected_at: Instant::now(),
+            laser_off: None,
         }
     }
 }
@@ -80,14 +97,15 @@ impl<T> At<T> for Step<T> {
 
 impl Executor {
     /// The failed layer's [`Fault`]: how far it got, asking the galvo when its list may have
-    /// marked.
+    /// marked. That question waits for an answer, so the laser goes off before it is asked.
     pub(super) async fn layer_fault(
-        &self,
+        &mut self,
         journal: &Journal,
         work: &LayerWork,
         fault: LayerFault,
         layers_finished: usize,
     ) -> Fault {
+        let detected_at = Instant::now();
         let LayerFault {
             cause,
             phase,
@@ -99,7 +117,9 @@ impl Executor {
             phase,
             Phase::Move | Phase::LoadList | Phase::WaitInPosition | Phase::EnableEmission
         );
+        let mut laser_off = None;
         let vectors_done = if began && executed {
+            laser_off = Some(self.laser_off(detected_at).await);
             self.marked_so_far(work.first, journal.current_tag()).await
         } else if began || work.first > 0 {
             Some(work.first)
@@ -114,6 +134,8 @@ impl Executor {
             vectors: work.vectors,
             layers_finished,
             journal_cut: began,
+            detected_at,
+            laser_off,
         }
     }
 
@@ -139,9 +161,10 @@ impl Executor {
             vectors,
             layers_finished,
             journal_cut,
+            detected_at,
+            laser_off,
         } = fault;
-        let detected_at = Instant::now();
-        let shutdown = self.shut_down().await;
+        let shutdown = self.shut_down(detected_at, laser_off).await;
         if let Some(key) = key
             && journal_cut
         {
@@ -176,18 +199,32 @@ impl Executor {
         }))
     }
 
-    /// Laser off first (serial and galvo signals together), then galvo stop, then motion stop.
-    async fn shut_down(&mut self) -> ShutdownReport {
-        let t0 = Instant::now();
+    /// The laser off: the serial emission-off and the galvo laser signals off, together, each
+    /// within the shutdown step.
+    async fn laser_off(&mut self, detected_at: Instant) -> LaserOff {
         let step = self.options.timeouts.shutdown_step;
         let cell = &mut self.cell;
         let (laser, galvo) = tokio::join!(
             tokio::time::timeout(step, cell.laser.emission(false)),
             tokio::time::timeout(step, cell.galvo.laser_signals(false)),
         );
-        let laser_off_s = t0.elapsed().as_secs_f64();
-        let laser_off_ok = matches!(laser, Ok(Ok(Ok(()))));
-        let galvo_signals_off_ok = matches!(galvo, Ok(Ok(Ok(()))));
+        LaserOff {
+            ok: matches!(laser, Ok(Ok(Ok(())))),
+            galvo_signals_ok: matches!(galvo, Ok(Ok(Ok(())))),
+            after_s: detected_at.elapsed().as_secs_f64(),
+        }
+    }
+
+    /// Laser off first (unless already done), then galvo stop, then motion stop.
+    async fn shut_down(&mut self, detected_at: Instant, laser: Option<LaserOff>) -> ShutdownReport {
+        let laser = match laser {
+            Some(off) => off,
+            None => self.laser_off(detected_at).await,
+        };
+        let step = self.options.timeouts.shutdown_step;
+        let cell = &mut self.cell;
+        let (laser_off_ok, galvo_signals_off_ok, laser_off_s) =
+            (laser.ok, laser.galvo_signals_ok, laser.after_s);
         let galvo_stop_ok = matches!(
             tokio::time::timeout(step, cell.galvo.stop()).await,
             Ok(Ok(Ok(())))
@@ -204,7 +241,7 @@ impl Executor {
             galvo_stop_ok,
             cnc_abort_ok,
             laser_off_s,
-            total_s: t0.elapsed().as_secs_f64(),
+            total_s: detected_at.elapsed().as_secs_f64(),
         };
         tracing::warn!(?report, "executor: way down");
         report
