@@ -62,18 +62,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     print!("{}", crate::summary::zone_table(&output));
     let v = &job.validation;
     eprintln!(
-        "trimctl plan: {} contours → {} pieces; k-means k = {}{} → {} zones ({} merges, {} greedy splits) → {} sections/zones, {} layers; ΔH = {:.4} mm",
+        "trimctl plan: {} contours → {} pieces; {} → {} zones, {} layers; ΔH = {:.4} mm",
         path.len(),
         output.pieces,
-        output.k,
-        if output.automatic_k {
-            " (automatic)"
-        } else {
-            ""
-        },
-        output.clusters,
-        output.merges,
-        output.greedy_splits,
+        crate::summary::zoning(&output),
         job.zones.len(),
         job.zones.iter().map(|z| z.layers.len()).sum::<usize>(),
         job.layer_step_mm,

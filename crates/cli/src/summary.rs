@@ -59,6 +59,37 @@ pub fn registration(report: &QualityReport) -> String {
     s
 }
 
+/// How the zones came about: the covering's poses against its lower bound, or k-means' k.
+#[must_use]
+pub fn zoning(plan: &PlanOutput) -> String {
+    match &plan.cover {
+        Some(c) => format!(
+            "pose covering: {} poses, lower bound {}; {} pieces, {} candidates, greedy {} → {} after {} merges, {} dropped, {} absorbed{}",
+            c.poses,
+            c.lower_bound,
+            c.atoms,
+            c.candidates,
+            c.greedy_poses,
+            c.poses,
+            c.merges,
+            c.dropped,
+            c.absorbed,
+            if c.uncovered_atoms > 0 {
+                format!("; {} pieces out of reach", c.uncovered_atoms)
+            } else {
+                String::new()
+            }
+        ),
+        None => format!(
+            "k-means k = {}{}, {} merges, {} greedy splits",
+            plan.k,
+            if plan.automatic_k { ", automatic" } else { "" },
+            plan.merges,
+            plan.greedy_splits
+        ),
+    }
+}
+
 /// The zone table (paper Table 1 plus layers and lens incidence) and the time estimate.
 #[must_use]
 pub fn plan(plan: &PlanOutput) -> String {
@@ -66,10 +97,9 @@ pub fn plan(plan: &PlanOutput) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "plan: {} zones (k = {}{}), {} layers, ΔH = {:.3} mm, focus ±{:.3} mm",
+        "plan: {} zones ({}), {} layers, ΔH = {:.3} mm, focus ±{:.3} mm",
         job.zones.len(),
-        plan.k,
-        if plan.automatic_k { ", automatic" } else { "" },
+        zoning(plan),
         job.zones.iter().map(|z| z.layers.len()).sum::<usize>(),
         job.layer_step_mm,
         job.focus_half_length_mm

@@ -207,6 +207,12 @@ pub(super) fn write_report(
         "timings_s": timings,
         "run": run,
         "stopped": stopped,
+        "zoning": {
+            "method": if plan.cover.is_some() { "cover" } else { "kmeans" },
+            "zones": plan.job.zones.len(),
+            "pose_lower_bound": plan.cover.as_ref().map(|c| c.lower_bound),
+            "summary": summary::zoning(plan),
+        },
         "validation": plan.job.validation,
         "estimate": plan.job.estimate,
         "cycle_s": run.map(summary::cycle_split),
