@@ -16,6 +16,7 @@
 
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
+use trim_geom::crop::point_segment_distance;
 
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
@@ -255,22 +256,15 @@ impl TruePart {
                 (i.saturating_sub(1).max(start), i),
                 (i, (i + 1).min(end - 1)),
             ] {
-                best = best.min(segment_distance(p, &self.vertices[a], &self.vertices[b]));
+                best = best.min(point_segment_distance(
+                    p,
+                    &self.vertices[a],
+                    &self.vertices[b],
+                ));
             }
         }
         best
     }
-}
-
-fn segment_distance(p: &Point3, a: &Point3, b: &Point3) -> f64 {
-    let ab = b - a;
-    let len2 = ab.norm_squared();
-    let t = if len2 > 0.0 {
-        ((p - a).dot(&ab) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (p - (a + ab * t)).norm()
 }
 
 /// One landed spot.

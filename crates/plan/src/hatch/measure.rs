@@ -8,6 +8,7 @@
 //! between the two (8 chords on the fitted height field): the distance across the surface.
 
 use rayon::prelude::*;
+use trim_geom::crop::point_segment_distance;
 use trim_geom::{KdTree, Point3};
 
 use super::polygon::Polygon;
@@ -263,22 +264,11 @@ fn distance_to_tracks(
         let (k, j) = owner[n.index];
         let track = &hatch.tracks[k].points;
         if j + 1 < track.len() {
-            best = best.min(segment_distance_3d(q, &track[j], &track[j + 1]));
+            best = best.min(point_segment_distance(q, &track[j], &track[j + 1]));
         }
     }
     let _ = pts;
     best
-}
-
-fn segment_distance_3d(p: &Point3, a: &Point3, b: &Point3) -> f64 {
-    let ab = b - a;
-    let len2 = ab.norm_squared();
-    let u = if len2 > 0.0 {
-        ((p - a).dot(&ab) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (p - (a + ab * u)).norm()
 }
 
 #[cfg(test)]
