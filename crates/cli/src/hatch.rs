@@ -357,8 +357,9 @@ pub fn hatch_regions(
         })?;
         let elapsed = start.elapsed().as_secs_f64();
         let report = measure(&planned);
+        let tracks = planned.to_path()?;
         let csv = out_dir.join(format!("hatch_{r}.csv"));
-        write_path(&csv, &planned.to_path()?)?;
+        write_path(&csv, &tracks)?;
         let svg = out_dir.join(format!("hatch_{r}.svg"));
         std::fs::write(&svg, render_svg(&planned, &report))
             .with_context(|| format!("{}: cannot write", svg.display()))?;
@@ -377,7 +378,7 @@ pub fn hatch_regions(
             svg.display()
         );
         out.push(RegionHatch {
-            tracks: as_region_tracks(&planned.to_path()?, r)?,
+            tracks: as_region_tracks(&tracks, r)?,
             summary,
         });
     }

@@ -81,12 +81,6 @@ fn polyline(out: &mut String, points: &[(f64, f64)], colour: &str, width: f64) {
 /// The colour of zones no pose within the axis limits reaches.
 const UNREACHABLE_COLOUR: &str = "#d00000";
 
-fn unreachable(job: &Job, zone: usize) -> bool {
-    job.zones
-        .iter()
-        .any(|z| z.id == zone && z.unreachable.is_some())
-}
-
 fn xml_escape(text: &str) -> String {
     text.replace('&', "&amp;")
         .replace('<', "&lt;")
@@ -99,12 +93,14 @@ fn xml_escape(text: &str) -> String {
 #[must_use]
 pub fn job_svg(job: &Job) -> String {
     // Every galvo point back on its focal plane, in the work-piece frame.
-    let mut lines: Vec<(usize, Vec<Point3>)> = Vec::new();
+    // (zone id, unreachable, points)
+    let mut lines: Vec<(usize, bool, Vec<Point3>)> = Vec::new();
     for z in &job.zones {
         for l in &z.layers {
             for p in &l.polylines {
                 lines.push((
                     z.id,
+                    z.unreachable.is_some(),
                     p.points
                         .iter()
                         .map(|xy| galvo_to_workpiece(z, l, *xy))
@@ -134,7 +130,7 @@ pub fn job_svg(job: &Job) -> String {
         let bounds = Bounds::around(
             lines
                 .iter()
-                .flat_map(|(_, pts)| pts.iter().map(|p| [p[*a], p[*b]])),
+                .flat_map(|(_, _, pts)| pts.iter().map(|p| [p[*a], p[*b]])),
         );
         let map = bounds.mapper(x0, 0.0, VIEW_PX);
         let _ = writeln!(
@@ -142,9 +138,9 @@ pub fn job_svg(job: &Job) -> String {
             r##"<rect x="{x0}" y="0" width="{VIEW_PX}" height="{VIEW_PX}" fill="none" stroke="#ccc"/><text x="{}" y="12">{title}</text>"##,
             x0 + 4.0
         );
-        for (zone, pts) in &lines {
+        for (zone, unreachable, pts) in &lines {
             let px: Vec<(f64, f64)> = pts.iter().map(|p| map([p[*a], p[*b]])).collect();
-            if unreachable(job, *zone) {
+            if *unreachable {
                 polyline(&mut out, &px, UNREACHABLE_COLOUR, 2.4);
             } else {
                 polyline(&mut out, &px, &zone_colour(*zone), 1.2);

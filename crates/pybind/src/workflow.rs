@@ -157,16 +157,23 @@ pub fn plan_path(
 /// it (the last row repeats the first); `settings_json`: the `[[hatch]]` keys (`pitch_mm`,
 /// `angle_deg`, `method`, `step_mm`, `chord_tolerance_mm`, `outline`, `grid_mm`). Returns the
 /// tracks as a Path: contour = track id in serpentine order, features = unit surface normals.
+/// `spot`: `(spot diameter mm, overlap)`, which sets the pitch (`HatchSettings::from_spot`).
 #[pyfunction]
-#[pyo3(signature = (points, boundary, settings_json, normals = None))]
+#[pyo3(signature = (points, boundary, settings_json, normals = None, spot = None))]
 pub fn hatch_surface(
     py: Python<'_>,
     points: &Bound<'_, PyAny>,
     boundary: &Bound<'_, PyAny>,
     settings_json: &str,
     normals: Option<&Bound<'_, PyAny>>,
+    spot: Option<(f64, f64)>,
 ) -> PyResult<PyPath> {
-    let settings: HatchSettings = settings_from_json("hatch settings", settings_json)?;
+    let mut settings: HatchSettings = settings_from_json("hatch settings", settings_json)?;
+    if let Some((diameter_mm, overlap)) = spot {
+        settings.pitch_mm = HatchSettings::from_spot(diameter_mm, overlap)
+            .map_err(hatch_error)?
+            .pitch_mm;
+    }
     settings.validate().map_err(hatch_error)?;
     let points = arrays::points("points", points)?;
     let boundary = arrays::points("boundary", boundary)?;

@@ -210,7 +210,7 @@ pub fn measure(hatch: &Hatch) -> HatchReport {
             .map(|q| {
                 // The surface point under the scan point: scan noise is not a coverage gap.
                 let on_surface = surface.lift(frame.to_plane(q)).unwrap_or(*q);
-                distance_to_tracks(hatch, &tree, &pts, &owner, &on_surface)
+                distance_to_tracks(hatch, &tree, &owner, &on_surface)
             })
             .collect()
     };
@@ -251,13 +251,7 @@ pub fn measure(hatch: &Hatch) -> HatchReport {
 
 /// The 3D distance from `q` to the nearest track polyline (checked on the segments around the
 /// nearest few track points).
-fn distance_to_tracks(
-    hatch: &Hatch,
-    tree: &KdTree,
-    pts: &[Point3],
-    owner: &[(usize, usize)],
-    q: &Point3,
-) -> f64 {
+fn distance_to_tracks(hatch: &Hatch, tree: &KdTree, owner: &[(usize, usize)], q: &Point3) -> f64 {
     let mut best = f64::INFINITY;
     for n in tree.knn(q, 4) {
         best = best.min(n.distance_sq.sqrt());
@@ -267,7 +261,6 @@ fn distance_to_tracks(
             best = best.min(point_segment_distance(q, &track[j], &track[j + 1]));
         }
     }
-    let _ = pts;
     best
 }
 

@@ -85,5 +85,9 @@ def register_path(
 def beam_report(beam_json: str) -> str: ...
 def plan_path(path: Path, settings_json: str) -> Tuple[str, str, str]: ...
 def hatch_surface(
-    points: Array, boundary: Array, settings_json: str, normals: Optional[Array] = None
+    points: Array,
+    boundary: Array,
+    settings_json: str,
+    normals: Optional[Array] = None,
+    spot: Optional[Tuple[float, float]] = None,
 ) -> Path: ...

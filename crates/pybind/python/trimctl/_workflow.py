@@ -327,10 +327,7 @@ def hatch(
         raise ValueError("pitch: give either pitch or spot_diameter and overlap, not both")
     if (spot_diameter is None) != (overlap is None):
         raise ValueError("spot_diameter, overlap: give both (pitch = spot_diameter × (1 − overlap))")
-    if spot_diameter is not None:
-        if not (0.0 <= float(overlap) < 1.0):
-            raise ValueError(f"overlap: must be in [0, 1), got {overlap}")
-        pitch = float(spot_diameter) * (1.0 - float(overlap))
+    spot = None if spot_diameter is None else (float(spot_diameter), float(overlap))
     s = _kw(
         settings,
         pitch_mm=pitch,
@@ -343,4 +340,4 @@ def hatch(
     pts = np.ascontiguousarray(points, dtype=np.float64)
     b = np.ascontiguousarray(boundary, dtype=np.float64)
     n = None if normals is None else np.ascontiguousarray(normals, dtype=np.float64)
-    return _native.hatch_surface(pts, b, json.dumps(s), n)
+    return _native.hatch_surface(pts, b, json.dumps(s), n, spot)
