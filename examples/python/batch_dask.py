@@ -258,8 +258,16 @@ def start_client(args: argparse.Namespace):
     from distributed import Client, LocalCluster
 
     if args.scheduler:
-        client = Client(args.scheduler, timeout=args.connect_timeout_s)
-        client.wait_for_workers(1, timeout=args.connect_timeout_s)
+        try:
+            client = Client(args.scheduler, timeout=args.connect_timeout_s)
+        except (OSError, TimeoutError, ValueError) as e:
+            raise SystemExit(f"batch_dask: --scheduler {args.scheduler}: cannot connect: {e}") from None
+        try:
+            client.wait_for_workers(1, timeout=args.connect_timeout_s)
+        except TimeoutError:
+            client.close()
+            raise SystemExit(f"batch_dask: --scheduler {args.scheduler}: no worker within "
+                             f"{args.connect_timeout_s:g} s") from None
         return client, None
     cluster = LocalCluster(
         n_workers=args.workers,
@@ -314,23 +322,32 @@ def describe(result: Dict[str, Any]) -> str:
     return text
 
 
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with a usage error exiting 1, as trimctl's own commands do (2 reads as a
+    device fault there)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.print_usage(sys.stderr)
+        self.exit(1, f"{self.prog}: error: {message}\n")
+
+
 def main(argv: Optional[List[str]] = None) -> int:
-    ap = argparse.ArgumentParser(
+    ap = ArgumentParser(
         description=__doc__.split("\n\n")[0] if __doc__ else None,
         epilog=__doc__.split("\n\n", 2)[2] if __doc__ else None,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument("parts", type=pathlib.Path, help="folder of parts, one subfolder each (layout below)")
-    ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("plans"),
+    ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("plans"), metavar="DIR",
                     help="output folder: OUT/NAME/ per part and OUT/summary.json (default: plans)")
     ap.add_argument("--scheduler", metavar="ADDRESS",
                     help="a running Dask scheduler (tcp://host:8786); default: a LocalCluster")
-    ap.add_argument("--workers", type=int, default=None,
+    ap.add_argument("--workers", type=int, default=None, metavar="N",
                     help="LocalCluster worker processes (default: cores / --threads-per-worker)")
-    ap.add_argument("--threads-per-worker", type=int, default=1,
+    ap.add_argument("--threads-per-worker", type=int, default=1, metavar="N",
                     help="rayon threads per worker process (RAYON_NUM_THREADS; default 1)")
-    ap.add_argument("--config", type=pathlib.Path, help="job.toml: [register] and the planner's tables")
-    ap.add_argument("--connect-timeout-s", type=float, default=60.0,
+    ap.add_argument("--config", type=pathlib.Path, metavar="JOB_TOML", help="job.toml: [register] and the planner's tables")
+    ap.add_argument("--connect-timeout-s", type=float, default=60.0, metavar="S",
                     help="how long to wait for the scheduler and a first worker (default 60)")
     args = ap.parse_args(argv)
     if args.threads_per_worker < 1:
