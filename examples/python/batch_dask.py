@@ -300,8 +300,10 @@ def write_result(out: pathlib.Path, result: Dict[str, Any]) -> Optional[str]:
     (out / "registration.json").write_text(json.dumps(result["report"], indent=2))
     (out / "registered.csv").write_text(result["registered_csv"])
     if result["job"] is None:
-        return (f"register: contours {result['untrustworthy']} untrustworthy "
-                f"(registration.json written for inspection; not planned)")
+        bad = result["untrustworthy"]
+        ids = ", ".join(map(str, bad[:10])) + (", ..." if len(bad) > 10 else "")
+        return (f"register: {len(bad)} of {len(result['report']['contours'])} contours "
+                f"untrustworthy ({ids}; registration.json written for inspection; not planned)")
     job = json.loads(result["job"])
     (out / "plan.json").write_text(json.dumps(job, indent=2))
     if not job["validation"]["passed"]:
