@@ -1,6 +1,8 @@
 //! Criterion benchmarks of trim-plan: zoning (pieces + k-means with automatic k + merging) and
 //! layering (paper Eq. 14 cuts of every zone) on the synthetic ceramic-core path with 60 (the
-//! paper's case) and 2,000 contours. Names: `plan/zoning/{n}`, `plan/layering/{n}`.
+//! paper's case) and 2,000 contours, and the whole planner with its default settings (pose
+//! covering, layers, poses, tour, commands, validation). Names: `plan/zoning/{n}`,
+//! `plan/layering/{n}`, `plan/plan/{n}`.
 #![expect(
     missing_docs,
     reason = "criterion_group! generates an undocumented pub fn"
@@ -33,6 +35,9 @@ fn bench(c: &mut Criterion) {
     group.sample_size(10);
     for n in SIZES {
         let path = synthetic_core_path(n, SEED);
+        group.bench_with_input(BenchmarkId::new("plan", n), &path, |b, path| {
+            b.iter(|| trim_plan::planner::plan(path, &settings).expect("plans"));
+        });
         group.bench_with_input(BenchmarkId::new("zoning", n), &path, |b, path| {
             b.iter(|| {
                 let pieces = pieces_of(path, limit_rad, limit_rad).expect("valid path");

@@ -52,6 +52,8 @@
 
 use std::f64::consts::PI;
 
+use rayon::prelude::*;
+
 use trim_geom::{Path, Point3, UnitVector3, Vector3};
 
 use crate::error::PlanError;
@@ -247,7 +249,13 @@ impl Atom {
 }
 
 impl CoverProblem<'_> {
-    fn covers_point(&self, pose: &CoverPose, p: &Point3, n: &Vector3) -> bool {
+    /// The cosine of the incidence limit less its margin.
+    fn cos_limit(&self) -> f64 {
+        (self.limit_rad - INCIDENCE_MARGIN_RAD).cos()
+    }
+
+    /// Whether `pose` covers point `p` with feature `n`; `cos_limit` from [`Self::cos_limit`].
+    fn covers_point(&self, pose: &CoverPose, p: &Point3, n: &Vector3, cos_limit: f64) -> bool {
         let uv = pose.in_plane(p);
         if uv[0] * uv[0] + uv[1] * uv[1] > self.field_radius_mm * self.field_radius_mm {
             return false;
@@ -255,7 +263,6 @@ impl CoverProblem<'_> {
         let ray = self.lens.ray(&pose.x, &pose.y, &pose.axis, uv);
         // Near the limit the exact angle decides; far inside or outside the cosine does.
         let c = n.dot(&ray);
-        let cos_limit = (self.limit_rad - INCIDENCE_MARGIN_RAD).cos();
         if (c - cos_limit).abs() > 1e-9 {
             return c > cos_limit;
         }
@@ -268,15 +275,18 @@ impl CoverProblem<'_> {
         if len2(uv) - atom.radius > self.field_radius_mm {
             return false;
         }
+        let cos_limit = self.cos_limit();
         atom.piece
             .points
             .iter()
             .zip(&atom.piece.features)
-            .all(|(p, n)| self.covers_point(pose, p, n))
+            .all(|(p, n)| self.covers_point(pose, p, n, cos_limit))
     }
 
     fn covers_rep(&self, pose: &CoverPose, rep: &[(Point3, Vector3)]) -> bool {
-        rep.iter().all(|(p, n)| self.covers_point(pose, p, n))
+        let cos_limit = self.cos_limit();
+        rep.iter()
+            .all(|(p, n)| self.covers_point(pose, p, n, cos_limit))
     }
 
     /// The axis whose ray at in-plane offset `d` meets feature `n` head on.
@@ -296,6 +306,11 @@ impl CoverProblem<'_> {
 
     /// How far an atom lies from a pose: the larger of its axis distance over the limit and its
     /// in-plane distance over R.
+    /// The in-plane part of [`Self::distance`] (never more than it: a cheap first filter).
+    fn radial(&self, pose: &CoverPose, atom: &Atom) -> f64 {
+        len2(pose.in_plane(&atom.centroid)) / self.field_radius_mm
+    }
+
     fn distance(&self, pose: &CoverPose, atom: &Atom) -> f64 {
         let uv = pose.in_plane(&atom.centroid);
         let d = pose.x * uv[0] + pose.y * uv[1];
@@ -374,16 +389,30 @@ impl CoverProblem<'_> {
                 keep[i] = true;
             }
         }
-        for k in 0..PRUNE_DIRECTIONS {
+        // The extremes in every direction, in one pass (the first index wins a tie; the
+        // coordinates are finite).
+        let dirs: [(f64, f64); PRUNE_DIRECTIONS] = std::array::from_fn(|k| {
             let t = std::f64::consts::TAU * k as f64 / PRUNE_DIRECTIONS as f64;
             let (s, c) = t.sin_cos();
-            let arg = |f: &dyn Fn(&Coords) -> f64| {
-                (0..coords.len())
-                    .max_by(|&a, &b| f(&coords[a]).total_cmp(&f(&coords[b])).then(b.cmp(&a)))
-                    .unwrap_or(0)
-            };
-            keep[arg(&|x| x.0[0] * c + x.0[1] * s)] = true;
-            keep[arg(&|x| x.1[0] * c + x.1[1] * s)] = true;
+            (c, s)
+        });
+        let mut best_q = [(f64::NEG_INFINITY, 0usize); PRUNE_DIRECTIONS];
+        let mut best_g = [(f64::NEG_INFINITY, 0usize); PRUNE_DIRECTIONS];
+        for (i, (q, g)) in coords.iter().enumerate() {
+            for (k, &(c, s)) in dirs.iter().enumerate() {
+                let vq = q[0] * c + q[1] * s;
+                if vq > best_q[k].0 {
+                    best_q[k] = (vq, i);
+                }
+                let vg = g[0] * c + g[1] * s;
+                if vg > best_g[k].0 {
+                    best_g[k] = (vg, i);
+                }
+            }
+        }
+        for (q, g) in best_q.iter().zip(&best_g) {
+            keep[q.1] = true;
+            keep[g.1] = true;
         }
         pts.iter()
             .zip(&keep)
@@ -402,7 +431,7 @@ impl CoverProblem<'_> {
         let mut near: Vec<(f64, usize)> = atoms
             .iter()
             .enumerate()
-            .filter(|(j, _)| *j != seed)
+            .filter(|(j, a)| *j != seed && self.radial(&pose, a) <= GROW_REACH)
             .map(|(j, a)| (self.distance(&pose, a), j))
             .filter(|(d, _)| *d <= GROW_REACH)
             .collect();
@@ -515,7 +544,7 @@ fn min_circle(pts: &[[f64; 2]]) -> ([f64; 2], f64) {
         return ([0.0; 2], 0.0);
     }
     // A deterministic shuffle (splitmix64).
-    let mut order: Vec<usize> = (0..n).collect();
+    let mut p = pts.to_vec();
     let mut state: u64 = 0x9e37_79b9_7f4a_7c15 ^ n as u64;
     for i in (1..n).rev() {
         state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
@@ -523,9 +552,8 @@ fn min_circle(pts: &[[f64; 2]]) -> ([f64; 2], f64) {
         z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
         z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
         z ^= z >> 31;
-        order.swap(i, (z % (i as u64 + 1)) as usize);
+        p.swap(i, (z % (i as u64 + 1)) as usize);
     }
-    let p: Vec<[f64; 2]> = order.iter().map(|&i| pts[i]).collect();
     // Circles as (centre, squared radius): no square roots in the loops.
     let dist2 = |a: &[f64; 2], b: &[f64; 2]| {
         let (x, y) = (a[0] - b[0], a[1] - b[1]);
@@ -684,27 +712,65 @@ struct Selection {
     uncovered: Vec<usize>,
 }
 
+/// The first item, in order, for which `f` gives `Some`, with its index: the items are tried
+/// in windows as wide as the thread pool, each window in parallel, so the answer is the one a
+/// sequential search gives (a window's later items are work thrown away).
+fn first_in_order<T: Sync, R: Send>(
+    items: &[T],
+    f: impl Fn(&T) -> Option<R> + Sync,
+) -> Option<(usize, R)> {
+    let width = rayon::current_num_threads().max(1);
+    for (w, window) in items.chunks(width).enumerate() {
+        let found = window
+            .par_iter()
+            .map(&f)
+            .enumerate()
+            .find_map_first(|(i, r)| r.map(|r| (w * width + i, r)));
+        if found.is_some() {
+            return found;
+        }
+    }
+    None
+}
+
 /// Steps 3 and 4 of the module docs on a set of atoms.
 fn select(problem: &CoverProblem<'_>, atoms: &[Atom]) -> Selection {
     let n = atoms.len();
     // (3) candidates.
     let mut candidates: Vec<(CoverPose, Vec<usize>)> = Vec::new();
     let mut inside = vec![0usize; n];
-    for seed in 0..n {
-        if n > SEED_ALL_BELOW && inside[seed] >= SEED_SKIP_COVERED {
-            continue;
-        }
-        let Some((pose, _)) = problem.grow(atoms, seed) else {
-            continue;
-        };
+    let skipped =
+        |inside: &[usize], seed: usize| n > SEED_ALL_BELOW && inside[seed] >= SEED_SKIP_COVERED;
+    let grown = |seed: usize| {
+        let (pose, _) = problem.grow(atoms, seed)?;
         let covered = problem.coverage(atoms, &pose);
-        if covered.is_empty() {
-            continue;
+        (!covered.is_empty()).then_some((pose, covered))
+    };
+    // Seeds are grown a window at a time in parallel and kept in order, each only if the
+    // candidates kept before it leave it unskipped: the same candidates as one at a time.
+    let width = 2 * rayon::current_num_threads().max(1);
+    let mut next = 0;
+    while next < n {
+        let mut window = Vec::with_capacity(width);
+        while next < n && window.len() < width {
+            if !skipped(&inside, next) {
+                window.push(next);
+            }
+            next += 1;
         }
-        for &j in &covered {
-            inside[j] += 1;
+        let results: Vec<_> = window.par_iter().map(|&seed| grown(seed)).collect();
+        for (&seed, result) in window.iter().zip(results) {
+            if skipped(&inside, seed) {
+                continue;
+            }
+            let Some((pose, covered)) = result else {
+                continue;
+            };
+            for &j in &covered {
+                inside[j] += 1;
+            }
+            candidates.push((pose, covered));
         }
-        candidates.push((pose, covered));
     }
     candidates.sort_by(|a, b| a.1.cmp(&b.1));
     candidates.dedup_by(|a, b| a.1 == b.1);
@@ -926,7 +992,7 @@ fn merge_one(
         }
     }
     pairs.sort_by(|p, q| p.0.total_cmp(&q.0).then(p.1.cmp(&q.1)).then(p.2.cmp(&q.2)));
-    for (_, a, b) in pairs {
+    let tried = |&(_, a, b): &(f64, usize, usize)| {
         // Atoms only a or b covers.
         let mut needed: Vec<usize> = chosen[a]
             .1
@@ -942,20 +1008,22 @@ fn merge_one(
         needed.sort_unstable();
         needed.dedup();
         if needed.is_empty() {
-            continue;
+            return None;
         }
         let start = UnitVector3::new_normalize(
             chosen[a].0.axis.into_inner() + chosen[b].0.axis.into_inner(),
         );
-        if let Some(pose) = problem.fit_atoms(atoms, &needed, Some(&start)) {
-            let covered = problem.coverage(atoms, &pose);
-            let (hi, lo) = (a.max(b), a.min(b));
-            chosen.remove(hi);
-            chosen[lo] = (pose, covered);
-            return true;
-        }
-    }
-    false
+        problem.fit_atoms(atoms, &needed, Some(&start))
+    };
+    let Some((i, pose)) = first_in_order(&pairs, tried) else {
+        return false;
+    };
+    let (_, a, b) = pairs[i];
+    let covered = problem.coverage(atoms, &pose);
+    let (hi, lo) = (a.max(b), a.min(b));
+    chosen.remove(hi);
+    chosen[lo] = (pose, covered);
+    true
 }
 
 /// How many chosen poses cover each atom.
@@ -990,14 +1058,13 @@ fn absorb_one(
     };
     let mut order: Vec<(usize, usize)> = (0..chosen.len()).map(|p| (needed(p).len(), p)).collect();
     order.sort_unstable();
-    for (_, p) in order {
+    let without = |&(_, p): &(usize, usize)| -> Option<Vec<(CoverPose, Vec<usize>)>> {
         let mut sets: std::collections::BTreeMap<usize, (CoverPose, Vec<usize>)> =
             std::collections::BTreeMap::new();
-        let mut ok = true;
         for j in needed(p) {
             let current = |q: usize| sets.get(&q).map_or(chosen[q].0, |s| s.0);
             let mut qs: Vec<(f64, usize)> = (0..chosen.len())
-                .filter(|&q| q != p)
+                .filter(|&q| q != p && problem.radial(&current(q), &atoms[j]) <= GROW_REACH)
                 .map(|q| (problem.distance(&current(q), &atoms[j]), q))
                 .filter(|(d, _)| *d <= GROW_REACH)
                 .collect();
@@ -1019,24 +1086,26 @@ fn absorb_one(
                 }
             }
             if !placed {
-                ok = false;
-                break;
+                return None;
             }
-        }
-        if !ok {
-            continue;
         }
         let mut next = chosen.clone();
         for (q, (pose, _)) in sets {
             next[q] = (pose, problem.coverage(atoms, &pose));
         }
         next.remove(p);
-        if cover_counts(&next, n).iter().all(|&c| c > 0) {
+        cover_counts(&next, n)
+            .iter()
+            .all(|&c| c > 0)
+            .then_some(next)
+    };
+    match first_in_order(&order, without) {
+        Some((_, next)) => {
             *chosen = next;
-            return true;
+            true
         }
+        None => false,
     }
-    false
 }
 
 /// Each atom's chosen pose (see the module docs, step 5).
@@ -1103,7 +1172,7 @@ fn lower_bound(
         // The cheap test on every member first, the pair fits only then.
         let independent = !set.iter().any(|&k| together(j, k))
             && set
-                .iter()
+                .par_iter()
                 .all(|&k| problem.fit_atoms(atoms, &[j, k], None).is_none());
         if independent {
             set.push(j);
