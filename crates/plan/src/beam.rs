@@ -241,9 +241,279 @@ impl Beam {
     }
 }
 
+/// Relative slack on a laser limit, so an operating point set exactly at a limit (40 W at
+/// 1 MHz against 40 µJ) is not refused for the last bit of a floating-point division.
+pub const LIMIT_RELATIVE_SLACK: f64 = 1e-9;
+
+/// The operating limits of a laser source: the `[limits]` table of its laser profile
+/// (`crates/io/profiles/*.toml`). Every profile states all four; there are no defaults, since
+/// a guessed limit is worse than none.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct LaserLimits {
+    /// The largest pulse energy E = P/h the source delivers (µJ).
+    pub pulse_energy_uj_max: f64,
+    /// The largest average power P (W).
+    pub average_power_w_max: f64,
+    /// The lowest repetition rate h the source is specified at (kHz).
+    pub rep_rate_khz_min: f64,
+    /// The highest repetition rate h (kHz).
+    pub rep_rate_khz_max: f64,
+}
+
+/// One limit of [`LaserLimits`] an operating point breaks.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LimitViolation {
+    /// What is limited, for people ("pulse energy").
+    pub quantity: &'static str,
+    /// The job.toml key(s) that set it (`beam.power_w`).
+    pub key: &'static str,
+    /// Its value at the operating point, in `unit`.
+    pub value: f64,
+    /// The profile's limit key (`limits.average_power_w_max`).
+    pub limit: &'static str,
+    /// The limit's value, in `unit`.
+    pub bound: f64,
+    /// The unit of `value` and `bound` ("W", "kHz", "µJ").
+    pub unit: &'static str,
+    /// True when the value is above the limit, false when below.
+    pub above: bool,
+}
+
+impl std::fmt::Display for LimitViolation {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (value, bound) = (self.value, self.bound);
+        write!(
+            f,
+            "{} {value} {unit} ({}) is {} {} = {bound} {unit}",
+            self.quantity,
+            self.key,
+            if self.above { "above" } else { "below" },
+            self.limit,
+            unit = self.unit,
+        )
+    }
+}
+
+/// The violations as one line, "; " between them.
+#[must_use]
+pub fn describe_violations(violations: &[LimitViolation]) -> String {
+    violations
+        .iter()
+        .map(ToString::to_string)
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+impl LaserLimits {
+    /// Refuses a limit that is not a finite number > 0, or a repetition-rate range whose
+    /// minimum is above its maximum, naming the key (`limits.rep_rate_khz_min`).
+    pub fn validate(&self) -> Result<(), PlanError> {
+        require_positive("limits.pulse_energy_uj_max", self.pulse_energy_uj_max)?;
+        require_positive("limits.average_power_w_max", self.average_power_w_max)?;
+        require_positive("limits.rep_rate_khz_min", self.rep_rate_khz_min)?;
+        require_positive("limits.rep_rate_khz_max", self.rep_rate_khz_max)?;
+        if self.rep_rate_khz_min > self.rep_rate_khz_max {
+            return Err(PlanError::setting(
+                "limits.rep_rate_khz_min",
+                self.rep_rate_khz_min,
+                format!(
+                    "must not exceed limits.rep_rate_khz_max = {}",
+                    self.rep_rate_khz_max
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Every limit `beam`'s operating point (P, h and E = P/h) breaks, in the order power,
+    /// repetition rate, pulse energy; empty when it is within all of them. A value within
+    /// [`LIMIT_RELATIVE_SLACK`] of a limit is within it.
+    #[must_use]
+    pub fn violations(&self, beam: &Beam) -> Vec<LimitViolation> {
+        let over = |value: f64, max: f64| value > max * (1.0 + LIMIT_RELATIVE_SLACK);
+        let under = |value: f64, min: f64| value < min * (1.0 - LIMIT_RELATIVE_SLACK);
+        let rep_rate_khz = beam.repetition_rate_hz * 1e-3;
+        let pulse_energy_uj = beam.pulse_energy_j() * 1e6;
+        let mut out = Vec::new();
+        if over(beam.power_w, self.average_power_w_max) {
+            out.push(LimitViolation {
+                quantity: "average power",
+                key: "beam.power_w",
+                value: beam.power_w,
+                limit: "limits.average_power_w_max",
+                bound: self.average_power_w_max,
+                unit: "W",
+                above: true,
+            });
+        }
+        let rate = |limit, bound, above| LimitViolation {
+            quantity: "repetition rate",
+            key: "beam.repetition_rate_hz",
+            value: rep_rate_khz,
+            limit,
+            bound,
+            unit: "kHz",
+            above,
+        };
+        if under(rep_rate_khz, self.rep_rate_khz_min) {
+            out.push(rate(
+                "limits.rep_rate_khz_min",
+                self.rep_rate_khz_min,
+                false,
+            ));
+        }
+        if over(rep_rate_khz, self.rep_rate_khz_max) {
+            out.push(rate("limits.rep_rate_khz_max", self.rep_rate_khz_max, true));
+        }
+        if over(pulse_energy_uj, self.pulse_energy_uj_max) {
+            out.push(LimitViolation {
+                quantity: "pulse energy",
+                key: "beam.power_w / beam.repetition_rate_hz",
+                value: pulse_energy_uj,
+                limit: "limits.pulse_energy_uj_max",
+                bound: self.pulse_energy_uj_max,
+                unit: "µJ",
+                above: true,
+            });
+        }
+        out
+    }
+}
+
+impl Beam {
+    /// Refuses an operating point outside `limits`, the limits of the laser profile `profile`
+    /// ([`PlanError::OutsideLaserLimits`], naming every limit broken). Validate the beam and
+    /// the limits first.
+    pub fn check_limits(&self, limits: &LaserLimits, profile: &str) -> Result<(), PlanError> {
+        let violations = limits.violations(self);
+        if violations.is_empty() {
+            Ok(())
+        } else {
+            Err(PlanError::OutsideLaserLimits {
+                profile: profile.to_owned(),
+                violations,
+            })
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A source modelled on the paper's stated laser (§4: 60 W, 30 µJ, 1 Hz–2 MHz).
+    const PAPERS_STATED_SOURCE: LaserLimits = LaserLimits {
+        pulse_energy_uj_max: 30.0,
+        average_power_w_max: 60.0,
+        rep_rate_khz_min: 0.001,
+        rep_rate_khz_max: 2000.0,
+    };
+
+    #[test]
+    fn the_papers_operating_point_breaks_its_stated_source_on_pulse_energy_only() {
+        // 53.59 W at 250 kHz is 214.36 µJ: within 60 W and 1 Hz–2 MHz, 7× the 30 µJ.
+        let v = PAPERS_STATED_SOURCE.violations(&Beam::default());
+        assert_eq!(v.len(), 1, "{v:?}");
+        assert_eq!(v[0].limit, "limits.pulse_energy_uj_max");
+        assert!((v[0].value - 214.36).abs() < 1e-9 && v[0].bound == 30.0);
+        let e = Beam::default()
+            .check_limits(&PAPERS_STATED_SOURCE, "stated")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("\"stated\"")
+                && e.contains("pulse energy 214.36")
+                && e.contains("beam.power_w / beam.repetition_rate_hz")
+                && e.contains("above limits.pulse_energy_uj_max = 30 µJ"),
+            "{e}"
+        );
+        // At 2 MHz the same 53.59 W is 26.8 µJ: within every limit.
+        let fast = Beam {
+            repetition_rate_hz: 2e6,
+            ..Beam::default()
+        };
+        fast.check_limits(&PAPERS_STATED_SOURCE, "stated").unwrap();
+    }
+
+    #[test]
+    fn each_limit_is_named_when_broken_and_a_point_at_a_limit_passes() {
+        let limits = LaserLimits {
+            pulse_energy_uj_max: 40.0,
+            average_power_w_max: 40.0,
+            rep_rate_khz_min: 100.0,
+            rep_rate_khz_max: 2000.0,
+        };
+        let at = |power_w: f64, repetition_rate_hz: f64| Beam {
+            power_w,
+            repetition_rate_hz,
+            ..Beam::default()
+        };
+        // Exactly at the limits: 40 W at 1 MHz = 40 µJ; 4 W at 100 kHz; 40 W at 2 MHz.
+        assert!(limits.violations(&at(40.0, 1e6)).is_empty());
+        assert!(limits.violations(&at(4.0, 1e5)).is_empty());
+        assert!(limits.violations(&at(40.0, 2e6)).is_empty());
+        let named = |b: Beam| -> Vec<&'static str> {
+            limits.violations(&b).iter().map(|v| v.limit).collect()
+        };
+        assert_eq!(named(at(40.001, 1.5e6)), ["limits.average_power_w_max"]);
+        assert_eq!(named(at(40.0, 2.001e6)), ["limits.rep_rate_khz_max"]);
+        assert_eq!(named(at(1.0, 99_999.0)), ["limits.rep_rate_khz_min"]);
+        assert_eq!(named(at(20.0, 4.99e5)), ["limits.pulse_energy_uj_max"]);
+        // Several at once, in the order power, rate, energy.
+        assert_eq!(
+            named(at(50.0, 50_000.0)),
+            [
+                "limits.average_power_w_max",
+                "limits.rep_rate_khz_min",
+                "limits.pulse_energy_uj_max"
+            ]
+        );
+        let below = limits.violations(&at(1.0, 50_000.0));
+        assert_eq!(
+            below[0].to_string(),
+            "repetition rate 50 kHz (beam.repetition_rate_hz) is below limits.rep_rate_khz_min = 100 kHz"
+        );
+    }
+
+    #[test]
+    fn limits_validate_names_the_key() {
+        let good = PAPERS_STATED_SOURCE;
+        good.validate().unwrap();
+        for (bad, key) in [
+            (
+                LaserLimits {
+                    pulse_energy_uj_max: 0.0,
+                    ..good
+                },
+                "limits.pulse_energy_uj_max",
+            ),
+            (
+                LaserLimits {
+                    average_power_w_max: f64::NAN,
+                    ..good
+                },
+                "limits.average_power_w_max",
+            ),
+            (
+                LaserLimits {
+                    rep_rate_khz_min: 3000.0,
+                    ..good
+                },
+                "limits.rep_rate_khz_min",
+            ),
+            (
+                LaserLimits {
+                    rep_rate_khz_max: f64::INFINITY,
+                    ..good
+                },
+                "limits.rep_rate_khz_max",
+            ),
+        ] {
+            let e = bad.validate().unwrap_err().to_string();
+            assert!(e.contains(key), "{key}: {e}");
+        }
+    }
 
     #[test]
     fn reproduces_the_papers_figures() {

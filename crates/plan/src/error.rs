@@ -79,6 +79,19 @@ pub enum PlanError {
         /// The fixed k.
         k: usize,
     },
+    /// The beam's operating point is outside the laser source's limits (the `[limits]` table
+    /// of its laser profile): one entry per limit broken.
+    #[error(
+        "the operating point is outside the limits of laser profile {profile:?}: {}",
+        crate::beam::describe_violations(violations)
+    )]
+    OutsideLaserLimits {
+        /// The laser profile's name.
+        profile: String,
+        /// Every limit the operating point breaks, in the order power, repetition rate, pulse
+        /// energy.
+        violations: Vec<crate::beam::LimitViolation>,
+    },
     /// k-means failed inside linfa.
     #[error("k-means with k = {k} failed: {message}")]
     KMeans {

@@ -34,7 +34,7 @@ pub mod planner;
 pub mod svg;
 pub mod zoning;
 
-pub use beam::{Beam, BeamReport};
+pub use beam::{Beam, BeamReport, LaserLimits};
 pub use error::PlanError;
 pub use field::LensSettings;
 pub use job::{Frame, GalvoSettings, Job, JobSettings, Layer, LayerKey, Polyline, Pose, Zone};
