@@ -1,14 +1,25 @@
 //! Laser command profiles as data (TOML, `crates/io/profiles/*.toml`, embedded in the binary):
-//! what to send for each operation, what reply to expect, and how to decode faults.
+//! what to send for each operation, what reply to expect, how to decode faults, and the
+//! source's operating limits (`[limits]`, [`LaserLimits`]).
 
 use std::collections::BTreeMap;
 
 use serde::Deserialize;
+use trim_plan::{Beam, LaserLimits, PlanError};
 
 /// The Coherent-Monaco-like profile's text.
 pub const MONACO_TOML: &str = include_str!("../../profiles/monaco.toml");
 /// The IPG-like profile's text.
 pub const IPG_TOML: &str = include_str!("../../profiles/ipg.toml");
+/// The high-energy picosecond profile's text (the paper's operating point is within it).
+pub const HIGH_ENERGY_TOML: &str = include_str!("../../profiles/high-energy.toml");
+
+/// The built-in profiles' names, the default (job.toml `cell.laser_profile`) first.
+pub const BUILTIN: &[&str] = &[DEFAULT_PROFILE, "monaco", "ipg"];
+
+/// The default laser profile: its limits allow the paper's operating point (53.59 W at
+/// 250 kHz, 214.36 µJ), which is `Beam::default()`.
+pub const DEFAULT_PROFILE: &str = "high-energy";
 
 /// The placeholder for a value in a template.
 pub const VALUE: &str = "{value}";
@@ -31,7 +42,7 @@ pub mod ops {
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Profile {
-    /// Short name ("monaco", "ipg").
+    /// Short name ("high-energy", "monaco", "ipg").
     pub name: String,
     /// One line for people.
     pub description: String,
@@ -41,6 +52,9 @@ pub struct Profile {
     pub terminator: String,
     /// Replies that start with one of these are the device's refusal.
     pub error_prefixes: Vec<String>,
+    /// The source's operating limits (`[limits]`): pulse energy, average power, repetition
+    /// rate.
+    pub limits: LaserLimits,
     /// Commands by operation.
     pub commands: BTreeMap<String, Exchange>,
     /// Queries by name.
@@ -131,7 +145,7 @@ pub enum ProfileError {
         what: String,
     },
     /// No built-in profile of that name.
-    #[error("no built-in laser profile {0:?} (built in: monaco, ipg)")]
+    #[error("no built-in laser profile {name:?} (built in: {})", BUILTIN.join(", "), name = .0)]
     Unknown(String),
 }
 
@@ -159,6 +173,9 @@ impl Profile {
                 return Err(invalid(format!("[commands.{op}] is required")));
             }
         }
+        p.limits
+            .validate()
+            .map_err(|e| invalid(format!("[limits]: {e}")))?;
         if p.terminator.is_empty() {
             return Err(invalid("the terminator is empty".into()));
         }
@@ -186,13 +203,20 @@ impl Profile {
         Ok(p)
     }
 
-    /// A built-in profile by name ("monaco", "ipg").
+    /// A built-in profile by name (one of [`BUILTIN`]).
     pub fn builtin(name: &str) -> Result<Profile, ProfileError> {
         match name {
+            "high-energy" => Profile::from_toml(HIGH_ENERGY_TOML),
             "monaco" => Profile::from_toml(MONACO_TOML),
             "ipg" => Profile::from_toml(IPG_TOML),
             other => Err(ProfileError::Unknown(other.to_owned())),
         }
+    }
+
+    /// Refuses `beam`'s operating point when it is outside this source's [`LaserLimits`]
+    /// ([`PlanError::OutsideLaserLimits`], naming the profile and every limit broken).
+    pub fn check_operating_point(&self, beam: &Beam) -> Result<(), PlanError> {
+        beam.check_limits(&self.limits, &self.name)
     }
 
     /// Whether a reply line is a refusal.
@@ -318,6 +342,56 @@ mod tests {
             Profile::builtin("x"),
             Err(ProfileError::Unknown(_))
         ));
+    }
+
+    #[test]
+    fn every_builtin_profile_states_its_limits_and_the_default_allows_the_papers_point() {
+        for name in BUILTIN {
+            let p = Profile::builtin(name).unwrap();
+            assert_eq!(p.name, *name);
+            p.limits.validate().unwrap();
+        }
+        // The paper's operating point (Beam::default: 53.59 W, 250 kHz, 214.36 µJ).
+        let paper = Beam::default();
+        Profile::builtin(DEFAULT_PROFILE)
+            .unwrap()
+            .check_operating_point(&paper)
+            .unwrap();
+        let e = Profile::builtin("monaco")
+            .unwrap()
+            .check_operating_point(&paper)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("\"monaco\"") && e.contains("limits.pulse_energy_uj_max = 40 µJ"),
+            "{e}"
+        );
+        let e = Profile::builtin("ipg")
+            .unwrap()
+            .check_operating_point(&paper)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("limits.average_power_w_max = 30 W")
+                && e.contains("limits.pulse_energy_uj_max = 100 µJ"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn profiles_without_usable_limits_are_refused_naming_the_key() {
+        let without = MONACO_TOML.replace("[limits]", "[limitz]");
+        assert!(Profile::from_toml(&without).is_err());
+        let inverted =
+            HIGH_ENERGY_TOML.replace("rep_rate_khz_min = 200.0", "rep_rate_khz_min = 5000.0");
+        let e = Profile::from_toml(&inverted).unwrap_err().to_string();
+        assert!(
+            e.contains("high-energy") && e.contains("limits.rep_rate_khz_min"),
+            "{e}"
+        );
+        let zero = IPG_TOML.replace("average_power_w_max = 30.0", "average_power_w_max = 0.0");
+        let e = Profile::from_toml(&zero).unwrap_err().to_string();
+        assert!(e.contains("limits.average_power_w_max"), "{e}");
     }
 
     #[test]
