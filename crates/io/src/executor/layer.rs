@@ -203,7 +203,11 @@ impl Executor {
             self.cell.cnc.start_move(&work.layer.pose),
         )
         .await
-        .at(Phase::Move, false)
+        .at(Phase::Move, false)?;
+        // The previous layer's record goes to disk while the CNC moves, not between its done
+        // and this move.
+        self.flush_record();
+        Ok(())
     }
 
     /// [`Phase::LoadList`], host side: the list built from `work.first` and its `layer_begin`
@@ -460,9 +464,10 @@ impl Executor {
             .at(Phase::Journal, began)
     }
 
-    /// A layer journaled as done: recorded (flushed) and shown.
+    /// A layer journaled as done: recorded (flushed during the next move, or when the run
+    /// ends or stops) and shown.
     fn layer_done(&self, work: &LayerWork) {
-        self.record_layer(work.key, "done", work.vectors, work.vectors, true);
+        self.record_layer(work.key, "done", work.vectors, work.vectors, false);
         self.emit(Progress::LayerDone {
             key: work.key,
             index: work.index,

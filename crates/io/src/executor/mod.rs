@@ -481,6 +481,19 @@ impl Executor {
         }
     }
 
+    /// Writes what the record holds to disk (a failure is logged: the record is not the
+    /// journal, and losing it never stops the cell).
+    fn flush_record(&self) {
+        if let Some(r) = &self.recorder
+            && let Err(e) = r
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .flush()
+        {
+            tracing::warn!(error = %e, "record: flush failed");
+        }
+    }
+
     /// Awaits a device call with a timeout and the cancel token; maps both error layers.
     async fn guard<T, E1: std::fmt::Display, E2: std::fmt::Display>(
         cancel: &CancellationToken,
@@ -727,12 +740,7 @@ impl Executor {
                 summary.layers_marked, summary.layers_skipped
             ),
         );
-        if let Some(r) = &self.recorder {
-            let _ = r
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .flush();
-        }
+        self.flush_record();
         summary
     }
 }

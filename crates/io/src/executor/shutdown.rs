@@ -181,12 +181,7 @@ impl Executor {
             LogLevel::Error,
             &format!("run stopped at {phase:?}: {cause}"),
         );
-        if let Some(r) = &self.recorder {
-            let _ = r
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .flush();
-        }
+        self.flush_record();
         ExecError::Stopped(Box::new(Stopped {
             cause,
             key,
