@@ -31,7 +31,8 @@ pub struct JobConfig {
     /// Incidence limit: the largest angle between a contour's feature vector and the beam, lens ray
     /// angle included.
     pub max_incidence_deg: f64,
-    /// Laser and lens (paper §2.1-2.2); the defaults are the paper's cell.
+    /// Laser and lens (paper §2.1-2.2); the defaults are the paper's cell. The operating point
+    /// (power_w, repetition_rate_hz) must be within the limits of cell.laser_profile.
     pub beam: Beam,
     /// k-means zoning under the incidence limit (paper §2.4).
     pub zoning: ZoningSettings,
@@ -172,7 +173,12 @@ pub struct CellConfig {
     pub galvo: String,
     /// Laser serial device (e.g. "/dev/ttyUSB0"), or "sim".
     pub laser: String,
-    /// Laser command profile: "monaco" (Coherent-Monaco-like) or "ipg" (IPG-like).
+    /// Laser profile (crates/io/profiles), which sets the commands and the source's limits:
+    /// "high-energy" (a picosecond source, 60 W, 250 µJ, 200-2000 kHz, on the Monaco-like
+    /// commands; allows the paper's 214 µJ point), "monaco" (Coherent-Monaco-like,
+    /// 40 W, 40 µJ, 1-50000 kHz) or "ipg" (IPG-like, 30 W, 100 µJ, 100-1000 kHz). A [beam]
+    /// operating point (power_w, repetition_rate_hz, their pulse energy) outside them is
+    /// refused.
     pub laser_profile: String,
 }
 
@@ -182,7 +188,7 @@ impl Default for CellConfig {
             cnc: SIM.into(),
             galvo: SIM.into(),
             laser: SIM.into(),
-            laser_profile: "monaco".into(),
+            laser_profile: trim_io::laser::profile::DEFAULT_PROFILE.into(),
         }
     }
 }
@@ -291,12 +297,15 @@ impl JobConfig {
         if self.cell.laser.is_empty() {
             bail!("cell.laser: expected a serial device path or \"sim\"");
         }
-        if !["monaco", "ipg"].contains(&self.cell.laser_profile.as_str()) {
-            bail!(
-                "cell.laser_profile: expected \"monaco\" or \"ipg\", got {:?}",
-                self.cell.laser_profile
-            );
-        }
+        let profile = trim_io::laser::Profile::builtin(&self.cell.laser_profile)
+            .map_err(|e| anyhow::anyhow!("cell.laser_profile: {e}"))?;
+        profile.check_operating_point(&self.beam).map_err(|e| {
+            anyhow::anyhow!(
+                "[beam] with cell.laser_profile = {:?}: {e} (crates/io/profiles/{}.toml)",
+                self.cell.laser_profile,
+                profile.name
+            )
+        })?;
         for (i, h) in self.hatch.iter().enumerate() {
             h.settings
                 .validate()
@@ -687,5 +696,60 @@ mod tests {
             JobConfig::parse("[beam]\npower_w = -1\n").unwrap_err()
         );
         assert!(e.contains("power_w"), "{e}");
+    }
+
+    #[test]
+    fn the_default_job_is_within_its_lasers_limits_and_other_profiles_refuse_the_papers_point() {
+        // The default: the paper's 53.59 W at 250 kHz on the high-energy profile.
+        let c = JobConfig::default();
+        assert_eq!(c.cell.laser_profile, "high-energy");
+        c.validate().unwrap();
+        // The same point on the monaco source (40 µJ) is refused, naming the limit, the value,
+        // the profile and the keys.
+        let e = format!(
+            "{:#}",
+            JobConfig::parse("[cell]\nlaser_profile = \"monaco\"\n").unwrap_err()
+        );
+        for part in [
+            "cell.laser_profile = \"monaco\"",
+            "pulse energy 214.36 µJ",
+            "beam.power_w / beam.repetition_rate_hz",
+            "limits.pulse_energy_uj_max = 40 µJ",
+            "monaco.toml",
+        ] {
+            assert!(e.contains(part), "{part:?} missing: {e}");
+        }
+        // The key's doc (the --dump comment) quotes every built-in profile's limits.
+        let doc = &key_docs()["cell.laser_profile"];
+        for name in trim_io::laser::profile::BUILTIN {
+            let l = trim_io::laser::Profile::builtin(name).unwrap().limits;
+            let quoted = format!(
+                "{} W, {} µJ, {}-{} kHz",
+                l.average_power_w_max,
+                l.pulse_energy_uj_max,
+                l.rep_rate_khz_min,
+                l.rep_rate_khz_max
+            );
+            assert!(
+                doc.contains(&format!("\"{name}\"")) && doc.contains(&quoted),
+                "{quoted}: {doc}"
+            );
+        }
+        // Within monaco's limits: 10 W at 250 kHz = 40 µJ.
+        JobConfig::parse("[cell]\nlaser_profile = \"monaco\"\n[beam]\npower_w = 10.0\n").unwrap();
+        // Above the default source's power and below its repetition-rate range.
+        let e = format!(
+            "{:#}",
+            JobConfig::parse("[beam]\npower_w = 61.0\nrepetition_rate_hz = 1e6\n").unwrap_err()
+        );
+        assert!(e.contains("limits.average_power_w_max = 60 W"), "{e}");
+        let e = format!(
+            "{:#}",
+            JobConfig::parse("[beam]\npower_w = 1.0\nrepetition_rate_hz = 1e5\n").unwrap_err()
+        );
+        assert!(
+            e.contains("repetition rate 100 kHz (beam.repetition_rate_hz) is below limits.rep_rate_khz_min = 200 kHz"),
+            "{e}"
+        );
     }
 }

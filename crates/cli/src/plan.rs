@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use trim_plan::planner::{PlanSettings, plan_with_report};
+use trim_plan::planner::plan_with_report;
 
 use crate::config::JobConfig;
 
@@ -32,9 +32,15 @@ pub struct Args {
 
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    // A job file is checked whole on load, its [beam] against cell.laser_profile's limits
+    // included; the defaults are checked the same way.
     let settings = match &args.config {
         Some(path) => JobConfig::load(path)?.plan_settings(),
-        None => PlanSettings::default(),
+        None => {
+            let config = JobConfig::default();
+            config.validate().context("the default job")?;
+            config.plan_settings()
+        }
     };
     let mut path = trim_geom::formats::read_path(&args.path)?;
     if !args.hatch.is_empty() {

@@ -45,8 +45,9 @@ pub struct Args {
     /// The CNC's TCP port (0: any free port).
     #[arg(long, default_value_t = DEFAULT_CNC_PORT)]
     cnc_port: u16,
-    /// The laser's command profile: monaco or ipg.
-    #[arg(long, default_value = "monaco")]
+    /// The laser's profile: high-energy (the default, as job.toml's cell.laser_profile), monaco
+    /// or ipg.
+    #[arg(long, default_value = trim_io::laser::profile::DEFAULT_PROFILE)]
     profile: String,
     /// Galvo clock: real seconds per modelled second.
     #[arg(long, default_value_t = 1.0)]
