@@ -5,7 +5,8 @@
 //! - [`cnc`]: the five-axis CNC behind the [`cnc::Cnc`] trait; LinuxCNC `linuxcncrsh` client and
 //!   a simulator of that protocol.
 //! - [`executor`]: the state machine over the Job with its interlocks, the [`journal`], and the
-//!   run [`record`] (MCAP).
+//!   run [`record`] (MCAP, through the Foxglove SDK), served [`live`] over the Foxglove
+//!   WebSocket protocol with `run --live`.
 //! - [`cell`]: the three devices together, and [`cell::SimCell`], all three simulated.
 //! - [`twin`]: the digital twin: a true cell in the simulators, and the spot error on the true
 //!   part.
@@ -20,6 +21,7 @@ pub mod fault;
 pub mod galvo;
 pub mod journal;
 pub mod laser;
+pub mod live;
 pub mod record;
 pub mod safety;
 pub mod tap;

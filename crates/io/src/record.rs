@@ -1,12 +1,20 @@
-//! The run record: an MCAP file with Foxglove well-known schemas, JSON encoded (message encoding
-//! "json", schema encoding "jsonschema"), plus one JSON channel per device with every command
-//! and reply. Chunked and flushed at every finished layer, so a crash leaves the file readable up
-//! to the last finished chunk.
+//! The run record: an MCAP file written by the Foxglove SDK's `McapWriter`, with Foxglove's own
+//! schemas (protobuf: `foxglove.PointCloud`, `foxglove.SceneUpdate`, `foxglove.FrameTransform`,
+//! `foxglove.Log`) and trimctl's own JSON channels (schemas generated from the Rust types), one
+//! per device with every command and reply. Chunked, uncompressed, and flushed at every finished
+//! layer, so a crash leaves the file readable up to the last finished chunk.
 //!
-//! Topics: `/scan` and `/cad` (foxglove.PointCloud), `/template` and `/registered`
-//! (foxglove.SceneUpdate with line strips), `/tf` (foxglove.FrameTransform per zone frame),
-//! `/layer` (trimctl.Layer: the current layer and its state), `/log` (foxglove.Log),
-//! `/device/galvo`, `/device/laser`, `/device/cnc` (trimctl.DeviceIo).
+//! Every message goes through one SDK [`Context`]: with a [`LiveServer`] (`trimctl run --live`)
+//! the same messages reach the viewers connected to it, and the static scene (clouds, paths,
+//! zone frames, the current layer) is kept to be sent again to each viewer that subscribes late.
+//!
+//! Topics: `/scan` and `/cad` (foxglove.PointCloud), `/path/template` and `/path/registered` in
+//! a run (`/template`, `/registered` in the example; foxglove.SceneUpdate with line strips),
+//! `/tf` (foxglove.FrameTransform per zone frame), `/layer` (trimctl.Layer: the current layer
+//! and its state), `/layer/scene` (foxglove.SceneUpdate: the current layer's polylines and a
+//! plate at its focal plane, highlighted while it is marked), `/progress` (trimctl.Progress),
+//! `/log` (foxglove.Log), `/device/galvo`, `/device/laser`, `/device/cnc` (trimctl.DeviceIo),
+//! and run summaries (`/calibration`, `/twin/spot_error`).
 
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
@@ -14,30 +22,44 @@ use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use serde_json::{Value, json};
+use foxglove::bytes::Bytes;
+use foxglove::messages::{
+    Color, CubePrimitive, FrameTransform, KeyValuePair, LinePrimitive, Log, PackedElementField,
+    PointCloud, Pose, Quaternion, SceneEntity, SceneUpdate, TextPrimitive, Timestamp, Vector3,
+};
+use foxglove::{
+    ChannelBuilder, Context, Encode, FoxgloveError, McapCompression, McapWriteOptions,
+    McapWriter, McapWriterHandle, PartialMetadata, RawChannel, Schema,
+};
+use schemars::JsonSchema;
+use serde::Serialize;
 use trim_plan::job::{Job, LayerKey};
 
+use crate::live::{LiveServer, StaticScene};
 use crate::tap::{DeviceIo, Tap};
 
 /// Target uncompressed chunk size (bytes); chunks are also closed at every [`Recorder::flush`].
 pub const CHUNK_BYTES: u64 = 256 * 1024;
 /// The frame everything in the work-piece frame is published in.
 pub const WORKPIECE_FRAME: &str = "workpiece";
-
-/// foxglove.PointCloud (JSON schema).
-pub const POINT_CLOUD_SCHEMA: &str = r#"{"title":"foxglove.PointCloud","type":"object","properties":{"timestamp":{"type":"object","properties":{"sec":{"type":"integer","minimum":0},"nsec":{"type":"integer","minimum":0,"maximum":999999999}}},"frame_id":{"type":"string"},"pose":{"type":"object","properties":{"position":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"orientation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}}},"point_stride":{"type":"integer","minimum":0},"fields":{"type":"array","items":{"type":"object","properties":{"name":{"type":"string"},"offset":{"type":"integer","minimum":0},"type":{"type":"integer","description":"foxglove.NumericType: 7 FLOAT32, 8 FLOAT64"}}}},"data":{"type":"string","contentEncoding":"base64"}}}"#;
-/// A JSON object of any shape (the topic's schema name says what it holds).
-pub const OBJECT_SCHEMA: &str = r#"{"type":"object"}"#;
-/// foxglove.SceneUpdate (JSON schema; the parts used: entities with line primitives).
-pub const SCENE_UPDATE_SCHEMA: &str = r#"{"title":"foxglove.SceneUpdate","type":"object","properties":{"deletions":{"type":"array","items":{"type":"object"}},"entities":{"type":"array","items":{"type":"object","properties":{"timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"frame_id":{"type":"string"},"id":{"type":"string"},"lifetime":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"frame_locked":{"type":"boolean"},"metadata":{"type":"array","items":{"type":"object","properties":{"key":{"type":"string"},"value":{"type":"string"}}}},"arrows":{"type":"array"},"cubes":{"type":"array"},"spheres":{"type":"array"},"cylinders":{"type":"array"},"lines":{"type":"array","items":{"type":"object","properties":{"type":{"type":"integer","description":"0 LINE_STRIP, 1 LINE_LOOP, 2 LINE_LIST"},"pose":{"type":"object"},"thickness":{"type":"number"},"scale_invariant":{"type":"boolean"},"points":{"type":"array","items":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}}},"color":{"type":"object","properties":{"r":{"type":"number"},"g":{"type":"number"},"b":{"type":"number"},"a":{"type":"number"}}},"colors":{"type":"array"},"indices":{"type":"array"}}}},"triangles":{"type":"array"},"texts":{"type":"array"},"models":{"type":"array"}}}}}}"#;
-/// foxglove.FrameTransform (JSON schema).
-pub const FRAME_TRANSFORM_SCHEMA: &str = r#"{"title":"foxglove.FrameTransform","type":"object","properties":{"timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"parent_frame_id":{"type":"string"},"child_frame_id":{"type":"string"},"translation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"rotation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}}}"#;
-/// foxglove.Log (JSON schema).
-pub const LOG_SCHEMA: &str = r#"{"title":"foxglove.Log","type":"object","properties":{"timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"level":{"type":"integer","description":"1 DEBUG, 2 INFO, 3 WARNING, 4 ERROR, 5 FATAL"},"message":{"type":"string"},"name":{"type":"string"},"file":{"type":"string"},"line":{"type":"integer"}}}"#;
-/// trimctl.Layer (JSON schema).
-pub const LAYER_SCHEMA: &str = r#"{"title":"trimctl.Layer","type":"object","properties":{"zone":{"type":"integer"},"layer":{"type":"integer"},"state":{"type":"string"},"vectors_done":{"type":"integer"},"vectors":{"type":"integer"},"pose":{"type":"object"},"focus_point":{"type":"array","items":{"type":"number"}}}}"#;
-/// trimctl.DeviceIo (JSON schema).
-pub const DEVICE_IO_SCHEMA: &str = r#"{"title":"trimctl.DeviceIo","type":"object","properties":{"time_ns":{"type":"integer"},"device":{"type":"string"},"direction":{"type":"string","enum":["command","reply"]},"text":{"type":"string"}}}"#;
+/// The topic of the current layer's scene (polylines and focal plate).
+pub const LAYER_SCENE_TOPIC: &str = "/layer/scene";
+/// The id of the current layer's scene entity.
+pub const LAYER_ENTITY: &str = "current_layer";
+/// Colour of the layer being marked (RGBA).
+const MARKING_RGBA: [f64; 4] = [1.0, 0.85, 0.0, 1.0];
+/// Colour of a layer once marked (RGBA).
+const DONE_RGBA: [f64; 4] = [0.2, 0.8, 0.3, 1.0];
+/// Colour of a layer cut short (RGBA).
+const CUT_RGBA: [f64; 4] = [0.9, 0.1, 0.1, 1.0];
+/// Opacity of the focal plate under the current layer.
+const PLATE_ALPHA: f64 = 0.25;
+/// Margin of the focal plate around the layer's polylines (mm).
+const PLATE_MARGIN_MM: f64 = 0.5;
+/// Line width of the current layer's polylines (screen pixels, scale invariant).
+const LAYER_LINE_PX: f64 = 3.0;
+/// Line width of the template and registered paths (mm).
+const PATH_LINE_MM: f64 = 0.2;
 
 /// foxglove.Log levels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -63,73 +85,187 @@ pub enum RecordError {
         /// The error.
         source: std::io::Error,
     },
-    /// The MCAP writer failed.
+    /// The Foxglove SDK (its MCAP writer, or a channel) failed.
     #[error("record: {0}")]
-    Mcap(#[from] mcap::McapError),
+    Sdk(#[from] FoxgloveError),
+    /// A message could not be encoded.
+    #[error("record: {topic}: cannot encode the message: {message}")]
+    Encode {
+        /// The topic.
+        topic: String,
+        /// What went wrong.
+        message: String,
+    },
     /// A message came after [`Recorder::finish`].
     #[error("record: the file is finished")]
     Finished,
 }
 
+/// trimctl.Layer: the current layer and its state.
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+#[schemars(title = "trimctl.Layer")]
+pub struct LayerMessage {
+    /// Zone id.
+    pub zone: usize,
+    /// Layer index within the zone.
+    pub layer: usize,
+    /// "started", "done", "cut" or "skipped".
+    pub state: String,
+    /// Vectors of the layer marked so far.
+    pub vectors_done: u32,
+    /// Vectors in the layer.
+    pub vectors: u32,
+    /// The machine pose (axis name → value, mm or degrees).
+    pub pose: Option<BTreeMap<String, f64>>,
+    /// The layer's focus point (mm, work-piece frame).
+    pub focus_point: Option<[f64; 3]>,
+}
+
+/// trimctl.Progress: how far the run is.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, JsonSchema)]
+#[schemars(title = "trimctl.Progress")]
+pub struct ProgressMessage {
+    /// Layers finished (in this run and, on a resume, before it).
+    pub layers_done: u64,
+    /// Layers in the job.
+    pub layers_total: u64,
+    /// Vectors marked (finished layers' and the running layer's).
+    pub vectors_done: u64,
+    /// Vectors in the job.
+    pub vectors_total: u64,
+    /// `vectors_done / vectors_total` (0 for a job without vectors).
+    pub fraction: f64,
+    /// The running layer's zone, if one is running.
+    pub zone: Option<usize>,
+    /// The running layer's index, if one is running.
+    pub layer: Option<usize>,
+    /// The running layer's phase (the executor's `Phase`, e.g. "WaitDone").
+    pub phase: Option<String>,
+}
+
+/// A serde type sent as JSON under the JSON schema schemars derives for it; its schema name is
+/// the schema's title (`trimctl.Layer`, ...).
+struct Json<'a, T>(&'a T);
+
+impl<T: Serialize + JsonSchema> Encode for Json<'_, T> {
+    type Error = serde_json::Error;
+
+    fn get_schema() -> Option<Schema> {
+        let schema = schemars::schema_for!(T);
+        let name = schema
+            .get("title")
+            .and_then(serde_json::Value::as_str)
+            .map_or_else(|| T::schema_name().into_owned(), str::to_owned);
+        Some(Schema::new(
+            name,
+            "jsonschema",
+            serde_json::to_vec(&schema).ok()?,
+        ))
+    }
+
+    fn get_message_encoding() -> String {
+        "json".to_owned()
+    }
+
+    fn encode(&self, buf: &mut impl foxglove::bytes::BufMut) -> Result<(), Self::Error> {
+        serde_json::to_writer(foxglove::bytes::BufMut::writer(buf), self.0)
+    }
+}
+
+/// Whether a message is part of the static scene a late viewer is sent, and under which key
+/// (a later message with the same key replaces it).
+enum Latch<'a> {
+    /// Sent once, to whoever is subscribed.
+    No,
+    /// Kept for late subscribers under this key.
+    Keep(&'a str),
+}
+
 /// The MCAP writer with its channels.
 pub struct Recorder {
-    writer: mcap::Writer<BufWriter<File>>,
-    schemas: HashMap<&'static str, u16>,
-    channels: HashMap<String, u16>,
-    sequence: u32,
+    context: Arc<Context>,
+    writer: Option<McapWriterHandle<BufWriter<File>>>,
+    channels: HashMap<String, Arc<RawChannel>>,
+    scene: StaticScene,
     messages: u64,
     per_topic: BTreeMap<String, u64>,
-    finished: bool,
+    encode_buf: Vec<u8>,
 }
 
 /// A recorder shared between the executor and the device taps.
 pub type SharedRecorder = Arc<Mutex<Recorder>>;
 
-fn stamp(t_ns: u64) -> Value {
-    json!({"sec": t_ns / 1_000_000_000, "nsec": t_ns % 1_000_000_000})
+fn stamp(t_ns: u64) -> Option<Timestamp> {
+    // A u32 of seconds reaches 2106; a time past it is stamped then.
+    let sec = u32::try_from(t_ns / 1_000_000_000).unwrap_or(u32::MAX);
+    Some(Timestamp::new(sec, (t_ns % 1_000_000_000) as u32))
 }
 
-/// Standard base64 (RFC 4648, with padding), for JSON `bytes` fields.
-#[must_use]
-pub fn base64(bytes: &[u8]) -> String {
-    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut out = String::with_capacity(bytes.len().div_ceil(3) * 4);
-    for c in bytes.chunks(3) {
-        let n = (u32::from(c[0]) << 16)
-            | (u32::from(*c.get(1).unwrap_or(&0)) << 8)
-            | u32::from(*c.get(2).unwrap_or(&0));
-        for i in 0..4 {
-            if i <= c.len() {
-                out.push(char::from(T[((n >> (18 - 6 * i)) & 63) as usize]));
-            } else {
-                out.push('=');
-            }
-        }
+fn identity_pose() -> Option<Pose> {
+    Some(Pose {
+        position: Some(Vector3::default()),
+        orientation: Some(Quaternion {
+            x: 0.0,
+            y: 0.0,
+            z: 0.0,
+            w: 1.0,
+        }),
+    })
+}
+
+fn color(rgba: [f64; 4]) -> Option<Color> {
+    Some(Color {
+        r: rgba[0],
+        g: rgba[1],
+        b: rgba[2],
+        a: rgba[3],
+    })
+}
+
+fn point3(p: [f64; 3]) -> foxglove::messages::Point3 {
+    foxglove::messages::Point3 {
+        x: p[0],
+        y: p[1],
+        z: p[2],
     }
-    out
 }
 
 impl Recorder {
-    /// Creates the file.
+    /// Creates the file, on a context of its own (nothing is served live).
     pub fn create(path: &Path) -> Result<Recorder, RecordError> {
+        Recorder::create_in(path, Context::new(), StaticScene::default())
+    }
+
+    /// Creates the file on the live server's context: every message also reaches the viewers
+    /// subscribed to its topic, and the static scene is kept for late subscribers.
+    pub fn create_live(path: &Path, live: &LiveServer) -> Result<Recorder, RecordError> {
+        Recorder::create_in(path, live.context().clone(), live.scene().clone())
+    }
+
+    fn create_in(
+        path: &Path,
+        context: Arc<Context>,
+        scene: StaticScene,
+    ) -> Result<Recorder, RecordError> {
         let file = File::create(path).map_err(|source| RecordError::Io {
             path: path.to_owned(),
             source,
         })?;
-        let writer = mcap::WriteOptions::new()
-            .compression(None)
+        let options = McapWriteOptions::new()
+            .compression(None::<McapCompression>)
             .chunk_size(Some(CHUNK_BYTES))
-            .profile("")
-            .library(concat!("trimctl trim-io ", env!("CARGO_PKG_VERSION")))
+            .profile("");
+        let writer = McapWriter::with_options(options)
+            .context(&context)
             .create(BufWriter::new(file))?;
         Ok(Recorder {
-            writer,
-            schemas: HashMap::new(),
+            context,
+            writer: Some(writer),
             channels: HashMap::new(),
-            sequence: 0,
+            scene,
             messages: 0,
             per_topic: BTreeMap::new(),
-            finished: false,
+            encode_buf: Vec::new(),
         })
     }
 
@@ -142,52 +278,67 @@ impl Recorder {
     fn channel(
         &mut self,
         topic: &str,
-        schema_name: &'static str,
-        schema: &'static str,
-    ) -> Result<u16, RecordError> {
-        if let Some(&id) = self.channels.get(topic) {
-            return Ok(id);
+        schema: Option<Schema>,
+        encoding: String,
+    ) -> Result<Arc<RawChannel>, RecordError> {
+        if let Some(c) = self.channels.get(topic) {
+            return Ok(c.clone());
         }
-        let schema_id = match self.schemas.get(schema_name) {
-            Some(&id) => id,
-            None => {
-                let id = self
-                    .writer
-                    .add_schema(schema_name, "jsonschema", schema.as_bytes())?;
-                self.schemas.insert(schema_name, id);
-                id
-            }
-        };
-        let id = self
-            .writer
-            .add_channel(schema_id, topic, "json", &BTreeMap::new())?;
-        self.channels.insert(topic.to_owned(), id);
-        Ok(id)
+        let channel = ChannelBuilder::new(topic)
+            .context(&self.context)
+            .schema(schema)
+            .message_encoding(encoding)
+            .build_raw()?;
+        self.channels.insert(topic.to_owned(), channel.clone());
+        Ok(channel)
     }
 
-    fn write(
+    fn write<M: Encode>(
         &mut self,
         topic: &str,
-        schema_name: &'static str,
-        schema: &'static str,
         t_ns: u64,
-        msg: &Value,
+        msg: &M,
+        latch: Latch<'_>,
     ) -> Result<(), RecordError> {
-        if self.finished {
+        self.encode_buf.clear();
+        msg.encode(&mut self.encode_buf)
+            .map_err(|e| RecordError::Encode {
+                topic: topic.to_owned(),
+                message: e.to_string(),
+            })?;
+        let data = std::mem::take(&mut self.encode_buf);
+        let res = self.write_bytes(
+            topic,
+            M::get_schema(),
+            M::get_message_encoding(),
+            t_ns,
+            &data,
+            latch,
+        );
+        self.encode_buf = data;
+        res
+    }
+
+    fn write_bytes(
+        &mut self,
+        topic: &str,
+        schema: Option<Schema>,
+        encoding: String,
+        t_ns: u64,
+        data: &[u8],
+        latch: Latch<'_>,
+    ) -> Result<(), RecordError> {
+        if self.writer.is_none() {
             return Err(RecordError::Finished);
         }
-        let channel_id = self.channel(topic, schema_name, schema)?;
-        self.sequence = self.sequence.wrapping_add(1);
-        let data = serde_json::to_vec(msg).unwrap_or_default();
-        self.writer.write_to_known_channel(
-            &mcap::records::MessageHeader {
-                channel_id,
-                sequence: self.sequence,
-                log_time: t_ns,
-                publish_time: t_ns,
-            },
-            &data,
-        )?;
+        let channel = self.channel(topic, schema, encoding)?;
+        // To the MCAP file and every viewer subscribed to the topic: neither waits on a viewer
+        // (a viewer's queue drops its oldest message when full, see crate::live).
+        channel.log_with_meta(data, PartialMetadata::with_log_time(t_ns));
+        if let Latch::Keep(key) = latch {
+            self.scene
+                .keep(&channel, key, Bytes::copy_from_slice(data), t_ns);
+        }
         self.messages += 1;
         *self.per_topic.entry(topic.to_owned()).or_default() += 1;
         Ok(())
@@ -205,7 +356,8 @@ impl Recorder {
         self.per_topic.clone()
     }
 
-    /// A point cloud (mm) in the work-piece frame as foxglove.PointCloud (float64 x, y, z).
+    /// A point cloud (mm) in the work-piece frame as foxglove.PointCloud (float64 x, y, z);
+    /// part of the static scene.
     pub fn point_cloud(
         &mut self,
         topic: &str,
@@ -218,22 +370,24 @@ impl Recorder {
                 data.extend_from_slice(&v.to_le_bytes());
             }
         }
-        let msg = json!({
-            "timestamp": stamp(t_ns),
-            "frame_id": WORKPIECE_FRAME,
-            "pose": {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
-            "point_stride": 24,
-            "fields": [
-                {"name": "x", "offset": 0, "type": 8},
-                {"name": "y", "offset": 8, "type": 8},
-                {"name": "z", "offset": 16, "type": 8}
-            ],
-            "data": base64(&data),
-        });
-        self.write(topic, "foxglove.PointCloud", POINT_CLOUD_SCHEMA, t_ns, &msg)
+        let field = |name: &str, offset: u32| PackedElementField {
+            name: name.to_owned(),
+            offset,
+            r#type: foxglove::messages::packed_element_field::NumericType::Float64 as i32,
+        };
+        let msg = PointCloud {
+            timestamp: stamp(t_ns),
+            frame_id: WORKPIECE_FRAME.to_owned(),
+            pose: identity_pose(),
+            point_stride: 24,
+            fields: vec![field("x", 0), field("y", 8), field("z", 16)],
+            data: Bytes::from(data),
+        };
+        self.write(topic, t_ns, &msg, Latch::Keep(topic))
     }
 
-    /// Paths (mm, work-piece frame) as foxglove.SceneUpdate line strips, one entity per contour.
+    /// Paths (mm, work-piece frame) as foxglove.SceneUpdate line strips, one entity per
+    /// contour; part of the static scene.
     pub fn paths(
         &mut self,
         topic: &str,
@@ -241,63 +395,66 @@ impl Recorder {
         contours: &[(i64, Vec<[f64; 3]>)],
         rgba: [f64; 4],
     ) -> Result<(), RecordError> {
-        let entities: Vec<Value> = contours
+        let entities = contours
             .iter()
-            .map(|(id, pts)| {
-                json!({
-                    "timestamp": stamp(t_ns),
-                    "frame_id": WORKPIECE_FRAME,
-                    "id": format!("{topic}/{id}"),
-                    "lifetime": {"sec": 0, "nsec": 0},
-                    "frame_locked": true,
-                    "metadata": [{"key": "contour", "value": id.to_string()}],
-                    "arrows": [], "cubes": [], "spheres": [], "cylinders": [], "triangles": [], "texts": [], "models": [],
-                    "lines": [{
-                        "type": 0,
-                        "pose": {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
-                        "thickness": 0.2,
-                        "scale_invariant": false,
-                        "points": pts.iter().map(|p| json!({"x": p[0], "y": p[1], "z": p[2]})).collect::<Vec<_>>(),
-                        "color": {"r": rgba[0], "g": rgba[1], "b": rgba[2], "a": rgba[3]},
-                        "colors": [],
-                        "indices": []
-                    }]
-                })
+            .map(|(id, pts)| SceneEntity {
+                timestamp: stamp(t_ns),
+                frame_id: WORKPIECE_FRAME.to_owned(),
+                id: format!("{topic}/{id}"),
+                frame_locked: true,
+                metadata: vec![KeyValuePair {
+                    key: "contour".to_owned(),
+                    value: id.to_string(),
+                }],
+                lines: vec![LinePrimitive {
+                    r#type: foxglove::messages::line_primitive::Type::LineStrip as i32,
+                    pose: identity_pose(),
+                    thickness: PATH_LINE_MM,
+                    scale_invariant: false,
+                    points: pts.iter().copied().map(point3).collect(),
+                    color: color(rgba),
+                    ..LinePrimitive::default()
+                }],
+                ..SceneEntity::default()
             })
             .collect();
-        let msg = json!({"deletions": [], "entities": entities});
-        self.write(
-            topic,
-            "foxglove.SceneUpdate",
-            SCENE_UPDATE_SCHEMA,
-            t_ns,
-            &msg,
-        )
+        let msg = SceneUpdate {
+            deletions: Vec::new(),
+            entities,
+        };
+        self.write(topic, t_ns, &msg, Latch::Keep(topic))
     }
 
-    /// Every zone frame of the job as foxglove.FrameTransform (`workpiece` → `zone_<id>`).
+    /// Every zone frame of the job as foxglove.FrameTransform (`workpiece` → `zone_<id>`), one
+    /// message per zone; part of the static scene.
     pub fn zone_frames(&mut self, t_ns: u64, job: &Job) -> Result<(), RecordError> {
         for z in &job.zones {
             let q = quaternion_from_axes(z.frame.x, z.frame.y, z.frame.z);
-            let msg = json!({
-                "timestamp": stamp(t_ns),
-                "parent_frame_id": WORKPIECE_FRAME,
-                "child_frame_id": format!("zone_{}", z.id),
-                "translation": {"x": z.origin[0], "y": z.origin[1], "z": z.origin[2]},
-                "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
-            });
-            self.write(
-                "/tf",
-                "foxglove.FrameTransform",
-                FRAME_TRANSFORM_SCHEMA,
-                t_ns,
-                &msg,
-            )?;
+            let child = format!("zone_{}", z.id);
+            let msg = FrameTransform {
+                timestamp: stamp(t_ns),
+                parent_frame_id: WORKPIECE_FRAME.to_owned(),
+                child_frame_id: child.clone(),
+                translation: Some(Vector3 {
+                    x: z.origin[0],
+                    y: z.origin[1],
+                    z: z.origin[2],
+                }),
+                rotation: Some(Quaternion {
+                    x: q[0],
+                    y: q[1],
+                    z: q[2],
+                    w: q[3],
+                }),
+            };
+            self.write("/tf", t_ns, &msg, Latch::Keep(&child))?;
         }
         Ok(())
     }
 
-    /// The current layer and its state ("started", "done", "cut", "skipped").
+    /// The current layer and its state ("started", "done", "cut", "skipped") on `/layer`, and
+    /// its scene on [`LAYER_SCENE_TOPIC`]: the layer's polylines and a plate at its focal plane,
+    /// yellow while it is marked, green once done, red when cut short.
     pub fn layer(
         &mut self,
         t_ns: u64,
@@ -307,79 +464,211 @@ impl Recorder {
         vectors: u32,
         job: &Job,
     ) -> Result<(), RecordError> {
-        let layer = job
-            .zones
-            .iter()
-            .find(|z| z.id == key.zone)
-            .and_then(|z| z.layers.iter().find(|l| l.index == key.layer));
-        let msg = json!({
-            "zone": key.zone,
-            "layer": key.layer,
-            "state": state,
-            "vectors_done": vectors_done,
-            "vectors": vectors,
-            "pose": layer.map(|l| serde_json::to_value(&l.pose).unwrap_or(Value::Null)),
-            "focus_point": layer.map(|l| l.focus_point.to_vec()),
-        });
-        self.write("/layer", "trimctl.Layer", LAYER_SCHEMA, t_ns, &msg)
+        let zone = job.zones.iter().find(|z| z.id == key.zone);
+        let layer = zone.and_then(|z| z.layers.iter().find(|l| l.index == key.layer));
+        let msg = LayerMessage {
+            zone: key.zone,
+            layer: key.layer,
+            state: state.to_owned(),
+            vectors_done,
+            vectors,
+            pose: layer.map(|l| l.pose.0.clone()),
+            focus_point: layer.map(|l| l.focus_point),
+        };
+        self.write("/layer", t_ns, &Json(&msg), Latch::No)?;
+        let rgba = match state {
+            "started" => MARKING_RGBA,
+            "done" => DONE_RGBA,
+            "cut" => CUT_RGBA,
+            _ => return Ok(()),
+        };
+        if let (Some(zone), Some(layer)) = (zone, layer) {
+            let entity = layer_entity(t_ns, job, zone, layer, state, rgba);
+            let msg = SceneUpdate {
+                deletions: Vec::new(),
+                entities: vec![entity],
+            };
+            self.write(LAYER_SCENE_TOPIC, t_ns, &msg, Latch::Keep(LAYER_ENTITY))?;
+        }
+        Ok(())
+    }
+
+    /// How far the run is, on `/progress`.
+    pub fn progress(&mut self, t_ns: u64, progress: &ProgressMessage) -> Result<(), RecordError> {
+        self.write("/progress", t_ns, &Json(progress), Latch::No)
     }
 
     /// A log line as foxglove.Log.
     pub fn log(&mut self, t_ns: u64, level: LogLevel, message: &str) -> Result<(), RecordError> {
-        let msg = json!({
-            "timestamp": stamp(t_ns),
-            "level": level as u8,
-            "message": message,
-            "name": "trimctl",
-            "file": "",
-            "line": 0,
-        });
-        self.write("/log", "foxglove.Log", LOG_SCHEMA, t_ns, &msg)
+        let msg = Log {
+            timestamp: stamp(t_ns),
+            level: level as i32,
+            message: message.to_owned(),
+            name: "trimctl".to_owned(),
+            file: String::new(),
+            line: 0,
+        };
+        self.write("/log", t_ns, &msg, Latch::No)
     }
 
-    /// Any JSON object on `topic` under a permissive schema named `schema_name` (run summaries
-    /// such as `/calibration` and `/twin/spot_error`).
+    /// Any JSON object on `topic` under a schema named `schema_name` that only says it is an
+    /// object (run summaries such as `/calibration` and `/twin/spot_error`).
     pub fn json(
         &mut self,
         topic: &str,
         schema_name: &'static str,
         t_ns: u64,
-        msg: &Value,
+        msg: &serde_json::Value,
     ) -> Result<(), RecordError> {
-        self.write(topic, schema_name, OBJECT_SCHEMA, t_ns, msg)
+        let schema = serde_json::json!({"title": schema_name, "type": "object"});
+        let data = serde_json::to_vec(msg).map_err(|e| RecordError::Encode {
+            topic: topic.to_owned(),
+            message: e.to_string(),
+        })?;
+        self.write_bytes(
+            topic,
+            Some(Schema::new(
+                schema_name,
+                "jsonschema",
+                schema.to_string().into_bytes(),
+            )),
+            "json".to_owned(),
+            t_ns,
+            &data,
+            Latch::No,
+        )
     }
 
     /// One device command or reply on `/device/<name>`.
     pub fn device(&mut self, io: &DeviceIo) -> Result<(), RecordError> {
-        let msg = serde_json::to_value(io).unwrap_or(Value::Null);
         let topic = format!("/device/{}", io.device.name());
-        self.write(
-            &topic,
-            "trimctl.DeviceIo",
-            DEVICE_IO_SCHEMA,
-            io.time_ns,
-            &msg,
-        )
+        self.write(&topic, io.time_ns, &Json(io), Latch::No)
     }
 
     /// Closes the current chunk and flushes the file: everything so far survives a crash.
     pub fn flush(&mut self) -> Result<(), RecordError> {
-        if self.finished {
-            return Err(RecordError::Finished);
-        }
-        self.writer.flush()?;
+        self.writer
+            .as_ref()
+            .ok_or(RecordError::Finished)?
+            .flush()?;
         Ok(())
     }
 
     /// Writes the summary and the footer; later messages are refused with
     /// [`RecordError::Finished`] (a device tap may outlive the run by a heartbeat).
     pub fn finish(&mut self) -> Result<(), RecordError> {
-        if self.finished {
-            return Ok(());
+        if let Some(writer) = self.writer.take() {
+            writer.close()?;
         }
-        self.finished = true;
-        self.writer.finish()?;
         Ok(())
+    }
+}
+
+/// The current layer's scene entity: its polylines (work-piece frame, scale-invariant lines)
+/// and a translucent plate at its focal plane, oriented as the zone frame, with a label.
+fn layer_entity(
+    t_ns: u64,
+    job: &Job,
+    zone: &trim_plan::job::Zone,
+    layer: &trim_plan::job::Layer,
+    state: &str,
+    rgba: [f64; 4],
+) -> SceneEntity {
+    let (fx, fy) = (zone.frame.x, zone.frame.y);
+    let f = layer.focus_point;
+    // A galvo point (x, y) of the layer is P = focus + x·X + y·Y (DESIGN.md, the Job contract).
+    let at = |g: [f64; 2]| -> [f64; 3] {
+        std::array::from_fn(|i| f[i] + g[0] * fx[i] + g[1] * fy[i])
+    };
+    let lines = layer
+        .polylines
+        .iter()
+        .map(|p| LinePrimitive {
+            r#type: foxglove::messages::line_primitive::Type::LineStrip as i32,
+            pose: identity_pose(),
+            thickness: LAYER_LINE_PX,
+            scale_invariant: true,
+            points: p.points.iter().map(|&g| point3(at(g))).collect(),
+            color: color(rgba),
+            ..LinePrimitive::default()
+        })
+        .collect();
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for g in layer.polylines.iter().flat_map(|p| &p.points) {
+        for i in 0..2 {
+            lo[i] = lo[i].min(g[i]);
+            hi[i] = hi[i].max(g[i]);
+        }
+    }
+    if lo[0] > hi[0] {
+        (lo, hi) = ([0.0; 2], [0.0; 2]);
+    }
+    let centre = at([(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0]);
+    let q = quaternion_from_axes(zone.frame.x, zone.frame.y, zone.frame.z);
+    let plate_pose = Some(Pose {
+        position: Some(Vector3 {
+            x: centre[0],
+            y: centre[1],
+            z: centre[2],
+        }),
+        orientation: Some(Quaternion {
+            x: q[0],
+            y: q[1],
+            z: q[2],
+            w: q[3],
+        }),
+    });
+    let corner = at([lo[0], hi[1] + PLATE_MARGIN_MM]);
+    let layers_in_zone = zone.layers.len();
+    SceneEntity {
+        timestamp: stamp(t_ns),
+        frame_id: WORKPIECE_FRAME.to_owned(),
+        id: LAYER_ENTITY.to_owned(),
+        frame_locked: true,
+        metadata: vec![
+            KeyValuePair {
+                key: "zone".to_owned(),
+                value: zone.id.to_string(),
+            },
+            KeyValuePair {
+                key: "layer".to_owned(),
+                value: layer.index.to_string(),
+            },
+            KeyValuePair {
+                key: "state".to_owned(),
+                value: state.to_owned(),
+            },
+        ],
+        lines,
+        cubes: vec![CubePrimitive {
+            pose: plate_pose,
+            size: Some(Vector3 {
+                x: hi[0] - lo[0] + 2.0 * PLATE_MARGIN_MM,
+                y: hi[1] - lo[1] + 2.0 * PLATE_MARGIN_MM,
+                z: job.layer_step_mm.max(0.01),
+            }),
+            color: color([rgba[0], rgba[1], rgba[2], PLATE_ALPHA]),
+        }],
+        texts: vec![TextPrimitive {
+            pose: Some(Pose {
+                position: Some(Vector3 {
+                    x: corner[0],
+                    y: corner[1],
+                    z: corner[2],
+                }),
+                orientation: identity_pose().and_then(|p| p.orientation),
+            }),
+            billboard: true,
+            font_size: 14.0,
+            scale_invariant: true,
+            color: color(rgba),
+            text: format!(
+                "zone {} layer {}/{layers_in_zone}: {state}",
+                zone.id,
+                layer.index + 1
+            ),
+        }],
+        ..SceneEntity::default()
     }
 }
 
@@ -410,21 +699,6 @@ mod tests {
     use super::*;
 
     #[test]
-    fn base64_matches_rfc4648_vectors() {
-        for (raw, enc) in [
-            ("", ""),
-            ("f", "Zg=="),
-            ("fo", "Zm8="),
-            ("foo", "Zm9v"),
-            ("foob", "Zm9vYg=="),
-            ("fooba", "Zm9vYmE="),
-            ("foobar", "Zm9vYmFy"),
-        ] {
-            assert_eq!(base64(raw.as_bytes()), enc);
-        }
-    }
-
-    #[test]
     fn quaternion_of_a_quarter_turn_about_z() {
         let q = quaternion_from_axes([0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
         let h = std::f64::consts::FRAC_1_SQRT_2;
@@ -432,6 +706,18 @@ mod tests {
             (q[2] - h).abs() < 1e-12 && (q[3] - h).abs() < 1e-12,
             "{q:?}"
         );
+    }
+
+    #[test]
+    fn json_channels_carry_their_schema_title_as_name() {
+        let schema = Json::<LayerMessage>::get_schema().unwrap();
+        assert_eq!(schema.name, "trimctl.Layer");
+        assert_eq!(schema.encoding, "jsonschema");
+        let json: serde_json::Value = serde_json::from_slice(&schema.data).unwrap();
+        assert_eq!(json["title"], "trimctl.Layer");
+        assert!(json["properties"]["vectors_done"].is_object(), "{json}");
+        let schema = Json::<DeviceIo>::get_schema().unwrap();
+        assert_eq!(schema.name, "trimctl.DeviceIo");
     }
 
     #[test]
@@ -461,6 +747,7 @@ mod tests {
             rec.log(0, LogLevel::Info, "late"),
             Err(RecordError::Finished)
         ));
+        assert!(matches!(rec.flush(), Err(RecordError::Finished)));
         let full = std::fs::read(&path).unwrap();
         let count = |bytes: &[u8]| {
             let mut n = 0;

@@ -5,7 +5,7 @@ use std::sync::Arc;
 use std::time::SystemTime;
 
 /// Which device.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum Device {
     /// The galvo scanner (TCP).
@@ -35,7 +35,7 @@ impl std::fmt::Display for Device {
 }
 
 /// Command (host to device) or reply (device to host).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum Direction {
     /// Host to device.
@@ -44,8 +44,9 @@ pub enum Direction {
     Reply,
 }
 
-/// One message on a device link.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+/// One message on a device link (the run record's trimctl.DeviceIo).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, schemars::JsonSchema)]
+#[schemars(title = "trimctl.DeviceIo")]
 pub struct DeviceIo {
     /// Wall-clock time (ns since the Unix epoch).
     pub time_ns: u64,
