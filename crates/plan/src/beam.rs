@@ -282,7 +282,9 @@ pub struct LimitViolation {
 
 impl std::fmt::Display for LimitViolation {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let (value, bound) = (self.value, self.bound);
+        // Six decimals: 53.59 W / 250 kHz prints as 214.36 µJ, not its last binary digit.
+        let round = |v: f64| (v * 1e6).round() / 1e6;
+        let (value, bound) = (round(self.value), round(self.bound));
         write!(
             f,
             "{} {value} {unit} ({}) is {} {} = {bound} {unit}",
