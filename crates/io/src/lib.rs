@@ -7,6 +7,8 @@
 //! - [`executor`]: the state machine over the Job with its interlocks, the [`journal`], and the
 //!   run [`record`] (MCAP, through the Foxglove SDK), served [`live`] over the Foxglove
 //!   WebSocket protocol with `run --live`.
+//! - [`frame`]: red-light framing: a layer's outline traced with the galvo's pointer, the
+//!   process laser's light path shut.
 //! - [`cell`]: the three devices together, and [`cell::SimCell`], all three simulated.
 //! - [`twin`]: the digital twin: a true cell in the simulators, and the spot error on the true
 //!   part.
@@ -18,6 +20,7 @@ pub mod cell;
 pub mod cnc;
 pub mod executor;
 pub mod fault;
+pub mod frame;
 pub mod galvo;
 pub mod journal;
 pub mod laser;

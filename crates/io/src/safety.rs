@@ -4,7 +4,9 @@
 //!
 //! - **light** (laser emission on *and* the galvo gate open) only while the galvo executes a list
 //!   and the CNC stands still;
-//! - laser emission never enabled while the CNC moves.
+//! - laser emission never enabled while the CNC moves;
+//! - while the galvo traces a frame (`EXECUTE_FRAME`, red-light framing): the gate never opens
+//!   and the laser's emission is never on.
 //!
 //! Violations are recorded, not panicked on, so tests can assert there are none and the executor
 //! can be checked from outside. Times are `Instant`s, so latencies can be measured from it.
@@ -23,6 +25,10 @@ pub enum CellEvent {
     GalvoExecuting(bool),
     /// The CNC started (true) or ended (false) a motion.
     CncMoving(bool),
+    /// The galvo's pointer (aiming laser) went on (true) or off (false).
+    Pointer(bool),
+    /// The galvo started (true) or ended (false) tracing a frame.
+    Framing(bool),
 }
 
 /// A broken invariant.
@@ -41,6 +47,8 @@ struct State {
     gate: bool,
     galvo_executing: bool,
     cnc_moving: bool,
+    pointer: bool,
+    framing: bool,
     light_off_count: u64,
     light_on_count: u64,
     events: Vec<(Instant, CellEvent)>,
@@ -93,6 +101,8 @@ impl SafetyMonitor {
             CellEvent::Gate(on) => s.gate = on,
             CellEvent::GalvoExecuting(on) => s.galvo_executing = on,
             CellEvent::CncMoving(on) => s.cnc_moving = on,
+            CellEvent::Pointer(on) => s.pointer = on,
+            CellEvent::Framing(on) => s.framing = on,
         }
         let light = s.light();
         if was_light && !light {
@@ -118,6 +128,15 @@ impl SafetyMonitor {
             )
         {
             broken.push("laser emission enabled while the CNC moves".to_owned());
+        }
+        if s.framing && s.gate {
+            broken.push("galvo gate open while framing".to_owned());
+        }
+        if s.framing
+            && s.emission == Some(true)
+            && matches!(event, CellEvent::Framing(true) | CellEvent::Emission(true))
+        {
+            broken.push("laser emission enabled while framing".to_owned());
         }
         for what in broken {
             tracing::error!(%what, ?event, "safety violation");
@@ -156,6 +175,18 @@ impl SafetyMonitor {
             offs: s.light_off_count,
             ons: s.light_on_count,
         }
+    }
+
+    /// Whether the galvo's pointer (aiming laser) is on.
+    #[must_use]
+    pub fn pointer(&self) -> bool {
+        self.lock().pointer
+    }
+
+    /// Whether the galvo is tracing a frame.
+    #[must_use]
+    pub fn framing(&self) -> bool {
+        self.lock().framing
     }
 
     /// Whether the CNC is moving.
@@ -260,6 +291,30 @@ mod tests {
             v[1..]
                 .iter()
                 .any(|x| x.what == "light on while the CNC moves")
+        );
+    }
+
+    #[test]
+    fn a_gate_or_emission_while_framing_is_a_violation() {
+        let m = SafetyMonitor::new();
+        m.report(CellEvent::Emission(false));
+        m.report(CellEvent::Pointer(true));
+        m.report(CellEvent::Framing(true));
+        m.report(CellEvent::Framing(false));
+        m.report(CellEvent::Pointer(false));
+        assert!(m.violations().is_empty(), "{:?}", m.violations());
+        assert!(!m.pointer() && !m.framing());
+        m.report(CellEvent::Framing(true));
+        m.report(CellEvent::Gate(true));
+        m.report(CellEvent::Gate(false));
+        m.report(CellEvent::Emission(true));
+        let v: Vec<String> = m.violations().into_iter().map(|v| v.what).collect();
+        assert_eq!(
+            v,
+            [
+                "galvo gate open while framing",
+                "laser emission enabled while framing"
+            ]
         );
     }
 

@@ -23,7 +23,8 @@
 //!
 //! The module: the public types here, with [`Executor`]'s run loop; `layer` holds one layer's
 //! phases, `resume` where a resumed run starts, `shutdown` the way down and the one exit path
-//! every failure after preparation takes.
+//! every failure after preparation takes, `gate` the optional [`ZoneGate`] asked before each
+//! zone (red-light framing, `run --frame`).
 
 use std::collections::BTreeSet;
 use std::future::Future;
@@ -42,10 +43,12 @@ use crate::journal::{CutLayer, Journal, JournalError, JournalSink, JournalState}
 use crate::record::{LogLevel, SharedRecorder};
 use crate::tap::{Device, now_ns};
 
+pub use gate::{ZoneDecision, ZoneGate};
 use layer::LayerWork;
 use resume::CutStart;
 use shutdown::Fault;
 
+mod gate;
 mod layer;
 mod resume;
 mod shutdown;
@@ -77,6 +80,8 @@ pub enum Phase {
     GateOff,
     /// Journal the finished layer.
     Journal,
+    /// Before a zone's first layer: the [`ZoneGate`] (framing, the operator's answer).
+    Frame,
 }
 
 impl Phase {
@@ -360,6 +365,7 @@ pub struct Executor {
     progress: Option<UnboundedSender<Progress>>,
     cancel: CancellationToken,
     journal_wrap: Option<SinkWrap>,
+    zone_gate: Option<Box<dyn ZoneGate>>,
 }
 
 type Step<T> = Result<T, StopCause>;
@@ -382,7 +388,15 @@ impl Executor {
             progress: None,
             cancel: CancellationToken::new(),
             journal_wrap: None,
+            zone_gate: None,
         }
+    }
+
+    /// Asks `gate` before the first layer of each zone the run marks (`run --frame`).
+    #[must_use]
+    pub fn with_zone_gate(mut self, gate: Box<dyn ZoneGate>) -> Executor {
+        self.zone_gate = Some(gate);
+        self
     }
 
     /// Wraps the journal's sink once it is open (`wrap(file)`): for tests that inject journal
@@ -495,7 +509,7 @@ impl Executor {
     }
 
     /// Awaits a device call with a timeout and the cancel token; maps both error layers.
-    async fn guard<T, E1: std::fmt::Display, E2: std::fmt::Display>(
+    pub(crate) async fn guard<T, E1: std::fmt::Display, E2: std::fmt::Display>(
         cancel: &CancellationToken,
         timeout: Duration,
         device: Device,
@@ -673,6 +687,7 @@ impl Executor {
             layers: Vec::new(),
         };
         let mut list_buf = 0_u8;
+        let mut gated_zone = None;
         for (index, key) in self.layer_keys() {
             let layer = self.layer_at(index);
             let n = vector_count(&layer);
@@ -680,6 +695,12 @@ impl Executor {
                 continue;
             }
             let first = plan.cut_start.first_vector(key, n);
+            if first < n
+                && let Err(f) = self.gate_zone(key, &mut gated_zone).await
+            {
+                let work = LayerWork::new(key, index, layer, first);
+                return Err(self.layer_fault(journal, &work, f, finished_count).await);
+            }
             let work = LayerWork::new(key, index, layer, first);
             let marked = if work.all_marked_before() {
                 self.complete_layer(journal, &work).map(|()| None)

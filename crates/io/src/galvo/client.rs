@@ -12,8 +12,8 @@ use tokio::task::JoinHandle;
 use tokio_util::codec::Framed;
 
 use super::protocol::{
-    Frame, FrameCodec, ListCommand, MAX_PAYLOAD_LEN, Request, StatusBlock, StatusCode, split_reply,
-    type_name,
+    Frame, FrameBlock, FrameCodec, ListCommand, MAX_PAYLOAD_LEN, Request, StatusBlock, StatusCode,
+    split_reply, type_name,
 };
 use crate::tap::{Device, Direction, Tap};
 
@@ -256,6 +256,32 @@ impl GalvoClient {
     /// `RESET_ERROR`.
     pub async fn reset_error(&self) -> GalvoResult<()> {
         Ok(self.request(Request::ResetError).await?.map(|_| ()))
+    }
+
+    /// `FRAME_STATUS`: the pointer and the trace (§7a).
+    pub async fn frame_status(&self) -> GalvoResult<FrameBlock> {
+        Ok(match self.request(Request::FrameStatus).await? {
+            Ok(data) => Ok(
+                FrameBlock::decode(&data).map_err(|reason| GalvoError::Garbled {
+                    request: "FRAME_STATUS",
+                    reason,
+                })?,
+            ),
+            Err(f) => Err(f),
+        })
+    }
+
+    /// `EXECUTE_FRAME`: traces list `list` `passes` times (0: until `STOP`) with the gate closed.
+    pub async fn execute_frame(&self, list: u8, passes: u32) -> GalvoResult<()> {
+        Ok(self
+            .request(Request::ExecuteFrame { list, passes })
+            .await?
+            .map(|_| ()))
+    }
+
+    /// `POINTER`: the aiming laser on or off.
+    pub async fn pointer(&self, on: bool) -> GalvoResult<()> {
+        Ok(self.request(Request::Pointer { on }).await?.map(|_| ()))
     }
 }
 

@@ -1,11 +1,13 @@
 //! The galvo scanner over TCP (docs/protocols/galvo.md): protocol, timing model, client,
-//! simulator, and the conversion of a layer's polylines into a list.
+//! simulator, the conversion of a layer's polylines into a list, and the outline red-light
+//! framing traces.
 
 pub mod client;
 pub mod list;
+pub mod outline;
 pub mod protocol;
 pub mod sim;
 pub mod timing;
 
 pub use client::{GalvoClient, GalvoClientConfig, GalvoError, GalvoFault, GalvoResult};
-pub use sim::{GalvoSim, GalvoSimConfig, Lit, MarkRecord};
+pub use sim::{GalvoSim, GalvoSimConfig, Lit, MarkRecord, TraceRecord};

@@ -179,6 +179,8 @@ pub mod types {
     pub const HEARTBEAT: u16 = 0x0002;
     /// `STATUS`.
     pub const STATUS: u16 = 0x0003;
+    /// `FRAME_STATUS`.
+    pub const FRAME_STATUS: u16 = 0x0004;
     /// `LOAD_LIST`.
     pub const LOAD_LIST: u16 = 0x0010;
     /// `APPEND_LIST`.
@@ -187,10 +189,14 @@ pub mod types {
     pub const EXECUTE: u16 = 0x0012;
     /// `STOP`.
     pub const STOP: u16 = 0x0013;
+    /// `EXECUTE_FRAME`.
+    pub const EXECUTE_FRAME: u16 = 0x0014;
     /// `LASER_SIGNALS`.
     pub const LASER_SIGNALS: u16 = 0x0020;
     /// `RESET_ERROR`.
     pub const RESET_ERROR: u16 = 0x0021;
+    /// `POINTER`.
+    pub const POINTER: u16 = 0x0022;
 }
 
 /// One list command (§6). Coordinates in bits, speeds in bits/ms, delays in nanoseconds.
@@ -328,6 +334,20 @@ pub enum Request {
     },
     /// Clear the latched error and the watchdog trip.
     ResetError,
+    /// Ask for the framing block (§7a).
+    FrameStatus,
+    /// Trace a list with the pointer: the gate stays closed, nothing is marked (§5a).
+    ExecuteFrame {
+        /// List buffer 0 or 1.
+        list: u8,
+        /// Passes over the list (0: until `STOP`).
+        passes: u32,
+    },
+    /// Switch the pointer (aiming laser) on or off.
+    Pointer {
+        /// true = on.
+        on: bool,
+    },
 }
 
 impl Request {
@@ -344,6 +364,9 @@ impl Request {
             Request::Stop => types::STOP,
             Request::LaserSignals { .. } => types::LASER_SIGNALS,
             Request::ResetError => types::RESET_ERROR,
+            Request::FrameStatus => types::FRAME_STATUS,
+            Request::ExecuteFrame { .. } => types::EXECUTE_FRAME,
+            Request::Pointer { .. } => types::POINTER,
         }
     }
 
@@ -361,7 +384,11 @@ impl Request {
             Request::Hello {
                 heartbeat_timeout_ms,
             } => out.put_u32_le(*heartbeat_timeout_ms),
-            Request::Heartbeat | Request::Status | Request::Stop | Request::ResetError => {}
+            Request::Heartbeat
+            | Request::Status
+            | Request::Stop
+            | Request::ResetError
+            | Request::FrameStatus => {}
             Request::LoadList {
                 list,
                 tag,
@@ -381,6 +408,11 @@ impl Request {
             }
             Request::Execute { list } => out.put_u8(*list),
             Request::LaserSignals { enable } => out.put_u8(u8::from(*enable)),
+            Request::ExecuteFrame { list, passes } => {
+                out.put_u8(*list);
+                out.put_u32_le(*passes);
+            }
+            Request::Pointer { on } => out.put_u8(u8::from(*on)),
         }
         out
     }
@@ -403,6 +435,20 @@ impl Request {
             types::STATUS => Request::Status,
             types::STOP => Request::Stop,
             types::RESET_ERROR => Request::ResetError,
+            types::FRAME_STATUS => Request::FrameStatus,
+            types::EXECUTE_FRAME => {
+                need(p, 5).map_err(|()| bad("EXECUTE_FRAME needs a list and passes"))?;
+                Request::ExecuteFrame {
+                    list: p.get_u8(),
+                    passes: p.get_u32_le(),
+                }
+            }
+            types::POINTER => {
+                need(p, 1).map_err(|()| bad("POINTER needs a flag"))?;
+                Request::Pointer {
+                    on: p.get_u8() != 0,
+                }
+            }
             types::LOAD_LIST => {
                 need(p, 5).map_err(|()| bad("LOAD_LIST needs list and tag"))?;
                 let list = p.get_u8();
@@ -453,6 +499,9 @@ pub fn type_name(frame_type: u16) -> &'static str {
         types::STOP => "STOP",
         types::LASER_SIGNALS => "LASER_SIGNALS",
         types::RESET_ERROR => "RESET_ERROR",
+        types::FRAME_STATUS => "FRAME_STATUS",
+        types::EXECUTE_FRAME => "EXECUTE_FRAME",
+        types::POINTER => "POINTER",
         _ => "UNKNOWN",
     }
 }
@@ -689,6 +738,58 @@ impl StatusBlock {
     }
 }
 
+/// The framing block (§7a, reply to `FRAME_STATUS`): the pointer and the trace.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct FrameBlock {
+    /// The pointer (aiming laser) is on.
+    pub pointer: bool,
+    /// A list is being traced (`EXECUTE_FRAME`) right now.
+    pub framing: bool,
+    /// The list traced or last traced ([`NO_LIST`] = none yet).
+    pub list: u8,
+    /// That list's tag.
+    pub tag: u32,
+    /// Whole passes over that list completed.
+    pub passes_done: u32,
+    /// `MARK` records of that list traced (all passes; saturates).
+    pub vectors_traced: u32,
+}
+
+/// Length of an encoded framing block (bytes).
+pub const FRAME_BLOCK_LEN: usize = 1 + 1 + 1 + 4 + 4 + 4;
+
+impl FrameBlock {
+    /// Encodes the block.
+    #[must_use]
+    pub fn encode(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(FRAME_BLOCK_LEN);
+        out.put_u8(u8::from(self.pointer));
+        out.put_u8(u8::from(self.framing));
+        out.put_u8(self.list);
+        out.put_u32_le(self.tag);
+        out.put_u32_le(self.passes_done);
+        out.put_u32_le(self.vectors_traced);
+        out
+    }
+    /// Decodes the block.
+    pub fn decode(mut p: &[u8]) -> Result<FrameBlock, String> {
+        if p.len() != FRAME_BLOCK_LEN {
+            return Err(format!(
+                "framing block of {} bytes, expected {FRAME_BLOCK_LEN}",
+                p.len()
+            ));
+        }
+        Ok(FrameBlock {
+            pointer: p.get_u8() != 0,
+            framing: p.get_u8() != 0,
+            list: p.get_u8(),
+            tag: p.get_u32_le(),
+            passes_done: p.get_u32_le(),
+            vectors_traced: p.get_u32_le(),
+        })
+    }
+}
+
 /// Builds a reply frame: status code, then data (OK) or a message (not OK).
 #[must_use]
 pub fn reply_frame(request: &Frame, status: StatusCode, data: &[u8]) -> Frame {
@@ -790,6 +891,13 @@ mod tests {
             Request::Stop,
             Request::LaserSignals { enable: true },
             Request::ResetError,
+            Request::FrameStatus,
+            Request::ExecuteFrame {
+                list: 1,
+                passes: 0xFFFF_FFFE,
+            },
+            Request::Pointer { on: true },
+            Request::Pointer { on: false },
         ];
         for (i, req) in reqs.iter().enumerate() {
             for crc in [false, true] {
@@ -901,5 +1009,38 @@ mod tests {
         for c in 0..12 {
             assert_eq!(StatusCode::from_code(c).code(), c);
         }
+    }
+
+    #[test]
+    fn framing_requests_and_block_have_the_documented_bytes() {
+        let bytes = encode_frame(&frame(
+            &Request::ExecuteFrame { list: 1, passes: 3 },
+            2,
+            false,
+        ));
+        assert_eq!(
+            bytes,
+            vec![
+                b'T', b'G', 1, 0, 2, 0, 0, 0, 0x14, 0x00, 5, 0, 0, 0, 1, 3, 0, 0, 0
+            ]
+        );
+        let bytes = encode_frame(&frame(&Request::Pointer { on: true }, 3, false));
+        assert_eq!(&bytes[8..], &[0x22, 0x00, 1, 0, 0, 0, 1]);
+        assert_eq!(type_name(types::POINTER | REPLY_BIT), "POINTER");
+        assert!(Request::decode(types::EXECUTE_FRAME, &[0, 1, 0, 0]).is_err());
+        assert!(Request::decode(types::POINTER, &[1, 0]).is_err());
+        let b = FrameBlock {
+            pointer: true,
+            framing: false,
+            list: 0,
+            tag: 0xF000_0102,
+            passes_done: 7,
+            vectors_traced: 56,
+        };
+        let enc = b.encode();
+        assert_eq!(enc.len(), FRAME_BLOCK_LEN);
+        assert_eq!(&enc[..3], &[1, 0, 0]);
+        assert_eq!(FrameBlock::decode(&enc).unwrap(), b);
+        assert!(FrameBlock::decode(&enc[1..]).is_err());
     }
 }

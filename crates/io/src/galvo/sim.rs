@@ -1,6 +1,8 @@
 //! A galvo controller simulator that implements docs/protocols/galvo.md on a TCP port: two list
 //! buffers, the timing model as its clock, the reply cache for resends, the heartbeat watchdog,
-//! a record of every vector it marked (with whether light reached the part), and fault injection.
+//! a record of every vector it marked (with whether light reached the part), the pointer and
+//! red-light framing (§5a: a record of every vector traced, with the pointer, the gate and the
+//! laser's emission during it), and fault injection.
 
 use std::collections::{HashMap, VecDeque};
 use std::net::SocketAddr;
@@ -14,8 +16,8 @@ use tokio::task::JoinHandle;
 use tokio_util::codec::Framed;
 
 use super::protocol::{
-    ControllerState, Frame, FrameCodec, FrameError, ListCommand, NO_LIST, REPLY_CACHE_LEN, Request,
-    StatusBlock, StatusCode, decode_frame, reply_frame, type_name,
+    ControllerState, Frame, FrameBlock, FrameCodec, FrameError, ListCommand, NO_LIST,
+    REPLY_CACHE_LEN, Request, StatusBlock, StatusCode, decode_frame, reply_frame, type_name,
 };
 use super::timing::ListClock;
 use crate::fault::{FaultKind, FaultSwitch};
@@ -25,6 +27,11 @@ use crate::safety::{CellEvent, SafetyMonitor};
 const WATCHDOG_TICK_MS: u64 = 5;
 /// The longest a stalled connection is held before it is closed (s).
 const STALL_HOLD_S: u64 = 600;
+/// Traced vectors kept in the record ([`GalvoSim::traces`]); later ones are counted only.
+pub const TRACE_RECORD_CAP: usize = 100_000;
+/// The shortest real time of one frame pass when the clock runs as fast as possible (ms): an
+/// endless trace must not spin.
+const MIN_PASS_MS: u64 = 1;
 
 /// Simulator settings.
 #[derive(Debug, Clone)]
@@ -74,6 +81,26 @@ pub struct MarkRecord {
     pub lit: Lit,
 }
 
+/// One `MARK` record the simulator traced in a frame (`EXECUTE_FRAME`): the mirrors moved with
+/// the pointer; what the process laser's light path was doing meanwhile.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct TraceRecord {
+    /// The tag of the list.
+    pub tag: u32,
+    /// The pass over the list (0-based).
+    pub pass: u32,
+    /// Start (bits).
+    pub from_bits: [i32; 2],
+    /// End (bits).
+    pub to_bits: [i32; 2],
+    /// The pointer was on during the whole vector.
+    pub pointer: bool,
+    /// The gate was open at some time during the vector (never, by design).
+    pub gate_open: bool,
+    /// The laser reported emission on at some time during the vector.
+    pub emission: bool,
+}
+
 #[derive(Debug, Default, Clone)]
 struct ListBuf {
     tag: u32,
@@ -100,6 +127,12 @@ struct Controller {
     cache_order: VecDeque<u32>,
     garble_next: bool,
     run_id: u64,
+    pointer: bool,
+    framing: bool,
+    frame_list: u8,
+    frame_tag: u32,
+    passes_done: u32,
+    vectors_traced: u32,
 }
 
 struct Shared {
@@ -108,6 +141,7 @@ struct Shared {
     monitor: SafetyMonitor,
     faults: FaultSwitch,
     marks: Mutex<Vec<MarkRecord>>,
+    traces: Mutex<Vec<TraceRecord>>,
     conn_task: Mutex<Option<JoinHandle<()>>>,
 }
 
@@ -125,6 +159,13 @@ impl Shared {
         }
     }
 
+    fn set_pointer(&self, c: &mut Controller, on: bool) {
+        if c.pointer != on {
+            c.pointer = on;
+            self.monitor.report(CellEvent::Pointer(on));
+        }
+    }
+
     /// Drops the laser signals and stops the list: the watchdog and link-loss reaction.
     fn trip(&self, why: &str) {
         let mut c = self.ctl();
@@ -133,7 +174,7 @@ impl Shared {
         }
         // A trip that finds the signals off and no list running (the host closed an idle
         // session at the end of a job) changes nothing an operator must see.
-        if c.laser_signals || c.state == ControllerState::Executing {
+        if c.laser_signals || c.pointer || c.state == ControllerState::Executing {
             tracing::warn!(why, "galvo simulator: watchdog trip, laser signals dropped");
         } else {
             tracing::debug!(why, "galvo simulator: idle session ended, watchdog latched");
@@ -141,6 +182,7 @@ impl Shared {
         c.session = false;
         c.laser_signals = false;
         self.set_gate(&mut c, false);
+        self.set_pointer(&mut c, false);
         if c.state == ControllerState::Executing {
             c.stop_requested = true;
         }
@@ -204,10 +246,17 @@ impl GalvoSim {
                 cache_order: VecDeque::new(),
                 garble_next: false,
                 run_id: 0,
+                pointer: false,
+                framing: false,
+                frame_list: NO_LIST,
+                frame_tag: 0,
+                passes_done: 0,
+                vectors_traced: 0,
             }),
             monitor,
             faults,
             marks: Mutex::new(Vec::new()),
+            traces: Mutex::new(Vec::new()),
             conn_task: Mutex::new(None),
         });
         let accept = tokio::spawn(accept_loop(listener, shared.clone()));
@@ -233,6 +282,22 @@ impl GalvoSim {
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
             .clone()
+    }
+
+    /// Every vector traced in frames so far, in order (at most [`TRACE_RECORD_CAP`]).
+    #[must_use]
+    pub fn traces(&self) -> Vec<TraceRecord> {
+        self.shared
+            .traces
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+    }
+
+    /// The current framing block (as a `FRAME_STATUS` request would return it).
+    #[must_use]
+    pub fn frame_status(&self) -> FrameBlock {
+        frame_block(&self.shared.ctl())
     }
 
     /// The modelled time of all lists executed (s).
@@ -269,6 +334,17 @@ fn status_block(c: &Controller) -> StatusBlock {
             u32::try_from(c.lists[1].commands.len()).unwrap_or(u32::MAX),
         ],
         last_error: c.last_error,
+    }
+}
+
+fn frame_block(c: &Controller) -> FrameBlock {
+    FrameBlock {
+        pointer: c.pointer,
+        framing: c.framing,
+        list: c.frame_list,
+        tag: c.frame_tag,
+        passes_done: c.passes_done,
+        vectors_traced: c.vectors_traced,
     }
 }
 
@@ -522,6 +598,7 @@ fn execute_request(shared: &Arc<Shared>, req: Request) -> Result<Vec<u8>, (Statu
         Request::Stop => {
             c.laser_signals = false;
             shared.set_gate(&mut c, false);
+            shared.set_pointer(&mut c, false);
             if c.state == ControllerState::Executing {
                 c.stop_requested = true;
                 c.state = ControllerState::Stopped;
@@ -532,10 +609,68 @@ fn execute_request(shared: &Arc<Shared>, req: Request) -> Result<Vec<u8>, (Statu
             if enable && c.last_error == StatusCode::Watchdog.code() {
                 return Err((StatusCode::Watchdog, "watchdog trip latched".into()));
             }
+            if enable && (c.pointer || c.framing) {
+                return Err((
+                    StatusCode::Refused,
+                    "the pointer is on or a frame runs: POINTER off and STOP first".into(),
+                ));
+            }
             c.laser_signals = enable;
             if !enable {
                 shared.set_gate(&mut c, false);
             }
+            Ok(Vec::new())
+        }
+        Request::FrameStatus => Ok(frame_block(&c).encode()),
+        Request::Pointer { on } => {
+            if on && c.last_error == StatusCode::Watchdog.code() {
+                return Err((StatusCode::Watchdog, "watchdog trip latched".into()));
+            }
+            if on && c.laser_signals {
+                return Err((
+                    StatusCode::Refused,
+                    "the laser signals are enabled: LASER_SIGNALS off first".into(),
+                ));
+            }
+            shared.set_pointer(&mut c, on);
+            Ok(Vec::new())
+        }
+        Request::ExecuteFrame { list, passes } => {
+            let l = check_list(list)?;
+            if c.last_error == StatusCode::Watchdog.code() {
+                return Err((StatusCode::Watchdog, "watchdog trip latched".into()));
+            }
+            if c.state == ControllerState::Executing {
+                return Err((StatusCode::ListBusy, format!("list {} runs", c.exec_list)));
+            }
+            if c.lists[l].commands.is_empty() {
+                return Err((StatusCode::ListEmpty, format!("list {list} is empty")));
+            }
+            if c.laser_signals {
+                return Err((
+                    StatusCode::Refused,
+                    "the laser signals are enabled: LASER_SIGNALS off before framing".into(),
+                ));
+            }
+            shared.set_gate(&mut c, false);
+            c.state = ControllerState::Executing;
+            c.framing = true;
+            c.exec_list = list;
+            c.exec_tag = c.lists[l].tag;
+            c.frame_list = list;
+            c.frame_tag = c.lists[l].tag;
+            c.commands_done = 0;
+            c.marks_done = 0;
+            c.passes_done = 0;
+            c.vectors_traced = 0;
+            c.stop_requested = false;
+            c.run_id += 1;
+            let run_id = c.run_id;
+            let commands = c.lists[l].commands.clone();
+            let tag = c.exec_tag;
+            drop(c);
+            shared.monitor.report(CellEvent::Framing(true));
+            tokio::spawn(run_frame(shared.clone(), commands, tag, passes, run_id));
             Ok(Vec::new())
         }
         Request::ResetError => {
@@ -687,7 +822,8 @@ async fn run_list(shared: Arc<Shared>, commands: Vec<ListCommand>, tag: u32, run
     shared.monitor.report(CellEvent::GalvoExecuting(false));
 }
 
-/// The controller lock if list `run_id` may go on; otherwise ends it (gate closed, executing off).
+/// The controller lock if list `run_id` may go on; otherwise ends it (gate closed, executing
+/// or framing off).
 fn still_running(shared: &Arc<Shared>, run_id: u64) -> Option<MutexGuard<'_, Controller>> {
     let mut c = shared.ctl();
     if c.run_id == run_id && !c.stop_requested {
@@ -700,10 +836,103 @@ fn still_running(shared: &Arc<Shared>, run_id: u64) -> Option<MutexGuard<'_, Con
         }
         c.stop_requested = false;
         c.run_id += 1;
+        let framing = std::mem::take(&mut c.framing);
         drop(c);
-        shared.monitor.report(CellEvent::GalvoExecuting(false));
+        shared.monitor.report(if framing {
+            CellEvent::Framing(false)
+        } else {
+            CellEvent::GalvoExecuting(false)
+        });
     }
     None
+}
+
+/// Traces a list `passes` times (0: until stopped) in (scaled) real time on the same clock as a
+/// marked list, the gate closed throughout: a `MARK` moves the mirrors with the pointer and is
+/// recorded as a [`TraceRecord`], never as a mark.
+async fn run_frame(
+    shared: Arc<Shared>,
+    commands: Vec<ListCommand>,
+    tag: u32,
+    passes: u32,
+    run_id: u64,
+) {
+    let scale = shared.config.time_scale;
+    let mut pass = 0_u32;
+    while passes == 0 || pass < passes {
+        let pass_started = Instant::now();
+        let mut clock = ListClock::new();
+        let mut pos = [0_i32, 0_i32];
+        for cmd in &commands {
+            if still_running(&shared, run_id).is_none() {
+                return;
+            }
+            let step = clock.step(cmd);
+            let ns = step.run_end_ns + step.ns;
+            let from = pos;
+            if let ListCommand::Jump { x, y } | ListCommand::Mark { x, y } = *cmd {
+                pos = [x, y];
+            }
+            let (pointer_before, gate_before) = {
+                let c = shared.ctl();
+                (c.pointer, c.gate)
+            };
+            let emission_before = shared.monitor.emission();
+            if scale > 0.0 && ns > 0.0 {
+                tokio::time::sleep(Duration::from_secs_f64(ns * 1e-9 * scale)).await;
+            } else {
+                tokio::task::yield_now().await;
+            }
+            let Some(mut c) = still_running(&shared, run_id) else {
+                return;
+            };
+            c.elapsed_ns += ns;
+            c.commands_done = c.commands_done.saturating_add(1);
+            if step.is_mark {
+                c.vectors_traced = c.vectors_traced.saturating_add(1);
+                let record = TraceRecord {
+                    tag,
+                    pass,
+                    from_bits: from,
+                    to_bits: pos,
+                    pointer: pointer_before && c.pointer,
+                    gate_open: gate_before || c.gate,
+                    emission: emission_before || shared.monitor.emission(),
+                };
+                drop(c);
+                let mut traces = shared
+                    .traces
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner);
+                if traces.len() < TRACE_RECORD_CAP {
+                    traces.push(record);
+                }
+            }
+        }
+        let end_ns = clock.finish();
+        let min_pass = Duration::from_millis(MIN_PASS_MS);
+        let modelled = Duration::from_secs_f64(end_ns * 1e-9 * scale.max(0.0));
+        let rest = if scale > 0.0 {
+            modelled
+        } else {
+            min_pass.saturating_sub(pass_started.elapsed())
+        };
+        tokio::time::sleep(rest).await;
+        let Some(mut c) = still_running(&shared, run_id) else {
+            return;
+        };
+        c.elapsed_ns += end_ns;
+        c.passes_done = c.passes_done.saturating_add(1);
+        pass = pass.saturating_add(1);
+    }
+    let Some(mut c) = still_running(&shared, run_id) else {
+        return;
+    };
+    shared.set_gate(&mut c, false);
+    c.state = ControllerState::Idle;
+    c.framing = false;
+    drop(c);
+    shared.monitor.report(CellEvent::Framing(false));
 }
 
 fn inject_mid_list(shared: &Arc<Shared>, kind: FaultKind) {

@@ -1,0 +1,417 @@
+//! Red-light framing on the cell: the CNC moves to a layer's pose (as the executor moves it,
+//! with the same timeouts), then the galvo traces the layer's outline
+//! ([`crate::galvo::outline`]) with the pointer on and the process laser's light path shut:
+//! emission off (acknowledged by the laser first), the galvo's laser signals disabled (so its
+//! gate cannot open), the list run by `EXECUTE_FRAME` (docs/protocols/galvo.md §5a), which never
+//! opens the gate. The trace repeats until a number of passes or until the caller's `hold`
+//! resolves (an operator's Enter), after at least one whole pass.
+//!
+//! Every device await has a timeout and honours the cancel token. On any failure: the galvo is
+//! stopped (which drops its pointer and signals), the pointer switched off, emission off again,
+//! motion stopped, each within the shutdown step, and the failure returned.
+
+use std::future::Future;
+use std::time::{Duration, Instant};
+
+use tokio_util::sync::CancellationToken;
+use trim_plan::job::{Job, Layer, LayerKey};
+
+use crate::cell::{Cell, Timeouts};
+use crate::executor::{Executor, StopCause};
+use crate::galvo::GalvoClient;
+use crate::galvo::outline::{Outline, OutlineKind, frame_list, frame_tag, layer_outline};
+use crate::galvo::protocol::StatusBlock;
+use crate::galvo::timing::list_time_s;
+use crate::tap::Device;
+
+/// How often the galvo is polled while a frame is traced (ms).
+pub const FRAME_POLL_MS: u64 = 25;
+
+/// Framing settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameSettings {
+    /// Device timeouts (the executor's).
+    pub timeouts: Timeouts,
+    /// Hull or box.
+    pub outline: OutlineKind,
+    /// The galvo list buffer the frame list is loaded into.
+    pub list: u8,
+    /// Before moving: reset the galvo's latched error and enable the CNC, as a run's
+    /// preparation does (a standalone `trimctl frame`; not inside a run, which prepared already).
+    pub prepare: bool,
+}
+
+impl FrameSettings {
+    /// Default timeouts, the convex hull, list 0, with preparation.
+    #[must_use]
+    pub fn new(outline: OutlineKind) -> FrameSettings {
+        FrameSettings {
+            timeouts: Timeouts::default(),
+            outline,
+            list: 0,
+            prepare: true,
+        }
+    }
+
+    fn galvo_timeout(&self) -> Duration {
+        let t = &self.timeouts;
+        t.galvo_reply * (t.galvo_resends + 1) + Duration::from_millis(100)
+    }
+}
+
+/// A layer framed.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Framed {
+    /// The layer.
+    pub key: LayerKey,
+    /// What was traced (bits, galvo field frame).
+    pub outline: Outline,
+    /// Whole passes the galvo reports traced.
+    pub passes_done: u32,
+    /// Vectors the galvo reports traced (all passes).
+    pub vectors_traced: u32,
+    /// The modelled time of one pass (s).
+    pub pass_s: f64,
+    /// From the pointer on to the trace stopped (s).
+    pub traced_s: f64,
+}
+
+/// The layer `key` of `job`, or a [`StopCause::Job`] naming it.
+pub fn find_layer(job: &Job, key: LayerKey) -> Result<&Layer, StopCause> {
+    let zone = job
+        .zones
+        .iter()
+        .find(|z| z.id == key.zone)
+        .ok_or_else(|| job_error(format!("no zone {} in the job", key.zone)))?;
+    if let Some(why) = &zone.unreachable {
+        return Err(job_error(format!(
+            "zone {} is unreachable: {why}; framing does not move toward it",
+            zone.id
+        )));
+    }
+    zone.layers
+        .iter()
+        .find(|l| l.index == key.layer)
+        .ok_or_else(|| {
+            job_error(format!(
+                "zone {} has no layer {} (layers {:?})",
+                key.zone,
+                key.layer,
+                zone.layers.iter().map(|l| l.index).collect::<Vec<_>>()
+            ))
+        })
+}
+
+fn job_error(message: String) -> StopCause {
+    StopCause::Job { message }
+}
+
+/// Frames layer `key` of `job`: the CNC to its pose, the pointer on, the outline traced
+/// `passes` times (0: until `hold` resolves) or until `hold` resolves after the first whole
+/// pass, then the trace stopped and the pointer off. Returns what was framed and `hold`'s
+/// output if it ended the trace. The laser signals are left disabled ([`rearm`] enables them
+/// for marking).
+pub async fn frame_layer<T>(
+    cell: &mut Cell,
+    job: &Job,
+    key: LayerKey,
+    settings: &FrameSettings,
+    passes: u32,
+    hold: impl Future<Output = T>,
+    cancel: &CancellationToken,
+) -> Result<(Framed, Option<T>), StopCause> {
+    let layer = find_layer(job, key)?;
+    let outline = layer_outline(layer, &job.settings.galvo, settings.outline)
+        .map_err(|e| job_error(format!("zone {} layer {}: {e}", key.zone, key.layer)))?;
+    let commands = frame_list(&outline, &job.settings.galvo);
+    let pass_s = list_time_s(&commands);
+    let result = trace(
+        cell, layer, key, settings, &commands, passes, pass_s, hold, cancel,
+    )
+    .await;
+    match result {
+        Ok((passes_done, vectors_traced, traced_s, held)) => Ok((
+            Framed {
+                key,
+                outline,
+                passes_done,
+                vectors_traced,
+                pass_s,
+                traced_s,
+            },
+            held,
+        )),
+        Err(cause) => {
+            lights_out(cell, &settings.timeouts).await;
+            Err(cause)
+        }
+    }
+}
+
+/// The device steps of [`frame_layer`]; the caller takes the way down on failure.
+#[expect(clippy::too_many_arguments)] // one layer's framing: its inputs, each used once
+async fn trace<T>(
+    cell: &mut Cell,
+    layer: &Layer,
+    key: LayerKey,
+    settings: &FrameSettings,
+    commands: &[crate::galvo::protocol::ListCommand],
+    passes: u32,
+    pass_s: f64,
+    hold: impl Future<Output = T>,
+    cancel: &CancellationToken,
+) -> Result<(u32, u32, f64, Option<T>), StopCause> {
+    let (t, gt) = (settings.timeouts, settings.galvo_timeout());
+    // The light path shut first: emission off (acknowledged), the galvo's signals disabled.
+    Executor::guard(
+        cancel,
+        t.laser_reply,
+        Device::Laser,
+        "emission off",
+        cell.laser.emission(false),
+    )
+    .await?;
+    if settings.prepare {
+        Executor::guard(
+            cancel,
+            gt,
+            Device::Galvo,
+            "RESET_ERROR",
+            cell.galvo.reset_error(),
+        )
+        .await?;
+    }
+    Executor::guard(
+        cancel,
+        gt,
+        Device::Galvo,
+        "LASER_SIGNALS off",
+        cell.galvo.laser_signals(false),
+    )
+    .await?;
+    if settings.prepare {
+        Executor::guard(
+            cancel,
+            t.cnc_motion,
+            Device::Cnc,
+            "enable",
+            cell.cnc.enable(),
+        )
+        .await?;
+    }
+    // The pose, as the executor moves to it.
+    Executor::guard(
+        cancel,
+        t.cnc_reply,
+        Device::Cnc,
+        "move",
+        cell.cnc.start_move(&layer.pose),
+    )
+    .await?;
+    Executor::guard(
+        cancel,
+        t.cnc_motion + Duration::from_secs(1),
+        Device::Cnc,
+        "wait in position",
+        cell.cnc.wait_in_position(t.cnc_motion),
+    )
+    .await?;
+    let frames = u32::try_from(
+        commands
+            .len()
+            .div_ceil(crate::galvo::client::COMMANDS_PER_FRAME),
+    )
+    .unwrap_or(u32::MAX)
+    .max(1);
+    let tag = frame_tag(key.zone, key.layer);
+    Executor::guard(
+        cancel,
+        gt * frames,
+        Device::Galvo,
+        "LOAD_LIST",
+        cell.galvo.load_list(settings.list, tag, commands),
+    )
+    .await?;
+    let s = galvo_status(&cell.galvo, settings, cancel).await?;
+    if s.gate_open || s.laser_signals {
+        return Err(galvo_fault(format!(
+            "before framing: the galvo reports gate open {} and laser signals {}",
+            s.gate_open, s.laser_signals
+        )));
+    }
+    Executor::guard(
+        cancel,
+        gt,
+        Device::Galvo,
+        "POINTER on",
+        cell.galvo.pointer(true),
+    )
+    .await?;
+    let t_on = Instant::now();
+    Executor::guard(
+        cancel,
+        gt,
+        Device::Galvo,
+        "EXECUTE_FRAME",
+        cell.galvo.execute_frame(settings.list, passes),
+    )
+    .await?;
+
+    // The trace: poll until the passes are done, or `hold` resolves after the first pass.
+    let deadline = (passes > 0).then(|| {
+        t_on + Duration::from_secs_f64(pass_s * f64::from(passes) * t.list_time_factor)
+            + t.list_time_margin
+    });
+    let first_pass_deadline =
+        t_on + Duration::from_secs_f64(pass_s * t.list_time_factor) + t.list_time_margin;
+    let mut hold = std::pin::pin!(hold);
+    let mut held = None;
+    loop {
+        let s = galvo_status(&cell.galvo, settings, cancel).await?;
+        if s.gate_open || s.marks_done > 0 {
+            return Err(galvo_fault(format!(
+                "while framing the galvo reports the gate open ({}) or {} vectors marked",
+                s.gate_open, s.marks_done
+            )));
+        }
+        let f = Executor::guard(
+            cancel,
+            gt,
+            Device::Galvo,
+            "FRAME_STATUS",
+            cell.galvo.frame_status(),
+        )
+        .await?;
+        let passes_seen = f.passes_done;
+        if !f.framing {
+            if passes > 0 && f.passes_done >= passes {
+                break;
+            }
+            return Err(galvo_fault(format!(
+                "the galvo ended the frame: {:?}, error code {}, {} passes traced",
+                s.state, s.last_error, f.passes_done
+            )));
+        }
+        let now = Instant::now();
+        if deadline.is_some_and(|d| now > d) || (passes_seen == 0 && now > first_pass_deadline) {
+            return Err(StopCause::Link {
+                device: Device::Galvo,
+                message: format!(
+                    "frame of zone {} layer {}: {passes_seen} passes traced in {:.3} s",
+                    key.zone,
+                    key.layer,
+                    t_on.elapsed().as_secs_f64()
+                ),
+            });
+        }
+        let poll = tokio::time::sleep(Duration::from_millis(FRAME_POLL_MS));
+        if passes_seen == 0 {
+            tokio::select! {
+                () = cancel.cancelled() => return Err(StopCause::Cancelled),
+                () = poll => {}
+            }
+        } else {
+            tokio::select! {
+                () = cancel.cancelled() => return Err(StopCause::Cancelled),
+                h = &mut hold => { held = Some(h); break; }
+                () = poll => {}
+            }
+        }
+    }
+    let traced_s = t_on.elapsed().as_secs_f64();
+    Executor::guard(cancel, gt, Device::Galvo, "STOP", cell.galvo.stop()).await?;
+    Executor::guard(
+        cancel,
+        gt,
+        Device::Galvo,
+        "POINTER off",
+        cell.galvo.pointer(false),
+    )
+    .await?;
+    let f = Executor::guard(
+        cancel,
+        gt,
+        Device::Galvo,
+        "FRAME_STATUS",
+        cell.galvo.frame_status(),
+    )
+    .await?;
+    if f.pointer || f.framing {
+        return Err(galvo_fault(format!(
+            "after framing the galvo reports pointer {} and framing {}",
+            f.pointer, f.framing
+        )));
+    }
+    Ok((f.passes_done, f.vectors_traced, traced_s, held))
+}
+
+async fn galvo_status(
+    galvo: &GalvoClient,
+    settings: &FrameSettings,
+    cancel: &CancellationToken,
+) -> Result<StatusBlock, StopCause> {
+    Executor::guard(
+        cancel,
+        settings.galvo_timeout(),
+        Device::Galvo,
+        "STATUS",
+        galvo.status(),
+    )
+    .await
+}
+
+fn galvo_fault(message: String) -> StopCause {
+    StopCause::Fault {
+        device: Device::Galvo,
+        message,
+    }
+}
+
+/// After framing, for marking: the pointer off and the galvo's laser signals enabled again.
+pub async fn rearm(
+    cell: &mut Cell,
+    timeouts: &Timeouts,
+    cancel: &CancellationToken,
+) -> Result<(), StopCause> {
+    let settings = FrameSettings {
+        timeouts: *timeouts,
+        ..FrameSettings::new(OutlineKind::Hull)
+    };
+    let gt = settings.galvo_timeout();
+    Executor::guard(
+        cancel,
+        gt,
+        Device::Galvo,
+        "POINTER off",
+        cell.galvo.pointer(false),
+    )
+    .await?;
+    Executor::guard(
+        cancel,
+        gt,
+        Device::Galvo,
+        "LASER_SIGNALS on",
+        cell.galvo.laser_signals(true),
+    )
+    .await
+}
+
+/// The way down after a framing failure: the galvo stopped (its pointer and signals drop), the
+/// pointer off, the laser's emission off, motion stopped; each within the shutdown step, each
+/// tried whatever the others did.
+pub async fn lights_out(cell: &mut Cell, timeouts: &Timeouts) {
+    let step = timeouts.shutdown_step;
+    let (stop, laser) = tokio::join!(
+        tokio::time::timeout(step, cell.galvo.stop()),
+        tokio::time::timeout(step, cell.laser.emission(false)),
+    );
+    let pointer = tokio::time::timeout(step, cell.galvo.pointer(false)).await;
+    let abort = tokio::time::timeout(step + timeouts.cnc_reply, cell.cnc.abort()).await;
+    tracing::warn!(
+        galvo_stop = matches!(stop, Ok(Ok(Ok(())))),
+        pointer_off = matches!(pointer, Ok(Ok(Ok(())))),
+        emission_off = matches!(laser, Ok(Ok(Ok(())))),
+        cnc_abort = matches!(abort, Ok(Ok(Ok(())))),
+        "framing: way down"
+    );
+}
