@@ -8,7 +8,7 @@ use pyo3::types::PyDict;
 use trim_geom::PointCloud;
 use trim_plan::hatch::{HatchError, HatchSettings, hatch};
 use trim_plan::planner::{PlanSettings, plan_with_report};
-use trim_plan::{Beam, PlanError};
+use trim_plan::{Beam, LaserLimits, PlanError};
 use trim_register::regional::{RegisterSettings, register};
 use trim_synth::{SynthParams, generate};
 
@@ -31,6 +31,7 @@ fn settings_from_json<T: serde::de::DeserializeOwned>(what: &str, json: &str) ->
 fn plan_error(e: PlanError) -> PyErr {
     match e {
         PlanError::InvalidSetting { .. } => value_error("settings", e),
+        PlanError::OutsideLaserLimits { .. } => value_error("laser_limits", e),
         other => PlanningError::new_err(other.to_string()),
     }
 }
@@ -120,25 +121,49 @@ pub fn register_path<'py>(
     ))
 }
 
-/// The beam figures (the keys of `trimctl beam`) as JSON. `beam_json`: the `[beam]` keys.
+/// Refuses `beam`'s operating point when it is outside `limits_json` (a laser profile's
+/// `[limits]` keys: `pulse_energy_uj_max`, `average_power_w_max`, `rep_rate_khz_min`,
+/// `rep_rate_khz_max`) with a `ValueError` naming every limit broken; nothing to check without
+/// limits.
+fn check_laser_limits(beam: &Beam, limits_json: Option<&str>) -> PyResult<()> {
+    let Some(json) = limits_json else {
+        return Ok(());
+    };
+    let limits: LaserLimits = settings_from_json("laser_limits", json)?;
+    limits
+        .validate()
+        .map_err(|e| value_error("laser_limits", e))?;
+    beam.check_limits(&limits, "laser_limits")
+        .map_err(plan_error)
+}
+
+/// The beam figures (the keys of `trimctl beam`) as JSON. `beam_json`: the `[beam]` keys;
+/// `limits_json`: the source's limits (a laser profile's `[limits]` keys), which the operating
+/// point must be within.
 #[pyfunction]
-pub fn beam_report(beam_json: &str) -> PyResult<String> {
+#[pyo3(signature = (beam_json, limits_json = None))]
+pub fn beam_report(beam_json: &str, limits_json: Option<&str>) -> PyResult<String> {
     let beam: Beam = settings_from_json("beam", beam_json)?;
     beam.validate().map_err(plan_error)?;
+    check_laser_limits(&beam, limits_json)?;
     serde_json::to_string(&beam.report()).map_err(|e| value_error("beam", e))
 }
 
 /// Plans a job from a registered path. `settings_json`: the planner's job.toml keys
 /// (`max_incidence_deg`, `beam`, `zoning`, `layers`, `field`, `machine`, `galvo`). Returns
-/// `(job JSON, zone table JSON, {"k": .., "automatic_k": ..})` as JSON strings.
+/// `(job JSON, zone table JSON, {"k": .., "automatic_k": ..})` as JSON strings. `limits_json`:
+/// as for [`beam_report`], checked against the settings' beam before planning.
 #[pyfunction]
+#[pyo3(signature = (path, settings_json, limits_json = None))]
 pub fn plan_path(
     py: Python<'_>,
     path: PyPath,
     settings_json: &str,
+    limits_json: Option<&str>,
 ) -> PyResult<(String, String, String)> {
     let settings: PlanSettings = settings_from_json("plan settings", settings_json)?;
     settings.validate().map_err(plan_error)?;
+    check_laser_limits(&settings.beam, limits_json)?;
     let out =
         run_detached(py, move || plan_with_report(&path.inner, &settings))?.map_err(plan_error)?;
     let job = out.job.to_json().map_err(|e| value_error("job", e))?;

@@ -48,11 +48,24 @@ class Beam:
     ``trimctl beam``: ``pulse_energy_uj``, ``waist_radius_um``, ``rayleigh_length_mm``,
     ``peak_fluence_j_per_cm2``, ``focus_half_length_mm``, ``spot_ratio_min``,
     ``spot_ratio_max``, ``max_incidence_for_line_width_deg``.
+
+    ``laser_limits``: the source's limits, the ``[limits]`` keys of a laser profile
+    (``crates/io/profiles/``: ``pulse_energy_uj_max``, ``average_power_w_max``,
+    ``rep_rate_khz_min``, ``rep_rate_khz_max``). An operating point (``power_w``,
+    ``repetition_rate_hz``, their pulse energy) outside them raises ``ValueError`` naming every
+    limit broken, as ``trimctl beam`` does for ``cell.laser_profile``. Not given: not checked.
     """
 
-    def __init__(self, **settings: float) -> None:
+    def __init__(
+        self, *, laser_limits: Optional[Mapping[str, float]] = None, **settings: float
+    ) -> None:
         self.settings: Dict[str, float] = dict(settings)
-        self._report: Dict[str, float] = json.loads(_native.beam_report(json.dumps(settings)))
+        self.laser_limits: Optional[Dict[str, float]] = (
+            None if laser_limits is None else dict(laser_limits)
+        )
+        self._report: Dict[str, float] = json.loads(
+            _native.beam_report(json.dumps(settings), _limits_json(self.laser_limits))
+        )
         for key, value in self._report.items():
             setattr(self, key, value)
 
@@ -177,10 +190,15 @@ class Plan:
         return cls(job=job)
 
 
+def _limits_json(laser_limits: Optional[Mapping[str, float]]) -> Optional[str]:
+    return None if laser_limits is None else json.dumps(dict(laser_limits))
+
+
 def plan(
     path: Path,
     *,
     beam: Optional[Beam] = None,
+    laser_limits: Optional[Mapping[str, float]] = None,
     max_incidence_deg: Optional[float] = None,
     layer_step: Optional[float] = None,
     field: Optional[Sequence[float]] = None,
@@ -196,7 +214,9 @@ def plan(
     ``layers.step_mm``; ``field`` → ``galvo.field_mm``; ``kinematics`` →
     ``machine.kinematics``; ``k`` → ``zoning.k``); one that is not given leaves the key to
     ``settings``, else to the job.toml default (5°, 100 × 100 mm, ``xyzac-trt``).
-    ``settings`` itself is not changed.
+    ``settings`` itself is not changed. ``laser_limits`` (as for :class:`Beam`; default: those
+    ``beam`` was made with): the beam's operating point must be within them, else
+    ``ValueError`` before anything is planned.
     """
     s = _kw(settings, max_incidence_deg=max_incidence_deg)
     if beam is not None:
@@ -209,7 +229,9 @@ def plan(
         s.setdefault("galvo", {})["field_mm"] = [float(field[0]), float(field[1])]
     if kinematics is not None:
         s.setdefault("machine", {})["kinematics"] = kinematics
-    job, table, meta = _native.plan_path(path, json.dumps(s))
+    if laser_limits is None and beam is not None:
+        laser_limits = beam.laser_limits
+    job, table, meta = _native.plan_path(path, json.dumps(s), _limits_json(laser_limits))
     m = json.loads(meta)
     return Plan(job=json.loads(job), table=json.loads(table), k=m["k"], automatic_k=m["automatic_k"])
 
