@@ -350,6 +350,10 @@ pub struct TimeEstimate {
     /// Of `motion_s`: settling after each move (`machine.settle_s` per move).
     #[serde(default)]
     pub settle_s: f64,
+    /// What `[timing]` adds beyond moves and the commanded list model: per-layer and per-list
+    /// overheads, the delays' excess (0 without `[timing]`).
+    #[serde(default)]
+    pub overhead_s: f64,
     /// The fraction of `total_s` the laser marks (`marking_s / total_s`; 0 for an empty job).
     #[serde(default)]
     pub laser_on_fraction: f64,

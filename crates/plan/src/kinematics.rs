@@ -148,6 +148,29 @@ pub struct MachineSettings {
     pub rotary_speed_deg_per_s: f64,
     /// Time to settle in position after each move (s).
     pub settle_s: f64,
+    /// How the time estimate times a move: "joints" (the slowest joint at the speeds above, no
+    /// acceleration) or "coordinated" (LinuxCNC's G0 in the commanded axes: all axes start and
+    /// stop together, the path speed and acceleration limited by every axis's, a trapezoidal
+    /// profile). `trimctl calibrate timing` fits "coordinated".
+    pub move_model: MoveModel,
+    /// Linear axis acceleration for the "coordinated" move model (mm/s²).
+    pub linear_accel_mm_per_s2: f64,
+    /// Rotary axis acceleration for the "coordinated" move model (degrees/s²).
+    pub rotary_accel_deg_per_s2: f64,
+}
+
+/// How the time estimate times a machine move ([`move_time_s`]).
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum MoveModel {
+    /// The slowest joint at its speed (joint distances, no acceleration).
+    #[default]
+    Joints,
+    /// A coordinated move in the commanded axes with a trapezoidal speed profile, as LinuxCNC
+    /// plans a G0 (emccanon's straight-move velocity and acceleration limits).
+    Coordinated,
 }
 
 impl Default for MachineSettings {
@@ -170,6 +193,10 @@ impl Default for MachineSettings {
             linear_speed_mm_per_s: 20.0,
             rotary_speed_deg_per_s: 30.0,
             settle_s: 0.1,
+            move_model: MoveModel::Joints,
+            // The sim config's MAX_ACCELERATION (xyzac-trt.ini: 300 for every axis).
+            linear_accel_mm_per_s2: 300.0,
+            rotary_accel_deg_per_s2: 300.0,
         }
     }
 }
@@ -222,6 +249,14 @@ impl MachineSettings {
         require_positive(
             "machine.rotary_speed_deg_per_s",
             self.rotary_speed_deg_per_s,
+        )?;
+        require_positive(
+            "machine.linear_accel_mm_per_s2",
+            self.linear_accel_mm_per_s2,
+        )?;
+        require_positive(
+            "machine.rotary_accel_deg_per_s2",
+            self.rotary_accel_deg_per_s2,
         )?;
         Ok(())
     }
@@ -574,20 +609,65 @@ pub fn choose_pose(
     })
 }
 
-/// The time (s) to move between two poses: the slowest joint at its speed, plus settling.
+/// The time (s) to move between two poses, settling included (0 when nothing moves), by
+/// `m.move_model`: [`MoveModel::Joints`] the slowest joint at its speed;
+/// [`MoveModel::Coordinated`] [`coordinated_move_s`].
 #[must_use]
 pub fn move_time_s(m: &MachineSettings, from: &AxisPose, to: &AxisPose) -> f64 {
-    let (ja, jb) = (joints_of(m, from), joints_of(m, to));
-    let linear = (jb - ja).amax() / m.linear_speed_mm_per_s;
-    let rotary = (from.tilt_deg - to.tilt_deg)
-        .abs()
-        .max((from.rotary_deg - to.rotary_deg).abs())
-        / m.rotary_speed_deg_per_s;
-    let moving = linear.max(rotary);
+    let moving = match m.move_model {
+        MoveModel::Joints => {
+            let (ja, jb) = (joints_of(m, from), joints_of(m, to));
+            let linear = (jb - ja).amax() / m.linear_speed_mm_per_s;
+            let rotary = (from.tilt_deg - to.tilt_deg)
+                .abs()
+                .max((from.rotary_deg - to.rotary_deg).abs())
+                / m.rotary_speed_deg_per_s;
+            linear.max(rotary)
+        }
+        MoveModel::Coordinated => coordinated_move_s(m, from, to),
+    };
     if moving > 0.0 {
         moving + m.settle_s
     } else {
         0.0
+    }
+}
+
+/// The time (s) of a coordinated straight move in the commanded axes, without settling: as
+/// LinuxCNC's emccanon limits a G0, the slowest axis decides both the path speed
+/// (`t_v = max_i |Δ_i|/v_i`) and the path acceleration (`t_a = max_i |Δ_i|/a_i`, s²), every
+/// axis moving together; a trapezoidal profile over the path then takes `t_v + t_a/t_v`, or
+/// `2·√t_a` when the move is too short to reach the speed (`t_v² < t_a`). Axis values as
+/// commanded (world X/Y/Z with TCP kinematics, which LinuxCNC plans in).
+#[must_use]
+pub fn coordinated_move_s(m: &MachineSettings, from: &AxisPose, to: &AxisPose) -> f64 {
+    let linear = (0..3).map(|i| (to.linear_mm[i] - from.linear_mm[i]).abs());
+    let rotary = [
+        (to.tilt_deg - from.tilt_deg).abs(),
+        (to.rotary_deg - from.rotary_deg).abs(),
+    ];
+    let (mut t_v, mut t_a) = (0.0_f64, 0.0_f64);
+    for d in linear {
+        t_v = t_v.max(d / m.linear_speed_mm_per_s);
+        t_a = t_a.max(d / m.linear_accel_mm_per_s2);
+    }
+    for d in rotary {
+        t_v = t_v.max(d / m.rotary_speed_deg_per_s);
+        t_a = t_a.max(d / m.rotary_accel_deg_per_s2);
+    }
+    trapezoid_s(t_v, t_a)
+}
+
+/// A trapezoidal (or, short of the speed, triangular) profile's duration from its speed-limited
+/// time `t_v` (s) and acceleration term `t_a` (distance over acceleration, s²).
+#[must_use]
+pub fn trapezoid_s(t_v: f64, t_a: f64) -> f64 {
+    if t_v <= 0.0 {
+        0.0
+    } else if t_v * t_v >= t_a {
+        t_v + t_a / t_v
+    } else {
+        2.0 * t_a.sqrt()
     }
 }
 
@@ -693,5 +773,38 @@ mod tests {
         let cands = inverse(&m, &Point3::origin(), &down, 0.0);
         let e = choose_pose(&m, &cands, &AxisPose::HOME).unwrap_err();
         assert!(e.contains('A'), "{e}");
+    }
+
+    #[test]
+    fn coordinated_move_is_limited_by_the_slowest_axis_with_a_trapezoid() {
+        let m = MachineSettings {
+            move_model: MoveModel::Coordinated,
+            settle_s: 0.0,
+            ..MachineSettings::default()
+        };
+        // LINUXCNC.md §5's G0 X10 Y20 Z-5 A15 C30 from home: Y and C need 1 s at speed, C's
+        // 30° at 300°/s² adds t_a/t_v = 0.1 s.
+        let to = AxisPose {
+            linear_mm: [10.0, 20.0, -5.0],
+            tilt_deg: 15.0,
+            rotary_deg: 30.0,
+        };
+        assert!((move_time_s(&m, &AxisPose::HOME, &to) - 1.1).abs() < 1e-12);
+        // A 0.6 mm layer step never reaches 20 mm/s at 300 mm/s²: 2·√(0.6/300).
+        let step = AxisPose {
+            linear_mm: [0.0, 0.0, 0.6],
+            ..AxisPose::HOME
+        };
+        let t = move_time_s(&m, &AxisPose::HOME, &step);
+        assert!((t - 2.0 * (0.6_f64 / 300.0).sqrt()).abs() < 1e-12, "{t}");
+        // Continuous where the profile turns from triangle to trapezoid (t_v² = t_a).
+        assert!((trapezoid_s(0.1, 0.01 - 1e-12) - trapezoid_s(0.1, 0.01 + 1e-12)).abs() < 1e-9);
+        // Settling is added to a move, not to standing still.
+        let settled = MachineSettings {
+            settle_s: 0.25,
+            ..m
+        };
+        assert!((move_time_s(&settled, &AxisPose::HOME, &to) - 1.35).abs() < 1e-12);
+        assert_eq!(move_time_s(&settled, &to, &to), 0.0);
     }
 }

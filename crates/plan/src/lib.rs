@@ -14,6 +14,7 @@
 //! - [`order`]: zone ordering (nearest neighbour + 2-opt).
 //! - [`planner`]: [`plan`], validation and the time estimate.
 //! - [`svg`]: SVG plots of a job.
+//! - [`timing`]: the cycle-time model beyond moves: list composition, `[timing]` terms.
 //! - [`job`]: the Job model, the planner's output.
 //! - [`error`]: the error type, [`PlanError`].
 
@@ -32,13 +33,15 @@ pub mod order;
 pub mod piece;
 pub mod planner;
 pub mod svg;
+pub mod timing;
 pub mod zoning;
 
 pub use beam::{Beam, BeamReport, LaserLimits};
 pub use error::PlanError;
 pub use field::LensSettings;
 pub use job::{Frame, GalvoSettings, Job, JobSettings, Layer, LayerKey, Polyline, Pose, Zone};
-pub use kinematics::{AxisPose, KinematicsKind, MachineSettings, PoseMode};
+pub use kinematics::{AxisPose, KinematicsKind, MachineSettings, MoveModel, PoseMode};
 pub use layer::LayerSettings;
 pub use planner::{PlanOutput, PlanSettings, ZoneRow, plan, plan_with_report};
+pub use timing::{ListComposition, TimingSettings};
 pub use zoning::{ZoningMethod, ZoningSettings};

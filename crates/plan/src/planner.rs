@@ -45,6 +45,7 @@ use crate::kinematics::{
 use crate::layer::{LayerSettings, ZoneLayers, layer_pieces, project};
 use crate::lens::{FieldCorrection, LensModel};
 use crate::piece::{Piece, angle_rad, pieces_of};
+use crate::timing::{ListComposition, TimingSettings};
 use crate::zoning::{ZoneGroup, Zoning, ZoningMethod, ZoningSettings, make_group, zone_pieces};
 
 /// The round-trip tolerance (mm): 1 µm.
@@ -84,6 +85,8 @@ pub struct PlanSettings {
     pub galvo: GalvoSettings,
     /// The cell as calibrated: rotary axis lines, scanner pose, field correction, lens pivot.
     pub calibration: Calibration,
+    /// What the cell adds to the commanded time model (fitted by `trimctl calibrate timing`).
+    pub timing: TimingSettings,
 }
 
 impl Default for PlanSettings {
@@ -97,6 +100,7 @@ impl Default for PlanSettings {
             machine: MachineSettings::default(),
             galvo: GalvoSettings::default(),
             calibration: Calibration::default(),
+            timing: TimingSettings::default(),
         }
     }
 }
@@ -107,6 +111,7 @@ impl PlanSettings {
         require_open_closed("max_incidence_deg", self.max_incidence_deg, 0.0, 45.0)?;
         self.beam.validate()?;
         self.zoning.validate()?;
+        self.timing.validate()?;
         self.layers.validate()?;
         self.field.validate(self.max_incidence_deg)?;
         self.machine.validate()?;
@@ -471,7 +476,9 @@ fn finish_plan(
             if motion_s > 0.0 {
                 estimate.settle_s += machine.settle_s;
             }
-            zone_s += marking_s + jumping_s + motion_s;
+            let overhead_s = settings.timing.extra_s(&ListComposition::of(&polylines));
+            estimate.overhead_s += overhead_s;
+            zone_s += marking_s + jumping_s + motion_s + overhead_s;
             previous = *pose;
             layers.push(Layer {
                 index,
@@ -526,7 +533,8 @@ fn finish_plan(
         zones.push(zone);
         traces.push(zone_traces);
     }
-    estimate.total_s = estimate.marking_s + estimate.jumping_s + estimate.motion_s;
+    estimate.total_s =
+        estimate.marking_s + estimate.jumping_s + estimate.motion_s + estimate.overhead_s;
     if estimate.total_s > 0.0 {
         estimate.laser_on_fraction = estimate.marking_s / estimate.total_s;
     }

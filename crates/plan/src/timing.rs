@@ -1,0 +1,194 @@
+//! The cycle-time model beyond the machine's moves (DESIGN.md "Estimates learned from runs"):
+//! what a layer's galvo list takes ([`ListComposition`], [`list_time_s`]) and the terms a real
+//! cell adds to the commanded speeds and delays (job.toml `[timing]`, [`TimingSettings`]).
+//!
+//! A layer's estimate is `move (+ settle) + list + layer overhead`: the move by
+//! [`crate::kinematics::move_time_s`] (job.toml `[machine]`), the list by the galvo's own model of
+//! its speeds and delays (`[galvo]`, docs/protocols/galvo.md §6) plus the `[timing]` terms. The
+//! `[galvo]` delays are commands the controller is sent, so a fit never changes them: it learns
+//! what a list takes beyond them (`trimctl calibrate timing`).
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::PlanError;
+use crate::job::{GalvoSettings, Polyline};
+
+/// Seconds per microsecond.
+const S_PER_US: f64 = 1e-6;
+
+/// The time a real cell adds to the commanded model (job.toml `[timing]`); all 0 by default,
+/// which is the commanded model alone. Written by `trimctl calibrate timing`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct TimingSettings {
+    /// Per layer, outside the move and the list: emission on and off, EXECUTE, journal (s).
+    pub layer_overhead_s: f64,
+    /// Per galvo list, beyond its speeds and delays: EXECUTE to done seen (s; a fit may make
+    /// it slightly negative when the per-polyline term carries the latency).
+    pub list_overhead_s: f64,
+    /// Per polyline (one jump and one mark run), beyond the jump, laser on/off and mark
+    /// delays (s; negative when the controller is quicker than commanded).
+    pub polyline_overhead_s: f64,
+    /// Per inner vertex of a mark run, beyond the polygon delay (s; may be negative).
+    pub vertex_overhead_s: f64,
+}
+
+impl TimingSettings {
+    /// Refuses non-finite values and a negative per-layer overhead, naming the key.
+    pub fn validate(&self) -> Result<(), PlanError> {
+        for (key, v, non_negative) in [
+            ("timing.layer_overhead_s", self.layer_overhead_s, true),
+            ("timing.list_overhead_s", self.list_overhead_s, false),
+            (
+                "timing.polyline_overhead_s",
+                self.polyline_overhead_s,
+                false,
+            ),
+            ("timing.vertex_overhead_s", self.vertex_overhead_s, false),
+        ] {
+            if !v.is_finite() || (non_negative && v < 0.0) {
+                return Err(PlanError::setting(
+                    key,
+                    v,
+                    if non_negative {
+                        "must be a finite number ≥ 0"
+                    } else {
+                        "must be finite"
+                    },
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// What a layer whose list is `list` adds beyond its move and the commanded list model (s).
+    #[must_use]
+    pub fn extra_s(&self, list: &ListComposition) -> f64 {
+        self.layer_overhead_s
+            + self.list_overhead_s
+            + self.polyline_overhead_s * list.mark_runs as f64
+            + self.vertex_overhead_s * list.vertices as f64
+    }
+}
+
+/// What a layer's list time depends on: the galvo commands of its polylines (mm, after the
+/// lens model), marked from the field centre, each polyline a jump to its start and one mark
+/// run (as [`GalvoSettings::polylines_time_s`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct ListComposition {
+    /// Polylines (each with at least one point): one jump each.
+    pub jumps: usize,
+    /// Jump length, from the field centre and from each polyline's end to the next start (mm).
+    pub jump_mm: f64,
+    /// Polylines with at least one vector: one mark run each.
+    pub mark_runs: usize,
+    /// Vectors marked (segments).
+    pub vectors: usize,
+    /// Inner vertices of the mark runs (vectors − mark runs): one polygon delay each.
+    pub vertices: usize,
+    /// Marked length (mm).
+    pub mark_mm: f64,
+}
+
+impl ListComposition {
+    /// The composition of a layer's polylines.
+    #[must_use]
+    pub fn of(polylines: &[Polyline]) -> ListComposition {
+        let mut c = ListComposition::default();
+        let mut pos = [0.0_f64, 0.0_f64];
+        for pl in polylines {
+            let sent = pl.galvo_commands();
+            let (Some(first), Some(last)) = (sent.first(), sent.last()) else {
+                continue;
+            };
+            c.jumps += 1;
+            c.jump_mm += (first[0] - pos[0]).hypot(first[1] - pos[1]);
+            let segments = sent.len() - 1;
+            if segments > 0 {
+                c.mark_runs += 1;
+                c.vectors += segments;
+                c.vertices += segments - 1;
+                c.mark_mm += sent
+                    .windows(2)
+                    .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
+                    .sum::<f64>();
+            }
+            pos = *last;
+        }
+        c
+    }
+
+    /// The commanded model's time of the list (s): lengths at the commanded speeds plus the
+    /// commanded delays, as [`GalvoSettings::polylines_time_s`] (marking + jumping).
+    #[must_use]
+    pub fn commanded_s(&self, galvo: &GalvoSettings) -> f64 {
+        self.jump_mm / galvo.jump_speed_mm_per_s
+            + self.mark_mm / galvo.mark_speed_mm_per_s
+            + (self.jumps as f64 * galvo.jump_delay_us
+                + self.mark_runs as f64
+                    * (galvo.laser_on_delay_us + galvo.laser_off_delay_us + galvo.mark_delay_us)
+                + self.vertices as f64 * galvo.polygon_delay_us)
+                * S_PER_US
+    }
+}
+
+/// The estimated time of a layer's list (s): the commanded model plus the `[timing]` list
+/// terms (not the per-layer overhead).
+#[must_use]
+pub fn list_time_s(galvo: &GalvoSettings, timing: &TimingSettings, list: &ListComposition) -> f64 {
+    list.commanded_s(galvo)
+        + timing.list_overhead_s
+        + timing.polyline_overhead_s * list.mark_runs as f64
+        + timing.vertex_overhead_s * list.vertices as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn composition_reproduces_the_galvo_model() {
+        let galvo = GalvoSettings::default();
+        let polylines = [
+            Polyline::from_points(1, vec![[3.0, 4.0], [4.0, 4.0], [4.0, 5.0]]),
+            Polyline::from_points(2, vec![[-1.0, 0.0]]),
+            Polyline::from_points(3, vec![[0.0, 0.0], [0.0, 2.0]]),
+        ];
+        let c = ListComposition::of(&polylines);
+        assert_eq!((c.jumps, c.mark_runs, c.vectors, c.vertices), (3, 2, 3, 1));
+        assert!((c.mark_mm - 4.0).abs() < 1e-12);
+        assert!((c.jump_mm - (5.0 + 50.0_f64.sqrt() + 1.0)).abs() < 1e-12);
+        let (marking_s, jumping_s) = galvo.polylines_time_s(&polylines);
+        assert!((c.commanded_s(&galvo) - (marking_s + jumping_s)).abs() < 1e-15);
+        let timing = TimingSettings {
+            layer_overhead_s: 1.0,
+            list_overhead_s: 0.01,
+            polyline_overhead_s: 0.001,
+            vertex_overhead_s: 0.0001,
+        };
+        let extra = list_time_s(&galvo, &timing, &c) - c.commanded_s(&galvo);
+        assert!((extra - (0.01 + 0.002 + 0.0001)).abs() < 1e-15);
+        assert!((timing.extra_s(&c) - (1.0 + extra)).abs() < 1e-15);
+        assert!(TimingSettings::default().validate().is_ok());
+        let bad = TimingSettings {
+            layer_overhead_s: -0.1,
+            ..TimingSettings::default()
+        };
+        assert!(
+            bad.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("layer_overhead_s")
+        );
+        let bad = TimingSettings {
+            vertex_overhead_s: f64::NAN,
+            ..TimingSettings::default()
+        };
+        assert!(
+            bad.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("vertex_overhead_s")
+        );
+    }
+}
