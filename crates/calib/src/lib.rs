@@ -5,6 +5,7 @@
 //!   sphere's table position from sphere scans at many machine poses, in one nonlinear least
 //!   squares problem.
 //! - [`field`]: `trimctl calibrate field`: the galvo field correction from a marked grid.
+//! - [`timing`]: `trimctl calibrate timing`: the move model and the list terms from recorded runs.
 //! - [`error`]: the error type, [`CalibError`].
 
 pub mod artefact;
@@ -12,5 +13,6 @@ pub mod cell;
 pub mod error;
 pub mod field;
 pub mod sphere;
+pub mod timing;
 
 pub use error::CalibError;

@@ -1,0 +1,564 @@
+//! The cycle-time model fitted from recorded runs (`trimctl calibrate timing`; DESIGN.md
+//! "Estimates learned from runs").
+//!
+//! - *Moves* ([`fit_moves`]): the coordinated move of [`trim_plan::kinematics::coordinated_move_s`]
+//!   (LinuxCNC's G0: the slowest axis limits the path speed and acceleration, trapezoidal
+//!   profile) plus a settle time, over the recorded moves (from/to axis values, measured move
+//!   command → in position). Parameters: linear and rotary speed and acceleration (log scale,
+//!   so they stay positive) and the settle time; Levenberg–Marquardt with a central-difference
+//!   Jacobian. A parameter no sample moves (no rotary motion, say) keeps its start value and is
+//!   named in [`MoveFit::not_determined`]. Standard deviations: σ̂²(JᵀJ)⁻¹.
+//! - *Lists* ([`fit_lists`]): `measured − commanded model = c + p·mark_runs + v·vertices`, linear
+//!   least squares (the commanded delays are what the controller is sent and stay as they are;
+//!   c, p and v are the `[timing]` list terms). A term the lists cannot tell apart from the others
+//!   (collinear columns) is left at 0 and named.
+//! - *Per-layer overhead*: the median of the measured overheads.
+
+use nalgebra::{DMatrix, DVector};
+use trim_plan::GalvoSettings;
+use trim_plan::kinematics::{AxisPose, MachineSettings, MoveModel, move_time_s};
+use trim_plan::timing::{ListComposition, TimingSettings};
+
+use crate::CalibError;
+
+/// Fewer recorded moves than this are refused.
+pub const MIN_MOVES: usize = 6;
+/// Fewer recorded lists than this are refused.
+pub const MIN_LISTS: usize = 3;
+/// Start factors of the speeds and of the accelerations (each pair of them is one start).
+const START_FACTORS: [f64; 3] = [0.6, 1.0, 1.7];
+/// Levenberg–Marquardt iterations at most.
+const MAX_ITERATIONS: usize = 200;
+/// A parameter whose Jacobian column is below this fraction of the largest is not determined.
+const DETERMINED_FRACTION: f64 = 1e-6;
+/// A list term is kept when the normalised design matrix's smallest singular value is above
+/// this fraction of its largest.
+const LIST_CONDITION: f64 = 1e-6;
+
+/// The move-model parameters, in fit order.
+pub const MOVE_PARAMETERS: [&str; 5] = [
+    "linear_speed_mm_per_s",
+    "rotary_speed_deg_per_s",
+    "linear_accel_mm_per_s2",
+    "rotary_accel_deg_per_s2",
+    "settle_s",
+];
+
+/// One recorded move.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MoveSample {
+    /// Where the machine was (commanded axis values).
+    pub from: AxisPose,
+    /// Where it went.
+    pub to: AxisPose,
+    /// Measured: move command to in position (s).
+    pub measured_s: f64,
+}
+
+/// The fitted move model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MoveFit {
+    /// The start settings with the fitted speeds, accelerations, settle time and
+    /// `move_model = "coordinated"`.
+    pub machine: MachineSettings,
+    /// Each parameter's standard deviation (units of [`MOVE_PARAMETERS`]; NaN when not
+    /// determined).
+    pub sigma: [f64; 5],
+    /// Parameters the moves do not determine (kept at their start values).
+    pub not_determined: Vec<&'static str>,
+    /// Moves fitted.
+    pub samples: usize,
+    /// RMS of estimate − measured with the start settings (s).
+    pub rms_before_s: f64,
+    /// RMS of estimate − measured with the fit (s).
+    pub rms_after_s: f64,
+    /// Levenberg–Marquardt iterations.
+    pub iterations: usize,
+}
+
+fn with_parameters(start: &MachineSettings, x: &[f64]) -> MachineSettings {
+    MachineSettings {
+        move_model: MoveModel::Coordinated,
+        linear_speed_mm_per_s: x[0].exp(),
+        rotary_speed_deg_per_s: x[1].exp(),
+        linear_accel_mm_per_s2: x[2].exp(),
+        rotary_accel_deg_per_s2: x[3].exp(),
+        settle_s: x[4],
+        ..*start
+    }
+}
+
+fn move_residuals(start: &MachineSettings, x: &[f64], samples: &[MoveSample]) -> DVector<f64> {
+    let m = with_parameters(start, x);
+    DVector::from_iterator(
+        samples.len(),
+        samples
+            .iter()
+            .map(|s| move_time_s(&m, &s.from, &s.to) - s.measured_s),
+    )
+}
+
+fn rms(r: &DVector<f64>) -> f64 {
+    if r.is_empty() {
+        0.0
+    } else {
+        (r.norm_squared() / r.len() as f64).sqrt()
+    }
+}
+
+/// Fits the coordinated move model and the settle time to recorded moves, starting from
+/// `start` (the settings the runs were planned with). Moves that do not move are left out.
+pub fn fit_moves(start: &MachineSettings, samples: &[MoveSample]) -> Result<MoveFit, CalibError> {
+    for (key, v) in [
+        ("linear_speed_mm_per_s", start.linear_speed_mm_per_s),
+        ("rotary_speed_deg_per_s", start.rotary_speed_deg_per_s),
+        ("linear_accel_mm_per_s2", start.linear_accel_mm_per_s2),
+        ("rotary_accel_deg_per_s2", start.rotary_accel_deg_per_s2),
+    ] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(CalibError::Invalid {
+                key: format!("machine.{key}"),
+                message: format!("the start value must be a finite number > 0, got {v}"),
+            });
+        }
+    }
+    let samples: Vec<MoveSample> = samples
+        .iter()
+        .copied()
+        .filter(|s| s.measured_s.is_finite() && s.from != s.to)
+        .collect();
+    if samples.len() < MIN_MOVES {
+        return Err(CalibError::TooFew {
+            what: "recorded moves (with a known start pose)".into(),
+            needed: MIN_MOVES,
+            got: samples.len(),
+        });
+    }
+    let rms_before_s = rms(&DVector::from_iterator(
+        samples.len(),
+        samples
+            .iter()
+            .map(|s| move_time_s(start, &s.from, &s.to) - s.measured_s),
+    ));
+    let x0 = [
+        start.linear_speed_mm_per_s.ln(),
+        start.rotary_speed_deg_per_s.ln(),
+        start.linear_accel_mm_per_s2.ln(),
+        start.rotary_accel_deg_per_s2.ln(),
+        start.settle_s,
+    ];
+    let all: Vec<usize> = (0..5).collect();
+    let residuals = |x: &[f64]| move_residuals(start, x, &samples);
+    // Which parameters the moves determine, at the start (a parameter no move depends on,
+    // anywhere near the start, has a zero column).
+    let j0 = jacobian(&x0, &all, samples.len(), &residuals);
+    let norms: Vec<f64> = (0..5).map(|k| j0.column(k).norm()).collect();
+    let largest = norms.iter().copied().fold(0.0, f64::max);
+    let free: Vec<usize> = (0..5)
+        .filter(|&k| norms[k] > DETERMINED_FRACTION * largest)
+        .collect();
+    let not_determined: Vec<&'static str> = (0..5)
+        .filter(|k| !free.contains(k))
+        .map(|k| MOVE_PARAMETERS[k])
+        .collect();
+    // The slowest axis switches from move to move, so the cost has kinks: start from the
+    // given settings and from scaled copies of them, keep the best.
+    let mut best: Option<(Vec<f64>, DVector<f64>, f64, usize)> = None;
+    for speed_factor in START_FACTORS {
+        for accel_factor in START_FACTORS {
+            let mut x = x0.to_vec();
+            x[0] += speed_factor.ln();
+            x[1] += speed_factor.ln();
+            x[2] += accel_factor.ln();
+            x[3] += accel_factor.ln();
+            let found = levenberg_marquardt(x, &free, &residuals);
+            if best.as_ref().is_none_or(|b| found.2 < b.2) {
+                best = Some(found);
+            }
+        }
+    }
+    let Some((x, r, cost, iterations)) = best else {
+        unreachable!("START_FACTORS is not empty")
+    };
+    // What the moves do not determine stays exactly as it was.
+    let mut machine = with_parameters(start, &x);
+    for name in &not_determined {
+        match *name {
+            "linear_speed_mm_per_s" => machine.linear_speed_mm_per_s = start.linear_speed_mm_per_s,
+            "rotary_speed_deg_per_s" => {
+                machine.rotary_speed_deg_per_s = start.rotary_speed_deg_per_s;
+            }
+            "linear_accel_mm_per_s2" => {
+                machine.linear_accel_mm_per_s2 = start.linear_accel_mm_per_s2;
+            }
+            "rotary_accel_deg_per_s2" => {
+                machine.rotary_accel_deg_per_s2 = start.rotary_accel_deg_per_s2;
+            }
+            _ => machine.settle_s = start.settle_s,
+        }
+    }
+    if let Err(e) = machine.validate() {
+        return Err(CalibError::NotConverged {
+            what: "the move fit".into(),
+            detail: format!("it ended on invalid settings: {e}"),
+        });
+    }
+    // Standard deviations from the normal matrix at the solution, in the parameters' units
+    // (d value = value · d ln value for the log-scale ones).
+    let mut sigma = [f64::NAN; 5];
+    let dof = samples.len().saturating_sub(free.len()).max(1);
+    let s2 = cost / dof as f64;
+    let j = jacobian(&x, &free, samples.len(), &residuals);
+    if let Some(inv) = (j.transpose() * &j).try_inverse() {
+        for (i, &k) in free.iter().enumerate() {
+            let sd = (s2 * inv[(i, i)]).max(0.0).sqrt();
+            sigma[k] = if k < 4 { x[k].exp() * sd } else { sd };
+        }
+    }
+    Ok(MoveFit {
+        machine,
+        sigma,
+        not_determined,
+        samples: samples.len(),
+        rms_before_s,
+        rms_after_s: rms(&r),
+        iterations,
+    })
+}
+
+/// Levenberg–Marquardt over the parameters `free` of `x` (a central-difference Jacobian);
+/// returns the parameters, the residuals, the cost (Σr²) and the iterations.
+fn levenberg_marquardt(
+    mut x: Vec<f64>,
+    free: &[usize],
+    residuals: &dyn Fn(&[f64]) -> DVector<f64>,
+) -> (Vec<f64>, DVector<f64>, f64, usize) {
+    let mut r = residuals(&x);
+    let mut cost = r.norm_squared();
+    let mut mu = 1e-3;
+    let mut iterations = 0;
+    for it in 0..MAX_ITERATIONS {
+        iterations = it + 1;
+        let j = jacobian(&x, free, r.len(), residuals);
+        let jtj = j.transpose() * &j;
+        let g = j.transpose() * &r;
+        let mut improved = false;
+        let mut converged = false;
+        for _ in 0..30 {
+            let mut a = jtj.clone();
+            for k in 0..a.nrows() {
+                a[(k, k)] += mu * jtj[(k, k)].max(1e-12);
+            }
+            let Some(ch) = a.cholesky() else {
+                mu *= 10.0;
+                continue;
+            };
+            let step = ch.solve(&(-&g));
+            let mut xn = x.clone();
+            for (i, &k) in free.iter().enumerate() {
+                xn[k] += step[i];
+            }
+            let rn = residuals(&xn);
+            let cn = rn.norm_squared();
+            if cn.is_finite() && cn < cost {
+                converged = step.amax() < 1e-10 || (cost - cn) < 1e-12 * cost.max(1e-12);
+                x = xn;
+                r = rn;
+                cost = cn;
+                mu = (mu / 3.0).max(1e-12);
+                improved = true;
+                break;
+            }
+            mu *= 10.0;
+        }
+        if !improved || converged {
+            break;
+        }
+    }
+    (x, r, cost, iterations)
+}
+
+/// The Jacobian of `residuals` (n of them) over the parameters `free`, by central differences.
+fn jacobian(
+    x: &[f64],
+    free: &[usize],
+    n: usize,
+    residuals: &dyn Fn(&[f64]) -> DVector<f64>,
+) -> DMatrix<f64> {
+    let mut j = DMatrix::zeros(n, free.len());
+    for (i, &k) in free.iter().enumerate() {
+        let h = 1e-6 * (1.0 + x[k].abs());
+        let (mut xp, mut xm) = (x.to_vec(), x.to_vec());
+        xp[k] += h;
+        xm[k] -= h;
+        j.set_column(i, &((residuals(&xp) - residuals(&xm)) / (2.0 * h)));
+    }
+    j
+}
+
+/// One recorded galvo list.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ListSample {
+    /// The galvo settings the list was sent with (speeds and delays commanded).
+    pub galvo: GalvoSettings,
+    /// What the list held.
+    pub list: ListComposition,
+    /// Measured: `EXECUTE` to done seen (s).
+    pub measured_s: f64,
+}
+
+/// The fitted list terms.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ListFit {
+    /// `list_overhead_s`, `polyline_overhead_s`, `vertex_overhead_s` (s); `layer_overhead_s` 0.
+    pub timing: TimingSettings,
+    /// The terms the lists could not tell apart from the others (left at 0).
+    pub not_determined: Vec<&'static str>,
+    /// Lists fitted.
+    pub samples: usize,
+    /// RMS of the commanded model − measured (s).
+    pub rms_before_s: f64,
+    /// RMS with the fitted terms (s).
+    pub rms_after_s: f64,
+}
+
+/// Fits the `[timing]` list terms to recorded lists (linear least squares on what each list
+/// took beyond its commanded speeds and delays).
+pub fn fit_lists(samples: &[ListSample]) -> Result<ListFit, CalibError> {
+    let samples: Vec<&ListSample> = samples
+        .iter()
+        .filter(|s| s.measured_s.is_finite() && s.list.jumps > 0)
+        .collect();
+    if samples.len() < MIN_LISTS {
+        return Err(CalibError::TooFew {
+            what: "recorded galvo lists".into(),
+            needed: MIN_LISTS,
+            got: samples.len(),
+        });
+    }
+    let n = samples.len();
+    let excess = DVector::from_iterator(
+        n,
+        samples
+            .iter()
+            .map(|s| s.measured_s - s.list.commanded_s(&s.galvo)),
+    );
+    // The terms' names and their regressors: per list, per mark run, per inner vertex.
+    let names = ["list_overhead_s", "polyline_overhead_s", "vertex_overhead_s"];
+    let regressor = |s: &ListSample, k: usize| match k {
+        0 => 1.0,
+        1 => s.list.mark_runs as f64,
+        _ => s.list.vertices as f64,
+    };
+    // Keep the leading terms while the normalised design stays well conditioned.
+    let mut kept = names.len();
+    let solution = loop {
+        let a = DMatrix::from_fn(n, kept, |i, k| regressor(samples[i], k));
+        let scale: Vec<f64> = (0..kept)
+            .map(|k| a.column(k).norm().max(f64::MIN_POSITIVE))
+            .collect();
+        let an = DMatrix::from_fn(n, kept, |i, k| a[(i, k)] / scale[k]);
+        let svd = an.clone().svd(true, true);
+        let (lo, hi) = (svd.singular_values.min(), svd.singular_values.max());
+        if lo > LIST_CONDITION * hi || kept == 1 {
+            let y = svd
+                .solve(&excess, 0.0)
+                .map_err(|e| CalibError::Degenerate(format!("the list fit: {e}")))?;
+            break (0..kept).map(|k| y[k] / scale[k]).collect::<Vec<f64>>();
+        }
+        kept -= 1;
+    };
+    let mut terms = [0.0; 3];
+    terms[..kept].copy_from_slice(&solution);
+    let timing = TimingSettings {
+        layer_overhead_s: 0.0,
+        list_overhead_s: terms[0],
+        polyline_overhead_s: terms[1],
+        vertex_overhead_s: terms[2],
+    };
+    let after = DVector::from_iterator(
+        n,
+        samples.iter().enumerate().map(|(i, s)| {
+            excess[i]
+                - (timing.list_overhead_s
+                    + timing.polyline_overhead_s * s.list.mark_runs as f64
+                    + timing.vertex_overhead_s * s.list.vertices as f64)
+        }),
+    );
+    Ok(ListFit {
+        timing,
+        not_determined: names[kept..].to_vec(),
+        samples: n,
+        rms_before_s: rms(&excess),
+        rms_after_s: rms(&after),
+    })
+}
+
+/// The median of the measured per-layer overheads (s); 0 without any.
+#[must_use]
+pub fn median_s(values: &[f64]) -> f64 {
+    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    let m = v.len() / 2;
+    if v.len() % 2 == 1 {
+        v[m]
+    } else {
+        0.5 * (v[m - 1] + v[m])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::{Rng, SeedableRng};
+    use rand_xoshiro::Xoshiro256PlusPlus;
+
+    use super::*;
+
+    fn pose(rng: &mut Xoshiro256PlusPlus, scale: f64) -> AxisPose {
+        AxisPose {
+            linear_mm: [
+                rng.random_range(-scale..scale),
+                rng.random_range(-scale..scale),
+                rng.random_range(-scale..scale),
+            ],
+            tilt_deg: rng.random_range(-scale..scale),
+            rotary_deg: rng.random_range(-2.0 * scale..2.0 * scale),
+        }
+    }
+
+    #[test]
+    fn recovers_a_coordinated_move_model_from_noisy_moves() {
+        let truth = MachineSettings {
+            move_model: MoveModel::Coordinated,
+            linear_speed_mm_per_s: 17.0,
+            rotary_speed_deg_per_s: 41.0,
+            linear_accel_mm_per_s2: 140.0,
+            rotary_accel_deg_per_s2: 220.0,
+            settle_s: 0.15,
+            ..MachineSettings::default()
+        };
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
+        let mut samples = Vec::new();
+        let mut at = AxisPose::HOME;
+        for i in 0..80 {
+            // Long zone changes and short layer steps, as a job has.
+            let to = if i % 3 == 0 {
+                pose(&mut rng, 30.0)
+            } else {
+                AxisPose {
+                    linear_mm: [at.linear_mm[0], at.linear_mm[1], at.linear_mm[2] + 0.6],
+                    ..at
+                }
+            };
+            let noise = rng.random_range(-0.002..0.002);
+            samples.push(MoveSample {
+                from: at,
+                to,
+                measured_s: move_time_s(&truth, &at, &to) + noise,
+            });
+            at = to;
+        }
+        let fit = fit_moves(&MachineSettings::default(), &samples).expect("fit");
+        let m = fit.machine;
+        assert!((m.linear_speed_mm_per_s - 17.0).abs() < 0.2, "{m:?}");
+        assert!((m.rotary_speed_deg_per_s - 41.0).abs() < 0.5, "{m:?}");
+        assert!((m.linear_accel_mm_per_s2 - 140.0).abs() < 10.0, "{m:?}");
+        assert!((m.rotary_accel_deg_per_s2 - 220.0).abs() < 40.0, "{m:?}");
+        assert!((m.settle_s - 0.15).abs() < 0.005, "{m:?}");
+        assert!(fit.rms_after_s < 0.002, "{fit:?}");
+        assert!(fit.rms_before_s > 10.0 * fit.rms_after_s, "{fit:?}");
+        assert!(fit.not_determined.is_empty());
+        assert!(fit.sigma.iter().all(|s| s.is_finite()), "{fit:?}");
+    }
+
+    #[test]
+    fn an_axis_no_move_turns_is_named_and_kept() {
+        let truth = MachineSettings {
+            move_model: MoveModel::Coordinated,
+            linear_speed_mm_per_s: 12.0,
+            settle_s: 0.2,
+            ..MachineSettings::default()
+        };
+        let samples: Vec<MoveSample> = (1..10)
+            .map(|i| {
+                let to = AxisPose {
+                    linear_mm: [f64::from(i) * 3.0, 0.0, 0.0],
+                    ..AxisPose::HOME
+                };
+                MoveSample {
+                    from: AxisPose::HOME,
+                    to,
+                    measured_s: move_time_s(&truth, &AxisPose::HOME, &to),
+                }
+            })
+            .collect();
+        let start = MachineSettings::default();
+        let fit = fit_moves(&start, &samples).expect("fit");
+        assert!(fit.not_determined.contains(&"rotary_speed_deg_per_s"));
+        assert!(fit.not_determined.contains(&"rotary_accel_deg_per_s2"));
+        assert_eq!(
+            fit.machine.rotary_speed_deg_per_s,
+            start.rotary_speed_deg_per_s
+        );
+        assert!((fit.machine.linear_speed_mm_per_s - 12.0).abs() < 1e-3);
+        let too_few = fit_moves(&start, &samples[..3]).unwrap_err();
+        assert!(too_few.to_string().contains("need at least 6"), "{too_few}");
+    }
+
+    #[test]
+    fn recovers_list_terms_and_names_what_it_cannot_tell_apart() {
+        let galvo = GalvoSettings::default();
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
+        let samples: Vec<ListSample> = (0..30)
+            .map(|_| {
+                let runs = rng.random_range(1..40);
+                let vectors = runs + rng.random_range(0..400);
+                let list = ListComposition {
+                    jumps: runs,
+                    jump_mm: rng.random_range(1.0..200.0),
+                    mark_runs: runs,
+                    vectors,
+                    vertices: vectors - runs,
+                    mark_mm: rng.random_range(1.0..500.0),
+                };
+                let measured_s = list.commanded_s(&galvo)
+                    + 0.004
+                    + 30e-6 * runs as f64
+                    + 2e-6 * (vectors - runs) as f64;
+                ListSample {
+                    galvo,
+                    list,
+                    measured_s,
+                }
+            })
+            .collect();
+        let fit = fit_lists(&samples).expect("fit");
+        assert!((fit.timing.list_overhead_s - 0.004).abs() < 1e-9, "{fit:?}");
+        assert!((fit.timing.polyline_overhead_s - 30e-6).abs() < 1e-10);
+        assert!((fit.timing.vertex_overhead_s - 2e-6).abs() < 1e-11);
+        assert!(fit.rms_after_s < 1e-9 && fit.not_determined.is_empty());
+        // Every list one polyline of 5 vectors: only the per-list term is determined.
+        let same: Vec<ListSample> = samples
+            .iter()
+            .map(|s| ListSample {
+                list: ListComposition {
+                    mark_runs: 1,
+                    jumps: 1,
+                    vectors: 5,
+                    vertices: 4,
+                    ..s.list
+                },
+                ..*s
+            })
+            .collect();
+        let fit = fit_lists(&same).expect("fit");
+        assert_eq!(
+            fit.not_determined,
+            vec!["polyline_overhead_s", "vertex_overhead_s"]
+        );
+        assert!((median_s(&[3.0, 1.0, 2.0, 10.0]) - 2.5).abs() < 1e-15);
+    }
+}
