@@ -16,7 +16,7 @@ use trim_plan::hatch::HatchSettings;
 use trim_plan::kinematics::MachineSettings;
 use trim_plan::layer::LayerSettings;
 use trim_plan::planner::PlanSettings;
-use trim_plan::{Beam, GalvoSettings, ZoningSettings};
+use trim_plan::{Beam, GalvoSettings, TimingSettings, ZoningSettings};
 use trim_register::regional::RegisterSettings;
 
 /// A whole job: part files, registration, planning (incidence limit, beam, zoning, layers, lens
@@ -44,6 +44,10 @@ pub struct JobConfig {
     pub machine: MachineSettings,
     /// Galvo field, calibration, speeds and delays.
     pub galvo: GalvoSettings,
+    /// What the cell adds to the commanded cycle-time model, learned from recorded runs by
+    /// `trimctl calibrate timing` (which also writes the [machine] move keys). 0: the commanded
+    /// speeds and delays alone.
+    pub timing: TimingSettings,
     /// The cell as measured by `trimctl calibrate cell` / `calibrate field` (docs/DESIGN.md "Frames
     /// and the calibration chain"). A missing key is the nominal value of [machine] (axis lines),
     /// the identity (scanner) or none (field correction).
@@ -128,6 +132,7 @@ impl Default for JobConfig {
             field: plan.field,
             machine: plan.machine,
             galvo: plan.galvo,
+            timing: plan.timing,
             calibration: plan.calibration,
             cell: CellConfig::default(),
             sim: SimConfig::default(),
@@ -330,6 +335,7 @@ impl JobConfig {
             machine: self.machine,
             galvo: self.galvo,
             calibration: self.calibration.clone(),
+            timing: self.timing,
         }
     }
 
