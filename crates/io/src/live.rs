@@ -46,10 +46,10 @@ pub enum LiveError {
         reason: String,
     },
     /// The server's runtime could not start.
-    #[error("live view: cannot start its runtime: {0}")]
+    #[error("cannot start the live view's runtime: {0}")]
     Runtime(std::io::Error),
     /// The server could not listen (the port is taken, the host is not this machine's).
-    #[error("live view: cannot listen on {addr}: {source}")]
+    #[error("cannot listen on {addr}: {source}")]
     Listen {
         /// The address.
         addr: LiveAddr,

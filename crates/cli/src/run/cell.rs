@@ -11,7 +11,8 @@ use trim_io::cell::{Cell, CellAddresses, SimCell, SimOptions, Timeouts};
 use trim_io::executor::{ExecOptions, Executor, Progress};
 use trim_io::journal::CutLayer;
 use trim_io::laser::Profile;
-use trim_io::record::device_tap;
+use trim_io::live::LiveServer;
+use trim_io::record::{SharedRecorder, device_tap};
 use trim_io::tap::Tap;
 use trim_io::twin::{TrueCell, TruePart, Twin};
 use trim_plan::Job;
@@ -19,7 +20,8 @@ use trim_register::regional::Registration;
 
 use super::inputs::Inputs;
 use super::record::{
-    finish_recorder, open_recorder, record_calibration, record_inputs, record_spot_error,
+    ProgressRecord, finish_recorder, open_recorder, record_calibration, record_inputs,
+    record_spot_error,
 };
 use super::report::SpotReport;
 use super::{Args, Executed, files};
@@ -27,7 +29,8 @@ use crate::config::{JobConfig, SIM};
 use crate::exit::{Exit, Failure};
 use crate::progress::JobProgress;
 
-/// Connects the cell (starting simulators where the config says "sim"), then runs or resumes.
+/// Connects the cell (starting simulators where the config says "sim"), then runs or resumes,
+/// recording (and with `live`, serving) the run.
 /// The outer error: the cell could not be set up; the inner: the execution stopped.
 pub(super) fn execute(
     config: &JobConfig,
@@ -36,6 +39,7 @@ pub(super) fn execute(
     job: &Job,
     record: Option<(&Inputs, &Registration)>,
     resuming: bool,
+    live: Option<&LiveServer>,
 ) -> anyhow::Result<Executed> {
     // The twin lands the galvo simulator's vectors on the true part ([sim.truth]).
     let (twin, line_ids) = match truth_line(config, run_dir)? {
@@ -73,7 +77,7 @@ pub(super) fn execute(
             None
         };
         let addresses = cell_addresses(config, sim.as_ref(), profile)?;
-        let recorder = open_recorder(run_dir, resuming)?;
+        let recorder = open_recorder(run_dir, resuming, live)?;
         if let (Some(rec), Some((inputs, registration))) = (&recorder, record) {
             record_inputs(rec, inputs, registration, job)?;
         }
@@ -99,7 +103,7 @@ pub(super) fn execute(
             }
         });
         let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
-        let bars = tokio::spawn(draw_progress(rx, job.clone()));
+        let bars = tokio::spawn(draw_progress(rx, job.clone(), recorder.clone()));
         let executor = Executor::new(
             job.clone(),
             cell,
@@ -207,7 +211,13 @@ fn truth_line(config: &JobConfig, run_dir: &Path) -> anyhow::Result<Option<TrimP
     ))
 }
 
-async fn draw_progress(mut rx: tokio::sync::mpsc::UnboundedReceiver<Progress>, job: Job) {
+/// Draws the progress bars and records `/progress`.
+async fn draw_progress(
+    mut rx: tokio::sync::mpsc::UnboundedReceiver<Progress>,
+    job: Job,
+    recorder: Option<SharedRecorder>,
+) {
+    let mut record = recorder.map(|r| ProgressRecord::new(r, &job));
     let vectors_total: u64 = job
         .layers()
         .map(|(_, _, l)| {
@@ -232,6 +242,9 @@ async fn draw_progress(mut rx: tokio::sync::mpsc::UnboundedReceiver<Progress>, j
     let zone_index = |zone: usize| job.zones.iter().position(|z| z.id == zone).unwrap_or(0) as u64;
     let mut current_zone = None;
     while let Some(p) = rx.recv().await {
+        if let Some(r) = &mut record {
+            r.on(&p);
+        }
         match p {
             Progress::Phase { key, .. } if current_zone != Some(key.zone) => {
                 current_zone = Some(key.zone);

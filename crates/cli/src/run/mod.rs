@@ -17,6 +17,7 @@ use trim_geom::Path as TrimPath;
 use trim_geom::formats;
 use trim_io::executor::{ExecError, RunSummary, StopCause};
 use trim_io::journal::CutLayer;
+use trim_io::live::{DEFAULT_LIVE_ADDR, LiveAddr, LiveServer};
 use trim_plan::Job;
 use trim_plan::planner::{PlanOutput, plan_with_report};
 use trim_register::regional::{Registration, register};
@@ -110,6 +111,29 @@ pub struct Args {
     /// Simulated devices: real seconds per simulated second (1 = real time).
     #[arg(long, default_value_t = DEFAULT_SIM_TIME_SCALE)]
     sim_time_scale: f64,
+    /// Serve the run live over the Foxglove WebSocket protocol while it runs: the record's
+    /// channels, the static scene sent again to each viewer that subscribes late, the layer
+    /// being marked highlighted. Open ws://HOST:PORT in Foxglove (Open connection → Foxglove
+    /// WebSocket). A viewer never slows the run: a slow one loses its oldest messages.
+    #[arg(
+        long,
+        value_name = "HOST:PORT",
+        num_args = 0..=1,
+        default_missing_value = DEFAULT_LIVE_ADDR,
+        value_parser = parse_live_addr
+    )]
+    live: Option<LiveAddr>,
+}
+
+/// `--live`'s value, with a hint when a job file was taken for it.
+fn parse_live_addr(s: &str) -> Result<LiveAddr, String> {
+    s.parse::<LiveAddr>().map_err(|e| {
+        if s.ends_with(".toml") {
+            format!("{e} (give the job file before --live, or write --live=HOST:PORT)")
+        } else {
+            e.to_string()
+        }
+    })
 }
 
 /// `--cut-layer`.
@@ -148,9 +172,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.sim_time_scale
         );
     }
+    // Listening starts first, so a taken port is refused before anything else is done.
+    let live = match &args.live {
+        Some(addr) => {
+            let server = LiveServer::start(addr).map_err(|e| anyhow::anyhow!("--live: {e}"))?;
+            eprintln!(
+                "trimctl run: live view on {} (Foxglove: Open connection → Foxglove WebSocket)",
+                server.url()
+            );
+            Some(server)
+        }
+        None => None,
+    };
     match args.resume.clone() {
-        Some(dir) => resume(&dir, &args),
-        None => fresh(&args),
+        Some(dir) => resume(&dir, &args, live.as_ref()),
+        None => fresh(&args, live.as_ref()),
     }
 }
 
@@ -191,7 +227,7 @@ fn new_run_dir(config: &JobConfig, args: &Args) -> anyhow::Result<PathBuf> {
     Ok(dir)
 }
 
-fn fresh(args: &Args) -> anyhow::Result<()> {
+fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     let mut timings = Timings::default();
     let t0 = Instant::now();
     let mut config = match &args.job {
@@ -353,7 +389,7 @@ fn fresh(args: &Args) -> anyhow::Result<()> {
 
     let t = Instant::now();
     let record = Some((&inputs, &registration));
-    let outcome = execute(&config, args, &run_dir, &plan.job, record, false);
+    let outcome = execute(&config, args, &run_dir, &plan.job, record, false, live);
     timings.execute_s = t.elapsed().as_secs_f64();
     finish(
         &run_dir,
@@ -437,7 +473,7 @@ fn exec_failure(e: ExecError, run_dir: &Path) -> anyhow::Error {
     }
 }
 
-fn resume(run_dir: &Path, args: &Args) -> anyhow::Result<()> {
+fn resume(run_dir: &Path, args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     let mut config = JobConfig::load(&run_dir.join(files::JOB))
         .with_context(|| format!("{} is not a run folder", run_dir.display()))?;
     apply_overrides(&mut config, args)?;
@@ -453,7 +489,7 @@ fn resume(run_dir: &Path, args: &Args) -> anyhow::Result<()> {
     }
     eprintln!("trimctl run: resuming {}", run_dir.display());
     let t = Instant::now();
-    let (outcome, spots) = execute(&config, args, run_dir, &job, None, true)?;
+    let (outcome, spots) = execute(&config, args, run_dir, &job, None, true, live)?;
     let wall_s = t.elapsed().as_secs_f64();
     if let Some(r) = &spots {
         print!("{}", r.line());
