@@ -26,7 +26,10 @@ fn a_bad_address_is_refused_with_what_is_wrong() {
             stderr.contains("expected HOST:PORT") && stderr.contains(why),
             "{value}: {stderr}"
         );
-        assert!(!dir.path().join("run").exists(), "{value}: a run folder was made");
+        assert!(
+            !dir.path().join("run").exists(),
+            "{value}: a run folder was made"
+        );
     }
 }
 

@@ -28,8 +28,8 @@ use foxglove::messages::{
     PointCloud, Pose, Quaternion, SceneEntity, SceneUpdate, TextPrimitive, Timestamp, Vector3,
 };
 use foxglove::{
-    ChannelBuilder, Context, Encode, FoxgloveError, McapCompression, McapWriteOptions,
-    McapWriter, McapWriterHandle, PartialMetadata, RawChannel, Schema,
+    ChannelBuilder, Context, Encode, FoxgloveError, McapCompression, McapWriteOptions, McapWriter,
+    McapWriterHandle, PartialMetadata, RawChannel, Schema,
 };
 use schemars::JsonSchema;
 use serde::Serialize;
@@ -547,10 +547,7 @@ impl Recorder {
 
     /// Closes the current chunk and flushes the file: everything so far survives a crash.
     pub fn flush(&mut self) -> Result<(), RecordError> {
-        self.writer
-            .as_ref()
-            .ok_or(RecordError::Finished)?
-            .flush()?;
+        self.writer.as_ref().ok_or(RecordError::Finished)?.flush()?;
         Ok(())
     }
 
@@ -577,9 +574,8 @@ fn layer_entity(
     let (fx, fy) = (zone.frame.x, zone.frame.y);
     let f = layer.focus_point;
     // A galvo point (x, y) of the layer is P = focus + x·X + y·Y (DESIGN.md, the Job contract).
-    let at = |g: [f64; 2]| -> [f64; 3] {
-        std::array::from_fn(|i| f[i] + g[0] * fx[i] + g[1] * fy[i])
-    };
+    let at =
+        |g: [f64; 2]| -> [f64; 3] { std::array::from_fn(|i| f[i] + g[0] * fx[i] + g[1] * fy[i]) };
     let lines = layer
         .polylines
         .iter()

@@ -198,7 +198,11 @@ impl ProgressRecord {
         } else {
             self.msg.vectors_done as f64 / self.msg.vectors_total as f64
         };
-        if !always && self.last_written.is_some_and(|t| t.elapsed() < PROGRESS_INTERVAL) {
+        if !always
+            && self
+                .last_written
+                .is_some_and(|t| t.elapsed() < PROGRESS_INTERVAL)
+        {
             return;
         }
         self.last_written = Some(Instant::now());
