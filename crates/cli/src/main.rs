@@ -6,6 +6,7 @@ mod cad;
 mod calibrate;
 mod calibrate_cell;
 mod calibrate_field;
+mod calibrate_timing;
 mod config;
 mod config_cmd;
 mod exit;
@@ -14,10 +15,12 @@ mod info;
 mod plan;
 mod progress;
 mod register;
+mod report_cmd;
 mod run;
 mod sim;
 mod summary;
 mod synth;
+mod timing_record;
 mod twin_demo;
 
 use std::process::ExitCode;
@@ -54,6 +57,8 @@ enum Command {
     Calibrate(calibrate::Args),
     /// Hatch a region of a scanned surface with equally spaced tracks.
     Hatch(hatch::Args),
+    /// Compare a recorded run's time estimate with its actual time, per layer, move and list.
+    Report(report_cmd::Args),
 }
 
 fn main() -> ExitCode {
@@ -73,6 +78,7 @@ fn main() -> ExitCode {
         Command::Config(a) => config_cmd::run(a),
         Command::Calibrate(a) => calibrate::run(a),
         Command::Hatch(a) => hatch::run(a),
+        Command::Report(a) => report_cmd::run(a),
     };
     exit::code_for(result)
 }

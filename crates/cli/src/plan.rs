@@ -28,13 +28,17 @@ pub struct Args {
     /// track t of the r-th file.
     #[arg(long, value_name = "TRACKS.csv")]
     pub hatch: Vec<PathBuf>,
+    /// A timing file from `trimctl calibrate timing`: its [machine] move keys and [timing]
+    /// replace the job file's for the time estimate.
+    #[arg(long, value_name = "timing.toml")]
+    pub timing: Option<PathBuf>,
 }
 
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
     // A job file is checked whole on load, its [beam] against cell.laser_profile's limits
     // included; the defaults are checked the same way.
-    let settings = match &args.config {
+    let mut settings = match &args.config {
         Some(path) => JobConfig::load(path)?.plan_settings(),
         None => {
             let config = JobConfig::default();
@@ -42,6 +46,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             config.plan_settings()
         }
     };
+    if let Some(file) = &args.timing {
+        crate::calibrate_timing::TimingFile::load(file)?
+            .apply(&mut settings.machine, &mut settings.timing);
+    }
     let mut path = trim_geom::formats::read_path(&args.path)?;
     if !args.hatch.is_empty() {
         crate::hatch::check_path_ids(&path, &args.path)?;
@@ -131,6 +139,7 @@ mod tests {
             out: out.clone(),
             svg: Some(svg.clone()),
             hatch: Vec::new(),
+            timing: None,
         })
         .expect("plans");
         let job =
@@ -157,6 +166,7 @@ mod tests {
             out: out.clone(),
             svg: None,
             hatch: Vec::new(),
+            timing: None,
         })
         .expect("plans");
         let job = Job::from_json(&std::fs::read_to_string(&out).expect("json")).expect("job");
@@ -174,6 +184,7 @@ mod tests {
             out: out.clone(),
             svg: None,
             hatch: Vec::new(),
+            timing: None,
         })
         .expect_err("refused");
         let text = format!("{e:#}");

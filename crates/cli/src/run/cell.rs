@@ -94,6 +94,12 @@ pub(super) fn execute(
                     anyhow::anyhow!("connecting the cell: {e}"),
                 )
             })?;
+        // Where the machine starts, for the timing record's first move.
+        let mut cell = cell;
+        let start_pose = match cell.cnc.positions().await {
+            Ok(Ok(p)) => Some(p.world),
+            _ => None,
+        };
         let cancel = CancellationToken::new();
         let on_ctrl_c = cancel.clone();
         tokio::spawn(async move {
@@ -121,6 +127,24 @@ pub(super) fn execute(
             executor.run(cancel, Some(tx)).await
         };
         let _ = bars.await;
+        if let Ok(run) = &result {
+            let scale = |device: &str| if device == SIM { args.sim_time_scale } else { 1.0 };
+            let clocks = crate::timing_record::Clocks {
+                cnc: config.cell.cnc.clone(),
+                cnc_time_scale: scale(&config.cell.cnc),
+                galvo: config.cell.galvo.clone(),
+                galvo_time_scale: scale(&config.cell.galvo),
+            };
+            let record = crate::timing_record::record(
+                job,
+                &config.machine,
+                &config.timing,
+                run,
+                start_pose,
+                &clocks,
+            );
+            crate::timing_record::write(run_dir, &record, resuming)?;
+        }
         let spots = twin
             .as_ref()
             .map(|t| SpotReport::new(&t.spots(), &run_dir.join(files::JOURNAL), job, &line_ids))

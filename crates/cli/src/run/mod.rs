@@ -102,6 +102,10 @@ pub struct Args {
     /// report) instead of refusing to start.
     #[arg(long)]
     skip_untrusted: bool,
+    /// A timing file from `trimctl calibrate timing`: its [machine] move keys and [timing]
+    /// replace the job file's (the estimate; the run folder's job.toml keeps them).
+    #[arg(long, value_name = "timing.toml")]
+    timing: Option<PathBuf>,
     /// Register and plan, write the run folder, execute nothing.
     #[arg(long)]
     dry_run: bool,
@@ -199,6 +203,10 @@ fn apply_overrides(config: &mut JobConfig, args: &Args) -> anyhow::Result<()> {
     }
     if let Some(l) = &args.laser {
         config.cell.laser.clone_from(l);
+    }
+    if let Some(file) = &args.timing {
+        crate::calibrate_timing::TimingFile::load(file)?
+            .apply(&mut config.machine, &mut config.timing);
     }
     config
         .validate()

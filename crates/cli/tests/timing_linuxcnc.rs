@@ -1,0 +1,209 @@
+//! Estimates learned from real runs (#14 part 3): two synthetic parts run against a real,
+//! headless LinuxCNC (`scripts/linuxcnc-sim`, the galvo and laser simulators in real time);
+//! `trimctl calibrate timing` fits the time model on the first run only, and `trimctl report`
+//! shows the refitted estimate of the second, held-out run within 3 % of its actual time.
+//! Fails with a clear message when LinuxCNC is not installed, unless `TRIMCTL_SKIP_LINUXCNC=1`.
+//!
+//! One test function: LinuxCNC is one instance per machine.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+const TRIMCTL: &str = env!("CARGO_BIN_EXE_trimctl");
+/// The port this test's LinuxCNC listens on (apart from the other LinuxCNC test's 5017).
+const PORT: u16 = 5037;
+/// The held-out run's refitted total estimate must be within this of its actual time (%).
+const HELD_OUT_TOTAL_ERROR_PCT: f64 = 3.0;
+
+fn script() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/linuxcnc-sim")
+}
+
+fn run_dir() -> String {
+    std::env::var("TRIMCTL_LINUXCNC_RUN").unwrap_or_else(|_| "/tmp/trimctl-timing-test".into())
+}
+
+fn linuxcnc_available() -> bool {
+    let installed = Command::new("sh")
+        .args(["-c", "command -v linuxcnc"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if installed {
+        return true;
+    }
+    if std::env::var("TRIMCTL_SKIP_LINUXCNC").as_deref() == Ok("1") {
+        eprintln!("SKIPPED: linuxcnc is not installed and TRIMCTL_SKIP_LINUXCNC=1");
+        return false;
+    }
+    panic!(
+        "linuxcnc is not installed: run scripts/install-deps (Debian package linuxcnc-uspace, \
+         --no-install-recommends), or set TRIMCTL_SKIP_LINUXCNC=1 to skip this test"
+    );
+}
+
+struct Instance;
+
+impl Instance {
+    fn start() -> Instance {
+        let _ = Command::new(script())
+            .env("TRIMCTL_LINUXCNC_RUN", run_dir())
+            .arg("stop")
+            .status();
+        let out = Command::new(script())
+            .env("TRIMCTL_LINUXCNC_RUN", run_dir())
+            .args(["start", "--port", &PORT.to_string()])
+            .output()
+            .expect("run scripts/linuxcnc-sim");
+        assert!(
+            out.status.success(),
+            "scripts/linuxcnc-sim start failed:\n{}\n{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        Instance
+    }
+}
+
+impl Drop for Instance {
+    fn drop(&mut self) {
+        let _ = Command::new(script())
+            .env("TRIMCTL_LINUXCNC_RUN", run_dir())
+            .arg("stop")
+            .status();
+    }
+}
+
+fn trimctl(args: &[&str]) -> String {
+    let out = Command::new(TRIMCTL)
+        .args(args)
+        .output()
+        .expect("run trimctl");
+    assert!(
+        out.status.success(),
+        "trimctl {args:?} failed:\n{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// A synthetic part (its own seed) and a job file for it.
+fn part(dir: &Path, seed: u64) -> PathBuf {
+    let d = dir.join(format!("part{seed}"));
+    trimctl(&[
+        "synth",
+        "--out",
+        d.to_str().expect("a UTF-8 temporary path"),
+        "--seed",
+        &seed.to_string(),
+        "--scan-points",
+        "40000",
+    ]);
+    let job = d.join("job.toml");
+    std::fs::write(
+        &job,
+        "[part]\ncad = \"cad.stl\"\npath = \"path.csv\"\nscan = \"scan.ply\"\n",
+    )
+    .expect("write job.toml");
+    job
+}
+
+/// `(estimate, actual, error %)` of a report's total line, and the mean per-move |error| (ms).
+fn report_figures(text: &str) -> ((f64, f64, f64), f64) {
+    let numbers = |line: &str| -> Vec<f64> {
+        line.split(|c: char| !(c.is_ascii_digit() || c == '.' || c == '-' || c == '+'))
+            .filter_map(|w| w.parse::<f64>().ok())
+            .collect()
+    };
+    let total = text
+        .lines()
+        .find(|l| l.starts_with("total: "))
+        .unwrap_or_else(|| panic!("no total line in:\n{text}"));
+    let t = numbers(total);
+    let moves = text
+        .lines()
+        .find(|l| l.starts_with("moves: "))
+        .unwrap_or_else(|| panic!("no moves line in:\n{text}"));
+    let m = numbers(moves);
+    // "moves: estimate E s, actual A s, error P %; per move |error| mean M ms, max X ms"
+    ((t[0], t[1], t[2]), m[3])
+}
+
+#[test]
+fn a_timing_model_fitted_on_one_linuxcnc_run_estimates_another_within_3_percent() {
+    if !linuxcnc_available() {
+        return;
+    }
+    let started = Instant::now();
+    let tmp = tempfile::tempdir().unwrap();
+    let jobs = [part(tmp.path(), 2), part(tmp.path(), 3)];
+    let _instance = Instance::start();
+    let cnc = format!("127.0.0.1:{PORT}");
+    let runs: Vec<PathBuf> = jobs
+        .iter()
+        .enumerate()
+        .map(|(i, job)| {
+            let out = tmp.path().join(format!("run{i}"));
+            trimctl(&[
+                "run",
+                job.to_str().unwrap(),
+                "--cnc",
+                &cnc,
+                "--sim-time-scale",
+                "1",
+                "--out",
+                out.to_str().unwrap(),
+            ]);
+            assert!(out.join("timing.json").exists(), "no timing record");
+            out
+        })
+        .collect();
+
+    // Fitted on the first run only.
+    let model = tmp.path().join("timing.toml");
+    let fit = trimctl(&[
+        "calibrate",
+        "timing",
+        runs[0].to_str().unwrap(),
+        "--out",
+        model.to_str().unwrap(),
+    ]);
+    eprintln!("{fit}");
+    let text = std::fs::read_to_string(&model).unwrap();
+    assert!(text.contains("move_model = \"coordinated\""), "{text}");
+
+    let held_out = runs[1].to_str().unwrap();
+    let before = trimctl(&["report", held_out]);
+    let after = trimctl(&["report", held_out, "--timing", model.to_str().unwrap()]);
+    let ((est0, act0, err0), move0_ms) = report_figures(&before);
+    let ((est1, act1, err1), move1_ms) = report_figures(&after);
+    eprintln!(
+        "held-out run: actual {act1:.2} s; estimate before the fit {est0:.2} s ({err0:+.2} %, per move |error| {move0_ms:.1} ms), after {est1:.2} s ({err1:+.2} %, per move {move1_ms:.1} ms); test took {:.0} s",
+        started.elapsed().as_secs_f64()
+    );
+    assert!((act0 - act1).abs() < 1e-9, "same actual time either way");
+    assert!(
+        err1.abs() <= HELD_OUT_TOTAL_ERROR_PCT,
+        "refitted estimate off by {err1:+.2} % on the held-out run:\n{after}"
+    );
+    assert!(
+        move1_ms < move0_ms,
+        "the fit did not improve the moves:\n{before}\n{after}"
+    );
+
+    // A run folder without a timing record (an older run) is refused, naming the file.
+    let old = tmp.path().join("old");
+    std::fs::create_dir_all(&old).unwrap();
+    std::fs::write(old.join("summary.json"), "{}").unwrap();
+    let out = Command::new(TRIMCTL)
+        .args(["report", old.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("timing.json") && err.contains("before trimctl kept one"),
+        "{err}"
+    );
+}
