@@ -10,6 +10,7 @@ mod calibrate_timing;
 mod config;
 mod config_cmd;
 mod exit;
+mod frame;
 mod hatch;
 mod info;
 mod plan;
@@ -57,6 +58,8 @@ enum Command {
     Calibrate(calibrate::Args),
     /// Hatch a region of a scanned surface with equally spaced tracks.
     Hatch(hatch::Args),
+    /// Trace each zone's outline with the galvo's pointer (red light), the laser gate shut.
+    Frame(frame::Args),
     /// Compare a recorded run's time estimate with its actual time, per layer, move and list.
     Report(report_cmd::Args),
 }
@@ -78,6 +81,7 @@ fn main() -> ExitCode {
         Command::Config(a) => config_cmd::run(a),
         Command::Calibrate(a) => calibrate::run(a),
         Command::Hatch(a) => hatch::run(a),
+        Command::Frame(a) => frame::run(a),
         Command::Report(a) => report_cmd::run(a),
     };
     exit::code_for(result)

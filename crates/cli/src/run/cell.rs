@@ -121,6 +121,11 @@ pub(super) fn execute(
             cut_layer: args.cut_layer.map(CutLayer::from),
             ..ExecOptions::default()
         });
+        let executor = if args.frame {
+            executor.with_zone_gate(Box::new(crate::frame::OperatorGate::new(timeouts)))
+        } else {
+            executor
+        };
         let result = if resuming {
             executor.resume(cancel, Some(tx)).await
         } else {
@@ -165,7 +170,7 @@ pub(super) fn execute(
     })
 }
 
-fn cell_addresses(
+pub(crate) fn cell_addresses(
     config: &JobConfig,
     sim: Option<&SimCell>,
     profile: Profile,

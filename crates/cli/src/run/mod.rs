@@ -27,6 +27,7 @@ use crate::exit::{Exit, Failure};
 use crate::progress::stage;
 use crate::summary;
 
+pub(crate) use cell::cell_addresses;
 use cell::execute;
 use inputs::load_inputs;
 use report::{SpotReport, append_resume_report, write_report};
@@ -109,6 +110,12 @@ pub struct Args {
     /// Register and plan, write the run folder, execute nothing.
     #[arg(long)]
     dry_run: bool,
+    /// Red-light framing before each zone: the zone's outline is traced with the galvo's
+    /// pointer (the laser gate shut) and the run asks on stdin: Enter marks the zone, r traces
+    /// it again, q quits (the normal stop; --resume continues there). Answers may be piped;
+    /// end of input, or no answer within 10 minutes, quits.
+    #[arg(long, conflicts_with = "dry_run")]
+    frame: bool,
     /// The demo part's seed.
     #[arg(long, default_value_t = 1)]
     demo_seed: u64,

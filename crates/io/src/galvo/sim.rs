@@ -159,6 +159,17 @@ impl Shared {
         }
     }
 
+    /// Ends a running frame at once (`STOP`, a trip): its task sees a newer run and leaves
+    /// without touching anything.
+    fn end_frame(&self, c: &mut Controller) {
+        if c.framing {
+            c.framing = false;
+            c.run_id += 1;
+            c.stop_requested = false;
+            self.monitor.report(CellEvent::Framing(false));
+        }
+    }
+
     fn set_pointer(&self, c: &mut Controller, on: bool) {
         if c.pointer != on {
             c.pointer = on;
@@ -183,7 +194,9 @@ impl Shared {
         c.laser_signals = false;
         self.set_gate(&mut c, false);
         self.set_pointer(&mut c, false);
-        if c.state == ControllerState::Executing {
+        if c.framing {
+            self.end_frame(&mut c);
+        } else if c.state == ControllerState::Executing {
             c.stop_requested = true;
         }
         c.state = ControllerState::WatchdogTrip;
@@ -599,7 +612,10 @@ fn execute_request(shared: &Arc<Shared>, req: Request) -> Result<Vec<u8>, (Statu
             c.laser_signals = false;
             shared.set_gate(&mut c, false);
             shared.set_pointer(&mut c, false);
-            if c.state == ControllerState::Executing {
+            if c.framing {
+                shared.end_frame(&mut c);
+                c.state = ControllerState::Stopped;
+            } else if c.state == ControllerState::Executing {
                 c.stop_requested = true;
                 c.state = ControllerState::Stopped;
             }
