@@ -154,7 +154,7 @@ pub fn render(record: &TimingRecord, rows: &[Row], model: &str, worst: usize) ->
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{} layers; CNC {} , galvo {}; estimate: {model}",
+        "{} layers; CNC {}, galvo {}; estimate: {model}",
         rows.len(),
         record.cnc,
         record.galvo
