@@ -2,10 +2,11 @@
 
 One demo run, three viewers speaking the protocol with the `websockets` package:
 
-- a viewer on subprotocol `foxglove.sdk.v1` reads serverInfo and the advertisements, subscribes to
-  `/progress` and `/scan` once `/progress` is advertised (the execution has started, so `/scan`
-  was logged long before: it can only arrive as the static scene a late subscriber is sent), and
-  gets binary messageData (opcode 0x01) for both, decoded as their schemas say;
+- a viewer on subprotocol `foxglove.sdk.v1` reads serverInfo and the advertisements (every channel
+  of the record, declared before the server listens), subscribes to `/progress`, and once the
+  first progress message shows the execution running, to `/scan` (logged before the execution
+  started: it can only arrive as the static scene a late subscriber is sent); it gets binary
+  messageData (opcode 0x01) for both, decoded as their schemas say;
 - a viewer offering only the older `foxglove.websocket.v1` is refused at the handshake (the SDK
   speaks `foxglove.sdk.v1`/`foxglove.sdk.v1.1`), and one offering both gets `foxglove.sdk.v1`;
 - a stalled viewer subscribes to every channel and never reads again: the run still finishes.
@@ -92,12 +93,11 @@ async def watching_viewer(url, proc):
         if msg["op"] == "advertise":
             channels.update({c["topic"]: c for c in msg["channels"]})
     assert "/scan" in channels, sorted(channels)
-    subscribed_ns = time.time_ns()
     subs = {1: channels["/progress"], 2: channels["/scan"]}
     await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
-        {"id": sid, "channelId": c["id"]} for sid, c in subs.items()]}))
-
+        {"id": 1, "channelId": subs[1]["id"]}]}))
     received = {1: [], 2: []}
+    subscribed_ns = None
     while True:
         try:
             frame = await asyncio.wait_for(ws.recv(), RUN_TIMEOUT_S)
@@ -111,11 +111,16 @@ async def watching_viewer(url, proc):
         assert frame[0] == OP_MESSAGE_DATA, frame[:1]
         sid, log_time = struct.unpack_from("<IQ", frame, 1)
         received[sid].append((log_time, frame[13:]))
+        if subscribed_ns is None:
+            # The execution runs: the scan was logged before it started.
+            subscribed_ns = time.time_ns()
+            await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": 2, "channelId": subs[2]["id"]}]}))
     return channels, subs, received, subscribed_ns
 
 
 async def stalled_viewer(url, proc):
-    """Subscribes to every channel advertised when /progress is, then never reads again."""
+    """Subscribes to every channel (all advertised on connection), then never reads again."""
     ws = await connect(url, ["foxglove.sdk.v1"], proc, max_size=None, max_queue=1)
     channels = {}
     while "/progress" not in channels:

@@ -13,6 +13,10 @@
 //!   disconnected. The server runs on a runtime of its own (one thread), apart from the
 //!   executor's, so a slow or vanished viewer costs the run the copy into its queue, nothing
 //!   more.
+//! - *Channels first.* The record's channels are declared before the server listens
+//!   ([`crate::record::declare_run_channels`]): a channel created while a viewer is connected
+//!   can have the viewer's subscription refused (an SDK race), one that exists when it connects
+//!   cannot.
 //! - *Protocol.* The SDK speaks the subprotocols `foxglove.sdk.v1` (inline schemas) and
 //!   `foxglove.sdk.v1.1`; a client offering only the older `foxglove.websocket.v1` is refused
 //!   at the handshake (HTTP 400).
@@ -48,6 +52,9 @@ pub enum LiveError {
     /// The server's runtime could not start.
     #[error("cannot start the live view's runtime: {0}")]
     Runtime(std::io::Error),
+    /// The record's channels could not be declared.
+    #[error("cannot declare the record's channels: {0}")]
+    Channels(crate::record::RecordError),
     /// The server could not listen (the port is taken, the host is not this machine's).
     #[error("cannot listen on {addr}: {source}")]
     Listen {
@@ -201,6 +208,8 @@ impl LiveServer {
             .build()
             .map_err(LiveError::Runtime)?;
         let context = Context::new();
+        // Before listening: see the function's doc.
+        crate::record::declare_run_channels(&context).map_err(LiveError::Channels)?;
         let scene = StaticScene::default();
         let server = WebSocketServer::new()
             .name("trimctl")
@@ -296,6 +305,47 @@ mod tests {
             let e = bad.parse::<LiveAddr>().unwrap_err().to_string();
             assert!(e.contains(why) && e.contains(bad), "{bad}: {e}");
         }
+    }
+
+    #[test]
+    fn the_record_on_a_live_context_keeps_the_static_scene_and_only_used_channels() {
+        use crate::record::{Recorder, topic};
+        let live = LiveServer::start(&"127.0.0.1:0".parse().unwrap()).unwrap();
+        let scan = live.context().get_channel_by_topic(topic::SCAN).unwrap();
+        assert_eq!(scan.schema().unwrap().name, "foxglove.PointCloud");
+        assert!(
+            live.context()
+                .get_channel_by_topic("/device/galvo")
+                .is_some()
+        );
+
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.mcap");
+        let mut rec = Recorder::create_live(&path, &live).unwrap();
+        let cloud = [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]];
+        rec.point_cloud(topic::SCAN, 5, &cloud).unwrap();
+        rec.point_cloud(topic::SCAN, 6, &cloud[..1]).unwrap();
+        rec.log(7, crate::record::LogLevel::Info, "not static")
+            .unwrap();
+        rec.finish().unwrap();
+        // The second cloud replaced the first; the log line is not kept.
+        assert_eq!(
+            live.scene().topics(),
+            BTreeMap::from([("/scan".to_owned(), 1)])
+        );
+
+        let bytes = std::fs::read(&path).unwrap();
+        let mut topics = BTreeMap::<String, usize>::new();
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            let m = m.unwrap();
+            assert!(m.channel.schema.is_some());
+            *topics.entry(m.channel.topic.clone()).or_default() += 1;
+        }
+        let want = BTreeMap::from([("/scan".to_owned(), 2), ("/log".to_owned(), 1)]);
+        assert_eq!(
+            topics, want,
+            "declared channels without messages stay out of the file"
+        );
     }
 
     #[test]

@@ -36,14 +36,47 @@ use serde::Serialize;
 use trim_plan::job::{Job, LayerKey};
 
 use crate::live::{LiveServer, StaticScene};
-use crate::tap::{DeviceIo, Tap};
+use crate::tap::{Device, DeviceIo, Tap};
 
 /// Target uncompressed chunk size (bytes); chunks are also closed at every [`Recorder::flush`].
 pub const CHUNK_BYTES: u64 = 256 * 1024;
 /// The frame everything in the work-piece frame is published in.
 pub const WORKPIECE_FRAME: &str = "workpiece";
-/// The topic of the current layer's scene (polylines and focal plate).
-pub const LAYER_SCENE_TOPIC: &str = "/layer/scene";
+/// The topics of a run's record.
+pub mod topic {
+    /// The scan (foxglove.PointCloud).
+    pub const SCAN: &str = "/scan";
+    /// The CAD points in the scan's frame (foxglove.PointCloud).
+    pub const CAD: &str = "/cad";
+    /// The template path in the scan's frame (foxglove.SceneUpdate).
+    pub const TEMPLATE: &str = "/path/template";
+    /// The registered path (foxglove.SceneUpdate).
+    pub const REGISTERED: &str = "/path/registered";
+    /// The zone frames (foxglove.FrameTransform).
+    pub const TF: &str = "/tf";
+    /// The current layer and its state (trimctl.Layer).
+    pub const LAYER: &str = "/layer";
+    /// The current layer's scene: polylines and focal plate (foxglove.SceneUpdate).
+    pub const LAYER_SCENE: &str = "/layer/scene";
+    /// How far the run is (trimctl.Progress).
+    pub const PROGRESS: &str = "/progress";
+    /// Log lines (foxglove.Log).
+    pub const LOG: &str = "/log";
+    /// The calibration, lens and scan pose the run used (trimctl.Calibration, JSON object).
+    pub const CALIBRATION: &str = "/calibration";
+    /// The twin's spot errors (trimctl.SpotError, JSON object).
+    pub const SPOT_ERROR: &str = "/twin/spot_error";
+    /// Schema name of [`CALIBRATION`].
+    pub const CALIBRATION_SCHEMA: &str = "trimctl.Calibration";
+    /// Schema name of [`SPOT_ERROR`].
+    pub const SPOT_ERROR_SCHEMA: &str = "trimctl.SpotError";
+
+    /// A device's topic: `/device/<name>` (trimctl.DeviceIo).
+    #[must_use]
+    pub fn device(device: crate::tap::Device) -> String {
+        format!("/device/{}", device.name())
+    }
+}
 /// The id of the current layer's scene entity.
 pub const LAYER_ENTITY: &str = "current_layer";
 /// Colour of the layer being marked (RGBA).
@@ -284,11 +317,12 @@ impl Recorder {
         if let Some(c) = self.channels.get(topic) {
             return Ok(c.clone());
         }
-        let channel = ChannelBuilder::new(topic)
-            .context(&self.context)
-            .schema(schema)
-            .message_encoding(encoding)
-            .build_raw()?;
+        // A channel declared before the live view listened ([`declare_run_channels`]) is used
+        // as it was declared.
+        let channel = match self.context.get_channel_by_topic(topic) {
+            Some(c) => c,
+            None => build_channel(&self.context, topic, schema, encoding)?,
+        };
         self.channels.insert(topic.to_owned(), channel.clone());
         Ok(channel)
     }
@@ -447,13 +481,13 @@ impl Recorder {
                     w: q[3],
                 }),
             };
-            self.write("/tf", t_ns, &msg, Latch::Keep(&child))?;
+            self.write(topic::TF, t_ns, &msg, Latch::Keep(&child))?;
         }
         Ok(())
     }
 
     /// The current layer and its state ("started", "done", "cut", "skipped") on `/layer`, and
-    /// its scene on [`LAYER_SCENE_TOPIC`]: the layer's polylines and a plate at its focal plane,
+    /// its scene on [`topic::LAYER_SCENE`]: the layer's polylines and a plate at its focal plane,
     /// yellow while it is marked, green once done, red when cut short.
     pub fn layer(
         &mut self,
@@ -475,7 +509,7 @@ impl Recorder {
             pose: layer.map(|l| l.pose.0.clone()),
             focus_point: layer.map(|l| l.focus_point),
         };
-        self.write("/layer", t_ns, &Json(&msg), Latch::No)?;
+        self.write(topic::LAYER, t_ns, &Json(&msg), Latch::No)?;
         let rgba = match state {
             "started" => MARKING_RGBA,
             "done" => DONE_RGBA,
@@ -488,14 +522,14 @@ impl Recorder {
                 deletions: Vec::new(),
                 entities: vec![entity],
             };
-            self.write(LAYER_SCENE_TOPIC, t_ns, &msg, Latch::Keep(LAYER_ENTITY))?;
+            self.write(topic::LAYER_SCENE, t_ns, &msg, Latch::Keep(LAYER_ENTITY))?;
         }
         Ok(())
     }
 
     /// How far the run is, on `/progress`.
     pub fn progress(&mut self, t_ns: u64, progress: &ProgressMessage) -> Result<(), RecordError> {
-        self.write("/progress", t_ns, &Json(progress), Latch::No)
+        self.write(topic::PROGRESS, t_ns, &Json(progress), Latch::No)
     }
 
     /// A log line as foxglove.Log.
@@ -508,7 +542,7 @@ impl Recorder {
             file: String::new(),
             line: 0,
         };
-        self.write("/log", t_ns, &msg, Latch::No)
+        self.write(topic::LOG, t_ns, &msg, Latch::No)
     }
 
     /// Any JSON object on `topic` under a schema named `schema_name` that only says it is an
@@ -520,18 +554,13 @@ impl Recorder {
         t_ns: u64,
         msg: &serde_json::Value,
     ) -> Result<(), RecordError> {
-        let schema = serde_json::json!({"title": schema_name, "type": "object"});
         let data = serde_json::to_vec(msg).map_err(|e| RecordError::Encode {
             topic: topic.to_owned(),
             message: e.to_string(),
         })?;
         self.write_bytes(
             topic,
-            Some(Schema::new(
-                schema_name,
-                "jsonschema",
-                schema.to_string().into_bytes(),
-            )),
+            Some(object_schema(schema_name)),
             "json".to_owned(),
             t_ns,
             &data,
@@ -541,8 +570,7 @@ impl Recorder {
 
     /// One device command or reply on `/device/<name>`.
     pub fn device(&mut self, io: &DeviceIo) -> Result<(), RecordError> {
-        let topic = format!("/device/{}", io.device.name());
-        self.write(&topic, io.time_ns, &Json(io), Latch::No)
+        self.write(&topic::device(io.device), io.time_ns, &Json(io), Latch::No)
     }
 
     /// Closes the current chunk and flushes the file: everything so far survives a crash.
@@ -559,6 +587,57 @@ impl Recorder {
         }
         Ok(())
     }
+}
+
+/// A JSON schema that only names an object.
+fn object_schema(name: &str) -> Schema {
+    let schema = serde_json::json!({"title": name, "type": "object"});
+    Schema::new(name, "jsonschema", schema.to_string().into_bytes())
+}
+
+fn build_channel(
+    context: &Arc<Context>,
+    topic: &str,
+    schema: Option<Schema>,
+    encoding: String,
+) -> Result<Arc<RawChannel>, RecordError> {
+    Ok(ChannelBuilder::new(topic)
+        .context(context)
+        .schema(schema)
+        .message_encoding(encoding)
+        .build_raw()?)
+}
+
+/// Creates every channel of a run's record ([`topic`]) on `context`, with its schema, before a
+/// live view listens: the SDK (0.30) sends a channel's advertisement to the viewers connected
+/// when it is created a moment before it records the channel as theirs, so a quick viewer's
+/// subscription to it can be refused as "unknown channel" and is not retried; a viewer that
+/// connects after the channel exists is sent the advertisement, channel recorded, before its
+/// own messages are read. A declared channel without messages does not appear in the file.
+pub fn declare_run_channels(context: &Arc<Context>) -> Result<(), RecordError> {
+    fn typed<M: Encode>(context: &Arc<Context>, topic: &str) -> Result<(), RecordError> {
+        build_channel(context, topic, M::get_schema(), M::get_message_encoding()).map(drop)
+    }
+    for t in [topic::SCAN, topic::CAD] {
+        typed::<PointCloud>(context, t)?;
+    }
+    for t in [topic::TEMPLATE, topic::REGISTERED, topic::LAYER_SCENE] {
+        typed::<SceneUpdate>(context, t)?;
+    }
+    typed::<FrameTransform>(context, topic::TF)?;
+    typed::<Log>(context, topic::LOG)?;
+    typed::<Json<'_, LayerMessage>>(context, topic::LAYER)?;
+    typed::<Json<'_, ProgressMessage>>(context, topic::PROGRESS)?;
+    for d in [Device::Galvo, Device::Laser, Device::Cnc] {
+        typed::<Json<'_, DeviceIo>>(context, &topic::device(d))?;
+    }
+    for (t, name) in [
+        (topic::CALIBRATION, topic::CALIBRATION_SCHEMA),
+        (topic::SPOT_ERROR, topic::SPOT_ERROR_SCHEMA),
+    ] {
+        build_channel(context, t, Some(object_schema(name)), "json".to_owned())?;
+    }
+    Ok(())
 }
 
 /// The current layer's scene entity: its polylines (work-piece frame, scale-invariant lines)

@@ -10,7 +10,7 @@ use anyhow::Context;
 use trim_geom::{Path as TrimPath, PointCloud};
 use trim_io::executor::Progress;
 use trim_io::live::LiveServer;
-use trim_io::record::{ProgressMessage, Recorder, SharedRecorder};
+use trim_io::record::{ProgressMessage, Recorder, SharedRecorder, topic};
 use trim_io::tap::now_ns;
 use trim_plan::{Job, LayerKey};
 use trim_register::regional::Registration;
@@ -64,9 +64,9 @@ pub(super) fn record_inputs(
             .collect::<Vec<_>>()
     };
     let t_ns = now_ns();
-    r.point_cloud("/scan", t_ns, &to_rows(&inputs.scan))?;
+    r.point_cloud(topic::SCAN, t_ns, &to_rows(&inputs.scan))?;
     let cad_in_scan = inputs.cad.transformed(&registration.scan_from_cad);
-    r.point_cloud("/cad", t_ns, &to_rows(&cad_in_scan))?;
+    r.point_cloud(topic::CAD, t_ns, &to_rows(&cad_in_scan))?;
     let paths = |p: &TrimPath| {
         p.contours()
             .iter()
@@ -75,13 +75,13 @@ pub(super) fn record_inputs(
     };
     let template_in_scan = inputs.path.transformed(&registration.scan_from_cad);
     r.paths(
-        "/path/template",
+        topic::TEMPLATE,
         t_ns,
         &paths(&template_in_scan),
         [0.6, 0.6, 0.6, 1.0],
     )?;
     r.paths(
-        "/path/registered",
+        topic::REGISTERED,
         t_ns,
         &paths(&registration.path),
         [1.0, 0.3, 0.1, 1.0],
@@ -99,8 +99,8 @@ pub(super) fn record_calibration(
     rec.lock()
         .map_err(|_| anyhow::anyhow!("recorder lock poisoned"))?
         .json(
-            "/calibration",
-            "trimctl.Calibration",
+            topic::CALIBRATION,
+            topic::CALIBRATION_SCHEMA,
             now_ns(),
             &serde_json::json!({
                 "calibration": config.calibration,
@@ -116,8 +116,8 @@ pub(super) fn record_spot_error(rec: &SharedRecorder, report: &SpotReport) -> an
     rec.lock()
         .map_err(|_| anyhow::anyhow!("recorder lock poisoned"))?
         .json(
-            "/twin/spot_error",
-            "trimctl.SpotError",
+            topic::SPOT_ERROR,
+            topic::SPOT_ERROR_SCHEMA,
             now_ns(),
             &serde_json::to_value(report)?,
         )?;
