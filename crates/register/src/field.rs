@@ -125,6 +125,17 @@ impl BSplineField {
         3 * (2 + 2 * d[a] + 2 * d[a] * d[b]) + 2
     }
 
+    /// The half-bandwidth in unknowns once a prior of [`Self::differences`] of `order` is
+    /// added: its stencils reach `order` control points along an axis (at least the two of a
+    /// cell).
+    #[must_use]
+    pub fn bandwidth_with_prior(&self, order: usize) -> usize {
+        let d = self.dims();
+        let [a, b, _] = self.order;
+        let reach = order.max(2);
+        3 * (reach * (1 + d[a] + d[a] * d[b])) + 2
+    }
+
     /// The cell of `x` (per axis) and its 1-D basis values and derivatives (per mm).
     fn locate(&self, x: &Point3) -> ([usize; 3], [[f64; 3]; 3], [[f64; 3]; 3]) {
         let h = self.spacing_mm;
@@ -260,6 +271,44 @@ impl BSplineField {
             x = y - self.displacement(&x);
         }
         x
+    }
+
+    /// The `order`-th finite differences of the control displacements along each axis (per
+    /// displacement component): order 2 is `δ₋ − 2δ₀ + δ₊` (affine fields have zero energy),
+    /// order 3 is `−δ₀ + 3δ₁ − 3δ₂ + δ₃` (fields quadratic along each axis, such as a bend or a
+    /// twist, have zero energy). Returns the stencils as `(indices, coefficients)`; orders other
+    /// than 1–3 give none.
+    #[must_use]
+    pub fn differences(&self, order: usize) -> Vec<(Vec<usize>, Vec<f64>)> {
+        let coefficients: Vec<f64> = match order {
+            1 => vec![-1.0, 1.0],
+            2 => vec![1.0, -2.0, 1.0],
+            3 => vec![-1.0, 3.0, -3.0, 1.0],
+            _ => return Vec::new(),
+        };
+        let d = self.dims();
+        let mut out = Vec::new();
+        for k in 0..d[2] {
+            for j in 0..d[1] {
+                for i in 0..d[0] {
+                    let start = [i, j, k];
+                    for axis in 0..3 {
+                        if start[axis] + order >= d[axis] {
+                            continue;
+                        }
+                        let index = (0..=order)
+                            .map(|m| {
+                                let mut at = start;
+                                at[axis] += m;
+                                self.flat(at[0], at[1], at[2])
+                            })
+                            .collect();
+                        out.push((index, coefficients.clone()));
+                    }
+                }
+            }
+        }
+        out
     }
 
     /// The second-difference smoothness operator: for every control point with neighbours on

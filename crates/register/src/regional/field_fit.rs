@@ -167,7 +167,7 @@ pub(crate) fn fit_field(
     target: &IcpTarget,
     curvature: &[Matrix3<f64>],
     settings: &DeformationSettings,
-) -> Result<(BSplineField, Vec<Match>)> {
+) -> Result<(BSplineField, Vec<Match>, Option<FieldPosterior>)> {
     let bounds = target
         .cloud()
         .bounds()
@@ -179,7 +179,7 @@ pub(crate) fn fit_field(
         settings.spacing_mm,
     );
     let dim = 3 * field.len();
-    let stencils = field.second_differences();
+    let prior = prior_terms(&field, target.cloud().points(), settings.free_bending);
     let kernel = RobustKernel::Huber {
         k_mm: settings.huber_mm,
     };
@@ -203,32 +203,24 @@ pub(crate) fn fit_field(
             });
         }
         let (mut h, mut g) = field_normal_equations(&field, &pairs);
-        // Smoothness: λ Σ |Σ cₘ δₘ|² per component, λ relative to the mean data weight.
         let mean_diag = h.diagonal().sum() / dim as f64;
-        let lambda = settings.smoothness * mean_diag;
-        let coeffs = field.coefficients();
-        for (ix, c) in &stencils {
-            for x in 0..3 {
-                let e: f64 = (0..3).map(|m| c[m] * coeffs[ix[m]][x]).sum();
-                for a in 0..3 {
-                    g[3 * ix[a] + x] += lambda * c[a] * e;
-                    for b in 0..3 {
-                        h[(3 * ix[a] + x, 3 * ix[b] + x)] += lambda * c[a] * c[b];
-                    }
-                }
-            }
-        }
+        add_prior(
+            &mut h,
+            &mut g,
+            &field,
+            &prior,
+            settings.smoothness * mean_diag,
+        );
         // Levenberg-Marquardt damping: directions neither the data nor the prior fix (control
         // points far from the scan) take no step instead of an arbitrary one.
         for i in 0..dim {
             h[(i, i)] += FIELD_DAMPING * mean_diag.max(f64::MIN_POSITIVE);
         }
-        let step = solve_banded_spd(&h, &(-&g), field.bandwidth()).ok_or_else(|| {
-            RegisterError::Singular {
+        let step = solve_banded_spd(&h, &(-&g), field.bandwidth_with_prior(PRIOR_REACH))
+            .ok_or_else(|| RegisterError::Singular {
                 stage: format!("deformation field, iteration {it}"),
                 eigenvalues: Vec::new(),
-            }
-        })?;
+            })?;
         if step.iter().any(|v| !v.is_finite()) {
             return Err(RegisterError::NonFinite {
                 what: format!("deformation field step, iteration {it}"),
@@ -236,14 +228,184 @@ pub(crate) fn fit_field(
         }
         field.add_step(step.as_slice());
     }
-    let matches = final_matches(
+    let matched = match_points(
         points,
         target,
         curvature,
         Some(&field),
         settings.max_distance_end_mm,
     );
-    Ok((field, matches))
+    let posterior = field_posterior(&field, &matched, &prior, settings);
+    let matches = matched
+        .into_iter()
+        .zip(points)
+        .filter_map(|(m, q)| m.map(|(_, _, n, _, r)| Match { q: *q, n, r }))
+        .collect();
+    Ok((field, matches, posterior))
+}
+
+/// The fitted field's posterior covariance (Laplace approximation at the solution): the
+/// Gauss-Newton matrix of the last matches with the prior and the damping, `H`, inverted and
+/// scaled by the Huber-weighted residual variance, `C = σ² H⁻¹` (unknowns `3k + axis`, mm²).
+#[derive(Debug, Clone)]
+pub struct FieldPosterior {
+    covariance: DMatrix<f64>,
+    /// The residual standard deviation `σ`, mm.
+    pub sigma_mm: f64,
+}
+
+impl FieldPosterior {
+    /// The covariance of the displacement `d(x)` at `x` (CAD frame, mm²).
+    #[must_use]
+    pub fn displacement_covariance(&self, field: &BSplineField, x: &Point3) -> Matrix3<f64> {
+        let (index, value) = field.values(x);
+        let mut out = Matrix3::zeros();
+        for a in 0..SUPPORT {
+            for b in 0..SUPPORT {
+                let w = value[a] * value[b];
+                if w == 0.0 {
+                    continue;
+                }
+                let block = self
+                    .covariance
+                    .fixed_view::<3, 3>(3 * index[a], 3 * index[b]);
+                out += block * w;
+            }
+        }
+        out
+    }
+}
+
+/// The posterior of the field at its last matches (see [`FieldPosterior`]); `None` when the
+/// matrix cannot be inverted.
+fn field_posterior(
+    field: &BSplineField,
+    matched: &[Option<Matched>],
+    prior: &[PriorTerm],
+    settings: &DeformationSettings,
+) -> Option<FieldPosterior> {
+    let kernel = RobustKernel::Huber {
+        k_mm: settings.huber_mm,
+    };
+    let pairs: Vec<(Point3, Vector3, f64, f64)> = matched
+        .iter()
+        .filter_map(|m| m.map(|(_, c, n, _, r)| (c, n, r, kernel.weight(r))))
+        .collect();
+    let dim = 3 * field.len();
+    let (mut h, mut g) = field_normal_equations(field, &pairs);
+    let mean_diag = h.diagonal().sum() / dim as f64;
+    add_prior(
+        &mut h,
+        &mut g,
+        field,
+        prior,
+        settings.smoothness * mean_diag,
+    );
+    for i in 0..dim {
+        h[(i, i)] += FIELD_DAMPING * mean_diag.max(f64::MIN_POSITIVE);
+    }
+    let (wr2, w): (f64, f64) = pairs
+        .iter()
+        .fold((0.0, 0.0), |(a, b), p| (a + p.3 * p.2 * p.2, b + p.3));
+    // Residual variance per unit weight, the fitted unknowns' degrees of freedom taken out (at
+    // most `dim`; the prior fixes most of them).
+    let sigma2 = wr2 / (w - dim as f64).max(1.0);
+    let inverse = h.cholesky()?.inverse();
+    Some(FieldPosterior {
+        covariance: inverse * sigma2,
+        sigma_mm: sigma2.sqrt(),
+    })
+}
+
+/// Control points one prior stencil spans beyond its first (third differences).
+pub const PRIOR_REACH: usize = 3;
+
+/// One term of the smoothness prior: a finite-difference stencil over control points along an
+/// axis, applied to the displacements projected by `projector` (CAD frame).
+pub(crate) struct PriorTerm {
+    index: Vec<usize>,
+    coefficients: Vec<f64>,
+    projector: Matrix3<f64>,
+}
+
+/// The part's thin axis, CAD frame: the least principal axis of the CAD points (a slab's
+/// normal).
+pub(crate) fn thin_axis(points: &[Point3]) -> Vector3 {
+    let n = points.len().max(1) as f64;
+    let mean = points.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / n;
+    let cov: Matrix3<f64> = points
+        .iter()
+        .map(|p| (p.coords - mean) * (p.coords - mean).transpose())
+        .sum::<Matrix3<f64>>()
+        / n;
+    let eig = SymmetricEigen::new(cov);
+    let imin = eig.eigenvalues.imin();
+    eig.eigenvectors.column(imin).into_owned()
+}
+
+/// The prior's terms. Without `free_bending`: second differences of the whole displacement
+/// (affine motion free). With it: second differences of the displacement across the part's
+/// thin axis `u` (projector `I − u uᵀ`) and third differences of its component along `u`
+/// (`u uᵀ`), so a bend (a displacement along `u` quadratic along the part) costs nothing while
+/// the in-plane motion, which only walls and rims fix, stays as stiff as before.
+pub(crate) fn prior_terms(
+    field: &BSplineField,
+    cad: &[Point3],
+    free_bending: bool,
+) -> Vec<PriorTerm> {
+    let term = |(index, coefficients), projector| PriorTerm {
+        index,
+        coefficients,
+        projector,
+    };
+    if !free_bending {
+        return field
+            .differences(2)
+            .into_iter()
+            .map(|s| term(s, Matrix3::identity()))
+            .collect();
+    }
+    let u = thin_axis(cad);
+    let along = u * u.transpose();
+    let across = Matrix3::identity() - along;
+    field
+        .differences(2)
+        .into_iter()
+        .map(|s| term(s, across))
+        .chain(field.differences(3).into_iter().map(|s| term(s, along)))
+        .collect()
+}
+
+/// Adds `λ Σ |P Σₘ cₘ δₘ|²` (gradient and Gauss-Newton matrix) to the normal equations.
+pub(crate) fn add_prior(
+    h: &mut DMatrix<f64>,
+    g: &mut DVector<f64>,
+    field: &BSplineField,
+    prior: &[PriorTerm],
+    lambda: f64,
+) {
+    let coeffs = field.coefficients();
+    for t in prior {
+        let e: Vector3 = t
+            .index
+            .iter()
+            .zip(&t.coefficients)
+            .map(|(&k, &c)| c * coeffs[k])
+            .sum();
+        let pe = t.projector * e;
+        for (&ia, &ca) in t.index.iter().zip(&t.coefficients) {
+            for x in 0..3 {
+                g[3 * ia + x] += lambda * ca * pe[x];
+            }
+            for (&ib, &cb) in t.index.iter().zip(&t.coefficients) {
+                for x in 0..3 {
+                    for y in 0..3 {
+                        h[(3 * ia + x, 3 * ib + y)] += lambda * ca * cb * t.projector[(x, y)];
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// `Σ w a aᵀ` and `Σ w a r` with `a = Bₖ(c) n'` (the residual's gradient in `δₖ`), accumulated

@@ -157,7 +157,7 @@ pub fn register(
         });
     }
 
-    let (field, matches) = match settings.mode {
+    let (field, matches, posterior) = match settings.mode {
         Mode::Global => (
             None,
             final_matches(
@@ -167,15 +167,16 @@ pub fn register(
                 None,
                 settings.quality.overlap_distance_mm,
             ),
+            None,
         ),
         Mode::Regional => {
             let curvature = stage(&mut timings, "cad curvature", || {
                 Ok(shape_operators(target.cloud(), target.tree()))
             })?;
-            let (f, m) = stage(&mut timings, "deformation field", || {
+            let (f, m, p) = stage(&mut timings, "deformation field", || {
                 fit_field(&field_points, &target, &curvature, &settings.field)
             })?;
-            (Some(f), m)
+            (Some(f), m, p)
         }
     };
 
@@ -192,6 +193,7 @@ pub fn register(
         Ok(contour_quality(
             path,
             field.as_ref(),
+            posterior.as_ref(),
             &matches,
             &scan_from_cad,
             &settings.quality,

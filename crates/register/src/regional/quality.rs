@@ -13,10 +13,8 @@ pub enum Flag {
     LowCoverage,
     /// The scan near the contour does not fit the registered CAD.
     HighResidual,
-    /// The patch alone cannot fix some direction (informational when supported).
-    Degenerate,
-    /// Degenerate, and the surroundings do not fix that direction either.
-    Unsupported,
+    /// The predicted error bound `predicted_max_error_um` exceeds `tolerance_um`.
+    PredictedError,
 }
 
 /// The quality of one registered contour (report JSON).
@@ -43,6 +41,20 @@ pub struct ContourQuality {
     /// Largest field displacement along the contour, mm (how far it moved beyond the coarse
     /// similarity).
     pub max_field_displacement_mm: f64,
+    /// The field's posterior standard deviation across the contour (the largest over its points
+    /// of the displacement covariance's largest eigenvalue in the plane normal to the contour),
+    /// mm; 0 in global mode.
+    pub field_sigma_mm: f64,
+    /// The direction of that deviation (the contour's weak direction), scan frame.
+    pub field_weak_direction: [f64; 3],
+    /// Distance from the contour to the nearest scan point whose surface faces along the weak
+    /// direction (within 60°), mm: how far the field carries the contour's position from the
+    /// data that fix it.
+    pub support_distance_mm: f64,
+    /// The predicted bound on the contour's largest cross-edge error, µm: from the field's
+    /// posterior deviation across it, its residual, its coverage and its distance to supporting
+    /// data (constants in `quality.rs`, calibrated on synthetic cores, DESIGN.md).
+    pub predicted_max_error_um: f64,
     /// What was found wrong.
     pub flags: Vec<Flag>,
     /// Whether the planner may use the contour.
@@ -105,9 +117,76 @@ pub(crate) fn translational_degeneracy(
     )
 }
 
+/// The predicted bound's terms (`predicted_max_error_um`, DESIGN.md "Registration"),
+/// calibrated on the seeded synthetic cores 101–124 (disjoint from the test seeds) so that the
+/// actual largest cross-edge error stays under the bound on ≥ 97 % of their contours.
+///
+/// Multiple of the field's posterior deviation across the contour (the largest along a contour
+/// of a few hundred points of a Gaussian field is about 3σ).
+pub const BOUND_SIGMA_FACTOR: f64 = 4.0;
+/// The bias floor the posterior does not see (correspondence bias at rims and walls), mm.
+pub const BOUND_BIAS_MM: f64 = 0.007;
+/// Multiple of the patch residual beyond the field's residual deviation (a misfit the field
+/// could not follow), per mm of excess.
+pub const BOUND_RESIDUAL_FACTOR: f64 = 1.0;
+/// Growth per mm of distance between the contour and the data that fix its weak direction, mm.
+pub const BOUND_DISTANCE_SLOPE: f64 = 0.0;
+/// Growth of the bound as coverage falls: `× (1 + BOUND_COVERAGE_FACTOR · (1 − coverage))`.
+pub const BOUND_COVERAGE_FACTOR: f64 = 0.5;
+/// Scan points count as support of a weak direction `w` when `|n·w|` reaches this (60°).
+pub const SUPPORT_MIN_COS: f64 = 0.5;
+/// Contour points sampled for the posterior deviation and the support distance (every k-th).
+pub const BOUND_SAMPLE_STEP: usize = 2;
+
+/// The contour's weak direction, CAD frame, and the posterior deviation along it (mm): the
+/// largest over the sampled points of the top eigenvalue of the displacement covariance
+/// projected on the plane normal to the contour.
+fn weak_direction(
+    points: &[Point3],
+    field: &BSplineField,
+    posterior: &FieldPosterior,
+) -> (f64, Vector3) {
+    let mut worst = (0.0, Vector3::z());
+    for k in (0..points.len()).step_by(BOUND_SAMPLE_STEP) {
+        let a = points[k.saturating_sub(1)];
+        let b = points[(k + 1).min(points.len() - 1)];
+        let Some(t) = (b - a).try_normalize(1e-12) else {
+            continue;
+        };
+        let p = Matrix3::identity() - t * t.transpose();
+        let c = p * posterior.displacement_covariance(field, &points[k]) * p;
+        let eig = SymmetricEigen::new(c);
+        let i = eig.eigenvalues.imax();
+        let var = eig.eigenvalues[i].max(0.0);
+        if var > worst.0 {
+            worst = (var, eig.eigenvectors.column(i).into_owned());
+        }
+    }
+    (worst.0.sqrt(), worst.1)
+}
+
+/// The predicted bound on a contour's largest cross-edge error, mm (see the `BOUND_*`
+/// constants).
+#[must_use]
+pub fn predicted_bound_mm(
+    field_sigma_mm: f64,
+    residual_rms_mm: Option<f64>,
+    field_residual_mm: f64,
+    coverage: f64,
+    support_distance_mm: f64,
+) -> f64 {
+    let excess = residual_rms_mm.map_or(0.0, |r| (r - field_residual_mm).max(0.0));
+    (BOUND_SIGMA_FACTOR * field_sigma_mm
+        + BOUND_BIAS_MM
+        + BOUND_RESIDUAL_FACTOR * excess
+        + BOUND_DISTANCE_SLOPE * support_distance_mm)
+        * (1.0 + BOUND_COVERAGE_FACTOR * (1.0 - coverage.clamp(0.0, 1.0)))
+}
+
 pub(crate) fn contour_quality(
     path: &Path,
     field: Option<&BSplineField>,
+    posterior: Option<&FieldPosterior>,
     matches: &[Match],
     scan_from_cad: &Similarity3,
     q: &QualitySettings,
@@ -115,6 +194,7 @@ pub(crate) fn contour_quality(
     let pts: Vec<Point3> = matches.iter().map(|m| m.q).collect();
     let tree = KdTree::build(&pts);
     let rot = scan_from_cad.isometry.rotation;
+    let field_residual_mm = posterior.map_or(0.0, |p| p.sigma_mm);
     path.contours()
         .par_iter()
         .map(|c| {
@@ -154,6 +234,35 @@ pub(crate) fn contour_quality(
                 0.0
             };
             let coverage = covered as f64 / c.points().len() as f64;
+            let (field_sigma_mm, weak) = match (field, posterior) {
+                (Some(f), Some(p)) => weak_direction(c.points(), f, p),
+                _ => (0.0, weakest),
+            };
+            // Nearest scan point whose surface faces along the weak direction.
+            let supporting: Vec<Point3> = support
+                .iter()
+                .filter(|&&i| matches[i].n.dot(&weak).abs() >= SUPPORT_MIN_COS)
+                .map(|&i| matches[i].q)
+                .collect();
+            let support_distance_mm = if supporting.is_empty() {
+                q.support_radius_mm
+            } else {
+                let near = KdTree::build(&supporting);
+                moved
+                    .iter()
+                    .step_by(BOUND_SAMPLE_STEP)
+                    .filter_map(|p| near.nearest(p).map(|n| n.distance_sq.sqrt()))
+                    .fold(f64::INFINITY, f64::min)
+                    .min(q.support_radius_mm)
+            };
+            let predicted_max_error_um = 1e3
+                * predicted_bound_mm(
+                    field_sigma_mm,
+                    residual_rms_mm,
+                    field_residual_mm,
+                    coverage,
+                    support_distance_mm,
+                );
             let mut flags = Vec::new();
             if patch.is_empty() {
                 flags.push(Flag::NoScanPoints);
@@ -164,19 +273,12 @@ pub(crate) fn contour_quality(
             if residual_rms_mm.is_some_and(|r| r > q.max_residual_mm) {
                 flags.push(Flag::HighResidual);
             }
-            if degeneracy_ratio < q.min_degeneracy_ratio {
-                flags.push(Flag::Degenerate);
-                if support_ratio < q.min_degeneracy_ratio {
-                    flags.push(Flag::Unsupported);
-                }
+            if predicted_max_error_um > q.tolerance_um {
+                flags.push(Flag::PredictedError);
             }
-            let trustworthy = !flags.iter().any(|f| {
-                matches!(
-                    f,
-                    Flag::NoScanPoints | Flag::LowCoverage | Flag::HighResidual | Flag::Unsupported
-                )
-            });
+            let trustworthy = flags.is_empty();
             let w = rot * weakest;
+            let fw = rot * weak;
             ContourQuality {
                 id: c.id(),
                 points: c.points().len(),
@@ -187,6 +289,10 @@ pub(crate) fn contour_quality(
                 weakest_direction: [w.x, w.y, w.z],
                 support_ratio,
                 max_field_displacement_mm,
+                field_sigma_mm,
+                field_weak_direction: [fw.x, fw.y, fw.z],
+                support_distance_mm,
+                predicted_max_error_um,
                 flags,
                 trustworthy,
             }
