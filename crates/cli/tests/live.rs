@@ -15,7 +15,7 @@ fn a_bad_address_is_refused_with_what_is_wrong() {
     ] {
         let dir = tempfile::tempdir().unwrap();
         let out = Command::new(TRIMCTL)
-            .args(["run", "--dry-run", "--out"])
+            .args(["run", "--out"])
             .arg(dir.path().join("run"))
             .args(["--live", value])
             .output()
@@ -31,6 +31,14 @@ fn a_bad_address_is_refused_with_what_is_wrong() {
             "{value}: a run folder was made"
         );
     }
+    // A dry run executes nothing, so it has nothing to serve.
+    let out = Command::new(TRIMCTL)
+        .args(["run", "--dry-run", "--live"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("--dry-run"), "{stderr}");
 }
 
 #[test]
@@ -39,7 +47,7 @@ fn a_taken_port_is_refused_before_the_run_starts() {
     let port = holder.local_addr().unwrap().port();
     let dir = tempfile::tempdir().unwrap();
     let out = Command::new(TRIMCTL)
-        .args(["run", "--dry-run", "--out"])
+        .args(["run", "--out"])
         .arg(dir.path().join("run"))
         .arg(format!("--live=127.0.0.1:{port}"))
         .output()

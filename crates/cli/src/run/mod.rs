@@ -131,7 +131,8 @@ pub struct Args {
         value_name = "HOST:PORT",
         num_args = 0..=1,
         default_missing_value = DEFAULT_LIVE_ADDR,
-        value_parser = parse_live_addr
+        value_parser = parse_live_addr,
+        conflicts_with = "dry_run"
     )]
     live: Option<LiveAddr>,
 }
