@@ -344,7 +344,11 @@ pub fn fit_lists(samples: &[ListSample]) -> Result<ListFit, CalibError> {
             .map(|s| s.measured_s - s.list.commanded_s(&s.galvo)),
     );
     // The terms' names and their regressors: per list, per mark run, per inner vertex.
-    let names = ["list_overhead_s", "polyline_overhead_s", "vertex_overhead_s"];
+    let names = [
+        "list_overhead_s",
+        "polyline_overhead_s",
+        "vertex_overhead_s",
+    ];
     let regressor = |s: &ListSample, k: usize| match k {
         0 => 1.0,
         1 => s.list.mark_runs as f64,

@@ -25,7 +25,7 @@ fn truth(seed: u64) -> LensDistortion {
     let s = seed as f64;
     LensDistortion {
         offset_mm: [0.1 + 0.07 * s, -(0.08 + 0.06 * s)],
-        rotation_deg: if seed % 2 == 0 { 1.0 } else { -1.0 } * (0.05 + 0.03 * s),
+        rotation_deg: if seed.is_multiple_of(2) { 1.0 } else { -1.0 } * (0.05 + 0.03 * s),
         // Barrel: k·50³ = −(40 … 72) µm at the field edge.
         barrel_per_mm2: -(40.0 + 8.0 * s) * 1e-3 / HALF_FIELD_MM.powi(3),
         // Keystone: 10 … 35 µm at the corners.

@@ -262,10 +262,10 @@ impl Mesh {
             // t < num_triangles, which fits in u32.
             let tri = self.surface.triangle(t as u32);
             let d = tri.distance_to_local_point(on_surface, false);
-            if d < best.0 {
-                if let Some(n) = tri.normal() {
-                    best = (d, n.into_inner());
-                }
+            if d < best.0
+                && let Some(n) = tri.normal()
+            {
+                best = (d, n.into_inner());
             }
         }
         best.1

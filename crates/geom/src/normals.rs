@@ -41,13 +41,13 @@ pub fn estimate_normals(
             got: points.len(),
         });
     }
-    if let Orientation::AlongReference(r) = orientation {
-        if !r.iter().all(|c| c.is_finite()) || r.norm() <= 0.0 {
-            return Err(GeomError::invalid(
-                "reference",
-                "orientation reference must be a finite non-zero vector",
-            ));
-        }
+    if let Orientation::AlongReference(r) = orientation
+        && (!r.iter().all(|c| c.is_finite()) || r.norm() <= 0.0)
+    {
+        return Err(GeomError::invalid(
+            "reference",
+            "orientation reference must be a finite non-zero vector",
+        ));
     }
     let tree = KdTree::build(points);
     Ok(points

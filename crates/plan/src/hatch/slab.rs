@@ -245,11 +245,10 @@ fn equal_steps(
         }
         y += dc;
     }
-    if let Some(p) = solve(y1) {
-        if last.is_none_or(|l| (p - l).norm() > 1e-3 * step_m) {
+    if let Some(p) = solve(y1)
+        && last.is_none_or(|l| (p - l).norm() > 1e-3 * step_m) {
             out.push(p);
         }
-    }
     out
 }
 

@@ -39,7 +39,7 @@ fn pick(seed: u64, k: u64, (lo, hi): (f64, f64)) -> f64 {
 /// divisible by 4 take the far end of every range at once (the hardest core).
 #[must_use]
 pub fn case_params(seed: u64, scan_points: usize, cad_points: usize) -> SynthParams {
-    let far = seed % 4 == 0;
+    let far = seed.is_multiple_of(4);
     let p = |k, range: (f64, f64)| if far { range.1 } else { pick(seed, k, range) };
     SynthParams {
         seed,
