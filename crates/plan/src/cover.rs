@@ -457,12 +457,13 @@ impl CoverProblem<'_> {
             let mut trial = pts.clone();
             trial.extend_from_slice(&atoms[j].rep);
             if let Some(next) = self.fit(&trial, Some(&pose.axis))
-                && self.covers_rep(&next, &trial) {
-                    pose = next;
-                    pts = self.prune(&pose, &trial);
-                    pruned_len = pts.len().max(4 * PRUNE_DIRECTIONS);
-                    members.push(j);
-                }
+                && self.covers_rep(&next, &trial)
+            {
+                pose = next;
+                pts = self.prune(&pose, &trial);
+                pruned_len = pts.len().max(4 * PRUNE_DIRECTIONS);
+                members.push(j);
+            }
         }
         Some((pose, members))
     }
@@ -490,9 +491,10 @@ impl CoverProblem<'_> {
         }
         for s in tries {
             if let Some(pose) = self.fit(&pts, s)
-                && set.iter().all(|&j| self.covers_atom(&pose, &atoms[j])) {
-                    return Some(pose);
-                }
+                && set.iter().all(|&j| self.covers_atom(&pose, &atoms[j]))
+            {
+                return Some(pose);
+            }
         }
         None
     }

@@ -133,9 +133,10 @@ pub fn layer_pieces(pieces: &[Piece], origin: &Point3, axis: &Vector3, step_mm: 
         let mut current: Option<(usize, LayerPiece)> = None;
         let mut close = |cur: &mut Option<(usize, LayerPiece)>| {
             if let Some((l, lp)) = cur.take()
-                && lp.points.len() >= 2 {
-                    by_layer[l].push(lp);
-                }
+                && lp.points.len() >= 2
+            {
+                by_layer[l].push(lp);
+            }
         };
         for i in 0..piece.points.len() - 1 {
             let (pa, pb) = (piece.points[i], piece.points[i + 1]);

@@ -154,12 +154,13 @@ impl KdTree {
         if let Some((i, p)) = hint {
             let d = dist_sq(&q, &[p.x, p.y, p.z]);
             if let Ok(i) = u32::try_from(i)
-                && d <= max_distance_sq {
-                    best = Nearest {
-                        distance_sq: d,
-                        index: i,
-                    };
-                }
+                && d <= max_distance_sq
+            {
+                best = Nearest {
+                    distance_sq: d,
+                    index: i,
+                };
+            }
         }
         self.search(&q, &mut best, &mut scratch.stack);
         (best.index != u32::MAX).then_some(Neighbour {

@@ -133,7 +133,13 @@ pub(super) fn execute(
         };
         let _ = bars.await;
         if let Ok(run) = &result {
-            let scale = |device: &str| if device == SIM { args.sim_time_scale } else { 1.0 };
+            let scale = |device: &str| {
+                if device == SIM {
+                    args.sim_time_scale
+                } else {
+                    1.0
+                }
+            };
             let clocks = crate::timing_record::Clocks {
                 cnc: config.cell.cnc.clone(),
                 cnc_time_scale: scale(&config.cell.cnc),

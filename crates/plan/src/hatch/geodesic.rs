@@ -155,14 +155,16 @@ impl DistanceField {
                         }
                         let Some(py) = pos[y] else { continue };
                         let mut best = d[k] + (py - pk).norm();
-                        if known[z] && d[z].is_finite()
-                            && let Some(pz) = pos[z] {
-                                if let Some(t) = triangle_update(&py, &pk, d[k], &pz, d[z]) {
-                                    best = best.min(t);
-                                } else {
-                                    best = best.min(d[z] + (py - pz).norm());
-                                }
+                        if known[z]
+                            && d[z].is_finite()
+                            && let Some(pz) = pos[z]
+                        {
+                            if let Some(t) = triangle_update(&py, &pk, d[k], &pz, d[z]) {
+                                best = best.min(t);
+                            } else {
+                                best = best.min(d[z] + (py - pz).norm());
                             }
+                        }
                         if best < d[y] {
                             d[y] = best;
                             heap.push(Entry(best, y));
@@ -322,10 +324,12 @@ impl DistanceField {
                     next[1]
                 } else {
                     // Close a loop back onto its start.
-                    if next.contains(&s) && chain.len() > 2
-                        && let Some(p) = points.get(&s) {
-                            chain.push(*p);
-                        }
+                    if next.contains(&s)
+                        && chain.len() > 2
+                        && let Some(p) = points.get(&s)
+                    {
+                        chain.push(*p);
+                    }
                     break;
                 };
                 prev = cur;

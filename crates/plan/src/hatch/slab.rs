@@ -246,9 +246,10 @@ fn equal_steps(
         y += dc;
     }
     if let Some(p) = solve(y1)
-        && last.is_none_or(|l| (p - l).norm() > 1e-3 * step_m) {
-            out.push(p);
-        }
+        && last.is_none_or(|l| (p - l).norm() > 1e-3 * step_m)
+    {
+        out.push(p);
+    }
     out
 }
 

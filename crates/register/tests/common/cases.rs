@@ -58,7 +58,10 @@ pub fn case_params(seed: u64, scan_points: usize, cad_points: usize) -> SynthPar
 /// Contour groups of the synthetic core, by id.
 #[cfg_attr(
     test,
-    expect(dead_code, reason = "the example prints per group; the tests score all contours")
+    expect(
+        dead_code,
+        reason = "the example prints per group; the tests score all contours"
+    )
 )]
 pub const GROUPS: [(&str, std::ops::RangeInclusive<i64>); 3] =
     [("slots", 1..=4), ("holes", 5..=46), ("edges", 47..=52)];
