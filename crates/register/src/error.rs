@@ -93,6 +93,39 @@ pub enum RegisterError {
         /// The required fraction, percent.
         needed_pct: f64,
     },
+    /// The coarse fit puts the part beyond the capture range from the fixture's nominal pose:
+    /// the part is not where the fixture says, or the nominal pose is not this fixture's.
+    #[error(
+        "the part lies {rotation_deg:.1}° and {translation_mm:.1} mm from the fixture's nominal pose, beyond the capture range of {max_rotation_deg}° and {max_translation_mm} mm (register.coarse.capture_*): check that the part is seated in the fixture, that the nominal pose (job.toml [part.scan_from_cad] or register --initial) is this fixture's, and that the scan is of this part"
+    )]
+    OutsideCaptureRange {
+        /// The fit's rotation from the nominal pose, degrees.
+        rotation_deg: f64,
+        /// The fit's displacement of the CAD's centroid from the nominal pose's, mm.
+        translation_mm: f64,
+        /// The capture range's rotation, degrees.
+        max_rotation_deg: f64,
+        /// The capture range's translation, mm.
+        max_translation_mm: f64,
+    },
+    /// No start within the capture range laid the scan on the CAD.
+    #[error(
+        "no start within {max_rotation_deg}° and {max_translation_mm} mm of the fixture's nominal pose lays the scan on the CAD: after {starts} starts at best {score_pct:.1} % of the scan lies within {distance_mm} mm of it (needs {needed_pct:.0} %); check that the part is seated in the fixture, that the nominal pose (job.toml [part.scan_from_cad] or register --initial) is this fixture's, and that the scan is of this part"
+    )]
+    NotCaptured {
+        /// The best start's share of scan voxels near the CAD, percent.
+        score_pct: f64,
+        /// The distance used, mm.
+        distance_mm: f64,
+        /// The share needed, percent.
+        needed_pct: f64,
+        /// Starts fitted.
+        starts: usize,
+        /// The capture range's rotation, degrees.
+        max_rotation_deg: f64,
+        /// The capture range's translation, mm.
+        max_translation_mm: f64,
+    },
     /// A contour could not be registered at all.
     #[error("contour {contour}: {message}")]
     Contour {

@@ -136,7 +136,12 @@ fn refuses_a_scan_that_does_not_overlap_the_cad() {
         &settings(&c),
     )
     .unwrap_err();
-    assert!(matches!(err, RegisterError::NotOverlapping { .. }), "{err}");
+    // The centroid start finds the part 200 mm from the fixture's pose: refused as beyond the
+    // capture range, with the distance.
+    assert!(
+        matches!(err, RegisterError::OutsideCaptureRange { translation_mm, .. } if (translation_mm - 200.0).abs() < 1.0),
+        "{err}"
+    );
     let err = register(
         &c.cad_points,
         &PointCloud::default(),

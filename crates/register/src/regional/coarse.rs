@@ -1,5 +1,8 @@
-//! The coarse similarity: a start from the fixture pose or the principal axes, then scan → CAD
-//! point-to-plane ICP with scale over a voxel pyramid.
+//! The coarse similarity (DESIGN.md "Registration", steps 2–3). The *capture* fits starts from
+//! the fixture's nominal pose at the pyramid's top level, scores each by how much of the scan it
+//! lays on the CAD, keeps the best and refuses it when it puts the part beyond the capture range;
+//! the *refinement* then runs scan → CAD point-to-plane ICP with scale down the rest of the voxel
+//! pyramid.
 
 use super::*;
 
@@ -7,77 +10,409 @@ use super::*;
 /// part is that far off, and a scan → CAD fit that gets there is shrinking onto the surface.
 pub const MAX_COARSE_LOG_SCALE_CHANGE: f64 = 0.1;
 
-/// The centroid start may move the scan at most this far from the nominal pose, mm (three times
-/// the 5 mm fixture error trimctl is specified for): a larger shift means the scan is not of
-/// this part at this fixture, refused as not overlapping.
-pub const MAX_INIT_TRANSLATION_MM: f64 = 15.0;
-
 /// Principal axes count as defined when consecutive variances differ by this factor.
 pub const MIN_AXIS_VARIANCE_RATIO: f64 = 1.3;
 
-/// The coarse similarity `cad_from_scan`: scan → CAD point-to-plane ICP over a pyramid of scan
-/// voxel sizes, against the full-resolution (visible) CAD.
+/// A fit may put the part this far beyond `capture_rotation_deg`, degrees, before it is refused:
+/// the coarse similarity of a deformed part differs from the fixture's placement by the share of
+/// bend and twist it absorbs (0.03° on the synthetic cores), so a part placed at the range's edge
+/// is not refused for rounding.
+pub const CAPTURE_MARGIN_DEG: f64 = 1.0;
+
+/// The same beyond `capture_translation_mm`, mm: the offset is measured at the visible CAD's
+/// centroid, which a rotation about another point also moves (0.7 mm at 20° for the synthetic
+/// core's centroid, 2 mm off its origin).
+pub const CAPTURE_MARGIN_MM: f64 = 1.0;
+
+/// A start is scored by the fraction of the top level's scan voxels within this distance of the
+/// CAD after its fit, mm: above the rigid top level's misfit on a deformed part (bend ≤ 0.5 mm),
+/// below what a start that slid or turned off the part leaves.
+pub const CAPTURE_INLIER_MM: f64 = 1.0;
+
+/// The first start is kept, and no other tried, when its score reaches this (the synthetic cores
+/// score 0.97–0.99 when captured).
+pub const CAPTURE_ACCEPT_SCORE: f64 = 0.9;
+
+/// The best start must score at least this, or nothing captured the part.
+pub const CAPTURE_MIN_SCORE: f64 = 0.6;
+
+/// The further starts turn the nominal rotation by ± this about each principal axis of the
+/// visible CAD, degrees: with the nominal rotation itself they cover the capture range with
+/// starts that each lie well inside the top level's basin (above 20° on the cores).
+pub const CAPTURE_STEP_DEG: f64 = 15.0;
+
+/// Two starts closer than this (rotation, radians) are the same start.
+const SAME_START_RAD: f64 = 1e-6;
+
+/// How far a `scan_from_cad` puts the part from the fixture's nominal one: the angle of the
+/// rotation between them and the distance the visible CAD's centroid moves (scan frame), so that
+/// neither depends on where the CAD's origin lies.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PoseOffset {
+    /// Rotation angle, degrees.
+    pub rotation_deg: f64,
+    /// Displacement of the CAD's centroid, mm.
+    pub translation_mm: f64,
+}
+
+impl PoseOffset {
+    /// The offset of `scan_from_cad` from `scan_from_cad_nominal`, the displacement taken at
+    /// `centroid_cad` (CAD frame).
+    #[must_use]
+    pub fn between(
+        scan_from_cad_nominal: &Similarity3,
+        scan_from_cad: &Similarity3,
+        centroid_cad: &Point3,
+    ) -> Self {
+        let rotation =
+            scan_from_cad_nominal.isometry.rotation.inverse() * scan_from_cad.isometry.rotation;
+        PoseOffset {
+            rotation_deg: rotation.angle().to_degrees(),
+            translation_mm: (scan_from_cad * centroid_cad - scan_from_cad_nominal * centroid_cad)
+                .norm(),
+        }
+    }
+
+    /// Whether it lies within the capture range of `settings` (plus the margins).
+    #[must_use]
+    pub fn within(&self, settings: &CoarseSettings) -> bool {
+        self.rotation_deg <= settings.capture_rotation_deg + CAPTURE_MARGIN_DEG
+            && self.translation_mm <= settings.capture_translation_mm + CAPTURE_MARGIN_MM
+    }
+}
+
+/// The capture's result: the start kept, fitted at the pyramid's top level.
+#[derive(Debug, Clone)]
+pub struct Capture {
+    /// The top level's fit from the kept start (`target_from_source` is `cad_from_scan`).
+    pub fit: IcpResult,
+    /// Its score: the fraction of the top level's scan voxels within [`CAPTURE_INLIER_MM`] of
+    /// the CAD.
+    pub score: f64,
+    /// Starts fitted (1 when the first was kept at once).
+    pub starts: usize,
+    /// How far the fit puts the part from the fixture's nominal pose.
+    pub offset: PoseOffset,
+}
+
+/// The coarse similarity `cad_from_scan`: [`capture`], then [`refine`] against the same target.
 pub fn coarse_fit(
     scan: &PointCloud,
     target: &IcpTarget,
-    cad_from_scan_initial: &Similarity3,
+    cad_from_scan_nominal: &Similarity3,
     settings: &CoarseSettings,
 ) -> Result<IcpResult> {
-    let first_voxel = settings.levels.first().map_or(1.0, |l| l.voxel_mm);
-    let mut current = initial_guess(scan, target, cad_from_scan_initial, settings, first_voxel)?;
-    let mut result = None;
-    let mut iterations = 0;
-    for (k, level) in settings.levels.iter().enumerate() {
+    let captured = capture(scan, target, cad_from_scan_nominal, settings)?;
+    refine(scan, target, &captured, settings)
+}
+
+/// The capture: from the fixture's nominal `cad_from_scan`, the start of `settings.init` is
+/// fitted at the pyramid's top level and kept when it scores [`CAPTURE_ACCEPT_SCORE`];
+/// otherwise the other starts (the nominal rotation, the principal axes, the nominal rotation
+/// turned by ±[`CAPTURE_STEP_DEG`] about each principal axis; each with the centroids matched)
+/// are fitted too and the best score kept, the earliest on a tie. Deterministic.
+///
+/// Refused: [`RegisterError::NotCaptured`] when the best scores below [`CAPTURE_MIN_SCORE`],
+/// [`RegisterError::OutsideCaptureRange`] when it puts the part beyond the capture range, the
+/// first start's error when no start could be fitted at all.
+pub fn capture(
+    scan: &PointCloud,
+    target: &IcpTarget,
+    cad_from_scan_nominal: &Similarity3,
+    settings: &CoarseSettings,
+) -> Result<Capture> {
+    let level = settings
+        .levels
+        .first()
+        .ok_or_else(|| RegisterError::setting("coarse.levels", "needs at least one level"))?;
+    let source = PointCloud::new(dense_voxel_centroids(
+        scan.points(),
+        level.voxel_mm,
+        settings.min_voxel_points,
+    )?)?;
+    let frame = StartFrame::new(&source, target, cad_from_scan_nominal, level.voxel_mm)?;
+    let scan_from_cad_nominal = cad_from_scan_nominal.inverse();
+    let last = settings.levels.len() == 1;
+    let score = |fit: &IcpResult| {
+        let on_cad: Vec<Point3> = source
+            .points()
+            .iter()
+            .map(|p| fit.target_from_source * p)
+            .collect();
+        overlap_fraction(&on_cad, target.tree(), CAPTURE_INLIER_MM)
+    };
+
+    let first = frame.first_start(settings, cad_from_scan_nominal);
+    let mut tried: Vec<Option<Rotation3>> = vec![first.0];
+    let mut first_error = None;
+    let mut best: Option<(f64, IcpResult)> = None;
+    match fit_level(0, level, last, &source, target, &first.1, settings) {
+        Ok(fit) => best = Some((score(&fit), fit)),
+        Err(e) => first_error = Some(e),
+    }
+    if best.as_ref().is_none_or(|(s, _)| *s < CAPTURE_ACCEPT_SCORE) {
+        for rotation in frame.further_rotations() {
+            if tried
+                .iter()
+                .any(|r| r.is_some_and(|r| r.angle_to(&rotation) < SAME_START_RAD))
+            {
+                continue;
+            }
+            tried.push(Some(rotation));
+            let start = frame.start(&rotation, cad_from_scan_nominal);
+            // A start that cannot be fitted (too few correspondences) is a start that failed.
+            if let Ok(fit) = fit_level(0, level, last, &source, target, &start, settings) {
+                let s = score(&fit);
+                if best.as_ref().is_none_or(|(b, _)| s > *b) {
+                    best = Some((s, fit));
+                }
+            }
+        }
+    }
+    let starts = tried.len();
+    let Some((score, fit)) = best else {
+        return Err(first_error.unwrap_or(RegisterError::NotCaptured {
+            score_pct: 0.0,
+            distance_mm: CAPTURE_INLIER_MM,
+            needed_pct: 100.0 * CAPTURE_MIN_SCORE,
+            starts,
+            max_rotation_deg: settings.capture_rotation_deg,
+            max_translation_mm: settings.capture_translation_mm,
+        }));
+    };
+    if score < CAPTURE_MIN_SCORE {
+        return Err(RegisterError::NotCaptured {
+            score_pct: 100.0 * score,
+            distance_mm: CAPTURE_INLIER_MM,
+            needed_pct: 100.0 * CAPTURE_MIN_SCORE,
+            starts,
+            max_rotation_deg: settings.capture_rotation_deg,
+            max_translation_mm: settings.capture_translation_mm,
+        });
+    }
+    let offset = PoseOffset::between(
+        &scan_from_cad_nominal,
+        &fit.target_from_source.inverse(),
+        &frame.cad_centroid,
+    );
+    if !offset.within(settings) {
+        return Err(RegisterError::OutsideCaptureRange {
+            rotation_deg: offset.rotation_deg,
+            translation_mm: offset.translation_mm,
+            max_rotation_deg: settings.capture_rotation_deg,
+            max_translation_mm: settings.capture_translation_mm,
+        });
+    }
+    Ok(Capture {
+        fit,
+        score,
+        starts,
+        offset,
+    })
+}
+
+/// The refinement: the pyramid's levels below the top, from the capture's fit (scale freed at
+/// the finest level). The result's `iterations` count the top level's too.
+pub fn refine(
+    scan: &PointCloud,
+    target: &IcpTarget,
+    captured: &Capture,
+    settings: &CoarseSettings,
+) -> Result<IcpResult> {
+    let mut result = captured.fit.clone();
+    let mut iterations = result.iterations;
+    for (k, level) in settings.levels.iter().enumerate().skip(1) {
         let source = PointCloud::new(dense_voxel_centroids(
             scan.points(),
             level.voxel_mm,
             settings.min_voxel_points,
         )?)?;
         let last = k + 1 == settings.levels.len();
-        let s = IcpSettings {
-            method: IcpMethod::PointToPlane,
-            with_scale: settings.with_scale && last,
-            max_correspondence_distance_mm: level.max_correspondence_distance_mm,
-            max_iterations: level.max_iterations,
-            translation_epsilon_mm: 1e-5,
-            rotation_epsilon_rad: 1e-7,
-            scale_epsilon: 1e-7,
-            kernel: RobustKernel::Huber {
-                k_mm: settings.huber_fraction * level.max_correspondence_distance_mm,
-            },
-            trim_fraction: 0.0,
-            min_correspondences: 50,
-        };
-        let r = icp(&source, target, &current, &s).map_err(|e| match e {
-            RegisterError::TooFewCorrespondences { got, .. } => RegisterError::NotOverlapping {
-                fraction_pct: 100.0 * got as f64 / source.len().max(1) as f64,
-                distance_mm: level.max_correspondence_distance_mm,
-                needed_pct: 100.0 * 50.0 / source.len().max(1) as f64,
-            },
-            RegisterError::Singular { stage, eigenvalues } => RegisterError::Singular {
-                stage: format!("coarse level {k}: {stage}"),
-                eigenvalues,
-            },
-            other => other,
-        })?;
-        let scale_change = (r.target_from_source.scaling() / current.scaling())
-            .ln()
-            .abs();
-        if scale_change > MAX_COARSE_LOG_SCALE_CHANGE {
-            return Err(RegisterError::RunawayScale {
-                stage: format!("coarse level {k}"),
-                from: current.scaling(),
-                to: r.target_from_source.scaling(),
+        result = fit_level(
+            k,
+            level,
+            last,
+            &source,
+            target,
+            &result.target_from_source,
+            settings,
+        )?;
+        iterations += result.iterations;
+    }
+    result.iterations = iterations;
+    Ok(result)
+}
+
+/// Pyramid level `k`: point-to-plane ICP from `current`, rigid but at the `last` level (when
+/// `settings.with_scale`), Huber at `huber_fraction` of the level's maximum distance; a scale
+/// change beyond [`MAX_COARSE_LOG_SCALE_CHANGE`] is refused.
+fn fit_level(
+    k: usize,
+    level: &PyramidLevel,
+    last: bool,
+    source: &PointCloud,
+    target: &IcpTarget,
+    current: &Similarity3,
+    settings: &CoarseSettings,
+) -> Result<IcpResult> {
+    let s = IcpSettings {
+        method: IcpMethod::PointToPlane,
+        with_scale: settings.with_scale && last,
+        max_correspondence_distance_mm: level.max_correspondence_distance_mm,
+        max_iterations: level.max_iterations,
+        translation_epsilon_mm: 1e-5,
+        rotation_epsilon_rad: 1e-7,
+        scale_epsilon: 1e-7,
+        kernel: RobustKernel::Huber {
+            k_mm: settings.huber_fraction * level.max_correspondence_distance_mm,
+        },
+        trim_fraction: 0.0,
+        min_correspondences: 50,
+    };
+    let r = icp(source, target, current, &s).map_err(|e| match e {
+        RegisterError::TooFewCorrespondences { got, .. } => RegisterError::NotOverlapping {
+            fraction_pct: 100.0 * got as f64 / source.len().max(1) as f64,
+            distance_mm: level.max_correspondence_distance_mm,
+            needed_pct: 100.0 * 50.0 / source.len().max(1) as f64,
+        },
+        RegisterError::Singular { stage, eigenvalues } => RegisterError::Singular {
+            stage: format!("coarse level {k}: {stage}"),
+            eigenvalues,
+        },
+        other => other,
+    })?;
+    let scale_change = (r.target_from_source.scaling() / current.scaling())
+        .ln()
+        .abs();
+    if scale_change > MAX_COARSE_LOG_SCALE_CHANGE {
+        return Err(RegisterError::RunawayScale {
+            stage: format!("coarse level {k}"),
+            from: current.scaling(),
+            to: r.target_from_source.scaling(),
+        });
+    }
+    Ok(r)
+}
+
+type Rotation3 = nalgebra::UnitQuaternion<f64>;
+
+/// What the starts are built from, in the CAD frame with the scan placed at the nominal pose:
+/// the centroids and principal axes of the scan's and the visible CAD's dense voxels.
+struct StartFrame {
+    /// The nominally placed scan's centroid.
+    scan_centroid: Point3,
+    /// The visible CAD's centroid.
+    cad_centroid: Point3,
+    /// The rotation taking the scan's principal axes onto the CAD's, the sign choice nearest the
+    /// identity; `None` when either set of axes is ambiguous.
+    principal: Option<Rotation3>,
+    /// The visible CAD's principal axes (columns), or the CAD frame's when ambiguous.
+    cad_axes: Matrix3<f64>,
+}
+
+impl StartFrame {
+    fn new(
+        source: &PointCloud,
+        target: &IcpTarget,
+        cad_from_scan_nominal: &Similarity3,
+        voxel_mm: f64,
+    ) -> Result<Self> {
+        // Both clouds thinned alike (the scan's dense voxels are `source`), the scan taken to the
+        // CAD frame.
+        let scan_pts: Vec<Point3> = source
+            .points()
+            .iter()
+            .map(|p| cad_from_scan_nominal * p)
+            .collect();
+        let cad_pts = dense_voxel_centroids(target.cloud().points(), voxel_mm, 1)?;
+        if scan_pts.len() < 3 || cad_pts.len() < 3 {
+            return Err(RegisterError::TooFewCorrespondences {
+                stage: "coarse start (voxel centroids)".into(),
+                needed: 3,
+                got: scan_pts.len().min(cad_pts.len()),
+                max_distance_mm: f64::INFINITY,
             });
         }
-        current = r.target_from_source;
-        iterations += r.iterations;
-        result = Some(r);
+        let (cs, covs) = moments(&scan_pts);
+        let (cc, covc) = moments(&cad_pts);
+        let (es, ok_s) = principal_axes(&covs);
+        let (ec, ok_c) = principal_axes(&covc);
+        let principal = (ok_s && ok_c).then(|| nearest_axes_rotation(&es, &ec));
+        Ok(StartFrame {
+            scan_centroid: cs,
+            cad_centroid: cc,
+            principal,
+            cad_axes: if ok_c { ec } else { Matrix3::identity() },
+        })
     }
-    let mut r = result
-        .ok_or_else(|| RegisterError::setting("coarse.levels", "needs at least one level"))?;
-    r.iterations = iterations;
-    Ok(r)
+
+    /// The start `cad_from_scan`: the nominally placed scan turned by `rotation` about its
+    /// centroid and moved onto the CAD's centroid.
+    fn start(&self, rotation: &Rotation3, cad_from_scan_nominal: &Similarity3) -> Similarity3 {
+        let t = self.cad_centroid.coords - rotation * self.scan_centroid.coords;
+        Similarity3::from_parts(nalgebra::Translation3::from(t), *rotation, 1.0)
+            * cad_from_scan_nominal
+    }
+
+    /// The start of `settings.init`: its correction rotation (`None` for the nominal pose as
+    /// given) and `cad_from_scan`. The principal axes' rotation is used only within the capture
+    /// range; beyond it, or when the axes are ambiguous, the nominal rotation.
+    fn first_start(
+        &self,
+        settings: &CoarseSettings,
+        cad_from_scan_nominal: &Similarity3,
+    ) -> (Option<Rotation3>, Similarity3) {
+        let max_rad = (settings.capture_rotation_deg + CAPTURE_MARGIN_DEG).to_radians();
+        let rotation = match (settings.init, self.principal) {
+            (CoarseInit::Nominal, _) => return (None, *cad_from_scan_nominal),
+            (CoarseInit::PrincipalAxes, Some(r)) if r.angle() <= max_rad => r,
+            _ => Rotation3::identity(),
+        };
+        (Some(rotation), self.start(&rotation, cad_from_scan_nominal))
+    }
+
+    /// The further starts' rotations, in order: the nominal rotation, the principal axes' (at
+    /// any angle: a part beyond the range is then found and refused as such), and the nominal
+    /// rotation turned by ±[`CAPTURE_STEP_DEG`] about each of the CAD's principal axes.
+    fn further_rotations(&self) -> Vec<Rotation3> {
+        let mut out = vec![Rotation3::identity()];
+        out.extend(self.principal);
+        for axis in self.cad_axes.column_iter() {
+            for sign in [1.0, -1.0] {
+                out.push(Rotation3::from_scaled_axis(
+                    axis.into_owned() * (sign * CAPTURE_STEP_DEG.to_radians()),
+                ));
+            }
+        }
+        out
+    }
+}
+
+/// The rotation `R` with `R·esᵢ = ±ecᵢ` (principal axes as columns), of the four proper sign
+/// choices the one nearest the identity.
+fn nearest_axes_rotation(es: &Matrix3<f64>, ec: &Matrix3<f64>) -> Rotation3 {
+    let mut best: Option<(f64, Matrix3<f64>)> = None;
+    for signs in [
+        [1.0, 1.0, 1.0],
+        [1.0, -1.0, -1.0],
+        [-1.0, 1.0, -1.0],
+        [-1.0, -1.0, 1.0],
+    ] {
+        let ec_signed = Matrix3::from_columns(&[0, 1, 2].map(|i| ec.column(i) * signs[i]));
+        let mut r = ec_signed * es.transpose();
+        if r.determinant() < 0.0 {
+            // es or ec is left-handed: flip the least-variance axis.
+            let mut e = ec_signed;
+            e.set_column(2, &(-ec_signed.column(2)));
+            r = e * es.transpose();
+        }
+        let angle = nalgebra::Rotation3::from_matrix_unchecked(r).angle();
+        if best.is_none_or(|(a, _)| angle < a) {
+            best = Some((angle, r));
+        }
+    }
+    let r = best.map_or_else(Matrix3::identity, |(_, r)| r);
+    Rotation3::from_matrix(&r)
 }
 
 /// Centroid and covariance of points.
@@ -104,83 +439,6 @@ pub(crate) fn principal_axes(cov: &Matrix3<f64>) -> (Matrix3<f64>, bool) {
         && v[1] / v[2].max(f64::MIN_POSITIVE) >= MIN_AXIS_VARIANCE_RATIO;
     let axes = Matrix3::from_columns(&order.map(|i| eig.eigenvectors.column(i).into_owned()));
     (axes, distinct)
-}
-
-/// The coarse stage's start `cad_from_scan` (see [`CoarseInit`]).
-pub(crate) fn initial_guess(
-    scan: &PointCloud,
-    target: &IcpTarget,
-    cad_from_scan_nominal: &Similarity3,
-    settings: &CoarseSettings,
-    voxel_mm: f64,
-) -> Result<Similarity3> {
-    if settings.init == CoarseInit::Nominal {
-        return Ok(*cad_from_scan_nominal);
-    }
-    // Both clouds thinned alike (dense voxels only), the scan taken to the CAD frame.
-    let scan_pts: Vec<Point3> =
-        dense_voxel_centroids(scan.points(), voxel_mm, settings.min_voxel_points)?
-            .iter()
-            .map(|p| cad_from_scan_nominal * p)
-            .collect();
-    let cad_pts = dense_voxel_centroids(target.cloud().points(), voxel_mm, 1)?;
-    if scan_pts.len() < 3 || cad_pts.len() < 3 {
-        return Err(RegisterError::TooFewCorrespondences {
-            stage: "coarse start (voxel centroids)".into(),
-            needed: 3,
-            got: scan_pts.len().min(cad_pts.len()),
-            max_distance_mm: f64::INFINITY,
-        });
-    }
-    let (cs, covs) = moments(&scan_pts);
-    let (cc, covc) = moments(&cad_pts);
-    // In the CAD frame: the correction `cad_from_nominal_scan` moves the nominally placed scan.
-    let mut rotation = Matrix3::identity();
-    if settings.init == CoarseInit::PrincipalAxes {
-        let (es, ok_s) = principal_axes(&covs);
-        let (ec, ok_c) = principal_axes(&covc);
-        if ok_s && ok_c {
-            // R·esᵢ = ±ecᵢ; of the four proper sign choices take the one nearest the identity.
-            let mut best: Option<(f64, Matrix3<f64>)> = None;
-            for signs in [
-                [1.0, 1.0, 1.0],
-                [1.0, -1.0, -1.0],
-                [-1.0, 1.0, -1.0],
-                [-1.0, -1.0, 1.0],
-            ] {
-                let ec_signed = Matrix3::from_columns(&[0, 1, 2].map(|i| ec.column(i) * signs[i]));
-                let mut r = ec_signed * es.transpose();
-                if r.determinant() < 0.0 {
-                    // es or ec is left-handed: flip the least-variance axis.
-                    let mut e = ec_signed;
-                    e.set_column(2, &(-ec_signed.column(2)));
-                    r = e * es.transpose();
-                }
-                let angle = nalgebra::Rotation3::from_matrix_unchecked(r).angle();
-                if best.is_none_or(|(a, _)| angle < a) {
-                    best = Some((angle, r));
-                }
-            }
-            if let Some((angle, r)) = best {
-                if angle <= settings.max_init_rotation_deg.to_radians() {
-                    rotation = r;
-                }
-            }
-        }
-    }
-    let rot = nalgebra::UnitQuaternion::from_matrix(&rotation);
-    let t = cc.coords - rot * cs.coords;
-    let shift = (t + rot * cs.coords - cs.coords).norm();
-    if shift > MAX_INIT_TRANSLATION_MM {
-        let near = overlap_fraction(&scan_pts, target.tree(), MAX_INIT_TRANSLATION_MM);
-        return Err(RegisterError::NotOverlapping {
-            fraction_pct: 100.0 * near,
-            distance_mm: MAX_INIT_TRANSLATION_MM,
-            needed_pct: 100.0,
-        });
-    }
-    let correction = Similarity3::from_parts(nalgebra::Translation3::from(t), rot, 1.0);
-    Ok(correction * cad_from_scan_nominal)
 }
 
 pub(crate) fn overlap_fraction(points: &[Point3], tree: &kdtree::KdTree, distance_mm: f64) -> f64 {

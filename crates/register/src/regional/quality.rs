@@ -68,6 +68,15 @@ pub struct GlobalQuality {
     pub scan_from_cad: [[f64; 4]; 4],
     /// Its scale.
     pub scale: f64,
+    /// The fixture's nominal `scan_from_cad` the registration started from, row-major 4×4.
+    pub initial_scan_from_cad: [[f64; 4]; 4],
+    /// How far the coarse fit puts the part from that nominal pose.
+    pub fixture_offset: PoseOffset,
+    /// Starts the coarse capture fitted (1: the first start was kept).
+    pub coarse_starts: usize,
+    /// The kept start's score: the share of the scan (top pyramid level) within 1 mm of the
+    /// CAD after its top-level fit.
+    pub capture_score: f64,
     /// Coarse RMS point-to-plane residual, mm.
     pub coarse_rmse_mm: f64,
     /// Fraction of scan points within `overlap_distance_mm` of the CAD after the coarse stage.

@@ -43,8 +43,8 @@ pub enum CoarseInit {
     /// visible CAD.
     Centroid,
     /// Centroids, and the principal axes of the scan and the visible CAD (the sign choice
-    /// nearest the nominal rotation; the nominal rotation when the axes are ambiguous or more
-    /// than `max_init_rotation_deg` from it).
+    /// nearest the nominal rotation; the nominal rotation when the axes are ambiguous or beyond
+    /// `capture_rotation_deg` from it).
     #[default]
     PrincipalAxes,
 }
@@ -53,10 +53,17 @@ pub enum CoarseInit {
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct CoarseSettings {
-    /// Where to start.
+    /// Where to start. When that start does not lay the scan on the CAD, further starts are
+    /// tried (the nominal rotation, the principal axes, the nominal rotation turned by ±15°
+    /// about each principal axis) and the best kept.
     pub init: CoarseInit,
-    /// The principal-axes start is refused beyond this rotation from the nominal pose, degrees.
-    pub max_init_rotation_deg: f64,
+    /// Capture range, rotation: the part may sit up to this far from the fixture's nominal
+    /// pose (job.toml [part.scan_from_cad], `register --initial`), degrees. A fit that puts it
+    /// more than 1° beyond is refused.
+    pub capture_rotation_deg: f64,
+    /// Capture range, translation: how far the CAD's centroid may sit from where the nominal
+    /// pose puts it, mm. A fit that puts it more than 1 mm beyond is refused.
+    pub capture_translation_mm: f64,
     /// A voxel must hold this many scan points to count (drops isolated outliers).
     pub min_voxel_points: usize,
     /// Pyramid levels, coarse to fine (scan voxel size, maximum distance, iterations).
@@ -77,7 +84,8 @@ impl Default for CoarseSettings {
         };
         CoarseSettings {
             init: CoarseInit::PrincipalAxes,
-            max_init_rotation_deg: 15.0,
+            capture_rotation_deg: 20.0,
+            capture_translation_mm: 20.0,
             min_voxel_points: 3,
             levels: vec![
                 level(2.0, 12.0, 30),
@@ -287,8 +295,21 @@ impl RegisterSettings {
         }
         positive("coarse.huber_fraction", self.coarse.huber_fraction)?;
         positive(
-            "coarse.max_init_rotation_deg",
-            self.coarse.max_init_rotation_deg,
+            "coarse.capture_rotation_deg",
+            self.coarse.capture_rotation_deg,
+        )?;
+        if self.coarse.capture_rotation_deg > 180.0 {
+            return Err(RegisterError::setting(
+                "coarse.capture_rotation_deg",
+                format!(
+                    "must be at most 180, got {}",
+                    self.coarse.capture_rotation_deg
+                ),
+            ));
+        }
+        positive(
+            "coarse.capture_translation_mm",
+            self.coarse.capture_translation_mm,
         )?;
         let f = &self.field;
         positive("field.spacing_mm", f.spacing_mm)?;

@@ -1,0 +1,199 @@
+//! The coarse stage's capture range (issue 11 part 4): synthetic cores placed at exact fixture
+//! errors are registered from the fixture's nominal pose up to 20° and 20 mm in several
+//! directions, within the accuracy targets; beyond that the part is refused with the pose found;
+//! a first start that misses is rescued by the further starts, deterministically; a scan that no
+//! start lays on the CAD is refused as not captured.
+
+use trim_geom::{Point3, PointCloud, Similarity3};
+use trim_register::RegisterError;
+use trim_register::eval::path_errors;
+use trim_register::regional::{CoarseInit, RegisterSettings, Registration, register};
+
+#[path = "common/posed.rs"]
+mod posed;
+use posed::{DIRECTIONS, PosedCase, fixture_error, posed_case};
+
+/// The accuracy targets of `tests/regional.rs` (the issue's), mm.
+const CROSS_EDGE_P95_MM: f64 = 0.020;
+const CROSS_EDGE_MAX_MM: f64 = 0.050;
+/// The reported offset from the nominal pose against the true one: the coarse similarity of a
+/// deformed core differs from the placement by ≤ 0.04° (measured, examples/capture.rs).
+const OFFSET_ROTATION_TOL_DEG: f64 = 0.3;
+/// Scan points per case: the accuracy targets hold from 60k (measured 4.7–10 µm P95 at 120k).
+const SCAN_POINTS: usize = 80_000;
+const SEED: u64 = 7;
+
+fn settings(case: &PosedCase) -> RegisterSettings {
+    RegisterSettings {
+        scanner_viewpoint_mm: Some(case.scanner_mm.coords.into()),
+        ..RegisterSettings::default()
+    }
+}
+
+fn run(case: &PosedCase, settings: &RegisterSettings) -> Result<Registration, RegisterError> {
+    register(
+        &case.cad,
+        &case.scan,
+        &case.path,
+        &Similarity3::identity(),
+        settings,
+    )
+}
+
+fn assert_accurate(case: &PosedCase, reg: &Registration, angle_deg: f64, what: &str) {
+    let e = path_errors(&reg.path, &case.truth, |_| true).expect("same contours as the truth");
+    assert!(
+        e.cross_edge_p95_mm <= CROSS_EDGE_P95_MM && e.cross_edge_max_mm <= CROSS_EDGE_MAX_MM,
+        "{what}: {e:?}"
+    );
+    let to_truth = case
+        .scan_from_cad_true
+        .isometry
+        .rotation
+        .angle_to(&reg.scan_from_cad.isometry.rotation)
+        .to_degrees();
+    assert!(
+        to_truth <= OFFSET_ROTATION_TOL_DEG,
+        "{what}: {to_truth}° from the truth"
+    );
+    let found = reg.report.global.fixture_offset;
+    assert!(
+        (found.rotation_deg - angle_deg).abs() <= OFFSET_ROTATION_TOL_DEG,
+        "{what}: offset {found:?}"
+    );
+}
+
+#[test]
+fn captures_fixture_errors_up_to_20_degrees_and_20_mm_in_several_directions() {
+    let mut cases = vec![(0.0, 0.0, 0)];
+    for size in [10.0, 18.0, 20.0] {
+        for k in [0, 3, 5, 6] {
+            cases.push((size, size, k));
+        }
+    }
+    for (deg, mm, k) in cases {
+        let dir = DIRECTIONS[(k + 3) % DIRECTIONS.len()];
+        let case = posed_case(
+            SEED,
+            SCAN_POINTS,
+            &fixture_error(deg, DIRECTIONS[k], mm, dir),
+        );
+        let what = format!("{deg}°/{mm} mm about {:?} along {dir:?}", DIRECTIONS[k]);
+        let reg = run(&case, &settings(&case)).unwrap_or_else(|e| panic!("{what}: {e}"));
+        assert_accurate(&case, &reg, deg, &what);
+        // The default start (principal axes) needs no other here: the nominal start costs
+        // nothing extra.
+        assert_eq!(reg.report.global.coarse_starts, 1, "{what}");
+    }
+}
+
+#[test]
+fn a_part_beyond_the_range_is_refused_with_the_pose_found() {
+    for (deg, mm, k) in [(35.0, 40.0, 0), (35.0, 40.0, 5), (30.0, 0.0, 3)] {
+        let dir = DIRECTIONS[(k + 3) % DIRECTIONS.len()];
+        let case = posed_case(
+            SEED,
+            SCAN_POINTS,
+            &fixture_error(deg, DIRECTIONS[k], mm, dir),
+        );
+        let err = run(&case, &settings(&case)).unwrap_err();
+        let RegisterError::OutsideCaptureRange {
+            rotation_deg,
+            translation_mm,
+            max_rotation_deg,
+            max_translation_mm,
+        } = err
+        else {
+            panic!("{deg}°/{mm} mm: {err}");
+        };
+        assert!((rotation_deg - deg).abs() < 1.0, "{err}");
+        // The offset is the CAD centroid's, 2 mm from the origin the error turns about.
+        assert!((translation_mm - mm).abs() < 2.0, "{err}");
+        assert_eq!((max_rotation_deg, max_translation_mm), (20.0, 20.0));
+        let message = err.to_string();
+        for part in [
+            "fixture's nominal pose",
+            "[part.scan_from_cad]",
+            "--initial",
+            "seated",
+        ] {
+            assert!(message.contains(part), "{part:?} missing: {message}");
+        }
+    }
+    // A narrower range refuses what the default captures.
+    let case = posed_case(
+        SEED,
+        SCAN_POINTS,
+        &fixture_error(18.0, DIRECTIONS[1], 5.0, DIRECTIONS[2]),
+    );
+    let mut narrow = settings(&case);
+    narrow.coarse.capture_rotation_deg = 10.0;
+    let err = run(&case, &narrow).unwrap_err();
+    assert!(
+        matches!(err, RegisterError::OutsideCaptureRange { .. }),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_first_start_that_misses_is_rescued_by_the_further_starts_deterministically() {
+    // From the nominal pose as given (no centroid, no axes) the top level's 12 mm reach does
+    // not find a core 20° and 20 mm off; the further starts do.
+    let case = posed_case(
+        SEED,
+        SCAN_POINTS,
+        &fixture_error(20.0, DIRECTIONS[0], 20.0, DIRECTIONS[3]),
+    );
+    let mut s = settings(&case);
+    s.coarse.init = CoarseInit::Nominal;
+    let reg = run(&case, &s).unwrap();
+    assert!(
+        reg.report.global.coarse_starts > 1,
+        "{:?}",
+        reg.report.global
+    );
+    assert_accurate(&case, &reg, 20.0, "nominal start, 20°/20 mm");
+    let one_thread = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(|| run(&case, &s).unwrap());
+    assert_eq!(
+        reg.scan_from_cad.to_homogeneous(),
+        one_thread.scan_from_cad.to_homogeneous()
+    );
+    assert_eq!(
+        reg.report.global.coarse_starts,
+        one_thread.report.global.coarse_starts
+    );
+}
+
+#[test]
+fn a_scan_that_no_start_lays_on_the_cad_is_not_captured() {
+    // A 30 mm ball where the core should be: every start fits it somewhere, none lays it on
+    // the core.
+    let case = posed_case(SEED, SCAN_POINTS, &Similarity3::identity());
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let n = 20_000;
+    let ball: Vec<Point3> = (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - z * z).sqrt();
+            let a = golden * i as f64;
+            Point3::new(30.0 * r * a.cos(), 30.0 * r * a.sin(), 30.0 * z)
+        })
+        .collect();
+    let scan = PointCloud::new(ball).unwrap();
+    let err = register(
+        &case.cad,
+        &scan,
+        &case.path,
+        &Similarity3::identity(),
+        &settings(&case),
+    )
+    .unwrap_err();
+    assert!(
+        matches!(err, RegisterError::NotCaptured { starts, .. } if starts > 1),
+        "{err}"
+    );
+}
