@@ -153,9 +153,50 @@ pub struct PartConfig {
     pub path: Option<PathBuf>,
     /// Scan of the clamped part: PLY, PCD or XYZ (normals optional).
     pub scan: Option<PathBuf>,
-    /// The machine pose the scan was taken at: linear joint positions (the tool point, machine
-    /// frame) and rotary axes. The scan is mapped into the work-piece frame through [calibration].
+    /// Where the machine stood when the scan was taken (the scanner's pose, not the part's):
+    /// linear joint positions (the tool point, machine frame) and rotary axes. The scan is
+    /// mapped into the work-piece frame through [calibration]. The part's pose in the fixture is
+    /// scan_from_cad.
     pub scan_pose: ScanPose,
+    /// The fixture's nominal pose of the part (not the machine's: that is scan_pose): where the
+    /// CAD frame sits in the work-piece frame the scan is mapped into, scan_from_cad = T·R.
+    /// Registration starts here and captures a part up to register.coarse.capture_rotation_deg
+    /// and capture_translation_mm away; farther is refused. The default, zero, puts the CAD
+    /// frame on the work-piece frame. `trimctl register --initial FILE` overrides it.
+    pub scan_from_cad: FixturePose,
+}
+
+/// A rigid pose given by angles and a translation (job.toml `[part.scan_from_cad]`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct FixturePose {
+    /// Rotation [rx, ry, rz], degrees: about the work-piece frame's fixed X axis by rx, then its
+    /// fixed Y axis by ry, then its fixed Z axis by rz (extrinsic X-Y-Z, R = Rz·Ry·Rx; the
+    /// same as intrinsic Z-Y'-X'' yaw-pitch-roll).
+    pub rotation_deg: [f64; 3],
+    /// Translation: where the CAD origin lands in the work-piece frame, mm.
+    pub translation_mm: [f64; 3],
+}
+
+impl FixturePose {
+    /// The pose as `scan_from_cad`; refuses a non-finite value, naming the key under `key`.
+    pub fn scan_from_cad(&self, key: &str) -> anyhow::Result<trim_geom::math::Similarity3> {
+        for (name, v) in [
+            ("rotation_deg", self.rotation_deg),
+            ("translation_mm", self.translation_mm),
+        ] {
+            if !v.iter().all(|c| c.is_finite()) {
+                bail!("{key}.{name}: expected three finite numbers, got {v:?}");
+            }
+        }
+        let [rx, ry, rz] = self.rotation_deg.map(f64::to_radians);
+        let rotation = nalgebra::UnitQuaternion::from_euler_angles(rx, ry, rz);
+        Ok(trim_geom::math::Similarity3::from_parts(
+            nalgebra::Translation3::from(nalgebra::Vector3::from(self.translation_mm)),
+            rotation,
+            1.0,
+        ))
+    }
 }
 
 /// The built-in simulators (job.toml `[sim]`).
@@ -316,6 +357,9 @@ impl JobConfig {
                 .validate()
                 .map_err(|e| anyhow::anyhow!("hatch[{i}] ({}): {e}", h.boundary.display()))?;
         }
+        self.part
+            .scan_from_cad
+            .scan_from_cad("part.scan_from_cad")?;
         let parts = [&self.part.cad, &self.part.path, &self.part.scan];
         let given = parts.iter().filter(|p| p.is_some()).count();
         if given != 0 && given != 3 {
@@ -666,6 +710,43 @@ mod tests {
             let e = format!("{:#}", JobConfig::parse(text).unwrap_err());
             assert!(e.contains("hatch") && e.contains(named), "{text}: {e}");
         }
+    }
+
+    #[test]
+    fn the_fixture_pose_is_extrinsic_xyz_in_degrees_and_refuses_non_finite_values() {
+        let c = JobConfig::parse(
+            "[part.scan_from_cad]\nrotation_deg = [90.0, 0.0, 90.0]\ntranslation_mm = [1.0, 2.0, 3.0]\n",
+        )
+        .unwrap();
+        let s = c.part.scan_from_cad.scan_from_cad("k").unwrap();
+        // About the fixed X by 90° (y → z), then about the fixed Z by 90° (x → y): R = Rz·Rx
+        // takes x → y, y → z, z → x; then the translation.
+        for (from, to) in [
+            ([1.0, 0.0, 0.0], [1.0, 3.0, 3.0]),
+            ([0.0, 1.0, 0.0], [1.0, 2.0, 4.0]),
+            ([0.0, 0.0, 1.0], [2.0, 2.0, 3.0]),
+        ] {
+            let got = s * trim_geom::Point3::from(from);
+            assert!(
+                (got - trim_geom::Point3::from(to)).norm() < 1e-12,
+                "{from:?} → {got}"
+            );
+        }
+        let identity = JobConfig::default()
+            .part
+            .scan_from_cad
+            .scan_from_cad("k")
+            .unwrap();
+        assert_eq!(identity, trim_geom::math::Similarity3::identity());
+        let e = format!(
+            "{:#}",
+            JobConfig::parse("[part.scan_from_cad]\nrotation_deg = [0.0, nan, 0.0]\n").unwrap_err()
+        );
+        assert!(e.contains("part.scan_from_cad.rotation_deg"), "{e}");
+        // The two poses of [part] say which is which.
+        let docs = key_docs();
+        assert!(docs["part.scan_pose"].contains("not the part's"));
+        assert!(docs["part.scan_from_cad"].contains("not the machine's"));
     }
 
     #[test]

@@ -12,18 +12,15 @@ use trim_register::datum::datum_fit;
 use trim_register::regional::{RegisterSettings, register};
 use trim_register::sampling::View;
 
-use crate::cad::{CadOptions, WithoutNormals, load_cad};
+use crate::cad::load_cad;
 use crate::config::JobConfig;
 use crate::summary;
-
-/// The seed of the area-weighted sampling of a CAD mesh.
-const CAD_SAMPLE_SEED: u64 = 1;
 
 /// Arguments of `trimctl register`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The CAD: an STL or PLY mesh (sampled), or a point cloud (PLY/PCD/XYZ; normals estimated
-    /// if absent), in the CAD frame, mm.
+    /// The CAD: an STL or PLY mesh (sampled), or a point cloud with outward normals
+    /// (PLY/PCD/XYZ), in the CAD frame, mm.
     #[arg(long)]
     pub cad: PathBuf,
     /// The scan of the clamped part (PLY/PCD/XYZ), scan frame, mm. Normals are not needed.
@@ -38,14 +35,16 @@ pub struct Args {
     /// Where to write the quality report (JSON).
     #[arg(long)]
     pub report: Option<PathBuf>,
-    /// A job.toml whose `[register]` table sets the registration.
+    /// A job.toml whose `[register]` table sets the registration and whose
+    /// `[part.scan_from_cad]` is the fixture's nominal pose (unless --initial is given).
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// The scanner position in the scan frame, mm, as `x,y,z` (overrides the config).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     pub viewpoint: Option<Vec<f64>>,
-    /// The fixture's nominal `scan_from_cad`: a text file of 16 numbers (row-major 4×4).
-    /// Default: the identity (the CAM data is in the machine frame).
+    /// The fixture's nominal `scan_from_cad`: a text file of 16 numbers (row-major 4×4, a
+    /// rotation, translation in mm). Default: the job's `[part.scan_from_cad]` with --config,
+    /// else the identity (the CAM data is in the machine frame).
     #[arg(long)]
     pub initial: Option<PathBuf>,
     /// Datum-compliant positioning (thesis §3.5.2) instead of the regional registration: a text
@@ -74,20 +73,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     settings
         .validate()
         .map_err(|e| anyhow::anyhow!("register.{e}"))?;
-    let initial = match &args.initial {
-        Some(p) => read_matrix(p)?,
-        None => Similarity3::identity(),
+    let initial = match (&args.initial, &config) {
+        (Some(p), _) => read_matrix(p).with_context(|| format!("--initial {}", p.display()))?,
+        (None, Some(c)) => c.part.scan_from_cad.scan_from_cad("part.scan_from_cad")?,
+        (None, None) => Similarity3::identity(),
     };
-    let cad = load_cad(
-        &args.cad,
-        &CadOptions {
-            key: "--cad",
-            sample_points: settings.cad_sample_points,
-            seed: CAD_SAMPLE_SEED,
-            without_normals: WithoutNormals::Estimate,
-        },
-    )
-    .with_context(|| format!("reading {}", args.cad.display()))?;
+    let cad = load_cad(&args.cad, "--cad", settings.cad_sample_points)
+        .with_context(|| format!("reading {}", args.cad.display()))?;
     let scan =
         read_points(&args.scan).with_context(|| format!("reading {}", args.scan.display()))?;
     // With a job file, the scan (scanner frame) goes into the work-piece frame through its
@@ -214,7 +206,9 @@ fn read_matrix(path: &std::path::Path) -> anyhow::Result<Similarity3> {
         .filter(|s| !s.is_empty())
         .map(|s| {
             s.parse::<f64>()
-                .with_context(|| format!("{}: `{s}` is not a number", path.display()))
+                .ok()
+                .filter(|v| v.is_finite())
+                .with_context(|| format!("{}: `{s}` is not a finite number", path.display()))
         })
         .collect::<anyhow::Result<_>>()?;
     anyhow::ensure!(
@@ -223,7 +217,10 @@ fn read_matrix(path: &std::path::Path) -> anyhow::Result<Similarity3> {
         path.display(),
         values.len()
     );
-    Ok(similarity_from_matrix(&nalgebra::Matrix4::from_row_slice(
-        &values,
-    ))?)
+    similarity_from_matrix(&nalgebra::Matrix4::from_row_slice(&values)).with_context(|| {
+        format!(
+            "{}: not a pose matrix (rotation, uniform scale, translation)",
+            path.display()
+        )
+    })
 }

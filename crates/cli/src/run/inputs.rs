@@ -11,11 +11,12 @@ use trim_io::twin::TrueCell;
 use trim_synth::{SynthParams, generate};
 
 use super::{Args, files};
-use crate::cad::{CadOptions, WithoutNormals, load_cad};
+use crate::cad::load_cad;
 use crate::config::{HatchRegion, JobConfig};
 
 /// The part's inputs: CAD cloud with outward normals, the scan mapped into the work-piece
-/// frame through `[calibration]`, template path, fixture pose.
+/// frame through `[calibration]`, template path, the fixture's nominal pose
+/// (`[part.scan_from_cad]`).
 pub(super) struct Inputs {
     pub(super) cad: PointCloud,
     pub(super) scan: PointCloud,
@@ -31,12 +32,21 @@ pub(super) fn load_inputs(
     args: &Args,
     run_dir: &Path,
 ) -> anyhow::Result<Inputs> {
+    let fixture = config
+        .part
+        .scan_from_cad
+        .scan_from_cad("part.scan_from_cad")?;
     if config.is_demo() {
         let params = SynthParams {
             seed: args.demo_seed,
             ..SynthParams::default()
         };
-        let case = generate(&params).context("building the demo part")?;
+        let mut case = generate(&params).context("building the demo part")?;
+        // The fixture holds the demo part at [part.scan_from_cad]: the synthetic scene (placed
+        // about the identity) moves there, the ground truth with it.
+        case.scan = case.scan.transformed(&fixture);
+        case.truth = case.truth.transformed(&fixture);
+        case.scan_from_cad_nominal = fixture * case.scan_from_cad_nominal;
         let dir = run_dir.join(files::INPUTS);
         std::fs::create_dir_all(&dir)
             .with_context(|| format!("cannot create {}", dir.display()))?;
@@ -93,15 +103,7 @@ pub(super) fn load_inputs(
     else {
         bail!("part: give all of cad, path and scan");
     };
-    let cad = load_cad(
-        cad_file,
-        &CadOptions {
-            key: "part.cad",
-            sample_points: config.register.cad_sample_points,
-            seed: CAD_SAMPLE_SEED,
-            without_normals: WithoutNormals::Refuse,
-        },
-    )?;
+    let cad = load_cad(cad_file, "part.cad", config.register.cad_sample_points)?;
     let scan = config.scan_to_workpiece(&formats::read_points(scan_file)?);
     let path = formats::read_path(path_file)?;
     if !config.hatch.is_empty() {
@@ -120,7 +122,7 @@ pub(super) fn load_inputs(
         cad,
         scan,
         path,
-        scan_from_cad_initial: Similarity3::identity(),
+        scan_from_cad_initial: fixture,
     })
 }
 
@@ -137,6 +139,3 @@ fn demo_hatch_settings() -> trim_plan::hatch::HatchSettings {
         ..trim_plan::hatch::HatchSettings::default()
     }
 }
-
-/// The seed of the area-weighted CAD sampling (fixed: the same CAD gives the same samples).
-const CAD_SAMPLE_SEED: u64 = 0x00c4_d5a3;
