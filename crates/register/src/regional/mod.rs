@@ -176,7 +176,7 @@ pub fn register(
         .angle(&toward_scanner(view_captured, &centroid))
         > VISIBILITY_REFRESH_DEG.to_radians()
     {
-        stage(&mut timings, "cad visibility (captured pose)", || {
+        stage(&mut timings, "cad visibility (captured)", || {
             visible_target(cad, view_captured, settings.facing_min_cos)
         })?
     } else {
