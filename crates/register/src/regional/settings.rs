@@ -247,13 +247,13 @@ pub(crate) fn fraction(name: &str, v: f64) -> Result<()> {
 impl RegisterSettings {
     /// Refuses out-of-range values, naming the key as in job.toml (`register.field.spacing_mm`).
     pub fn validate(&self) -> Result<()> {
-        if let Some(v) = self.scanner_viewpoint_mm {
-            if !v.iter().all(|c| c.is_finite()) {
-                return Err(RegisterError::setting(
-                    "scanner_viewpoint_mm",
-                    "must be finite",
-                ));
-            }
+        if let Some(v) = self.scanner_viewpoint_mm
+            && !v.iter().all(|c| c.is_finite())
+        {
+            return Err(RegisterError::setting(
+                "scanner_viewpoint_mm",
+                "must be finite",
+            ));
         }
         let d = Vector3::from(self.view_direction);
         if !(d.iter().all(|c| c.is_finite()) && d.norm() > 0.0) {
