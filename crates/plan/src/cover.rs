@@ -712,6 +712,42 @@ struct Selection {
     uncovered: Vec<usize>,
 }
 
+/// [`CoverProblem::fit_atoms`] remembered: the local improvement retries the same pairs and
+/// sets after every change, and a fit is a pure function of its atoms and start axis.
+#[derive(Default)]
+struct FitCache {
+    fits: std::sync::Mutex<std::collections::HashMap<FitKey, Option<CoverPose>>>,
+}
+
+/// A fit's atoms and start axis (its bits).
+type FitKey = (Vec<usize>, Option<[u64; 3]>);
+
+impl FitCache {
+    fn fit_atoms(
+        &self,
+        problem: &CoverProblem<'_>,
+        atoms: &[Atom],
+        set: &[usize],
+        start: Option<&UnitVector3>,
+    ) -> Option<CoverPose> {
+        let key = (
+            set.to_vec(),
+            start.map(|a| [a.x.to_bits(), a.y.to_bits(), a.z.to_bits()]),
+        );
+        let lock = || {
+            self.fits
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+        };
+        if let Some(found) = lock().get(&key) {
+            return *found;
+        }
+        let fit = problem.fit_atoms(atoms, set, start);
+        lock().insert(key, fit);
+        fit
+    }
+}
+
 /// The first item, in order, for which `f` gives `Some`, with its index: the items are tried
 /// in windows as wide as the thread pool, each window in parallel, so the answer is the one a
 /// sequential search gives (a window's later items are work thrown away).
@@ -746,9 +782,10 @@ fn select(problem: &CoverProblem<'_>, atoms: &[Atom]) -> Selection {
         let covered = problem.coverage(atoms, &pose);
         (!covered.is_empty()).then_some((pose, covered))
     };
-    // Seeds are grown a window at a time in parallel and kept in order, each only if the
-    // candidates kept before it leave it unskipped: the same candidates as one at a time.
-    let width = 2 * rayon::current_num_threads().max(1);
+    // Seeds are grown a window at a time (one per thread) in parallel and kept in order, each
+    // only if the candidates kept before it leave it unskipped: the same candidates as one at a
+    // time. Wider windows lose more to seeds that turn out skipped.
+    let width = rayon::current_num_threads().max(1);
     let mut next = 0;
     while next < n {
         let mut window = Vec::with_capacity(width);
@@ -796,11 +833,12 @@ fn select(problem: &CoverProblem<'_>, atoms: &[Atom]) -> Selection {
 
     // (4) local improvement.
     let (mut merges, mut dropped, mut absorbed) = (0, 0, 0);
+    let cache = FitCache::default();
     loop {
         dropped += drop_redundant(&mut chosen, n);
-        if merge_one(problem, atoms, &mut chosen) {
+        if merge_one(problem, atoms, &mut chosen, &cache) {
             merges += 1;
-        } else if absorb_one(problem, atoms, &mut chosen) {
+        } else if absorb_one(problem, atoms, &mut chosen, &cache) {
             absorbed += 1;
         } else {
             break;
@@ -829,8 +867,9 @@ pub fn cover(path: &Path, problem: &CoverProblem<'_>) -> Result<Cover, PlanError
         fixed_axis: problem.fixed_axis,
         reachable: &always,
     };
-    let mut atoms: Vec<Atom> = Vec::new();
-    for (piece, c) in atomize(&whole, problem.limit_rad) {
+    // Each piece is atomized on its own (in parallel), the atoms kept in path order.
+    let atomized = |(piece, c): (Piece, usize)| -> Vec<Atom> {
+        let mut out = Vec::new();
         // An atom no pose covers alone is halved again.
         let mut stack = vec![(piece, 0usize)];
         while let Some((q, depth)) = stack.pop() {
@@ -843,19 +882,27 @@ pub fn cover(path: &Path, problem: &CoverProblem<'_>) -> Result<Cover, PlanError
                 || depth >= MAX_ATOM_SPLITS
                 || atom.piece.length_mm() < 2.0 * MIN_ATOM_LENGTH_MM
             {
-                atoms.push(atom);
+                out.push(atom);
                 continue;
             }
             let parts = cut_equal(&atom.piece, 2);
             if parts.len() != 2 {
-                atoms.push(atom);
+                out.push(atom);
                 continue;
             }
             for part in parts.into_iter().rev() {
                 stack.push((part, depth + 1));
             }
         }
-    }
+        out
+    };
+    let atoms: Vec<Atom> = atomize(&whole, problem.limit_rad)
+        .into_par_iter()
+        .map(atomized)
+        .collect::<Vec<_>>()
+        .into_iter()
+        .flatten()
+        .collect();
     let n = atoms.len();
     let mut sel = select(problem, &atoms);
     // (6) lower bound, over the atoms some reachable pose covers.
@@ -970,6 +1017,7 @@ fn merge_one(
     problem: &CoverProblem<'_>,
     atoms: &[Atom],
     chosen: &mut Vec<(CoverPose, Vec<usize>)>,
+    cache: &FitCache,
 ) -> bool {
     let n = atoms.len();
     let mut count = vec![0usize; n];
@@ -1013,7 +1061,7 @@ fn merge_one(
         let start = UnitVector3::new_normalize(
             chosen[a].0.axis.into_inner() + chosen[b].0.axis.into_inner(),
         );
-        problem.fit_atoms(atoms, &needed, Some(&start))
+        cache.fit_atoms(problem, atoms, &needed, Some(&start))
     };
     let Some((i, pose)) = first_in_order(&pairs, tried) else {
         return false;
@@ -1044,6 +1092,7 @@ fn absorb_one(
     problem: &CoverProblem<'_>,
     atoms: &[Atom],
     chosen: &mut Vec<(CoverPose, Vec<usize>)>,
+    cache: &FitCache,
 ) -> bool {
     const TRY_POSES: usize = 4;
     let n = atoms.len();
@@ -1079,7 +1128,7 @@ fn absorb_one(
                     placed = true;
                     break;
                 }
-                if let Some(next) = problem.fit_atoms(atoms, &set, Some(&pose.axis)) {
+                if let Some(next) = cache.fit_atoms(problem, atoms, &set, Some(&pose.axis)) {
                     sets.insert(q, (next, set));
                     placed = true;
                     break;
