@@ -102,9 +102,12 @@ def test_icp_releases_the_gil(rng):
 
 def test_ctrl_c_interrupts_a_long_call(rng):
     target = wavy_surface(rng, n=1_000_000)
+    # Python's own Ctrl-C handler, as an interactive session has it: a process started in the
+    # background by a non-interactive shell (as CI may start the tests) inherits SIGINT ignored,
+    # and Python then installs no handler, so no Ctrl-C could ever interrupt anything.
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
     # Ctrl-C from 0.3 s on, repeated every 0.3 s until the call ends, as a user presses it again
-    # when nothing happens: one CI run (of many) saw the call run to its end after a single
-    # signal at 0.3 s, which we could not reproduce; the test still fails if no Ctrl-C stops it.
+    # when nothing happens; the test still fails if no Ctrl-C stops the call.
     stop = threading.Event()
     sent = []
 
@@ -125,10 +128,10 @@ def test_ctrl_c_interrupts_a_long_call(rng):
         interrupted = time.perf_counter()
         # A Ctrl-C sent meanwhile must not interrupt the test session: ignored until the presser
         # has stopped.
-        default = signal.signal(signal.SIGINT, lambda *_: None)
+        signal.signal(signal.SIGINT, lambda *_: None)
         stop.set()
         presser.join()
-        signal.signal(signal.SIGINT, default)
+        signal.signal(signal.SIGINT, inherited)
     # The interrupt must come out of the native call: if the call returned first (too short for
     # the signals, or it ignored them and ran to its end), this test tested nothing.
     assert not returned, "estimate_normals returned before the interrupt arrived"
