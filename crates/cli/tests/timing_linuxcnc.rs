@@ -6,6 +6,9 @@
 //!
 //! One test function: LinuxCNC is one instance per machine.
 
+#[path = "../../io/tests/support/linuxcnc_sim.rs"]
+mod linuxcnc_sim;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
@@ -15,64 +18,6 @@ const TRIMCTL: &str = env!("CARGO_BIN_EXE_trimctl");
 const PORT: u16 = 5037;
 /// The held-out run's refitted total estimate must be within this of its actual time (%).
 const HELD_OUT_TOTAL_ERROR_PCT: f64 = 3.0;
-
-fn script() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/linuxcnc-sim")
-}
-
-fn run_dir() -> String {
-    std::env::var("TRIMCTL_LINUXCNC_RUN").unwrap_or_else(|_| "/tmp/trimctl-timing-test".into())
-}
-
-fn linuxcnc_available() -> bool {
-    let installed = Command::new("sh")
-        .args(["-c", "command -v linuxcnc"])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if installed {
-        return true;
-    }
-    if std::env::var("TRIMCTL_SKIP_LINUXCNC").as_deref() == Ok("1") {
-        eprintln!("SKIPPED: linuxcnc is not installed and TRIMCTL_SKIP_LINUXCNC=1");
-        return false;
-    }
-    panic!(
-        "linuxcnc is not installed: run scripts/install-deps (Debian package linuxcnc-uspace, \
-         --no-install-recommends), or set TRIMCTL_SKIP_LINUXCNC=1 to skip this test"
-    );
-}
-
-struct Instance;
-
-impl Instance {
-    fn start() -> Instance {
-        let _ = Command::new(script())
-            .env("TRIMCTL_LINUXCNC_RUN", run_dir())
-            .arg("stop")
-            .status();
-        let out = Command::new(script())
-            .env("TRIMCTL_LINUXCNC_RUN", run_dir())
-            .args(["start", "--port", &PORT.to_string()])
-            .output()
-            .expect("run scripts/linuxcnc-sim");
-        assert!(
-            out.status.success(),
-            "scripts/linuxcnc-sim start failed:\n{}\n{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        Instance
-    }
-}
-
-impl Drop for Instance {
-    fn drop(&mut self) {
-        let _ = Command::new(script())
-            .env("TRIMCTL_LINUXCNC_RUN", run_dir())
-            .arg("stop")
-            .status();
-    }
-}
 
 fn trimctl(args: &[&str]) -> String {
     let out = Command::new(TRIMCTL)
@@ -132,13 +77,13 @@ fn report_figures(text: &str) -> ((f64, f64, f64), f64) {
 
 #[test]
 fn a_timing_model_fitted_on_one_linuxcnc_run_estimates_another_within_3_percent() {
-    if !linuxcnc_available() {
+    if !linuxcnc_sim::available() {
         return;
     }
     let started = Instant::now();
     let tmp = tempfile::tempdir().unwrap();
     let jobs = [part(tmp.path(), 2), part(tmp.path(), 3)];
-    let _instance = Instance::start();
+    let _instance = linuxcnc_sim::Instance::start(PORT, "/tmp/trimctl-timing-test");
     let cnc = format!("127.0.0.1:{PORT}");
     let runs: Vec<PathBuf> = jobs
         .iter()

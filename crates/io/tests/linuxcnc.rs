@@ -5,10 +5,10 @@
 //! Everything runs in one test function: LinuxCNC is one instance per machine.
 
 mod common;
+#[path = "support/linuxcnc_sim.rs"]
+mod linuxcnc_sim;
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
-use std::process::Command;
 use std::time::{Duration, Instant};
 
 use tokio_util::sync::CancellationToken;
@@ -30,73 +30,6 @@ const POSITION_TOLERANCE: f64 = 1e-3;
 const FOCUS_TOLERANCE_MM: f64 = 1e-6;
 /// Generous: a move of the sim machine takes a few seconds (20 mm/s, 30 deg/s).
 const MOTION_TIMEOUT: Duration = Duration::from_secs(60);
-
-fn script() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/linuxcnc-sim")
-}
-
-struct Instance;
-
-impl Instance {
-    fn start() -> Instance {
-        // A leftover instance from an earlier, aborted test run is stopped first.
-        let _ = Command::new(script())
-            .env("TRIMCTL_LINUXCNC_RUN", run_dir())
-            .arg("stop")
-            .status();
-        let t = Instant::now();
-        let out = Command::new(script())
-            .env("TRIMCTL_LINUXCNC_RUN", run_dir())
-            .args(["start", "--port", &PORT.to_string()])
-            .output()
-            .expect("run scripts/linuxcnc-sim");
-        assert!(
-            out.status.success(),
-            "scripts/linuxcnc-sim start failed:\n{}\n{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        eprintln!("linuxcnc started in {:.2} s", t.elapsed().as_secs_f64());
-        Instance
-    }
-}
-
-impl Drop for Instance {
-    fn drop(&mut self) {
-        let t = Instant::now();
-        let ok = Command::new(script())
-            .env("TRIMCTL_LINUXCNC_RUN", run_dir())
-            .arg("stop")
-            .status()
-            .is_ok_and(|s| s.success());
-        eprintln!(
-            "linuxcnc stopped ({ok}) in {:.2} s",
-            t.elapsed().as_secs_f64()
-        );
-    }
-}
-
-fn run_dir() -> String {
-    std::env::var("TRIMCTL_LINUXCNC_RUN").unwrap_or_else(|_| "/tmp/trimctl-linuxcnc-test".into())
-}
-
-fn linuxcnc_available() -> bool {
-    let installed = Command::new("sh")
-        .args(["-c", "command -v linuxcnc"])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if installed {
-        return true;
-    }
-    if std::env::var("TRIMCTL_SKIP_LINUXCNC").as_deref() == Ok("1") {
-        eprintln!("SKIPPED: linuxcnc is not installed and TRIMCTL_SKIP_LINUXCNC=1");
-        return false;
-    }
-    panic!(
-        "linuxcnc is not installed: run scripts/install-deps (Debian package linuxcnc-uspace, \
-         --no-install-recommends), or set TRIMCTL_SKIP_LINUXCNC=1 to skip this test"
-    );
-}
 
 /// Planner-style poses: a focus point and a beam direction through the planner's inverse
 /// kinematics (xyzac-trt, TCP pose mode, the sim config's pivot offsets).
@@ -122,10 +55,10 @@ fn planned_poses(m: &MachineSettings) -> Vec<(Point3, UnitVector3, AxisPose)> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn real_linuxcnc_takes_planned_poses_and_runs_a_whole_job() {
-    if !linuxcnc_available() {
+    if !linuxcnc_sim::available() {
         return;
     }
-    let _instance = Instance::start();
+    let _instance = linuxcnc_sim::Instance::start(PORT, "/tmp/trimctl-linuxcnc-test");
     let addr: SocketAddr = format!("127.0.0.1:{PORT}").parse().unwrap();
     let t = Instant::now();
     let mut cnc = LinuxCnc::connect(addr, LinuxCncConfig::default(), Tap::none())
