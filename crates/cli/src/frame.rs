@@ -15,15 +15,14 @@ use std::time::Duration;
 use anyhow::{Context, bail};
 use tokio::sync::mpsc::UnboundedReceiver;
 use tokio_util::sync::CancellationToken;
-use trim_io::cell::{Cell, SimCell, SimOptions, Timeouts};
+use trim_io::cell::{Cell, SimCell, Timeouts};
 use trim_io::executor::{StopCause, ZoneDecision, ZoneGate};
 use trim_io::frame::{FrameSettings, Framed, frame_layer, rearm};
 use trim_io::galvo::outline::OutlineKind;
-use trim_io::laser::Profile;
 use trim_io::tap::Tap;
 use trim_plan::{Job, LayerKey};
 
-use crate::config::{JobConfig, SIM};
+use crate::config::JobConfig;
 use crate::exit::{Exit, Failure};
 use crate::run::{DEFAULT_SIM_TIME_SCALE, files};
 
@@ -211,33 +210,9 @@ async fn frame_all(
     keys: &[LayerKey],
     interactive: bool,
 ) -> anyhow::Result<()> {
-    let profile = Profile::builtin(&config.cell.laser_profile)
-        .map_err(|e| anyhow::anyhow!("cell.laser_profile: {e}"))?;
-    let any_sim = [&config.cell.cnc, &config.cell.galvo, &config.cell.laser]
-        .iter()
-        .any(|v| v.as_str() == SIM);
-    let sim = if any_sim {
-        let mut options = SimOptions::new(profile.clone());
-        options.galvo_time_scale = args.sim_time_scale;
-        options.cnc_time_scale = args.sim_time_scale;
-        Some(
-            SimCell::start(options)
-                .await
-                .context("starting the simulated cell")?,
-        )
-    } else {
-        None
-    };
-    let addresses = crate::run::cell_addresses(config, sim.as_ref(), profile)?;
+    let (sim, addresses) = crate::run::start_simulators(config, args.sim_time_scale, None).await?;
     let timeouts = Timeouts::default();
-    let mut cell = Cell::connect(&addresses, &timeouts, Tap::none())
-        .await
-        .map_err(|e| {
-            Failure::with_exit(
-                Exit::DeviceFault,
-                anyhow::anyhow!("connecting the cell: {e}"),
-            )
-        })?;
+    let mut cell = crate::run::connect(&addresses, &timeouts, Tap::none()).await?;
     let cancel = CancellationToken::new();
     let on_ctrl_c = cancel.clone();
     tokio::spawn(async move {

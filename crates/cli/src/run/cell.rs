@@ -58,25 +58,7 @@ pub(super) fn execute(
         .build()
         .context("starting the async runtime")?;
     runtime.block_on(async {
-        let profile = Profile::builtin(&config.cell.laser_profile)
-            .map_err(|e| anyhow::anyhow!("cell.laser_profile: {e}"))?;
-        let any_sim = [&config.cell.cnc, &config.cell.galvo, &config.cell.laser]
-            .iter()
-            .any(|v| v.as_str() == SIM);
-        let sim = if any_sim {
-            let mut options = SimOptions::new(profile.clone());
-            options.galvo_time_scale = args.sim_time_scale;
-            options.cnc_time_scale = args.sim_time_scale;
-            options.twin = twin.clone();
-            Some(
-                SimCell::start(options)
-                    .await
-                    .context("starting the simulated cell")?,
-            )
-        } else {
-            None
-        };
-        let addresses = cell_addresses(config, sim.as_ref(), profile)?;
+        let (sim, addresses) = start_simulators(config, args.sim_time_scale, twin.clone()).await?;
         let recorder = open_recorder(run_dir, resuming, live)?;
         if let (Some(rec), Some((inputs, registration))) = (&recorder, record) {
             record_inputs(rec, inputs, registration, job)?;
@@ -86,16 +68,8 @@ pub(super) fn execute(
         }
         let tap = recorder.as_ref().map_or_else(Tap::none, device_tap);
         let timeouts = Timeouts::default();
-        let cell = Cell::connect(&addresses, &timeouts, tap)
-            .await
-            .map_err(|e| {
-                Failure::with_exit(
-                    Exit::DeviceFault,
-                    anyhow::anyhow!("connecting the cell: {e}"),
-                )
-            })?;
+        let mut cell = connect(&addresses, &timeouts, tap).await?;
         // Where the machine starts, for the timing record's first move.
-        let mut cell = cell;
         let start_pose = match cell.cnc.positions().await {
             Ok(Ok(p)) => Some(p.world),
             _ => None,
@@ -176,7 +150,50 @@ pub(super) fn execute(
     })
 }
 
-pub(crate) fn cell_addresses(
+/// The simulators for the devices the config calls "sim" (none when it names none), at
+/// `time_scale`, the galvo simulator carrying `twin`; and every device's address.
+pub(crate) async fn start_simulators(
+    config: &JobConfig,
+    time_scale: f64,
+    twin: Option<std::sync::Arc<Twin>>,
+) -> anyhow::Result<(Option<SimCell>, CellAddresses)> {
+    let profile = Profile::builtin(&config.cell.laser_profile)
+        .map_err(|e| anyhow::anyhow!("cell.laser_profile: {e}"))?;
+    let any_sim = [&config.cell.cnc, &config.cell.galvo, &config.cell.laser]
+        .iter()
+        .any(|v| v.as_str() == SIM);
+    let sim = if any_sim {
+        let mut options = SimOptions::new(profile.clone());
+        options.galvo_time_scale = time_scale;
+        options.cnc_time_scale = time_scale;
+        options.twin = twin;
+        Some(
+            SimCell::start(options)
+                .await
+                .context("starting the simulated cell")?,
+        )
+    } else {
+        None
+    };
+    let addresses = cell_addresses(config, sim.as_ref(), profile)?;
+    Ok((sim, addresses))
+}
+
+/// Connects the cell; a failure is a device fault (its exit code).
+pub(crate) async fn connect(
+    addresses: &CellAddresses,
+    timeouts: &Timeouts,
+    tap: Tap,
+) -> anyhow::Result<Cell> {
+    Cell::connect(addresses, timeouts, tap).await.map_err(|e| {
+        Failure::with_exit(
+            Exit::DeviceFault,
+            anyhow::anyhow!("connecting the cell: {e}"),
+        )
+    })
+}
+
+fn cell_addresses(
     config: &JobConfig,
     sim: Option<&SimCell>,
     profile: Profile,

@@ -27,8 +27,8 @@ use crate::exit::{Exit, Failure};
 use crate::progress::stage;
 use crate::summary;
 
-pub(crate) use cell::cell_addresses;
 use cell::execute;
+pub(crate) use cell::{connect, start_simulators};
 use inputs::load_inputs;
 use report::{SpotReport, append_resume_report, write_report};
 
