@@ -580,16 +580,7 @@ fn execute_request(shared: &Arc<Shared>, req: Request) -> Result<Vec<u8>, (Statu
                 .to_vec())
         }
         Request::Execute { list } => {
-            let l = check_list(list)?;
-            if c.last_error == StatusCode::Watchdog.code() {
-                return Err((StatusCode::Watchdog, "watchdog trip latched".into()));
-            }
-            if c.state == ControllerState::Executing {
-                return Err((StatusCode::ListBusy, format!("list {} runs", c.exec_list)));
-            }
-            if c.lists[l].commands.is_empty() {
-                return Err((StatusCode::ListEmpty, format!("list {list} is empty")));
-            }
+            let l = check_startable(&c, list)?;
             if !c.laser_signals {
                 return Err((StatusCode::SignalsOff, "laser signals disabled".into()));
             }
@@ -652,16 +643,7 @@ fn execute_request(shared: &Arc<Shared>, req: Request) -> Result<Vec<u8>, (Statu
             Ok(Vec::new())
         }
         Request::ExecuteFrame { list, passes } => {
-            let l = check_list(list)?;
-            if c.last_error == StatusCode::Watchdog.code() {
-                return Err((StatusCode::Watchdog, "watchdog trip latched".into()));
-            }
-            if c.state == ControllerState::Executing {
-                return Err((StatusCode::ListBusy, format!("list {} runs", c.exec_list)));
-            }
-            if c.lists[l].commands.is_empty() {
-                return Err((StatusCode::ListEmpty, format!("list {list} is empty")));
-            }
+            let l = check_startable(&c, list)?;
             if c.laser_signals {
                 return Err((
                     StatusCode::Refused,
@@ -709,6 +691,22 @@ fn check_list(list: u8) -> Result<usize, (StatusCode, String)> {
         0 | 1 => Ok(usize::from(list)),
         other => Err((StatusCode::BadPayload, format!("no list {other} (0 or 1)"))),
     }
+}
+
+/// A list `EXECUTE` or `EXECUTE_FRAME` may start: no latched watchdog trip, no list running,
+/// the list not empty. Its index.
+fn check_startable(c: &Controller, list: u8) -> Result<usize, (StatusCode, String)> {
+    let l = check_list(list)?;
+    if c.last_error == StatusCode::Watchdog.code() {
+        return Err((StatusCode::Watchdog, "watchdog trip latched".into()));
+    }
+    if c.state == ControllerState::Executing {
+        return Err((StatusCode::ListBusy, format!("list {} runs", c.exec_list)));
+    }
+    if c.lists[l].commands.is_empty() {
+        return Err((StatusCode::ListEmpty, format!("list {list} is empty")));
+    }
+    Ok(l)
 }
 
 fn check_capacity(n: usize, cap: u32) -> Result<(), (StatusCode, String)> {
