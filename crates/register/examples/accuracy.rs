@@ -1,6 +1,6 @@
 //! Accuracy sweep on synthetic cores: trimctl's regional registration across the range a core
 //! can come in (seeded cases of `tests/common/cases.rs`: bend 0.1–0.5 mm, twist 0.2–1°, scale
-//! ±0.5–2 %, noise 8–15 µm, fixture errors up to 5° and 5 mm), per contour group, against a
+//! ±0.5–2 %, noise 8–15 µm, fixture errors up to 20° and 20 mm), per contour group, against a
 //! re-implementation of the paper's method.
 //!
 //! `cargo run --release -p trim-register --example accuracy -- [seeds] [scan_points] [first_seed]`

@@ -13,16 +13,31 @@ pub const MATCH_CANDIDATES: usize = 6;
 /// Neighbours used to estimate each CAD point's shape operator.
 pub const CURVATURE_NEIGHBOURS: usize = 6;
 
-/// The shape operator `S` of each CAD point (`n(c + t) ≈ n(c) + S t` for a tangential `t`),
-/// least squares over its [`CURVATURE_NEIGHBOURS`] nearest neighbours' normals. The residual
+/// The local shape of one CAD point, as the field's matching uses it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LocalShape {
+    /// The shape operator `S` (`n(c + t) ≈ n(c) + S t` for a tangential `t`), CAD frame.
+    pub operator: Matrix3<f64>,
+    /// A neighbour lies across an edge (its normal differs by more than
+    /// [`MIN_SAME_FACE_COS`]): the point is within about one sample spacing of a sharp edge.
+    pub near_edge: bool,
+}
+
+/// The local shape of each CAD point. The shape operator is fitted by least squares over its
+/// [`CURVATURE_NEIGHBOURS`] nearest neighbours' normals on the same face. The residual
 /// `n·(q − c) + ½ tᵀ S t` is then the distance to the osculating quadric instead of the tangent
 /// plane: without it a scan point on a 1.2 mm hole wall, 0.12 mm from its nearest CAD sample,
 /// reads `t²/2R ≈ 6 µm` off, always toward the hole, and half-visible holes shift by that.
+/// A neighbour across an edge marks the point [`LocalShape::near_edge`].
 #[must_use]
-pub fn shape_operators(cad: &PointCloud, tree: &kdtree::KdTree) -> Vec<Matrix3<f64>> {
+pub fn local_shapes(cad: &PointCloud, tree: &kdtree::KdTree) -> Vec<LocalShape> {
     let pts = cad.points();
     let Some(normals) = cad.normals() else {
-        return vec![Matrix3::zeros(); pts.len()];
+        let flat = LocalShape {
+            operator: Matrix3::zeros(),
+            near_edge: false,
+        };
+        return vec![flat; pts.len()];
     };
     pts.par_iter()
         .zip(normals.par_iter())
@@ -37,11 +52,16 @@ pub fn shape_operators(cad: &PointCloud, tree: &kdtree::KdTree) -> Vec<Matrix3<f
             let e2 = n.cross(&e1);
             let mut ata = nalgebra::Matrix3::<f64>::zeros();
             let mut atb = Vector3::zeros();
+            let mut near_edge = false;
             for nb in tree.knn_within(c, CURVATURE_NEIGHBOURS + 1, f64::INFINITY, scratch) {
                 let d = pts[nb.index] - c;
                 let dn = normals[nb.index] - n;
                 // Only neighbours on the same smooth face (normals within ~25°).
-                if d.norm_squared() == 0.0 || normals[nb.index].dot(n) < MIN_SAME_FACE_COS {
+                if normals[nb.index].dot(n) < MIN_SAME_FACE_COS {
+                    near_edge = true;
+                    continue;
+                }
+                if d.norm_squared() == 0.0 {
                     continue;
                 }
                 let (t1, t2) = (d.dot(&e1), d.dot(&e2));
@@ -55,16 +75,19 @@ pub fn shape_operators(cad: &PointCloud, tree: &kdtree::KdTree) -> Vec<Matrix3<f
                     atb += row * rhs;
                 }
             }
-            let Some(abc) = (ata + Matrix3::identity() * 1e-12)
+            let operator = (ata + Matrix3::identity() * 1e-12)
                 .try_inverse()
-                .map(|inv| inv * atb)
-            else {
-                return Matrix3::zeros();
-            };
-            let (a, b, cc) = (abc[0], abc[1], abc[2]);
-            a * e1 * e1.transpose()
-                + b * (e1 * e2.transpose() + e2 * e1.transpose())
-                + cc * e2 * e2.transpose()
+                .map_or_else(Matrix3::zeros, |inv| {
+                    let abc = inv * atb;
+                    let (a, b, cc) = (abc[0], abc[1], abc[2]);
+                    a * e1 * e1.transpose()
+                        + b * (e1 * e2.transpose() + e2 * e1.transpose())
+                        + cc * e2 * e2.transpose()
+                });
+            LocalShape {
+                operator,
+                near_edge,
+            }
         })
         .collect()
 }
@@ -83,18 +106,25 @@ pub(crate) struct Match {
     pub(crate) r: f64,
 }
 
-/// Matches of the field's points: scan point `q` (CAD frame) to its CAD point under the current
-/// field (`F⁻¹(q)`'s nearest CAD point), with the residual along the carried normal.
 /// A scan point's match: CAD index, CAD point, carried normal, field Jacobian at the CAD point,
 /// residual (mm).
 pub(crate) type Matched = (usize, Point3, Vector3, Matrix3<f64>, f64);
 
+/// Matches of the field's points: scan point `q` (CAD frame) to its CAD point under the current
+/// field (`F⁻¹(q)`'s nearest CAD point), with the residual along the carried normal. With
+/// `exclude_edges`, a point whose best CAD point is [`LocalShape::near_edge`] has no match: which
+/// face a noisy point a few tens of micrometres from a rim belongs to is a guess, and the
+/// guesses lean one way (a top-face point read against a wall plane always lies inside the
+/// material), so near a wall the scanner sees on one side only they shifted the wall by up to
+/// 20 µm. `shapes` may be empty (no curvature, no edges known).
+
 pub(crate) fn match_points(
     points: &[Point3],
     target: &IcpTarget,
-    curvature: &[Matrix3<f64>],
+    shapes: &[LocalShape],
     field: Option<&BSplineField>,
     max_distance_mm: f64,
+    exclude_edges: bool,
 ) -> Vec<Option<Matched>> {
     let cad = target.cloud().points();
     let normals = target.cloud().normals();
@@ -132,16 +162,18 @@ pub(crate) fn match_points(
                 // Distance to the osculating quadric (see `shape_operators`).
                 let diff = q - (c + d);
                 let t = diff - n * n.dot(&diff);
-                let s = curvature
+                let s = shapes
                     .get(nb.index)
-                    .copied()
-                    .unwrap_or_else(Matrix3::zeros);
+                    .map_or_else(Matrix3::zeros, |l| l.operator);
                 let r = -(n.dot(&diff) + 0.5 * (t.transpose() * s * t)[(0, 0)]);
                 if best.is_none_or(|b| r.abs() < b.0) {
                     best = Some((r.abs(), nb.index, c, n, j, r));
                 }
             }
             let (_, index, c, n, j, r) = best?;
+            if exclude_edges && shapes.get(index).is_some_and(|l| l.near_edge) {
+                return None;
+            }
             Some((index, c, n, j, r))
         })
         .collect()
@@ -150,11 +182,11 @@ pub(crate) fn match_points(
 pub(crate) fn final_matches(
     points: &[Point3],
     target: &IcpTarget,
-    curvature: &[Matrix3<f64>],
+    shapes: &[LocalShape],
     field: Option<&BSplineField>,
     max_distance_mm: f64,
 ) -> Vec<Match> {
-    match_points(points, target, curvature, field, max_distance_mm)
+    match_points(points, target, shapes, field, max_distance_mm, false)
         .into_iter()
         .zip(points)
         .filter_map(|(m, q)| m.map(|(_, _, n, _, r)| Match { q: *q, n, r }))
@@ -165,7 +197,7 @@ pub(crate) fn final_matches(
 pub(crate) fn fit_field(
     points: &[Point3],
     target: &IcpTarget,
-    curvature: &[Matrix3<f64>],
+    shapes: &[LocalShape],
     settings: &DeformationSettings,
 ) -> Result<(BSplineField, Vec<Match>, Option<FieldPosterior>)> {
     let bounds = target
@@ -188,7 +220,14 @@ pub(crate) fn fit_field(
     for it in 0..settings.iterations {
         let t = (it as f64 / shrink_steps as f64).min(1.0);
         let max_d = settings.max_distance_start_mm * ratio.powf(t);
-        let matched = match_points(points, target, curvature, Some(&field), max_d);
+        let matched = match_points(
+            points,
+            target,
+            shapes,
+            Some(&field),
+            max_d,
+            settings.exclude_edges,
+        );
         let pairs: Vec<(Point3, Vector3, f64, f64)> = matched
             .iter()
             .filter_map(|m| m.map(|(_, c, n, _, r)| (c, n, r, kernel.weight(r))))
@@ -228,14 +267,25 @@ pub(crate) fn fit_field(
         }
         field.add_step(step.as_slice());
     }
+    // All final matches, edges included, for the quality report (coverage and residuals are
+    // about what the scanner saw); the posterior from those the fit used.
     let matched = match_points(
         points,
         target,
-        curvature,
+        shapes,
         Some(&field),
         settings.max_distance_end_mm,
+        false,
     );
-    let posterior = field_posterior(&field, &matched, &prior, settings);
+    let fitted: Vec<Option<Matched>> = matched
+        .iter()
+        .map(|m| {
+            m.filter(|(index, ..)| {
+                !(settings.exclude_edges && shapes.get(*index).is_some_and(|l| l.near_edge))
+            })
+        })
+        .collect();
+    let posterior = field_posterior(&field, &fitted, &prior, settings);
     let matches = matched
         .into_iter()
         .zip(points)

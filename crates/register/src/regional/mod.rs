@@ -222,11 +222,11 @@ pub fn register(
             None,
         ),
         Mode::Regional => {
-            let curvature = stage(&mut timings, "cad curvature", || {
-                Ok(shape_operators(target.cloud(), target.tree()))
+            let shapes = stage(&mut timings, "cad curvature", || {
+                Ok(local_shapes(target.cloud(), target.tree()))
             })?;
             let (f, m, p) = stage(&mut timings, "deformation field", || {
-                fit_field(&field_points, &target, &curvature, &settings.field)
+                fit_field(&field_points, &target, &shapes, &settings.field)
             })?;
             (Some(f), m, p)
         }

@@ -132,9 +132,9 @@ pub(crate) fn translational_degeneracy(
 ///
 /// Multiple of the field's posterior deviation across the contour (the largest along a contour
 /// of a few hundred points of a Gaussian field is about 3σ).
-pub const BOUND_SIGMA_FACTOR: f64 = 4.0;
+pub const BOUND_SIGMA_FACTOR: f64 = 2.0;
 /// The bias floor the posterior does not see (correspondence bias at rims and walls), mm.
-pub const BOUND_BIAS_MM: f64 = 0.007;
+pub const BOUND_BIAS_MM: f64 = 0.004;
 /// Multiple of the patch residual beyond the field's residual deviation (a misfit the field
 /// could not follow), per mm of excess.
 pub const BOUND_RESIDUAL_FACTOR: f64 = 1.0;
