@@ -78,10 +78,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         (None, Some(c)) => c.part.scan_from_cad.scan_from_cad("part.scan_from_cad")?,
         (None, None) => Similarity3::identity(),
     };
-    let cad = load_cad(&args.cad, "--cad", settings.cad_sample_points)
-        .with_context(|| format!("reading {}", args.cad.display()))?;
-    let scan =
-        read_points(&args.scan).with_context(|| format!("reading {}", args.scan.display()))?;
+    // The CAD (parsed and sampled) and the scan (parsed) are read side by side.
+    let (cad, scan) = std::thread::scope(|s| {
+        let scan = s.spawn(|| {
+            read_points(&args.scan).with_context(|| format!("reading {}", args.scan.display()))
+        });
+        let cad = load_cad(&args.cad, "--cad", settings.cad_sample_points)
+            .with_context(|| format!("reading {}", args.cad.display()));
+        let scan = scan.join().unwrap_or_else(|_| {
+            Err(anyhow::anyhow!(
+                "reading {}: the reader panicked",
+                args.scan.display()
+            ))
+        });
+        (cad, scan)
+    });
+    let (cad, scan) = (cad?, scan?);
     // With a job file, the scan (scanner frame) goes into the work-piece frame through its
     // [calibration] and [part.scan_pose], as `trimctl run` does.
     let scan = match &config {
