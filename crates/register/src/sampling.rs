@@ -178,9 +178,120 @@ pub fn dense_voxel_centroids(
     Ok(out)
 }
 
+/// A scan's voxel sums at a base voxel size, from one sort of its points: the dense voxel
+/// centroids ([`dense_voxel_centroids`]) at the base size and at every power-of-two multiple of
+/// it come from these sums (a voxel of `2ᵐ b` is exactly the union of its `b` voxels: dividing
+/// by a power of two is exact in floating point), and those at any other size from the points.
+/// The coarse registration's pyramid (2, 1 and 0.5 mm) sorts the 500 000 points once, not three
+/// times.
+#[derive(Debug, Clone)]
+pub struct VoxelPyramid<'a> {
+    points: &'a [Point3],
+    base_mm: f64,
+    /// Base voxels in voxel order: integer coordinates, coordinate sum, point count.
+    voxels: Vec<([i64; 3], Vector3, usize)>,
+}
+
+impl<'a> VoxelPyramid<'a> {
+    /// The sums of `points` at `base_mm`.
+    pub fn new(points: &'a [Point3], base_mm: f64) -> Result<Self> {
+        if !(base_mm.is_finite() && base_mm > 0.0) {
+            return Err(RegisterError::setting(
+                "voxel_mm",
+                format!("must be finite and > 0, got {base_mm}"),
+            ));
+        }
+        let keyed = sorted_voxels(points, base_mm);
+        let mut voxels = Vec::new();
+        let mut start = 0;
+        while start < keyed.len() {
+            let mut end = start + 1;
+            while end < keyed.len() && keyed[end].0 == keyed[start].0 {
+                end += 1;
+            }
+            let p = points[keyed[start].1];
+            let key = [p.x, p.y, p.z].map(|v| (v / base_mm).floor() as i64);
+            let sum: Vector3 = keyed[start..end]
+                .iter()
+                .map(|&(_, i)| points[i].coords)
+                .sum();
+            voxels.push((key, sum, end - start));
+            start = end;
+        }
+        Ok(VoxelPyramid {
+            points,
+            base_mm,
+            voxels,
+        })
+    }
+
+    /// [`dense_voxel_centroids`] of the points at `voxel_mm` (the same voxels, in the same
+    /// order; the centroids may differ in the last bits, as the sums are taken in another order).
+    pub fn dense_centroids(&self, voxel_mm: f64, min_count: usize) -> Result<Vec<Point3>> {
+        let ratio = voxel_mm / self.base_mm;
+        let m = ratio.round();
+        let power_of_two = m >= 1.0 && m <= f64::from(1u32 << 20) && (m as u64).is_power_of_two();
+        if !(power_of_two && (ratio - m).abs() <= 1e-12 * m) {
+            return dense_voxel_centroids(self.points, voxel_mm, min_count);
+        }
+        let m = m as i64;
+        let mut coarse: Vec<([i64; 3], usize)> = self
+            .voxels
+            .iter()
+            .enumerate()
+            .map(|(i, (k, _, _))| (k.map(|v| v.div_euclid(m)), i))
+            .collect();
+        if m > 1 {
+            coarse.sort_unstable();
+        }
+        let mut out = Vec::new();
+        let mut start = 0;
+        while start < coarse.len() {
+            let mut end = start + 1;
+            while end < coarse.len() && coarse[end].0 == coarse[start].0 {
+                end += 1;
+            }
+            let (sum, count) = coarse[start..end]
+                .iter()
+                .fold((Vector3::zeros(), 0), |(s, c), &(_, i)| {
+                    (s + self.voxels[i].1, c + self.voxels[i].2)
+                });
+            if count >= min_count {
+                out.push(Point3::from(sum / count as f64));
+            }
+            start = end;
+        }
+        Ok(out)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_pyramid_gives_the_direct_centroids() {
+        // A noisy sheet with negative coordinates (floor, not truncation) and sparse corners.
+        let pts: Vec<Point3> = (0..20_000)
+            .map(|i| {
+                let f = f64::from(i);
+                Point3::new(
+                    (f * 0.618_034).fract() * 13.0 - 6.3,
+                    (f * 0.414_214).fract() * 7.0 - 3.1,
+                    (f * 0.732_051).fract() * 0.2 - 1.05,
+                )
+            })
+            .collect();
+        let pyramid = VoxelPyramid::new(&pts, 0.5).unwrap();
+        for (voxel, min) in [(0.5, 3), (1.0, 3), (2.0, 3), (4.0, 1), (0.75, 3)] {
+            let direct = dense_voxel_centroids(&pts, voxel, min).unwrap();
+            let derived = pyramid.dense_centroids(voxel, min).unwrap();
+            assert_eq!(direct.len(), derived.len(), "voxel {voxel}");
+            for (a, b) in direct.iter().zip(&derived) {
+                assert!((a - b).norm() < 1e-12, "voxel {voxel}: {a} vs {b}");
+            }
+        }
+    }
 
     #[test]
     fn picks_one_point_per_voxel_on_the_surface() {

@@ -102,8 +102,28 @@ pub fn coarse_fit(
     cad_from_scan_nominal: &Similarity3,
     settings: &CoarseSettings,
 ) -> Result<IcpResult> {
-    let captured = capture(scan, target, cad_from_scan_nominal, settings)?;
-    refine(scan, target, &captured, settings)
+    let pyramid = scan_pyramid(scan, settings)?;
+    let captured = capture(&pyramid, target, cad_from_scan_nominal, settings)?;
+    refine(&pyramid, target, &captured, settings)
+}
+
+/// The scan's voxel sums at the finest pyramid level, for [`capture`] and [`refine`].
+pub fn scan_pyramid<'a>(
+    scan: &'a PointCloud,
+    settings: &CoarseSettings,
+) -> Result<VoxelPyramid<'a>> {
+    let finest = settings
+        .levels
+        .iter()
+        .map(|l| l.voxel_mm)
+        .fold(f64::INFINITY, f64::min);
+    if finest.is_infinite() {
+        return Err(RegisterError::setting(
+            "coarse.levels",
+            "needs at least one level",
+        ));
+    }
+    VoxelPyramid::new(scan.points(), finest)
 }
 
 /// The capture: from the fixture's nominal `cad_from_scan`, the start of `settings.init` is
@@ -116,7 +136,7 @@ pub fn coarse_fit(
 /// [`RegisterError::OutsideCaptureRange`] when it puts the part beyond the capture range, the
 /// first start's error when no start could be fitted at all.
 pub fn capture(
-    scan: &PointCloud,
+    scan: &VoxelPyramid<'_>,
     target: &IcpTarget,
     cad_from_scan_nominal: &Similarity3,
     settings: &CoarseSettings,
@@ -125,11 +145,7 @@ pub fn capture(
         .levels
         .first()
         .ok_or_else(|| RegisterError::setting("coarse.levels", "needs at least one level"))?;
-    let source = PointCloud::new(dense_voxel_centroids(
-        scan.points(),
-        level.voxel_mm,
-        settings.min_voxel_points,
-    )?)?;
+    let source = PointCloud::new(scan.dense_centroids(level.voxel_mm, settings.min_voxel_points)?)?;
     let frame = StartFrame::new(&source, target, cad_from_scan_nominal, level.voxel_mm)?;
     let scan_from_cad_nominal = cad_from_scan_nominal.inverse();
     let last = settings.levels.len() == 1;
@@ -214,7 +230,7 @@ pub fn capture(
 /// The refinement: the pyramid's levels below the top, from the capture's fit (scale freed at
 /// the finest level). The result's `iterations` count the top level's too.
 pub fn refine(
-    scan: &PointCloud,
+    scan: &VoxelPyramid<'_>,
     target: &IcpTarget,
     captured: &Capture,
     settings: &CoarseSettings,
@@ -222,11 +238,8 @@ pub fn refine(
     let mut result = captured.fit.clone();
     let mut iterations = result.iterations;
     for (k, level) in settings.levels.iter().enumerate().skip(1) {
-        let source = PointCloud::new(dense_voxel_centroids(
-            scan.points(),
-            level.voxel_mm,
-            settings.min_voxel_points,
-        )?)?;
+        let source =
+            PointCloud::new(scan.dense_centroids(level.voxel_mm, settings.min_voxel_points)?)?;
         let last = k + 1 == settings.levels.len();
         result = fit_level(
             k,

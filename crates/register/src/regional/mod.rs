@@ -38,7 +38,9 @@ use crate::field::{BSplineField, SUPPORT};
 use crate::icp::{IcpMethod, IcpResult, IcpSettings, IcpTarget, PyramidLevel, icp};
 use crate::kdtree::{self, Scratch};
 use crate::kernel::RobustKernel;
-use crate::sampling::{View, dense_voxel_centroids, facing_indices, spatial_order, voxel_pick};
+use crate::sampling::{
+    View, VoxelPyramid, dense_voxel_centroids, facing_indices, spatial_order, voxel_pick,
+};
 use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen};
 use rayon::prelude::*;
 use std::time::Instant;
@@ -72,10 +74,10 @@ impl Registration {
 /// Voxel size of the CAD's spatially coherent order, mm.
 pub const CAD_ORDER_VOXEL_MM: f64 = 1.0;
 
-/// The visible CAD is culled again at the captured pose when the direction to the scanner (at
-/// the CAD's centroid) turned by more than this from the nominal pose's, degrees. Culled at the
-/// nominal pose, a core 10° off registered with a cross-edge P95 of 24 µm instead of 9 µm.
-pub const VISIBILITY_REFRESH_DEG: f64 = 1.0;
+/// The coarse capture uses every this-many-th CAD point (the visible CAD is culled again, whole,
+/// at the captured pose: culled at the nominal pose, a core 10° off registered with a
+/// cross-edge P95 of 24 µm instead of 9 µm).
+pub const CAPTURE_CAD_STRIDE: usize = 4;
 
 /// Where the scanner is, CAD frame, for a `cad_from_scan`.
 fn view_in_cad(settings: &RegisterSettings, cad_from_scan: &Similarity3) -> View {
@@ -99,19 +101,6 @@ fn visible_target(cad: &PointCloud, view: View, facing_min_cos: f64) -> Result<I
     // Spatially coherent order: the curvature pass walks the CAD in it.
     let order = spatial_order(visible.points(), CAD_ORDER_VOXEL_MM);
     IcpTarget::new(visible.select(&order)?)
-}
-
-/// The direction toward the scanner seen from `p` (not normalised).
-fn toward_scanner(view: View, p: &Point3) -> Vector3 {
-    match view {
-        View::From(eye) => eye - p,
-        View::Along(d) => d,
-    }
-}
-
-/// The centroid of a cloud's points.
-fn cloud_centroid(cloud: &PointCloud) -> Point3 {
-    moments(cloud.points()).0
 }
 
 fn stage<T>(
@@ -159,43 +148,64 @@ pub fn register(
     let mut timings = Vec::new();
     let cad_from_scan_initial = initial_scan_from_cad.inverse();
     let view_nominal = view_in_cad(settings, &cad_from_scan_initial);
-    let target = stage(&mut timings, "cad visibility + kd-tree", || {
-        visible_target(cad, view_nominal, settings.facing_min_cos)
-    })?;
+    // Side by side (each sort leaves a sequential pass the other core can fill): the capture's
+    // CAD (on 2 mm scan voxels every CAPTURE_CAD_STRIDE-th CAD point is plenty), the scan's
+    // voxel sums for the coarse pyramid, and the field's points (one real scan point per voxel).
+    let (capture_target, pyramid, picked) =
+        stage(&mut timings, "scan voxels + capture cad", || {
+            let ((capture_target, pyramid), picked) = rayon::join(
+                || {
+                    rayon::join(
+                        || {
+                            let every: Vec<usize> =
+                                (0..cad.len()).step_by(CAPTURE_CAD_STRIDE).collect();
+                            visible_target(
+                                &cad.select(&every)?,
+                                view_nominal,
+                                settings.facing_min_cos,
+                            )
+                        },
+                        || scan_pyramid(scan, &settings.coarse),
+                    )
+                },
+                || voxel_pick(scan.points(), settings.field.voxel_mm),
+            );
+            Ok((capture_target?, pyramid?, picked?))
+        })?;
 
     // Coarse: the capture from the fixture's nominal pose, then scan → CAD point-to-plane with
     // scale down the scan pyramid.
     let captured = stage(&mut timings, "coarse capture", || {
-        capture(scan, &target, &cad_from_scan_initial, &settings.coarse)
+        capture(
+            &pyramid,
+            &capture_target,
+            &cad_from_scan_initial,
+            &settings.coarse,
+        )
     })?;
     // The part's faces toward the scanner are those of the captured pose: with the nominal
     // pose's, a part 10° off keeps walls the scanner never saw and drops some it did.
     let view_captured = view_in_cad(settings, &captured.fit.target_from_source);
-    let centroid = cloud_centroid(target.cloud());
-    let target = if toward_scanner(view_nominal, &centroid)
-        .angle(&toward_scanner(view_captured, &centroid))
-        > VISIBILITY_REFRESH_DEG.to_radians()
-    {
-        stage(&mut timings, "cad visibility (captured)", || {
-            visible_target(cad, view_captured, settings.facing_min_cos)
-        })?
-    } else {
-        target
-    };
-    let coarse = stage(&mut timings, "coarse similarity", || {
-        refine(scan, &target, &captured, &settings.coarse)
+    let target = stage(&mut timings, "cad visibility + kd-tree", || {
+        visible_target(cad, view_captured, settings.facing_min_cos)
+    })?;
+    // The CAD's local shapes (the field's matching) are worked out beside the refinement.
+    let regional = settings.mode == Mode::Regional;
+    let (coarse, shapes) = stage(&mut timings, "coarse similarity + cad curvature", || {
+        let (coarse, shapes) = rayon::join(
+            || refine(&pyramid, &target, &captured, &settings.coarse),
+            || regional.then(|| local_shapes(target.cloud(), target.tree())),
+        );
+        Ok((coarse?, shapes.unwrap_or_default()))
     })?;
     let cad_from_scan = coarse.target_from_source;
     let scan_from_cad = cad_from_scan.inverse();
 
-    // Field points: one real scan point per voxel, in the CAD frame.
-    let field_points: Vec<Point3> = stage(&mut timings, "scan thinning", || {
-        let picked = voxel_pick(scan.points(), settings.field.voxel_mm)?;
-        Ok(picked
-            .par_iter()
-            .map(|&i| cad_from_scan * scan.points()[i])
-            .collect())
-    })?;
+    // Field points in the CAD frame.
+    let field_points: Vec<Point3> = picked
+        .par_iter()
+        .map(|&i| cad_from_scan * scan.points()[i])
+        .collect();
     let overlap = overlap_fraction(
         &field_points,
         target.tree(),
@@ -222,9 +232,6 @@ pub fn register(
             None,
         ),
         Mode::Regional => {
-            let shapes = stage(&mut timings, "cad curvature", || {
-                Ok(local_shapes(target.cloud(), target.tree()))
-            })?;
             let (f, m, p) = stage(&mut timings, "deformation field", || {
                 fit_field(&field_points, &target, &shapes, &settings.field)
             })?;

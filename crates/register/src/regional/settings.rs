@@ -90,7 +90,7 @@ impl Default for CoarseSettings {
             levels: vec![
                 level(2.0, 12.0, 30),
                 level(1.0, 4.0, 30),
-                level(0.5, 1.5, 30),
+                level(0.5, 1.5, 10),
             ],
             with_scale: true,
             huber_fraction: 0.25,
