@@ -66,6 +66,37 @@ def test_registration_lands_on_the_truth(case, registration):
     assert registration.scan_from_cad.shape == (4, 4)
 
 
+def test_registration_reports_each_contours_predicted_bound(case, registration):
+    quality = registration.quality
+    assert [q.id for q in quality] == list(case.path.contour_ids)
+    bounds = registration.predicted_max_error_um
+    assert set(bounds) == {q.id for q in quality}
+    for q in quality:
+        assert isinstance(q, trimctl.ContourQuality)
+        assert isinstance(q.predicted_max_error_um, float)
+        assert np.isfinite(q.predicted_max_error_um) and q.predicted_max_error_um > 0.0
+        assert bounds[q.id] == q.predicted_max_error_um
+        assert q.field_weak_direction.shape == (3,)
+        assert abs(np.linalg.norm(q.field_weak_direction) - 1.0) < 1e-6
+        # The flag follows the bound (default tolerance 30 µm); a trusted contour has no flag.
+        assert ("predicted_error" in q.flags) == (q.predicted_max_error_um > 30.0), q
+        assert q.trustworthy == (not q.flags), q
+    # The bound covers the actual largest cross-edge error on most contours of the demo case
+    # (the calibration test asserts >= 95 % on the seeded cases; here a few contours only).
+    truth = {cid: case.truth.points[case.truth.ids == cid] for cid in bounds}
+    reg = {cid: registration.path.points[registration.path.ids == cid] for cid in bounds}
+    covered = 0
+    for cid, bound in bounds.items():
+        t = truth[cid]
+        a, b = t[:-1], t[1:]
+        ab = b - a
+        p = reg[cid][:, None, :]
+        u = np.clip(np.einsum("psk,sk->ps", p - a[None], ab) / np.maximum((ab * ab).sum(1), 1e-300), 0, 1)
+        d = np.linalg.norm(p - (a[None] + u[..., None] * ab[None]), axis=2).min(axis=1)
+        covered += d.max() * 1e3 <= bound
+    assert covered >= 0.9 * len(bounds), (covered, len(bounds))
+
+
 def test_plan_invariants(registration):
     p = trimctl.plan(registration.path, max_incidence_deg=5.0)
     assert p.validation["passed"], p.validation["violations"][:5]

@@ -15,7 +15,7 @@ use crate::config::JobConfig;
 /// How many of the worst contours the registration summary lists.
 pub const WORST_CONTOURS: usize = 5;
 
-/// Registration quality: global figures and the worst contours by residual.
+/// Registration quality: global figures and the worst contours by predicted error bound.
 #[must_use]
 pub fn registration(report: &QualityReport) -> String {
     let mut s = String::new();
@@ -32,28 +32,64 @@ pub fn registration(report: &QualityReport) -> String {
         report.contours.len()
     );
     let mut worst: Vec<_> = report.contours.iter().collect();
-    // No scan point at all is the worst.
-    let key = |c: &&ContourQuality| c.residual_rms_mm.unwrap_or(f64::INFINITY);
-    worst.sort_by(|a, b| key(b).total_cmp(&key(a)));
+    // Untrustworthy first, then by predicted bound.
+    worst.sort_by(|a, b| {
+        a.trustworthy
+            .cmp(&b.trustworthy)
+            .then(b.predicted_max_error_um.total_cmp(&a.predicted_max_error_um))
+    });
     let _ = writeln!(
         s,
-        "  worst contours:  id  residual µm  coverage %  degeneracy  flags"
+        "  worst contours:  id  bound µm  residual µm  coverage %  flags"
     );
     for c in worst.iter().take(WORST_CONTOURS) {
+        let _ = writeln!(s, "{}", contour_row(c));
+    }
+    s
+}
+
+/// One contour's row of the registration summary (see [`registration`]).
+fn contour_row(c: &ContourQuality) -> String {
+    let flags: Vec<String> = c.flags.iter().map(|f| format!("{f:?}")).collect();
+    format!(
+        "  {:>17}  {:>8.1}  {:>11}  {:>10.0}  {}",
+        c.id,
+        c.predicted_max_error_um,
+        c.residual_rms_mm
+            .map_or("-".to_owned(), |r| format!("{:.1}", r * 1e3)),
+        c.coverage * 100.0,
+        if flags.is_empty() {
+            "-".into()
+        } else {
+            flags.join(",")
+        }
+    )
+}
+
+/// Every contour's quality as a markdown table, in path order (the run report).
+#[must_use]
+pub fn contour_table(report: &QualityReport) -> String {
+    let mut s = String::from(
+        "| contour | predicted max error µm | residual µm | coverage % | field σ µm | support distance mm | flags | trusted |\n|---|---|---|---|---|---|---|---|\n",
+    );
+    for c in &report.contours {
         let flags: Vec<String> = c.flags.iter().map(|f| format!("{f:?}")).collect();
         let _ = writeln!(
             s,
-            "  {:>17}  {:>11}  {:>10.0}  {:>10.3}  {}",
+            "| {} | {:.1} | {} | {:.0} | {:.1} | {:.2} | {} | {} |",
             c.id,
+            c.predicted_max_error_um,
             c.residual_rms_mm
                 .map_or("-".to_owned(), |r| format!("{:.1}", r * 1e3)),
             c.coverage * 100.0,
-            c.degeneracy_ratio,
+            c.field_sigma_mm * 1e3,
+            c.support_distance_mm,
             if flags.is_empty() {
                 "-".into()
             } else {
-                flags.join(",")
-            }
+                flags.join(", ")
+            },
+            if c.trustworthy { "yes" } else { "**no**" }
         );
     }
     s
@@ -347,6 +383,11 @@ pub fn report_markdown(
         s,
         "\n## Registration\n\n```\n{}```",
         registration(registration_report)
+    );
+    let _ = writeln!(
+        s,
+        "\n### Contours\n\nThe predicted max error is the registration's own bound on the contour's largest cross-edge error (`predicted_max_error_um` in registration.json); a contour over the tolerance, or with too little coverage or too high a residual, is not trusted.\n\n{}",
+        contour_table(registration_report)
     );
     let _ = writeln!(s, "\n## Plan\n\n```\n{}```", plan(plan_out));
     if let Some(r) = run {

@@ -98,6 +98,20 @@ fn demo_runs_to_the_end_and_leaves_a_complete_run_folder() {
             "{file} missing or empty"
         );
     }
+    // The run report gives every contour's predicted error bound, as registration.json does.
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let quality: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("registration.json")).unwrap())
+            .unwrap();
+    let contours = quality["contours"].as_array().unwrap();
+    assert!(!contours.is_empty());
+    assert!(report.contains("predicted max error µm"), "{report}");
+    for c in contours {
+        let bound = c["predicted_max_error_um"].as_f64().unwrap();
+        assert!(bound.is_finite() && bound > 0.0, "{c}");
+        let row = format!("| {} | {bound:.1} |", c["id"]);
+        assert!(report.contains(&row), "{row} missing from report.md");
+    }
     let done = layers_done(&out);
     let planned = planned_layers(&out);
     assert!(!planned.is_empty());

@@ -27,6 +27,7 @@ from ._native import (
 
 from ._workflow import (
     Beam,
+    ContourQuality,
     DemoCase,
     Layer,
     Plan,
@@ -40,6 +41,7 @@ from ._workflow import (
 
 __all__ = [
     "Beam",
+    "ContourQuality",
     "DemoCase",
     "Layer",
     "Plan",

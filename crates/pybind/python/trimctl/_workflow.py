@@ -237,6 +237,50 @@ def plan(
 
 
 @dataclass(frozen=True)
+class ContourQuality:
+    """One registered contour's quality (``registration.json``'s ``contours`` entry, typed).
+
+    ``predicted_max_error_um`` is the registration's own bound on the contour's largest
+    cross-edge error, from the field's posterior deviation across the contour
+    (``field_sigma_mm`` along ``field_weak_direction``), its residual, its coverage and its
+    distance to supporting scan data; over ``quality.tolerance_um`` (default 30) it flags the
+    contour ``predicted_error``. ``residual_rms_mm`` is ``None`` when no scan point is near.
+    """
+
+    id: int
+    points: int
+    scan_points: int
+    coverage: float
+    residual_rms_mm: Optional[float]
+    predicted_max_error_um: float
+    field_sigma_mm: float
+    field_weak_direction: np.ndarray
+    support_distance_mm: float
+    max_field_displacement_mm: float
+    degeneracy_ratio: float
+    flags: Tuple[str, ...]
+    trustworthy: bool
+
+    @classmethod
+    def from_report(cls, c: Mapping[str, Any]) -> "ContourQuality":
+        return cls(
+            id=int(c["id"]),
+            points=int(c["points"]),
+            scan_points=int(c["scan_points"]),
+            coverage=float(c["coverage"]),
+            residual_rms_mm=None if c["residual_rms_mm"] is None else float(c["residual_rms_mm"]),
+            predicted_max_error_um=float(c["predicted_max_error_um"]),
+            field_sigma_mm=float(c["field_sigma_mm"]),
+            field_weak_direction=np.asarray(c["field_weak_direction"], dtype=np.float64),
+            support_distance_mm=float(c["support_distance_mm"]),
+            max_field_displacement_mm=float(c["max_field_displacement_mm"]),
+            degeneracy_ratio=float(c["degeneracy_ratio"]),
+            flags=tuple(str(f) for f in c["flags"]),
+            trustworthy=bool(c["trustworthy"]),
+        )
+
+
+@dataclass(frozen=True)
 class Registration:
     """A registered path, its per-contour quality report and the coarse ``scan_from_cad``."""
 
@@ -246,8 +290,18 @@ class Registration:
 
     @property
     def contours(self) -> List[Dict[str, Any]]:
-        """Per-contour quality: residual, coverage, degeneracy, flags, trustworthy."""
+        """Per-contour quality as the report's dicts (see :attr:`quality` for typed ones)."""
         return list(self.report["contours"])
+
+    @property
+    def quality(self) -> List[ContourQuality]:
+        """Per-contour quality, typed, in path order."""
+        return [ContourQuality.from_report(c) for c in self.report["contours"]]
+
+    @property
+    def predicted_max_error_um(self) -> Dict[int, float]:
+        """Each contour's predicted bound on its largest cross-edge error, µm, by contour id."""
+        return {int(c["id"]): float(c["predicted_max_error_um"]) for c in self.report["contours"]}
 
     @property
     def untrustworthy(self) -> List[int]:
