@@ -34,9 +34,10 @@ pub fn registration(report: &QualityReport) -> String {
     let mut worst: Vec<_> = report.contours.iter().collect();
     // Untrustworthy first, then by predicted bound.
     worst.sort_by(|a, b| {
-        a.trustworthy
-            .cmp(&b.trustworthy)
-            .then(b.predicted_max_error_um.total_cmp(&a.predicted_max_error_um))
+        a.trustworthy.cmp(&b.trustworthy).then(
+            b.predicted_max_error_um
+                .total_cmp(&a.predicted_max_error_um),
+        )
     });
     let _ = writeln!(
         s,
