@@ -122,7 +122,6 @@ pub(crate) type Matched = (usize, Point3, Vector3, Matrix3<f64>, f64);
 /// guesses lean one way (a top-face point read against a wall plane always lies inside the
 /// material), so near a wall the scanner sees on one side only they shifted the wall by up to
 /// 20 µm. `shapes` may be empty (no curvature, no edges known).
-
 pub(crate) fn match_points(
     points: &[Point3],
     target: &IcpTarget,
