@@ -16,49 +16,48 @@ pub fn solve_banded_spd(
     if a.ncols() != n || b.len() != n {
         return None;
     }
-    // Lower-triangular factor in band storage: l[j][i - j] for i in j..=j+bw.
+    // Lower-triangular factor, row by row: row i holds L[i][i - bw ..= i] contiguously (columns
+    // before 0 stay zero), so each entry is one contiguous dot product of two rows.
     let bw = bandwidth.min(n.saturating_sub(1));
-    let mut l = vec![vec![0.0; bw + 1]; n];
-    for j in 0..n {
-        let lo = j.saturating_sub(bw);
-        // Diagonal.
-        let mut d = a[(j, j)];
-        for k in lo..j {
-            let v = l[k][j - k];
-            d -= v * v;
-        }
-        if !(d > 0.0 && d.is_finite()) {
-            return None;
-        }
-        let d = d.sqrt();
-        l[j][0] = d;
-        // Below the diagonal, within the band.
-        for i in j + 1..(j + bw + 1).min(n) {
-            let mut s = a[(i, j)];
-            let klo = i.saturating_sub(bw).max(lo);
-            for k in klo..j {
-                s -= l[k][i - k] * l[k][j - k];
+    let w = bw + 1;
+    let mut l = vec![0.0; n * w];
+    // L[i][k] lives at l[i * w + (k + bw - i)].
+    for i in 0..n {
+        let lo = i.saturating_sub(bw);
+        for j in lo..=i {
+            // Σ_k L[i][k] L[j][k] over k in lo..j (both rows are zero before their band).
+            let ri = &l[i * w + (lo + bw - i)..i * w + (j + bw - i)];
+            let rj = &l[j * w + (lo + bw - j)..j * w + bw];
+            let dot: f64 = ri.iter().zip(rj).map(|(x, y)| x * y).sum();
+            let v = a[(i, j)] - dot;
+            if j == i {
+                if !(v > 0.0 && v.is_finite()) {
+                    return None;
+                }
+                l[i * w + bw] = v.sqrt();
+            } else {
+                l[i * w + (j + bw - i)] = v / l[j * w + bw];
             }
-            l[j][i - j] = s / d;
         }
     }
+    let at = |i: usize, k: usize| l[i * w + (k + bw - i)];
     // Forward: L y = b.
     let mut y = b.clone();
     for i in 0..n {
         let mut s = y[i];
         for k in i.saturating_sub(bw)..i {
-            s -= l[k][i - k] * y[k];
+            s -= at(i, k) * y[k];
         }
-        y[i] = s / l[i][0];
+        y[i] = s / at(i, i);
     }
     // Backward: Lᵀ x = y.
     let mut x = y;
     for i in (0..n).rev() {
         let mut s = x[i];
         for k in i + 1..(i + bw + 1).min(n) {
-            s -= l[i][k - i] * x[k];
+            s -= at(k, i) * x[k];
         }
-        x[i] = s / l[i][0];
+        x[i] = s / at(i, i);
     }
     Some(x)
 }
@@ -69,8 +68,12 @@ mod tests {
 
     #[test]
     fn matches_dense_cholesky() {
-        let n = 60;
-        let bw = 7;
+        for bw in [0, 1, 7, 59, 100] {
+            matches_dense_cholesky_at(60, bw);
+        }
+    }
+
+    fn matches_dense_cholesky_at(n: usize, bw: usize) {
         let mut a = DMatrix::<f64>::zeros(n, n);
         for i in 0..n {
             for j in 0..n {
