@@ -79,6 +79,9 @@ pub const CAD_ORDER_VOXEL_MM: f64 = 1.0;
 /// cross-edge P95 of 24 µm instead of 9 µm).
 pub const CAPTURE_CAD_STRIDE: usize = 4;
 
+/// …when that still leaves this many CAD points; a sparser CAD is used whole.
+pub const CAPTURE_CAD_MIN_POINTS: usize = 20_000;
+
 /// Where the scanner is, CAD frame, for a `cad_from_scan`.
 fn view_in_cad(settings: &RegisterSettings, cad_from_scan: &Similarity3) -> View {
     match settings.scanner_viewpoint_mm {
@@ -148,6 +151,11 @@ pub fn register(
     let mut timings = Vec::new();
     let cad_from_scan_initial = initial_scan_from_cad.inverse();
     let view_nominal = view_in_cad(settings, &cad_from_scan_initial);
+    let capture_stride = if cad.len() >= CAPTURE_CAD_STRIDE * CAPTURE_CAD_MIN_POINTS {
+        CAPTURE_CAD_STRIDE
+    } else {
+        1
+    };
     // Side by side (each sort leaves a sequential pass the other core can fill): the capture's
     // CAD (on 2 mm scan voxels every CAPTURE_CAD_STRIDE-th CAD point is plenty), the scan's
     // voxel sums for the coarse pyramid, and the field's points (one real scan point per voxel).
@@ -158,7 +166,7 @@ pub fn register(
                     rayon::join(
                         || {
                             let every: Vec<usize> =
-                                (0..cad.len()).step_by(CAPTURE_CAD_STRIDE).collect();
+                                (0..cad.len()).step_by(capture_stride).collect();
                             visible_target(
                                 &cad.select(&every)?,
                                 view_nominal,
