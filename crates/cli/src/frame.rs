@@ -24,7 +24,7 @@ use trim_plan::{Job, LayerKey};
 
 use crate::config::JobConfig;
 use crate::exit::{Exit, Failure};
-use crate::run::{DEFAULT_SIM_TIME_SCALE, files};
+use crate::run::{CellOverrides, DEFAULT_SIM_TIME_SCALE, files};
 
 /// How long `run --frame` waits for an answer before it quits the run (s): the pointer is not
 /// left tracing unattended.
@@ -55,15 +55,8 @@ pub struct Args {
     /// For a Job JSON: the job file whose [cell] to use (default: the built-in simulated cell).
     #[arg(long, value_name = "JOB.toml")]
     config: Option<PathBuf>,
-    /// The CNC (LinuxCNC linuxcncrsh) as HOST:PORT, overriding `cell.cnc`.
-    #[arg(long, value_name = "HOST:PORT")]
-    cnc: Option<String>,
-    /// The galvo controller as HOST:PORT, overriding `cell.galvo`.
-    #[arg(long, value_name = "HOST:PORT")]
-    galvo: Option<String>,
-    /// The laser's serial device, overriding `cell.laser`.
-    #[arg(long, value_name = "DEVICE")]
-    laser: Option<String>,
+    #[command(flatten)]
+    cell: CellOverrides,
     /// Write what was framed (outlines in bits; with the simulated cell, every traced vector
     /// and the light path's events) as JSON.
     #[arg(long, value_name = "FILE")]
@@ -108,15 +101,7 @@ fn load(args: &Args) -> anyhow::Result<(Job, JobConfig)> {
         .with_context(|| format!("cannot read {}", plan.display()))?;
     let job = Job::from_json(&text).with_context(|| plan.display().to_string())?;
     let mut config = config;
-    if let Some(c) = &args.cnc {
-        config.cell.cnc.clone_from(c);
-    }
-    if let Some(g) = &args.galvo {
-        config.cell.galvo.clone_from(g);
-    }
-    if let Some(l) = &args.laser {
-        config.cell.laser.clone_from(l);
-    }
+    args.cell.apply(&mut config);
     config
         .validate()
         .context("after applying --cnc/--galvo/--laser")?;

@@ -111,22 +111,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             eprintln!("timings {:?}", reg.report.timings_s);
             let rinv = case.scan_from_cad_true.inverse();
             for (name, range) in &GROUPS {
+                // Mean error in the part frame, and the error split into height (along the
+                // feature vector), across (in the face, across the contour) and along the
+                // contour, RMS and max, µm.
                 let mut sum = nalgebra::Vector3::zeros();
                 let mut n = 0.0;
-                for c in reg
-                    .path
-                    .contours()
-                    .iter()
-                    .filter(|c| range.contains(&c.id()))
-                {
-                    let t = case.truth.get(c.id()).ok_or("contour missing from truth")?;
-                    for (p, q) in c.points().iter().zip(t.points()) {
-                        sum += rinv.isometry.rotation * (p - q);
-                        n += 1.0;
-                    }
-                }
-                // Error split into height (along the feature vector), across (in the face,
-                // across the contour) and along the contour, RMS and max, µm.
                 let (mut ss, mut mx) = ([0.0f64; 3], [0.0f64; 3]);
                 for c in reg
                     .path
@@ -137,6 +126,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     let t = case.truth.get(c.id()).ok_or("contour missing from truth")?;
                     let tp = t.points();
                     for (k, (p, q)) in c.points().iter().zip(tp).enumerate() {
+                        sum += rinv.isometry.rotation * (p - q);
+                        n += 1.0;
                         let a = tp[k.saturating_sub(1)];
                         let b = tp[(k + 1).min(tp.len() - 1)];
                         let along = (b - a).normalize();

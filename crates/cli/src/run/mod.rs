@@ -69,6 +69,36 @@ pub mod files {
 /// galvo and the CNC 20× faster than real time so it ends in seconds, not minutes.
 pub const DEFAULT_SIM_TIME_SCALE: f64 = 0.05;
 
+/// `--cnc`, `--galvo` and `--laser` of `run` and `frame`: the cell's addresses from the command
+/// line.
+#[derive(clap::Args, Debug)]
+pub struct CellOverrides {
+    /// The CNC (LinuxCNC linuxcncrsh) as HOST:PORT, overriding `cell.cnc`.
+    #[arg(long, value_name = "HOST:PORT")]
+    cnc: Option<String>,
+    /// The galvo controller as HOST:PORT, overriding `cell.galvo`.
+    #[arg(long, value_name = "HOST:PORT")]
+    galvo: Option<String>,
+    /// The laser's serial device, overriding `cell.laser`.
+    #[arg(long, value_name = "DEVICE")]
+    laser: Option<String>,
+}
+
+impl CellOverrides {
+    /// Puts the given addresses into `config.cell`.
+    pub fn apply(&self, config: &mut JobConfig) {
+        if let Some(c) = &self.cnc {
+            config.cell.cnc.clone_from(c);
+        }
+        if let Some(g) = &self.galvo {
+            config.cell.galvo.clone_from(g);
+        }
+        if let Some(l) = &self.laser {
+            config.cell.laser.clone_from(l);
+        }
+    }
+}
+
 /// Arguments of `trimctl run`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -87,15 +117,8 @@ pub struct Args {
     /// The choice is journaled. Not used when the cut point is known.
     #[arg(long, value_enum, value_name = "redo|skip", requires = "resume")]
     cut_layer: Option<CutLayerArg>,
-    /// The CNC (LinuxCNC linuxcncrsh) as HOST:PORT, overriding `cell.cnc`.
-    #[arg(long, value_name = "HOST:PORT")]
-    cnc: Option<String>,
-    /// The galvo controller as HOST:PORT, overriding `cell.galvo`.
-    #[arg(long, value_name = "HOST:PORT")]
-    galvo: Option<String>,
-    /// The laser's serial device, overriding `cell.laser`.
-    #[arg(long, value_name = "DEVICE")]
-    laser: Option<String>,
+    #[command(flatten)]
+    cell: CellOverrides,
     /// Start even if the plan fails validation (the violations are printed and recorded).
     #[arg(long)]
     allow_invalid: bool,
@@ -203,15 +226,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 fn apply_overrides(config: &mut JobConfig, args: &Args) -> anyhow::Result<()> {
-    if let Some(c) = &args.cnc {
-        config.cell.cnc.clone_from(c);
-    }
-    if let Some(g) = &args.galvo {
-        config.cell.galvo.clone_from(g);
-    }
-    if let Some(l) = &args.laser {
-        config.cell.laser.clone_from(l);
-    }
+    args.cell.apply(config);
     if let Some(file) = &args.timing {
         crate::calibrate_timing::TimingFile::load(file)?
             .apply(&mut config.machine, &mut config.timing);
