@@ -69,35 +69,34 @@ fn sorted_voxels(points: &[Point3], voxel_mm: f64) -> Vec<(u64, usize)> {
 /// that consecutive points are neighbours in space (kd-tree queries in that order stay in
 /// cache).
 pub fn voxel_pick(points: &[Point3], voxel_mm: f64) -> Result<Vec<usize>> {
-    if !(voxel_mm.is_finite() && voxel_mm > 0.0) {
-        return Err(RegisterError::setting(
+    check_voxel(voxel_mm)?;
+    Ok(sorted_voxels(points, voxel_mm)
+        .chunk_by(|a, b| a.0 == b.0)
+        .map(|group| {
+            let centroid: Vector3 = group
+                .iter()
+                .map(|&(_, i)| points[i].coords)
+                .sum::<Vector3>()
+                / group.len() as f64;
+            group
+                .iter()
+                .map(|&(_, i)| ((points[i].coords - centroid).norm_squared(), i))
+                .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)))
+                .map_or(group[0].1, |b| b.1)
+        })
+        .collect())
+}
+
+/// Refuses a voxel size that is not finite and positive.
+fn check_voxel(voxel_mm: f64) -> Result<()> {
+    if voxel_mm.is_finite() && voxel_mm > 0.0 {
+        Ok(())
+    } else {
+        Err(RegisterError::setting(
             "voxel_mm",
             format!("must be finite and > 0, got {voxel_mm}"),
-        ));
+        ))
     }
-    let order = sorted_voxels(points, voxel_mm);
-    let mut picked = Vec::new();
-    let mut start = 0;
-    while start < order.len() {
-        let mut end = start + 1;
-        while end < order.len() && order[end].0 == order[start].0 {
-            end += 1;
-        }
-        let group = &order[start..end];
-        let centroid: Vector3 = group
-            .iter()
-            .map(|&(_, i)| points[i].coords)
-            .sum::<Vector3>()
-            / group.len() as f64;
-        let best = group
-            .iter()
-            .map(|&(_, i)| ((points[i].coords - centroid).norm_squared(), i))
-            .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)))
-            .map_or(group[0].1, |b| b.1);
-        picked.push(best);
-        start = end;
-    }
-    Ok(picked)
 }
 
 /// `0..points.len()` in the lexicographic order of their `voxel_mm` voxels (ties by index):
@@ -152,30 +151,7 @@ pub fn dense_voxel_centroids(
     voxel_mm: f64,
     min_count: usize,
 ) -> Result<Vec<Point3>> {
-    if !(voxel_mm.is_finite() && voxel_mm > 0.0) {
-        return Err(RegisterError::setting(
-            "voxel_mm",
-            format!("must be finite and > 0, got {voxel_mm}"),
-        ));
-    }
-    let keyed = sorted_voxels(points, voxel_mm);
-    let mut out = Vec::new();
-    let mut start = 0;
-    while start < keyed.len() {
-        let mut end = start + 1;
-        while end < keyed.len() && keyed[end].0 == keyed[start].0 {
-            end += 1;
-        }
-        if end - start >= min_count {
-            let sum: Vector3 = keyed[start..end]
-                .iter()
-                .map(|&(_, i)| points[i].coords)
-                .sum();
-            out.push(Point3::from(sum / (end - start) as f64));
-        }
-        start = end;
-    }
-    Ok(out)
+    VoxelPyramid::new(points, voxel_mm)?.dense_centroids(voxel_mm, min_count)
 }
 
 /// A scan's voxel sums at a base voxel size, from one sort of its points: the dense voxel
@@ -195,29 +171,16 @@ pub struct VoxelPyramid<'a> {
 impl<'a> VoxelPyramid<'a> {
     /// The sums of `points` at `base_mm`.
     pub fn new(points: &'a [Point3], base_mm: f64) -> Result<Self> {
-        if !(base_mm.is_finite() && base_mm > 0.0) {
-            return Err(RegisterError::setting(
-                "voxel_mm",
-                format!("must be finite and > 0, got {base_mm}"),
-            ));
-        }
-        let keyed = sorted_voxels(points, base_mm);
-        let mut voxels = Vec::new();
-        let mut start = 0;
-        while start < keyed.len() {
-            let mut end = start + 1;
-            while end < keyed.len() && keyed[end].0 == keyed[start].0 {
-                end += 1;
-            }
-            let p = points[keyed[start].1];
-            let key = [p.x, p.y, p.z].map(|v| (v / base_mm).floor() as i64);
-            let sum: Vector3 = keyed[start..end]
-                .iter()
-                .map(|&(_, i)| points[i].coords)
-                .sum();
-            voxels.push((key, sum, end - start));
-            start = end;
-        }
+        check_voxel(base_mm)?;
+        let voxels = sorted_voxels(points, base_mm)
+            .chunk_by(|a, b| a.0 == b.0)
+            .map(|group| {
+                let p = points[group[0].1];
+                let key = [p.x, p.y, p.z].map(|v| (v / base_mm).floor() as i64);
+                let sum: Vector3 = group.iter().map(|&(_, i)| points[i].coords).sum();
+                (key, sum, group.len())
+            })
+            .collect();
         Ok(VoxelPyramid {
             points,
             base_mm,
@@ -225,8 +188,10 @@ impl<'a> VoxelPyramid<'a> {
         })
     }
 
-    /// [`dense_voxel_centroids`] of the points at `voxel_mm` (the same voxels, in the same
-    /// order; the centroids may differ in the last bits, as the sums are taken in another order).
+    /// [`dense_voxel_centroids`] of the points at `voxel_mm`: from the base sums when `voxel_mm`
+    /// is a power-of-two multiple of the base (the same voxels in the same order; a multiple
+    /// above 1 may differ in the last bits, as its sums are taken in another order), else from
+    /// the points.
     pub fn dense_centroids(&self, voxel_mm: f64, min_count: usize) -> Result<Vec<Point3>> {
         let ratio = voxel_mm / self.base_mm;
         let m = ratio.round();
@@ -244,24 +209,15 @@ impl<'a> VoxelPyramid<'a> {
         if m > 1 {
             coarse.sort_unstable();
         }
-        let mut out = Vec::new();
-        let mut start = 0;
-        while start < coarse.len() {
-            let mut end = start + 1;
-            while end < coarse.len() && coarse[end].0 == coarse[start].0 {
-                end += 1;
-            }
-            let (sum, count) = coarse[start..end]
-                .iter()
-                .fold((Vector3::zeros(), 0), |(s, c), &(_, i)| {
+        Ok(coarse
+            .chunk_by(|a, b| a.0 == b.0)
+            .filter_map(|group| {
+                let (sum, count) = group.iter().fold((Vector3::zeros(), 0), |(s, c), &(_, i)| {
                     (s + self.voxels[i].1, c + self.voxels[i].2)
                 });
-            if count >= min_count {
-                out.push(Point3::from(sum / count as f64));
-            }
-            start = end;
-        }
-        Ok(out)
+                (count >= min_count).then(|| Point3::from(sum / count as f64))
+            })
+            .collect())
     }
 }
 

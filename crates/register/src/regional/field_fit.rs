@@ -484,16 +484,7 @@ pub(crate) fn field_normal_equations(
         .map(|(i, p)| (field.cell_index(&p.0), i))
         .collect();
     keyed.par_sort_unstable();
-    let mut groups: Vec<&[(usize, usize)]> = Vec::new();
-    let mut start = 0;
-    while start < keyed.len() {
-        let mut end = start + 1;
-        while end < keyed.len() && keyed[end].0 == keyed[start].0 {
-            end += 1;
-        }
-        groups.push(&keyed[start..end]);
-        start = end;
-    }
+    let groups: Vec<&[(usize, usize)]> = keyed.chunk_by(|a, b| a.0 == b.0).collect();
     let locals: Vec<([usize; SUPPORT], DMatrix<f64>, DVector<f64>)> = groups
         .par_iter()
         .map(|group| {
