@@ -1,5 +1,5 @@
-//! Per-contour quality: coverage, residual, translational degeneracy and support, and the flags
-//! that make a contour untrustworthy.
+//! Per-contour quality: coverage, residual, the predicted error bound (and, informational, the
+//! translational degeneracy and support), and the flags that make a contour untrustworthy.
 
 use super::*;
 
