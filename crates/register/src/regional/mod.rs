@@ -10,15 +10,15 @@
 //! 3. **Deformation field.** A quadratic B-spline displacement field `F(x) = x + d(x)` over the
 //!    part ([`crate::field`]), fitted by Gauss-Newton to scan → CAD point-to-plane residuals
 //!    `r = n'·(F(c) − q)` (CAD normals carried by `F`; scan points matched within a sample
-//!    spacing of a sharp edge left out, their face being a biased guess), with a Huber kernel, a maximum
-//!    distance shrinking from the coarse residual to a few noise levels, and a second-difference
-//!    smoothness prior that leaves affine motion free. Directions that a patch cannot fix (a
-//!    straight strip sliding along itself) are carried by the field from the holes, slot ends
-//!    and corners around it; the path stays continuous because the field is.
+//!    spacing of a sharp edge left out, their face being a biased guess), with a Huber kernel,
+//!    a maximum distance shrinking from the coarse residual to a few noise levels, and a
+//!    second-difference smoothness prior that leaves affine motion free. Directions that a patch
+//!    cannot fix (a straight strip sliding along itself) are carried by the field from the
+//!    holes, slot ends and corners around it; the path stays continuous because the field is.
 //! 4. **Path.** Each point moves by `scan_from_cad · F`; feature vectors by `(I + ∂d/∂x)⁻ᵀ`.
-//! 5. **Quality.** Per contour: scan coverage, point-to-plane residual, and a predicted bound
-//!    on its largest cross-edge error from the field's posterior covariance across it, its
-//!    residual and its coverage. A contour whose bound exceeds the tolerance, or whose coverage
+//! 5. **Quality.** Per contour: scan coverage, point-to-plane residual, and a predicted
+//!    bound on its largest cross-edge error from the field's posterior covariance across it,
+//!    its residual and its coverage. A contour whose bound exceeds the tolerance, or whose coverage
 //!    or residual fails, is flagged untrustworthy.
 //!
 //! The stages live in the submodules `settings`, `coarse`, `field_fit` and `quality`; their
