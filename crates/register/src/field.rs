@@ -280,6 +280,16 @@ impl BSplineField {
     /// than 1–3 give none.
     #[must_use]
     pub fn differences(&self, order: usize) -> Vec<(Vec<usize>, Vec<f64>)> {
+        self.differences_along(order)
+            .into_iter()
+            .map(|(_, s)| s)
+            .collect()
+    }
+
+    /// [`Self::differences`], each stencil with the grid axis (0 = x, 1 = y, 2 = z) it runs
+    /// along.
+    #[must_use]
+    pub fn differences_along(&self, order: usize) -> Vec<(usize, (Vec<usize>, Vec<f64>))> {
         let coefficients: Vec<f64> = match order {
             1 => vec![-1.0, 1.0],
             2 => vec![1.0, -2.0, 1.0],
@@ -303,7 +313,7 @@ impl BSplineField {
                                 self.flat(at[0], at[1], at[2])
                             })
                             .collect();
-                        out.push((index, coefficients.clone()));
+                        out.push((axis, (index, coefficients.clone())));
                     }
                 }
             }

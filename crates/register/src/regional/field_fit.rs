@@ -215,7 +215,12 @@ pub(crate) fn fit_field(
         settings.spacing_mm,
     );
     let dim = 3 * field.len();
-    let prior = prior_terms(&field, target.cloud().points(), settings.free_bending);
+    let prior = prior_terms(
+        &field,
+        target.cloud().points(),
+        settings.free_bending,
+        settings.in_plane_bending,
+    );
     let kernel = RobustKernel::Huber {
         k_mm: settings.huber_mm,
     };
@@ -389,9 +394,9 @@ pub(crate) struct PriorTerm {
     projector: Matrix3<f64>,
 }
 
-/// The part's thin axis, CAD frame: the least principal axis of the CAD points (a slab's
-/// normal).
-pub(crate) fn thin_axis(points: &[Point3]) -> Vector3 {
+/// The part's thin and long axes, CAD frame: the least principal axis of the CAD points (a
+/// slab's normal) and the greatest (a core's span).
+pub(crate) fn thin_and_long_axes(points: &[Point3]) -> (Vector3, Vector3) {
     let n = points.len().max(1) as f64;
     let mean = points.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / n;
     let cov: Matrix3<f64> = points
@@ -401,7 +406,11 @@ pub(crate) fn thin_axis(points: &[Point3]) -> Vector3 {
         / n;
     let eig = SymmetricEigen::new(cov);
     let imin = eig.eigenvalues.imin();
-    eig.eigenvectors.column(imin).into_owned()
+    let imax = eig.eigenvalues.imax();
+    (
+        eig.eigenvectors.column(imin).into_owned(),
+        eig.eigenvectors.column(imax).into_owned(),
+    )
 }
 
 /// The prior's terms. Without `free_bending`: second differences of the whole displacement
@@ -413,6 +422,7 @@ pub(crate) fn prior_terms(
     field: &BSplineField,
     cad: &[Point3],
     free_bending: bool,
+    in_plane_bending: bool,
 ) -> Vec<PriorTerm> {
     let term = |(index, coefficients), projector| PriorTerm {
         index,
@@ -426,14 +436,36 @@ pub(crate) fn prior_terms(
             .map(|s| term(s, Matrix3::identity()))
             .collect();
     }
-    let u = thin_axis(cad);
+
+    let (u, long) = thin_and_long_axes(cad);
     let along = u * u.transpose();
-    let across = Matrix3::identity() - along;
-    field
-        .differences(2)
-        .into_iter()
-        .map(|s| term(s, across))
-        .chain(field.differences(3).into_iter().map(|s| term(s, along)))
+    // The grid axis nearest the part's long axis: a beam bends along it in any direction
+    // across it, so the displacement across both the thin and the long axis (the chord
+    // direction) takes third differences along that axis alone; along the long axis it stays
+    // affine (second differences), as without `in_plane_bending`.
+    let chord = u.cross(&long).normalize();
+    let across_long = chord * chord.transpose();
+    let along_long = Matrix3::identity() - along - across_long;
+    let long_axis = long.iamax();
+    let second = field.differences_along(2);
+    let third = field.differences_along(3);
+    let chord_third = |axis: usize| in_plane_bending && axis == long_axis;
+    second
+        .iter()
+        .map(|(_, s)| term(s.clone(), along_long))
+        .chain(
+            second
+                .iter()
+                .filter(|(axis, _)| !chord_third(*axis))
+                .map(|(_, s)| term(s.clone(), across_long)),
+        )
+        .chain(
+            third
+                .iter()
+                .filter(|(axis, _)| chord_third(*axis))
+                .map(|(_, s)| term(s.clone(), across_long)),
+        )
+        .chain(third.iter().map(|(_, s)| term(s.clone(), along)))
         .collect()
 }
 

@@ -108,6 +108,47 @@ fn visible_target(cad: &PointCloud, view: View, facing_min_cos: f64) -> Result<I
     IcpTarget::new(visible.select(&order)?)
 }
 
+/// The CAD points within `distance_mm` of the scan (its dense voxels at the finest coarse
+/// level, which drop isolated outliers, carried into the CAD frame by `cad_from_scan`), in a
+/// spatially coherent order, as the ICP target: the faces the scanner really saw, from
+/// wherever it looked. A face farther than that from every scan voxel (the far side of a
+/// single-sided scan, a wall turned away) is left out.
+fn supported_target(
+    cad: &PointCloud,
+    pyramid: &VoxelPyramid<'_>,
+    cad_from_scan: &Similarity3,
+    coarse: &CoarseSettings,
+    distance_mm: f64,
+) -> Result<IcpTarget> {
+    let finest = coarse
+        .levels
+        .iter()
+        .map(|l| l.voxel_mm)
+        .fold(f64::INFINITY, f64::min);
+    let voxels: Vec<Point3> = pyramid
+        .dense_centroids(finest, coarse.min_voxel_points)?
+        .iter()
+        .map(|p| cad_from_scan * p)
+        .collect();
+    let tree = kdtree::KdTree::build(&voxels);
+    let d2 = distance_mm * distance_mm;
+    let supported: Vec<usize> = cad
+        .points()
+        .par_iter()
+        .enumerate()
+        .filter(|(_, p)| tree.nearest_within(p, d2).is_some())
+        .map(|(i, _)| i)
+        .collect();
+    if supported.is_empty() {
+        return Err(RegisterError::EmptyCloud {
+            which: "CAD (near the scan)",
+        });
+    }
+    let seen = cad.select(&supported)?;
+    let order = spatial_order(seen.points(), CAD_ORDER_VOXEL_MM);
+    IcpTarget::new(seen.select(&order)?)
+}
+
 fn stage<T>(
     timings: &mut Vec<(String, f64)>,
     name: &str,
@@ -193,12 +234,28 @@ pub fn register(
             &settings.coarse,
         )
     })?;
-    // The part's faces toward the scanner are those of the captured pose: with the nominal
-    // pose's, a part 10° off keeps walls the scanner never saw and drops some it did.
-    let view_captured = view_in_cad(settings, &captured.fit.target_from_source);
-    let target = stage(&mut timings, "cad visibility + kd-tree", || {
-        visible_target(cad, view_captured, settings.facing_min_cos)
-    })?;
+    // What the scanner saw, at the captured pose: the CAD points with scan data near them
+    // (`Visibility::Support`), or those facing an assumed view (`Visibility::View`, the
+    // captured pose's: with the nominal pose's, a part 10° off keeps walls the scanner never
+    // saw and drops some it did).
+    let target = stage(
+        &mut timings,
+        "cad visibility + kd-tree",
+        || match settings.visibility {
+            Visibility::Support => supported_target(
+                cad,
+                &pyramid,
+                &captured.fit.target_from_source,
+                &settings.coarse,
+                settings.support_distance_mm,
+            ),
+            Visibility::View => visible_target(
+                cad,
+                view_in_cad(settings, &captured.fit.target_from_source),
+                settings.facing_min_cos,
+            ),
+        },
+    )?;
     // The CAD's local shapes (the field's matching) are worked out beside the refinement.
     let regional = settings.mode == Mode::Regional;
     let (coarse, shapes) = stage(&mut timings, "coarse similarity + cad curvature", || {

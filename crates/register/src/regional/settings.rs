@@ -23,6 +23,30 @@ pub enum Mode {
     Global,
 }
 
+/// Which CAD faces take part after the capture.
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+    schemars::JsonSchema,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum Visibility {
+    /// The faces the scan shows: CAD points within `support_distance_mm` of the scan at the
+    /// captured pose (the default: it needs no view, and a scanner fixed to the machine may
+    /// look from several directions).
+    #[default]
+    Support,
+    /// The faces toward an assumed view (`scanner_viewpoint_mm` or `view_direction`, culled at
+    /// `facing_min_cos`).
+    View,
+}
+
 /// Where the coarse stage starts.
 #[derive(
     Debug,
@@ -123,6 +147,11 @@ pub struct DeformationSettings {
     /// displacement keeps second differences. Without it a 0.5 mm bend is pulled flat by up to
     /// 20 µm.
     pub free_bending: bool,
+    /// With `free_bending`, let the part bend freely in its own plane too: third differences
+    /// of every component, so any quadratic displacement costs nothing (a sintered core bends
+    /// along a direction up to 30° off its thin axis, and the second-difference in-plane prior
+    /// pulled that part of the bend flat by up to 0.1 mm at the part's ends).
+    pub in_plane_bending: bool,
     /// Leave out scan points whose CAD match lies within about one CAD sample spacing of a sharp
     /// edge (a neighbour's normal more than ~25° off): which face such a noisy point belongs to
     /// is a guess biased toward the material, which shifted half-seen walls by up to 20 µm.
@@ -140,6 +169,7 @@ impl Default for DeformationSettings {
             huber_mm: 0.02,
             smoothness: 0.1,
             free_bending: true,
+            in_plane_bending: true,
             exclude_edges: true,
         }
     }
@@ -202,6 +232,11 @@ pub struct RegisterSettings {
     /// CAD points whose normal makes `cos < facing_min_cos` with the direction to the scanner are
     /// culled (−0.2 keeps walls up to 102° off the view).
     pub facing_min_cos: f64,
+    /// Which CAD faces take part after the capture (the capture itself uses the view).
+    pub visibility: Visibility,
+    /// With `visibility = "support"`: a CAD point takes part when a scan voxel lies within
+    /// this of it at the captured pose, mm.
+    pub support_distance_mm: f64,
     /// Points sampled from a CAD mesh.
     pub cad_sample_points: usize,
     /// The coarse stage: a global similarity from the fixture pose.
@@ -219,6 +254,8 @@ impl Default for RegisterSettings {
             scanner_viewpoint_mm: None,
             view_direction: [0.0, 0.0, 1.0],
             facing_min_cos: -0.2,
+            visibility: Visibility::Support,
+            support_distance_mm: 1.5,
             cad_sample_points: 300_000,
             coarse: CoarseSettings::default(),
             field: DeformationSettings::default(),
@@ -273,6 +310,7 @@ impl RegisterSettings {
                 "must be in [−1, 1]",
             ));
         }
+        positive("support_distance_mm", self.support_distance_mm)?;
         if self.cad_sample_points < 1000 {
             return Err(RegisterError::setting(
                 "cad_sample_points",
