@@ -116,7 +116,8 @@ def run_case(args, scorer, p):
     row = dict(seed=p["seed"], params=p, wall_s=wall_s, gen_s=gen_s, contours=len(info),
                rotation_deg=meta["pose"]["rotation_deg"], scale=meta["deformation"]["scale"],
                rows=meta["path"]["rows"], triangles=meta["geometry"]["triangles"])
-    if proc.returncode != 0:
+    if proc.returncode != 0 and not os.path.exists(reg_json):
+        # Refused before any contour was registered (not captured, no overlap): nothing to score.
         row.update(refused=True, reason=(proc.stderr.strip().splitlines() or ["?"])[-1],
                    flagged=len(info), silent=0, false_alarms=None, bound_held=None)
         return row
@@ -142,6 +143,7 @@ def run_case(args, scorer, p):
     good = [c for c in contours if c["true_um"] < tol / 2]
     row.update(
         refused=False,
+        part_refused=rep["global"].get("refused"),
         p95_um=1e3 * float(np.percentile(pts, 95)) if len(pts) else float("nan"),
         max_um=max((c["true_um"] for c in trusted), default=float("nan")),
         worst_contour_p95_um=max((c["cross_p95_um"] for c in trusted), default=float("nan")),
@@ -196,6 +198,11 @@ def main():
     print(head)
     print("-" * len(head))
     rows = []
+    for stale in ("registered.csv", "registration.json", "score.json"):
+        for seed, _ in plan:
+            f = os.path.join(args.work, "results", "s%d" % seed, stale)
+            if os.path.exists(f):
+                os.remove(f)
     for seed, index in plan:
         p = case_params(seed, index, args.points)
         row = run_case(args, scorer, p)
@@ -209,12 +216,15 @@ def main():
         print(pre, "%6.1f %6.1f %6.1f %6.1f | %4d %4d %2d/%-2d %3d/%-2d %5d %5.2fs%s" % (
             row["p95_um"], row["max_um"], row["all_p95_um"], row["all_max_um"], row["flagged"],
             row["silent"], row["false_alarms"], row["good"], row["bound_held"], row["contours"],
-            row["contours"], row["wall_s"], "  silent %s" % row["silent_ids"][:6] if row["silent"] else ""),
+            row["contours"], row["wall_s"],
+            ("  PART REFUSED" if row["part_refused"] else "")
+            + ("  silent %s" % row["silent_ids"][:6] if row["silent"] else "")),
             flush=True)
     ok = [r for r in rows if not r["refused"]]
     n = sum(r["contours"] for r in ok)
     tot = dict(
         cases=len(rows), refused=len(rows) - len(ok), contours=n,
+        parts_refused=sum(bool(r["part_refused"]) for r in ok),
         worst_p95_um=max((r["p95_um"] for r in ok), default=float("nan")),
         worst_max_um=max((r["max_um"] for r in ok), default=float("nan")),
         worst_contour_p95_um=max((r["worst_contour_p95_um"] for r in ok), default=float("nan")),
@@ -225,10 +235,10 @@ def main():
         median_wall_s=float(np.median([r["wall_s"] for r in ok])) if ok else float("nan"),
     )
     print("-" * len(head))
-    print("cases %d (refused %d), contours %d: worst P95 %.1f um, worst max %.1f um over trusted contours "
+    print("cases %d (not registered %d, parts refused %d), contours %d: worst P95 %.1f um, worst max %.1f um over trusted contours "
           "(worst per-contour P95 %.1f um); silent misses %d (contours over tolerance %d); false alarms %d of "
           "%d (%.1f %%); bound held %d of %d (%.1f %%); flagged %d; median register wall %.2f s" % (
-              tot["cases"], tot["refused"], n, tot["worst_p95_um"], tot["worst_max_um"],
+              tot["cases"], tot["refused"], tot["parts_refused"], n, tot["worst_p95_um"], tot["worst_max_um"],
               tot["worst_contour_p95_um"], tot["silent"], tot["over_tol"], tot["false_alarms"], tot["good"],
               100 * tot["false_alarms"] / max(tot["good"], 1), tot["bound_held"], n,
               100 * tot["bound_held"] / max(n, 1), tot["flagged"], tot["median_wall_s"]))

@@ -118,6 +118,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         eprintln!("  {name:<28} {s:>8.3} s");
     }
     print!("{}", summary::registration(&registration.report));
+    if let Some(reason) = &registration.report.global.refused {
+        anyhow::bail!(
+            "the part is refused: {reason} (the registered path and the report were written)"
+        );
+    }
     Ok(())
 }
 

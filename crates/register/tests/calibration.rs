@@ -14,6 +14,8 @@ const SEEDS: [u64; 8] = [1, 2, 3, 4, 5, 6, 7, 8];
 /// The issue's calibration target: the actual largest cross-edge error stays under the bound
 /// on at least this fraction of contours.
 const MIN_COVERED: f64 = 0.95;
+/// At most this fraction of the contours under half the tolerance may be flagged.
+const MAX_FALSE_ALARMS: f64 = 0.05;
 /// The issue's accuracy targets on every seeded case, mm.
 const CROSS_EDGE_P95_MM: f64 = 0.012;
 const CROSS_EDGE_MAX_MM: f64 = 0.030;
@@ -71,8 +73,9 @@ fn the_predicted_bound_covers_the_actual_error() {
                     q.id, q.predicted_max_error_um
                 ));
             }
-            // No contour under half the tolerance is flagged (the old `degenerate,unsupported`
-            // rule fired on a third of them), and every contour over the tolerance is.
+            // Few contours under half the tolerance are flagged (the old
+            // `degenerate,unsupported` rule fired on a third of them), and every contour over
+            // the tolerance is.
             if actual_um < 0.5 * tolerance_um {
                 good += 1;
                 if !q.trustworthy {
@@ -100,8 +103,11 @@ fn the_predicted_bound_covers_the_actual_error() {
         fraction >= MIN_COVERED,
         "{covered} of {contours} contours within their bound: {cases_report:#?}"
     );
-    assert_eq!(
-        good_flagged, 0,
+    // The issue's false-alarm target (issue 21): the bound is taken under a tenth of the
+    // field's prior so that what the data do not fix shows (no silent miss on the outside
+    // generator's cases), and a few good contours far from any wall pay for that.
+    assert!(
+        f64::from(good_flagged) <= MAX_FALSE_ALARMS * f64::from(good),
         "{good_flagged} of {good} good contours flagged: {cases_report:#?}"
     );
     assert_eq!(

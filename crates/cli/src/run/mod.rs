@@ -316,6 +316,15 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     )?;
     print!("{}", summary::registration(&registration.report));
 
+    if let Some(reason) = &registration.report.global.refused {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "registration refuses the part: {reason} (see {}); --skip-untrusted does not override this",
+                run_dir.join(files::REGISTRATION).display()
+            ),
+        ));
+    }
     // Plan, without untrustworthy contours if asked.
     let untrusted: Vec<i64> = registration
         .report

@@ -315,7 +315,7 @@ pub fn register(
         Ok(Path::new(contours)?)
     })?;
 
-    let contours = stage(&mut timings, "quality", || {
+    let mut contours = stage(&mut timings, "quality", || {
         Ok(contour_quality(
             path,
             field.as_ref(),
@@ -329,6 +329,8 @@ pub fn register(
         let n = matches.len().max(1) as f64;
         (matches.iter().map(|m| m.r * m.r).sum::<f64>() / n).sqrt()
     });
+    let untrustworthy = contours.iter().filter(|c| !c.trustworthy).count();
+    let refused = refuse_part(&mut contours, &settings.quality);
     let report = QualityReport {
         global: GlobalQuality {
             scan_from_cad: matrix_rows(&scan_from_cad),
@@ -341,7 +343,8 @@ pub fn register(
             overlap,
             field_rmse_mm,
             field_points: field_points.len(),
-            untrustworthy: contours.iter().filter(|c| !c.trustworthy).count(),
+            untrustworthy,
+            refused,
         },
         contours,
         timings_s: timings,

@@ -15,6 +15,9 @@ pub enum Flag {
     HighResidual,
     /// The predicted error bound `predicted_max_error_um` exceeds `tolerance_um`.
     PredictedError,
+    /// The part as a whole is refused (`GlobalQuality::refused`): too many of its contours
+    /// are flagged for the rest to be believed.
+    PartRefused,
 }
 
 /// The quality of one registered contour (report JSON).
@@ -51,6 +54,11 @@ pub struct ContourQuality {
     /// direction (within 60°), mm: how far the field carries the contour's position from the
     /// data that fix it.
     pub support_distance_mm: f64,
+    /// For an open contour (a strip), the larger over its two ends of the distance to the
+    /// nearest matched scan point whose surface faces along the strip there (within 45°), mm:
+    /// how far the field carries the strip's position along itself from the data that fix it
+    /// (0 for a closed contour).
+    pub end_support_mm: f64,
     /// The predicted bound on the contour's largest cross-edge error, µm: from the field's
     /// posterior deviation across it, its residual, its coverage and its distance to supporting
     /// data (constants in `quality.rs`, calibrated on synthetic cores, DESIGN.md).
@@ -87,6 +95,10 @@ pub struct GlobalQuality {
     pub field_points: usize,
     /// Contours flagged untrustworthy.
     pub untrustworthy: usize,
+    /// Why the part as a whole cannot be trusted (then every contour is flagged
+    /// `part_refused`), or `null`.
+    #[serde(default)]
+    pub refused: Option<String>,
 }
 
 /// The quality report: global figures and one entry per contour, in path order.
@@ -98,6 +110,29 @@ pub struct QualityReport {
     pub contours: Vec<ContourQuality>,
     /// Stage wall-clock times, seconds.
     pub timings_s: Vec<(String, f64)>,
+}
+
+/// Refuses the part as a whole when more than `max_untrusted_fraction` of its contours are
+/// flagged: a registration that could not be trusted on that many contours is not believed on
+/// the others either (on the outside generator's cases, the parts whose scans missed both end
+/// faces flagged a third to two thirds of their contours and erred by up to 0.4 mm on some
+/// they trusted). Every contour is then flagged [`Flag::PartRefused`]; returns the reason.
+pub(crate) fn refuse_part(contours: &mut [ContourQuality], q: &QualitySettings) -> Option<String> {
+    let flagged = contours.iter().filter(|c| !c.trustworthy).count();
+    let n = contours.len();
+    if n == 0 || (flagged as f64) <= q.max_untrusted_fraction * n as f64 {
+        return None;
+    }
+    for c in contours.iter_mut() {
+        c.flags.push(Flag::PartRefused);
+        c.trustworthy = false;
+    }
+    Some(format!(
+        "{flagged} of {n} contours are untrustworthy, more than quality.max_untrusted_fraction \
+         ({:.0} %) allows: the scan does not fix the part's deformation (check that the scanner \
+         saw both ends of the part, its edges and its holes, then rescan)",
+        100.0 * q.max_untrusted_fraction
+    ))
 }
 
 /// `λmin/λmax` and the weakest direction of `Σ n nᵀ` (unit weights), or `(0, z)` when empty.
@@ -156,6 +191,17 @@ fn weak_direction(
     posterior: &FieldPosterior,
 ) -> (f64, Vector3) {
     let mut worst = (0.0, Vector3::z());
+    // An open contour's ends: a strip that slides along itself is off by the slide there.
+    if is_open(points) {
+        for end in [points[0], points[points.len() - 1]] {
+            let eig = SymmetricEigen::new(posterior.displacement_covariance(field, &end));
+            let i = eig.eigenvalues.imax();
+            let var = eig.eigenvalues[i].max(0.0);
+            if var > worst.0 {
+                worst = (var, eig.eigenvectors.column(i).into_owned());
+            }
+        }
+    }
     for k in (0..points.len()).step_by(BOUND_SAMPLE_STEP) {
         let a = points[k.saturating_sub(1)];
         let b = points[(k + 1).min(points.len() - 1)];
@@ -173,6 +219,45 @@ fn weak_direction(
     }
     (worst.0.sqrt(), worst.1)
 }
+
+/// Scan points support a strip's end along the strip when `|n·t|` reaches this (45°).
+pub const END_SUPPORT_MIN_COS: f64 = std::f64::consts::FRAC_1_SQRT_2;
+
+/// See [`ContourQuality::end_support_mm`]; `moved` is the contour under the field (CAD frame).
+fn end_support_distance(moved: &[Point3], matches: &[Match]) -> f64 {
+    let n = moved.len();
+    if !is_open(moved) || n < 2 {
+        return 0.0;
+    }
+    let ends = [(moved[0], moved[1] - moved[0]), (moved[n - 1], moved[n - 1] - moved[n - 2])];
+    ends.iter()
+        .map(|(p, d)| {
+            let Some(t) = d.try_normalize(1e-12) else {
+                return 0.0;
+            };
+            matches
+                .iter()
+                .filter(|m| m.n.dot(&t).abs() >= END_SUPPORT_MIN_COS)
+                .map(|m| (m.q - p).norm_squared())
+                .fold(f64::INFINITY, f64::min)
+                .sqrt()
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Whether a contour is open: its ends lie more than [`CLOSED_GAP_SPACINGS`] mean point
+/// spacings apart.
+fn is_open(points: &[Point3]) -> bool {
+    let n = points.len();
+    if n < 3 {
+        return true;
+    }
+    let length: f64 = points.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
+    (points[n - 1] - points[0]).norm() > CLOSED_GAP_SPACINGS * length / (n - 1) as f64
+}
+
+/// A contour whose ends lie within this many point spacings is closed (a rim).
+pub const CLOSED_GAP_SPACINGS: f64 = 3.0;
 
 /// The predicted bound on a contour's largest cross-edge error, mm (see the `BOUND_*`
 /// constants).
@@ -264,6 +349,7 @@ pub(crate) fn contour_quality(
                     .fold(f64::INFINITY, f64::min)
                     .min(q.support_radius_mm)
             };
+            let end_support_mm = end_support_distance(&moved, matches);
             let predicted_max_error_um = 1e3
                 * predicted_bound_mm(
                     field_sigma_mm,
@@ -301,6 +387,7 @@ pub(crate) fn contour_quality(
                 field_sigma_mm,
                 field_weak_direction: [fw.x, fw.y, fw.z],
                 support_distance_mm,
+                end_support_mm,
                 predicted_max_error_um,
                 flags,
                 trustworthy,

@@ -167,7 +167,7 @@ impl Default for DeformationSettings {
             max_distance_start_mm: 1.5,
             max_distance_end_mm: 0.1,
             huber_mm: 0.02,
-            smoothness: 0.1,
+            smoothness: 0.03,
             free_bending: true,
             in_plane_bending: true,
             exclude_edges: true,
@@ -196,6 +196,9 @@ pub struct QualitySettings {
     /// The surroundings within this (mm) give `support_ratio` and the support distance (capped
     /// at this).
     pub support_radius_mm: f64,
+    /// Refuse the part as a whole (every contour flagged `part_refused`) when more than this
+    /// fraction of its contours is flagged.
+    pub max_untrusted_fraction: f64,
     /// Refuse the whole registration when fewer than this fraction of scan points lie within
     /// `overlap_distance_mm` of the CAD after the coarse stage.
     pub min_overlap: f64,
@@ -211,6 +214,7 @@ impl Default for QualitySettings {
             min_coverage: 0.6,
             max_residual_mm: 0.05,
             tolerance_um: 30.0,
+            max_untrusted_fraction: 0.5,
             support_radius_mm: 15.0,
             min_overlap: 0.3,
             overlap_distance_mm: 1.0,
@@ -381,6 +385,7 @@ impl RegisterSettings {
         fraction("quality.min_coverage", q.min_coverage)?;
         positive("quality.tolerance_um", q.tolerance_um)?;
         fraction("quality.min_overlap", q.min_overlap)?;
+        fraction("quality.max_untrusted_fraction", q.max_untrusted_fraction)?;
         Ok(())
     }
 }
