@@ -50,6 +50,53 @@ pub struct Args {
     /// Fixture translation error, mm.
     #[arg(long = "pose-mm", default_value_t = SynthParams::default().pose_mm)]
     pub pose_mm: f64,
+    /// Views of the scanner (1–4), fixed to the machine whatever the part's true pose: view 1
+    /// looks at the top side, view 2 at the bottom, and so on, spread around the thickness axis.
+    #[arg(long, default_value_t = SynthParams::default().scanner_views)]
+    pub views: usize,
+    /// The views' tilts from the thickness axis, degrees: one value (the first view; the others
+    /// seeded in 10–55°) or one per view.
+    #[arg(long = "view-tilts", value_delimiter = ',', default_values_t = [SynthParams::default().scanner_tilt_deg])]
+    pub view_tilts_deg: Vec<f64>,
+    /// The pressing axes (along which the per-axis scale acts) turned from the part's axes by up
+    /// to this, degrees (0–30).
+    #[arg(long = "pressing-tilt", default_value_t = SynthParams::default().pressing_tilt_deg)]
+    pub pressing_tilt_deg: f64,
+    /// Share of contours with burrs (flash webs off the edge, 0–1); recorded in case.json.
+    #[arg(long = "burrs", default_value_t = SynthParams::default().burr_fraction)]
+    pub burr_fraction: f64,
+    /// Burr height range (reach out of the material from the edge), mm.
+    #[arg(long = "burr-height", value_delimiter = ',', num_args = 1, value_name = "MIN,MAX", default_values_t = SynthParams::default().burr_height_mm)]
+    pub burr_height_mm: Vec<f64>,
+    /// Burr thickness range, mm.
+    #[arg(long = "burr-thickness", value_delimiter = ',', num_args = 1, value_name = "MIN,MAX", default_values_t = SynthParams::default().burr_thickness_mm)]
+    pub burr_thickness_mm: Vec<f64>,
+    /// Burr stretch length range along a contour, mm.
+    #[arg(long = "burr-length", value_delimiter = ',', num_args = 1, value_name = "MIN,MAX", default_values_t = SynthParams::default().burr_length_mm)]
+    pub burr_length_mm: Vec<f64>,
+    /// The template path's point spacing along its contours, mm (0.05–0.25; 0.05 gives ≈ 20k rows).
+    #[arg(long = "path-spacing", default_value_t = SynthParams::default().path_spacing_mm)]
+    pub path_spacing_mm: f64,
+    /// The CAD mesh's edge length on the faces, mm (0.25–2; 0.35 gives 122k triangles).
+    #[arg(long = "mesh-step", default_value_t = SynthParams::default().mesh_step_mm)]
+    pub mesh_step_mm: f64,
+    /// CAD points (cad_points.ply).
+    #[arg(long, default_value_t = SynthParams::default().cad_points)]
+    pub cad_points: usize,
+    /// Outliers added, as a share of the scan points.
+    #[arg(long = "outliers", default_value_t = SynthParams::default().outlier_fraction)]
+    pub outlier_fraction: f64,
+    /// Dropout patches (balls of 1.5–3 mm radius without scan points).
+    #[arg(long, default_value_t = SynthParams::default().dropouts)]
+    pub dropouts: usize,
+}
+
+/// A `MIN,MAX` flag's two numbers.
+fn range(flag: &str, values: &[f64]) -> anyhow::Result<[f64; 2]> {
+    match values {
+        [lo, hi] => Ok([*lo, *hi]),
+        _ => anyhow::bail!("--{flag}: expected MIN,MAX, got {} numbers", values.len()),
+    }
 }
 
 /// Runs the command.
@@ -57,27 +104,51 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.calibration {
         return calibration_artefacts(&args);
     }
+    let (scanner_tilt_deg, view_tilts_deg) = match args.view_tilts_deg.as_slice() {
+        [first] => (*first, Vec::new()),
+        [first, rest @ ..] if args.view_tilts_deg.len() == args.views => (*first, rest.to_vec()),
+        tilts => anyhow::bail!(
+            "--view-tilts: expected one tilt (the first view) or one per view ({}), got {}",
+            args.views,
+            tilts.len()
+        ),
+    };
     let params = SynthParams {
         seed: args.seed,
         sag_mm: args.sag_mm,
         twist_deg: args.twist_deg,
         scale_range: args.scale_range,
+        pressing_tilt_deg: args.pressing_tilt_deg,
         noise_mm: args.noise_mm,
         scan_points: args.scan_points,
+        cad_points: args.cad_points,
         pose_deg: args.pose_deg,
         pose_mm: args.pose_mm,
-        ..SynthParams::default()
+        outlier_fraction: args.outlier_fraction,
+        dropouts: args.dropouts,
+        scanner_views: args.views,
+        scanner_tilt_deg,
+        view_tilts_deg,
+        path_spacing_mm: args.path_spacing_mm,
+        mesh_step_mm: args.mesh_step_mm,
+        burr_fraction: args.burr_fraction,
+        burr_height_mm: range("burr-height", &args.burr_height_mm)?,
+        burr_thickness_mm: range("burr-thickness", &args.burr_thickness_mm)?,
+        burr_length_mm: range("burr-length", &args.burr_length_mm)?,
     };
     let case = generate(&params).context("generating the synthetic case")?;
     case.write_case(&args.out)
         .with_context(|| format!("writing {}", args.out.display()))?;
     println!(
-        "{}: {} contours, {} scan points, {} CAD points, {} CAD triangles",
+        "{}: {} contours ({} path points), {} scan points from {} view(s), {} CAD points, {} CAD triangles, {} burrs",
         args.out.display(),
         case.path.len(),
+        case.path.points().count(),
         case.scan.len(),
+        case.views.len(),
         case.cad_points.len(),
-        case.cad_triangles.len()
+        case.cad_triangles.len(),
+        case.burrs.len()
     );
     Ok(())
 }

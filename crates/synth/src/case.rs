@@ -8,11 +8,27 @@ use rand_distr::{Distribution, UnitSphere};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use trim_geom::{GeomError, Path, Point3, PointCloud, Result, Similarity3, Vector3};
 
-use crate::mesh::domain_mesh;
+use crate::burr::{Burr, BurrRanges, BurrSampler, draw_burrs};
+use crate::mesh::{DEFAULT_MESH_STEP_MM, domain_mesh};
 use crate::part::{
-    Deformation, SurfaceSampler, cutouts, design_point, map_contour, mapped_normal, template_path,
+    DEFAULT_PATH_SPACING_MM, Deformation, SurfaceSampler, contour_edges, cutouts, design_point,
+    map_contour, mapped_normal, template_path,
 };
-use crate::scanner::scan_part;
+use crate::scanner::{ScanView, fixed_views, scan_part};
+
+/// Seed tags of the random streams apart from the main one (each drawn from its own stream, so
+/// a parameter that adds draws leaves every other case quantity as it was).
+const PRESSING_STREAM: u64 = 0x7072_6573_7369_6e67;
+const VIEWS_STREAM: u64 = 0x7669_6577_7300_0000;
+const BURRS_STREAM: u64 = 0x6275_7272_7300_0000;
+
+/// The random stream `tag` of `seed`.
+fn stream(seed: u64, tag: u64) -> Xoshiro256PlusPlus {
+    Xoshiro256PlusPlus::seed_from_u64(seed ^ tag)
+}
+
+/// The most dropout patches a case may have.
+pub const MAX_DROPOUTS: usize = 100;
 
 /// What to generate. Angles in degrees and lengths in millimetres (edge units).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -24,8 +40,11 @@ pub struct SynthParams {
     pub sag_mm: f64,
     /// Twist about the long axis, end to end, degrees.
     pub twist_deg: f64,
-    /// Per-axis scale is drawn from `[1 − r, 1 + r]`.
+    /// Per-axis scale (shrinkage) is drawn from `[1 − r, 1 + r]`, along the pressing axes.
     pub scale_range: f64,
+    /// The pressing axes (along which the per-axis scale acts) are the CAD axes turned by a
+    /// seeded rotation of `[½, 1] ×` this, random axis, degrees (0: the CAD axes).
+    pub pressing_tilt_deg: f64,
     /// Standard deviation of the Gaussian scan noise per coordinate, mm.
     pub noise_mm: f64,
     /// Number of scan points (before outliers are added).
@@ -40,8 +59,26 @@ pub struct SynthParams {
     pub outlier_fraction: f64,
     /// Number of dropout patches (balls of 1.5–3 mm radius with no scan points).
     pub dropouts: usize,
-    /// Scanner tilt away from the part's +Z, degrees.
+    /// Views of the scanner (1–4), fixed to the machine: view `k` looks at the top side for
+    /// even `k`, the bottom side for odd `k`, spread around the thickness axis.
+    pub scanner_views: usize,
+    /// The first view's tilt from the nominal thickness axis (`+z` of the scan frame), degrees.
     pub scanner_tilt_deg: f64,
+    /// The tilts of views 2… (from their side's thickness axis), degrees: empty for seeded
+    /// tilts in 10–55°, else exactly `scanner_views − 1` of them.
+    pub view_tilts_deg: Vec<f64>,
+    /// The template path's point spacing along its contours (domain arc length), mm.
+    pub path_spacing_mm: f64,
+    /// The CAD mesh's edge length on the faces, mm (1: 27k triangles; 0.35: 122k).
+    pub mesh_step_mm: f64,
+    /// The share of contours carrying burrs (flash webs; see `burr`), 0–1.
+    pub burr_fraction: f64,
+    /// Burr height (reach out of the material from the edge) range, mm.
+    pub burr_height_mm: [f64; 2],
+    /// Burr thickness range, mm.
+    pub burr_thickness_mm: [f64; 2],
+    /// Burr stretch length range along the contour, mm.
+    pub burr_length_mm: [f64; 2],
 }
 
 impl Default for SynthParams {
@@ -58,7 +95,16 @@ impl Default for SynthParams {
             pose_mm: 3.0,
             outlier_fraction: 0.01,
             dropouts: 4,
+            pressing_tilt_deg: 0.0,
+            scanner_views: 1,
             scanner_tilt_deg: 25.0,
+            view_tilts_deg: Vec::new(),
+            path_spacing_mm: DEFAULT_PATH_SPACING_MM,
+            mesh_step_mm: DEFAULT_MESH_STEP_MM,
+            burr_fraction: 0.0,
+            burr_height_mm: [0.1, 0.5],
+            burr_thickness_mm: [0.02, 0.1],
+            burr_length_mm: [2.0, 15.0],
         }
     }
 }
@@ -119,9 +165,69 @@ impl SynthParams {
             "must be in [0, 0.5]",
         )?;
         check(
+            "dropouts",
+            self.dropouts <= MAX_DROPOUTS,
+            &format!("must be at most {MAX_DROPOUTS}"),
+        )?;
+        check(
+            "pressing_tilt_deg",
+            (0.0..=30.0).contains(&self.pressing_tilt_deg),
+            "must be in [0, 30]°",
+        )?;
+        check(
+            "scanner_views",
+            (1..=4).contains(&self.scanner_views),
+            "must be 1 to 4",
+        )?;
+        check(
             "scanner_tilt_deg",
             (0.0..=60.0).contains(&self.scanner_tilt_deg),
             "must be in [0, 60]°",
+        )?;
+        check(
+            "view_tilts_deg",
+            self.view_tilts_deg.is_empty() || self.view_tilts_deg.len() + 1 == self.scanner_views,
+            &format!(
+                "must be empty (seeded tilts) or give the {} views after the first, got {}",
+                self.scanner_views.saturating_sub(1),
+                self.view_tilts_deg.len()
+            ),
+        )?;
+        check(
+            "view_tilts_deg",
+            self.view_tilts_deg.iter().all(|t| (0.0..=60.0).contains(t)),
+            "every tilt must be in [0, 60]°",
+        )?;
+        check(
+            "path_spacing_mm",
+            (0.05..=0.25).contains(&self.path_spacing_mm),
+            "must be in [0.05, 0.25] mm",
+        )?;
+        check(
+            "mesh_step_mm",
+            (0.25..=2.0).contains(&self.mesh_step_mm),
+            "must be in [0.25, 2] mm",
+        )?;
+        check(
+            "burr_fraction",
+            (0.0..=1.0).contains(&self.burr_fraction),
+            "must be in [0, 1]",
+        )?;
+        let range = |[lo, hi]: [f64; 2], min: f64, max: f64| lo >= min && lo <= hi && hi <= max;
+        check(
+            "burr_height_mm",
+            range(self.burr_height_mm, 0.01, 2.0),
+            "must be [min, max] with 0.01 ≤ min ≤ max ≤ 2 mm",
+        )?;
+        check(
+            "burr_thickness_mm",
+            range(self.burr_thickness_mm, 0.005, 0.5),
+            "must be [min, max] with 0.005 ≤ min ≤ max ≤ 0.5 mm",
+        )?;
+        check(
+            "burr_length_mm",
+            range(self.burr_length_mm, 0.5, 50.0),
+            "must be [min, max] with 0.5 ≤ min ≤ max ≤ 50 mm",
         )
     }
 }
@@ -151,8 +257,12 @@ pub struct SynthCase {
     pub scan_from_cad_true: Similarity3,
     /// The deformation applied before the placement.
     pub deformation: Deformation,
-    /// Where the scanner was, scan frame, mm.
+    /// Where the first view's scanner was, scan frame, mm (`views[0]`; for a single viewpoint).
     pub scanner_in_scan: Point3,
+    /// The scanner's views, fixed to the machine (scan frame), whatever the part's true pose.
+    pub views: Vec<ScanView>,
+    /// The burrs on the scanned part (ground truth; none on the CAD or the template path).
+    pub burrs: Vec<Burr>,
 }
 
 impl SynthCase {
@@ -163,9 +273,9 @@ impl SynthCase {
 
     /// Writes the case into `dir` (created if missing): `cad.stl`, `cad_points.ply` (with
     /// normals), `path.csv`, `scan.ply`, `truth.csv`, and `case.json` (parameters, scanner
-    /// position and the true transforms: `scanner_in_scan_mm` is what `trimctl register
-    /// --viewpoint` takes, `scan_from_cad_nominal` the 16 numbers `--initial` reads from a text
-    /// file, the rest is for tests).
+    /// views, burrs and the true transforms: `scanner_in_scan_mm` (the first view's scanner) is
+    /// what `trimctl register --viewpoint` takes, `scan_from_cad_nominal` the 16 numbers
+    /// `--initial` reads from a text file, the rest is for tests).
     pub fn write_case(&self, dir: &std::path::Path) -> Result<()> {
         use trim_geom::formats::{PlyEncoding, write_path, write_ply, write_stl};
         std::fs::create_dir_all(dir).map_err(|e| GeomError::io(dir, e))?;
@@ -192,6 +302,8 @@ impl SynthCase {
             scan_from_cad_nominal: m(&self.scan_from_cad_nominal),
             scan_from_cad_true: m(&self.scan_from_cad_true),
             deformation: self.deformation,
+            views: self.views.clone(),
+            burrs: self.burrs.clone(),
         };
         let text = serde_json::to_string_pretty(&meta)
             .map_err(|e| GeomError::invalid("case.json", e.to_string()))?;
@@ -211,7 +323,7 @@ impl SynthCase {
 pub struct CaseInfo {
     /// The generator's parameters.
     pub params: SynthParams,
-    /// The scanner position, scan frame, mm.
+    /// The first view's scanner position, scan frame, mm.
     pub scanner_in_scan_mm: [f64; 3],
     /// The fixture's nominal `scan_from_cad`, row-major 4×4.
     pub scan_from_cad_nominal: [[f64; 4]; 4],
@@ -219,6 +331,12 @@ pub struct CaseInfo {
     pub scan_from_cad_true: [[f64; 4]; 4],
     /// The deformation.
     pub deformation: Deformation,
+    /// The scanner's views, scan frame (absent in cases written before them: one view).
+    #[serde(default)]
+    pub views: Vec<ScanView>,
+    /// The burrs (contour id, stretch, height, thickness; absent in cases written before them).
+    #[serde(default)]
+    pub burrs: Vec<Burr>,
 }
 
 /// Generates a case (deterministic in `params.seed`).
@@ -227,7 +345,7 @@ pub fn generate(params: &SynthParams) -> Result<SynthCase> {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(params.seed);
     let cutouts = cutouts();
     let sampler = SurfaceSampler::new(cutouts.clone());
-    let mesh = domain_mesh(&cutouts)?;
+    let mesh = domain_mesh(&cutouts, params.mesh_step_mm)?;
     let cad_vertices: Vec<Point3> = mesh
         .vertices
         .iter()
@@ -244,7 +362,8 @@ pub fn generate(params: &SynthParams) -> Result<SynthCase> {
         cad_normals.push(mapped_normal(&design, &s.point, &s.normal));
     }
     let cad_points = PointCloud::with_normals(cad_pts, cad_normals)?;
-    let path = template_path(&cutouts)?;
+    let edges = contour_edges(&cutouts);
+    let path = template_path(&cutouts, params.path_spacing_mm)?;
 
     // Deformation and placement.
     let r = params.scale_range;
@@ -256,6 +375,7 @@ pub fn generate(params: &SynthParams) -> Result<SynthCase> {
         ),
         twist_rad: params.twist_deg.to_radians() * if rng.random_bool(0.5) { 1.0 } else { -1.0 },
         sag_mm: params.sag_mm * if rng.random_bool(0.5) { 1.0 } else { -1.0 },
+        pressing_axes: pressing_axes(params.pressing_tilt_deg, params.seed),
     };
     let axis: [f64; 3] = UnitSphere.sample(&mut rng);
     let dir: [f64; 3] = UnitSphere.sample(&mut rng);
@@ -270,14 +390,30 @@ pub fn generate(params: &SynthParams) -> Result<SynthCase> {
     let scan_from_cad_true = scan_from_cad_nominal * fixture_error;
     let scan_from_domain = |d: &Point3| scan_from_cad_true * deformation.apply(&design(d));
 
-    let (scan, scanner_in_scan) = scan_part(
+    let views = fixed_views(
+        params,
+        &scan_from_cad_nominal,
+        &mut stream(params.seed, VIEWS_STREAM),
+    );
+    let burrs = draw_burrs(
+        &BurrRanges {
+            fraction: params.burr_fraction,
+            height_mm: params.burr_height_mm,
+            thickness_mm: params.burr_thickness_mm,
+            length_mm: params.burr_length_mm,
+        },
+        &edges,
+        params.path_spacing_mm,
+        &mut stream(params.seed, BURRS_STREAM),
+    );
+    let scan = scan_part(
         params,
         &mut rng,
         &sampler,
+        &BurrSampler::new(&edges, &burrs),
         &mesh,
         &scan_from_domain,
-        &scan_from_cad_true,
-        &deformation,
+        &views,
     )?;
     let truth_map = |p: &Point3| scan_from_cad_true * deformation.apply(p);
     let truth = Path::new(
@@ -297,6 +433,27 @@ pub fn generate(params: &SynthParams) -> Result<SynthCase> {
         scan_from_cad_nominal,
         scan_from_cad_true,
         deformation,
-        scanner_in_scan,
+        scanner_in_scan: views
+            .first()
+            .map_or(Point3::origin(), |v| v.scanner_in_scan_mm),
+        views,
+        burrs,
+    })
+}
+
+/// The pressing axes: the CAD axes turned by `[½, 1] × tilt_deg` about a seeded axis (rows of
+/// the rotation's columns), the CAD axes exactly for no tilt.
+fn pressing_axes(tilt_deg: f64, seed: u64) -> [[f64; 3]; 3] {
+    if tilt_deg == 0.0 {
+        return Deformation::identity().pressing_axes;
+    }
+    let mut rng = stream(seed, PRESSING_STREAM);
+    let axis: [f64; 3] = UnitSphere.sample(&mut rng);
+    let angle = tilt_deg.to_radians() * rng.random_range(0.5..=1.0);
+    let rotation = UnitQuaternion::from_scaled_axis(Vector3::from(axis) * angle);
+    [0, 1, 2].map(|i| {
+        let mut e = Vector3::zeros();
+        e[i] = 1.0;
+        (rotation * e).into()
     })
 }

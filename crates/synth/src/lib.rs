@@ -8,26 +8,34 @@
 //! circles and stadiums), with its exact normal from the map's Jacobian (`n' ∝ J⁻ᵀ n`); the
 //! triangle mesh is only for `cad.stl` and for the scanner's occlusion test.
 //!
-//! The deformed part is `deform(cad)` ([`Deformation`](part::Deformation): per-axis scale, twist about the long
-//! axis, bend), placed by `scan_from_cad_true = scan_from_cad_nominal · fixture_error`. The scan
-//! sees only the faces visible from the scanner (back-face and ray-cast occlusion), with Gaussian
-//! noise, outliers and dropout patches. `truth` is the template path under the same map.
+//! The deformed part is `deform(cad)` ([`Deformation`](part::Deformation): per-axis scale along
+//! pressing axes that may be tilted from the CAD axes, twist about the long axis, bend), placed
+//! by `scan_from_cad_true = scan_from_cad_nominal · fixture_error`. The scanner is fixed to the
+//! machine: one to four [`ScanView`]s defined in the scan frame about the *nominal* pose, so a
+//! fixture error turns the part under them. A point is in the scan when at least one view sees
+//! it (facing it within the maximum incidence, no ray-cast occlusion by the part), with
+//! Gaussian noise, outliers and dropout patches. Burrs ([`Burr`]: thin flash webs standing off
+//! stretches of the contours' edges) are scanned with the part. `truth` is the template path
+//! under the same map (feature vectors as normals, `J⁻ᵀn`).
 //!
 //! Modules: [`part`] (geometry, design map, deformation), [`mesh`] (the triangle mesh),
-//! [`scanner`] (what the scanner sees), [`case`] (parameters, the generator, files) and
+//! [`scanner`] (the fixed views and what they see), [`burr`] (flash on the edges), [`case`] (parameters, the generator, files) and
 //! [`testing`] (a planning-sized synthetic path for tests and benches).
 
+pub mod burr;
 pub mod case;
 pub mod mesh;
 pub mod part;
 pub mod scanner;
 pub mod testing;
 
+pub use burr::Burr;
 pub use case::{CaseInfo, SynthCase, SynthParams, generate};
 pub use part::{
     CAMBER_MM, Cutout, DESIGN_TWIST_DEG, Deformation, LENGTH_MM, THICKNESS_MM, WIDTH_MM, cutouts,
     demo_hatch_boundary, design_point,
 };
+pub use scanner::ScanView;
 
 #[cfg(test)]
 mod tests;

@@ -6,8 +6,8 @@ use trim_geom::{GeomError, Point3, Result, Vector3};
 
 use crate::part::{Cutout, LENGTH_MM, SurfaceSampler, THICKNESS_MM, WIDTH_MM};
 
-/// Mesh edge length on the faces, mm (chord error of the camber ≈ 2 µm).
-pub(crate) const MESH_STEP_MM: f64 = 1.0;
+/// The default mesh edge length on the faces, mm (chord error of the camber ≈ 2 µm).
+pub const DEFAULT_MESH_STEP_MM: f64 = 1.0;
 
 /// Mesh edge length along hole and slot rims, mm.
 pub(crate) const RIM_STEP_MM: f64 = 0.2;
@@ -18,7 +18,9 @@ pub(crate) struct DomainMesh {
     pub(crate) triangles: Vec<[u32; 3]>,
 }
 
-pub(crate) fn domain_mesh(cutouts: &[Cutout]) -> Result<DomainMesh> {
+/// The mesh with an edge length of `step_mm` on the faces and along the outer boundary
+/// ([`RIM_STEP_MM`] along rims).
+pub(crate) fn domain_mesh(cutouts: &[Cutout], step_mm: f64) -> Result<DomainMesh> {
     let (w2, l2) = (WIDTH_MM / 2.0, LENGTH_MM / 2.0);
     // Boundary loops in (u, v) with the out-of-material normal of each point.
     let mut loops: Vec<Vec<([f64; 2], [f64; 2])>> = Vec::new();
@@ -27,7 +29,7 @@ pub(crate) fn domain_mesh(cutouts: &[Cutout]) -> Result<DomainMesh> {
     for i in 0..4 {
         let (a, b) = (corners[i], corners[(i + 1) % 4]);
         let len = (b[0] - a[0]).hypot(b[1] - a[1]);
-        let n = (len / MESH_STEP_MM).ceil() as usize;
+        let n = (len / step_mm).ceil() as usize;
         let normal = [(b[1] - a[1]) / len, -(b[0] - a[0]) / len];
         for k in 0..n {
             let t = k as f64 / n as f64;
@@ -43,7 +45,7 @@ pub(crate) fn domain_mesh(cutouts: &[Cutout]) -> Result<DomainMesh> {
                 .collect(),
         );
     }
-    let clearance = 0.6 * MESH_STEP_MM;
+    let clearance = 0.6 * step_mm;
     let sampler = SurfaceSampler::new(cutouts.to_vec());
     let mut cdt: ConstrainedDelaunayTriangulation<Point2<f64>> =
         ConstrainedDelaunayTriangulation::new();
@@ -56,12 +58,12 @@ pub(crate) fn domain_mesh(cutouts: &[Cutout]) -> Result<DomainMesh> {
         }
         loop_ids.push(ids);
     }
-    let nu = (WIDTH_MM / MESH_STEP_MM).round() as i32;
-    let nv = (LENGTH_MM / MESH_STEP_MM).round() as i32;
+    let nu = (WIDTH_MM / step_mm).round() as i32;
+    let nv = (LENGTH_MM / step_mm).round() as i32;
     for i in 1..nu {
         for j in 1..nv {
-            let u = -w2 + f64::from(i) * MESH_STEP_MM;
-            let v = -l2 + f64::from(j) * MESH_STEP_MM;
+            let u = -w2 + f64::from(i) * step_mm;
+            let v = -l2 + f64::from(j) * step_mm;
             let near_edge = u.abs() > w2 - clearance || v.abs() > l2 - clearance;
             let near_cutout = cutouts
                 .iter()

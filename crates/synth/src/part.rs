@@ -21,18 +21,28 @@ pub const CAMBER_MM: f64 = 2.5;
 /// Design twist about the long axis, end to end, degrees.
 pub const DESIGN_TWIST_DEG: f64 = 12.0;
 
-/// Path point spacing along contours, mm.
-pub(crate) const PATH_STEP_MM: f64 = 0.25;
+/// The template path's default point spacing along contours (domain arc length), mm.
+pub const DEFAULT_PATH_SPACING_MM: f64 = 0.25;
+
+/// Point spacing of the demo's hatch boundary, mm.
+pub(crate) const PATH_STEP_MM: f64 = DEFAULT_PATH_SPACING_MM;
 
 /// Central-difference step for Jacobians, mm.
 pub(crate) const JACOBIAN_STEP_MM: f64 = 1e-4;
 
-/// The smooth deformation of the part, in the CAD frame (mm): per-axis scale about the origin,
-/// then a twist about the Y (long) axis growing linearly along Y, then a bend along Z.
+/// The smooth deformation of the part, in the CAD frame (mm): a per-axis scale about the origin
+/// along the pressing axes (the shrinkage of a pressed and sintered core,
+/// `Σᵢ scaleᵢ (aᵢ·p) aᵢ = R·diag(scale)·Rᵀ·p` with `aᵢ = R·eᵢ`), then a twist about the Y (long)
+/// axis growing linearly along Y, then a bend along Z.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Deformation {
-    /// Scale along X, Y and Z.
+    /// Scale along the three pressing axes (`pressing_axes`, in order).
     pub scale: Vector3,
+    /// The pressing axes, CAD frame: row `i` is the unit axis `scale[i]` acts along (the rows
+    /// of a rotation). The identity (scale along the CAD axes) in cases written before it
+    /// existed and when `pressing_tilt_deg` is 0.
+    #[serde(default = "identity_axes")]
+    pub pressing_axes: [[f64; 3]; 3],
     /// Twist end to end over [`LENGTH_MM`], radians.
     pub twist_rad: f64,
     /// Bend: the rise of mid-length over the ends along Z, mm.
@@ -45,15 +55,29 @@ impl Deformation {
     pub fn identity() -> Self {
         Deformation {
             scale: Vector3::new(1.0, 1.0, 1.0),
+            pressing_axes: identity_axes(),
             twist_rad: 0.0,
             sag_mm: 0.0,
         }
     }
 
+    /// The scale part alone, CAD frame: `R·diag(scale)·Rᵀ`.
+    #[must_use]
+    pub fn scale_matrix(&self) -> Matrix3<f64> {
+        let r = Matrix3::from_columns(&self.pressing_axes.map(Vector3::from));
+        r * Matrix3::from_diagonal(&self.scale) * r.transpose()
+    }
+
     /// The deformed position of a CAD-frame point.
     #[must_use]
     pub fn apply(&self, p_cad: &Point3) -> Point3 {
-        let s = p_cad.coords.component_mul(&self.scale);
+        // Σᵢ sᵢ (aᵢ·p) aᵢ, summed axis by axis: with the identity axes this is the per-axis
+        // product bit for bit, so cases without a pressing tilt are what they were.
+        let mut s = Vector3::zeros();
+        for (axis, scale) in self.pressing_axes.iter().zip(self.scale.iter()) {
+            let a = Vector3::from(*axis);
+            s += a * (scale * a.dot(&p_cad.coords));
+        }
         let phi = self.twist_rad * s.y / LENGTH_MM;
         let (sin, cos) = phi.sin_cos();
         let x = cos * s.x - sin * s.z;
@@ -61,6 +85,10 @@ impl Deformation {
         let t = 2.0 * s.y / LENGTH_MM;
         Point3::new(x, s.y, z + self.sag_mm * (1.0 - t * t))
     }
+}
+
+fn identity_axes() -> [[f64; 3]; 3] {
+    [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
 }
 
 /// A hole (`half_length_mm = 0`) or a slot (a stadium along `v`) in domain coordinates.
@@ -225,6 +253,11 @@ impl SurfaceSampler {
         }
     }
 
+    /// The sampled area (domain), mm².
+    pub(crate) fn area(&self) -> f64 {
+        *self.cumulative_area.last().unwrap_or(&0.0)
+    }
+
     pub(crate) fn in_material(&self, u: f64, v: f64) -> bool {
         !self.cutouts.iter().any(|c| c.contains(u, v))
     }
@@ -282,53 +315,141 @@ impl SurfaceSampler {
     }
 }
 
-/// The top-face contours: one per cutout rim (closed), and the four outer edges, the long ones
-/// split at mid-length (six strip edges). Ids count from 1 in that order.
-pub(crate) fn template_path(cutouts: &[Cutout]) -> Result<Path> {
+/// A top-face edge a contour follows, domain `(u, v)` plane: a cutout's rim (closed) or a
+/// straight stretch of the outer boundary.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum Edge {
+    /// A hole's or slot's rim, counter-clockwise from `+u` ([`Cutout::rim`]).
+    Rim(Cutout),
+    /// From `.0` to `.1`, the material on the left.
+    Segment([f64; 2], [f64; 2]),
+}
+
+impl Edge {
+    /// Length, mm.
+    pub(crate) fn length(&self) -> f64 {
+        match self {
+            Edge::Rim(c) => c.perimeter(),
+            Edge::Segment(a, b) => (b[0] - a[0]).hypot(b[1] - a[1]),
+        }
+    }
+
+    /// The point at arc length `s` (mm from the start), and the unit normal out of the
+    /// material, domain plane.
+    pub(crate) fn at(&self, s: f64) -> ([f64; 2], [f64; 2]) {
+        match self {
+            Edge::Rim(c) => c.rim(s),
+            Edge::Segment(..) => self.at_step_of(s / self.length(), 1),
+        }
+    }
+
+    /// The point `k / n` of the way along (and the normal), computed as the template path
+    /// always has (bit for bit).
+    pub(crate) fn at_step(&self, k: usize, n: usize) -> ([f64; 2], [f64; 2]) {
+        self.at_step_of(k as f64, n)
+    }
+
+    fn at_step_of(&self, k: f64, n: usize) -> ([f64; 2], [f64; 2]) {
+        match self {
+            Edge::Rim(c) => c.rim(c.perimeter() * k / n as f64),
+            Edge::Segment(a, b) => {
+                let len = self.length();
+                let t = k / n as f64;
+                (
+                    [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])],
+                    [(b[1] - a[1]) / len, -(b[0] - a[0]) / len],
+                )
+            }
+        }
+    }
+
+    /// Where a domain-plane point is relative to the edge: `(s, t)` with `s` the arc length of
+    /// its foot on the edge (mm from the start) and `t` its distance out of the material along
+    /// the edge's normal (negative inside), mm. The inverse of `at(s) + t·normal(s)` for
+    /// `t` below a rim's radius. (The tests check burr points with it.)
+    #[cfg(test)]
+    pub(crate) fn locate(&self, u: f64, v: f64) -> (f64, f64) {
+        match self {
+            Edge::Segment(a, _) => {
+                let (_, n) = self.at(0.0);
+                let d = [-n[1], n[0]];
+                let q = [u - a[0], v - a[1]];
+                (q[0] * d[0] + q[1] * d[1], q[0] * n[0] + q[1] * n[1])
+            }
+            Edge::Rim(c) => {
+                let (r, a) = (c.radius_mm, c.half_length_mm);
+                let t = r - c.distance_to_axis(u, v);
+                let (du, dv) = (u - c.u_mm, v - c.v_mm);
+                let pi = std::f64::consts::PI;
+                let s = if dv.abs() <= a {
+                    if du >= 0.0 {
+                        dv + a
+                    } else {
+                        2.0 * a + pi * r + (a - dv)
+                    }
+                } else if dv > a {
+                    2.0 * a + r * (dv - a).atan2(du)
+                } else {
+                    // The lower arc, angles (π, 2π) from +u.
+                    4.0 * a + pi * r + r * ((dv + a).atan2(du) + pi)
+                };
+                (s, t)
+            }
+        }
+    }
+}
+
+/// The top-face edges the template path follows, in contour-id order (id = index + 1): every
+/// cutout's rim, then the outer boundary's four edges with the long ones split at mid-length
+/// (six strip edges), counter-clockwise.
+pub(crate) fn contour_edges(cutouts: &[Cutout]) -> Vec<Edge> {
+    let (w2, l2) = (WIDTH_MM / 2.0, LENGTH_MM / 2.0);
+    let mut edges: Vec<Edge> = cutouts.iter().map(|c| Edge::Rim(*c)).collect();
+    edges.extend(
+        [
+            ([-w2, -l2], [w2, -l2]),
+            ([w2, -l2], [w2, 0.0]),
+            ([w2, 0.0], [w2, l2]),
+            ([w2, l2], [-w2, l2]),
+            ([-w2, l2], [-w2, 0.0]),
+            ([-w2, 0.0], [-w2, -l2]),
+        ]
+        .map(|(a, b)| Edge::Segment(a, b)),
+    );
+    edges
+}
+
+/// How many segments a contour along `edge` has at `spacing_mm` (rims at least 24).
+pub(crate) fn contour_segments(edge: &Edge, spacing_mm: f64) -> usize {
+    let n = (edge.length() / spacing_mm).ceil() as usize;
+    match edge {
+        Edge::Rim(_) => n.max(24),
+        Edge::Segment(..) => n.max(1),
+    }
+}
+
+/// The top-face contours along [`contour_edges`] (ids from 1), a point every `spacing_mm` or
+/// less of domain arc length (rims closed, at least 24 segments), feature vectors the top
+/// face's normal.
+pub(crate) fn template_path(cutouts: &[Cutout], spacing_mm: f64) -> Result<Path> {
     let top = THICKNESS_MM / 2.0;
     let design = |p: &Point3| design_point(p.x, p.y, p.z);
     let up = Vector3::z();
     let mut contours = Vec::new();
-    let mut id = 1;
-    let mut push = |domain: Vec<Point3>, id: &mut i64| -> Result<()> {
+    for (id, edge) in (1..).zip(contour_edges(cutouts)) {
+        let n = contour_segments(&edge, spacing_mm);
+        let domain: Vec<Point3> = (0..=n)
+            .map(|k| {
+                let (p, _) = edge.at_step(k, n);
+                Point3::new(p[0], p[1], top)
+            })
+            .collect();
         let points: Vec<Point3> = domain.iter().map(design).collect();
         let features: Vec<Vector3> = domain
             .iter()
             .map(|d| mapped_normal(&design, d, &up))
             .collect();
-        contours.push(Contour::with_features(*id, points, features)?);
-        *id += 1;
-        Ok(())
-    };
-    for c in cutouts {
-        let n = ((c.perimeter() / PATH_STEP_MM).ceil() as usize).max(24);
-        let domain: Vec<Point3> = (0..=n)
-            .map(|k| {
-                let (p, _) = c.rim(c.perimeter() * k as f64 / n as f64);
-                Point3::new(p[0], p[1], top)
-            })
-            .collect();
-        push(domain, &mut id)?;
-    }
-    let (w2, l2) = (WIDTH_MM / 2.0, LENGTH_MM / 2.0);
-    let edges = [
-        ([-w2, -l2], [w2, -l2]),
-        ([w2, -l2], [w2, 0.0]),
-        ([w2, 0.0], [w2, l2]),
-        ([w2, l2], [-w2, l2]),
-        ([-w2, l2], [-w2, 0.0]),
-        ([-w2, 0.0], [-w2, -l2]),
-    ];
-    for (a, b) in edges {
-        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
-        let n = (len / PATH_STEP_MM).ceil() as usize;
-        let domain: Vec<Point3> = (0..=n)
-            .map(|k| {
-                let t = k as f64 / n as f64;
-                Point3::new(a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), top)
-            })
-            .collect();
-        push(domain, &mut id)?;
+        contours.push(Contour::with_features(id, points, features)?);
     }
     Path::new(contours)
 }

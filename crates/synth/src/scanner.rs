@@ -1,6 +1,6 @@
-//! The scanner: what it sees of the deformed, placed part.
+//! The scanner: fixed to the machine, one to four views, and what it sees of the deformed,
+//! placed part.
 
-use nalgebra::UnitQuaternion;
 use parry3d_f64::query::{Ray, RayCast};
 use parry3d_f64::shape::TriMesh;
 use rand::Rng;
@@ -8,9 +8,10 @@ use rand_distr::{Distribution, Normal};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use trim_geom::{GeomError, Point3, PointCloud, Result, Similarity3, Vector3};
 
+use crate::burr::BurrSampler;
 use crate::case::SynthParams;
 use crate::mesh::DomainMesh;
-use crate::part::{Deformation, SurfaceSampler, design_point, mapped_normal};
+use crate::part::{SurfaceSampler, design_point, mapped_normal};
 
 /// The scanner sees a face only below this incidence, degrees.
 pub(crate) const MAX_VIEW_INCIDENCE_DEG: f64 = 75.0;
@@ -18,56 +19,136 @@ pub(crate) const MAX_VIEW_INCIDENCE_DEG: f64 = 75.0;
 /// Occlusion rays start this far toward the scanner, mm (clears the mesh's chord error).
 pub(crate) const RAY_START_OFFSET_MM: f64 = 0.1;
 
-/// Distance of the scanner from the part centre, mm.
+/// Distance of the scanner from the part's nominal centre, mm.
 pub(crate) const SCANNER_DISTANCE_MM: f64 = 300.0;
 
-/// What the scanner sees of the deformed, placed part: samples of the surface facing the
-/// scanner (within `MAX_VIEW_INCIDENCE_DEG`) and not hidden by the part itself (a ray cast
-/// against the deformed mesh), with dropout patches, Gaussian noise and outliers. Returns the
-/// scan (scan frame) and the scanner's position in it. Draws from `rng` in a fixed order, so a
-/// seed gives the same scan.
+/// The first view's azimuth about the nominal thickness axis, from the nominal `+x`, degrees
+/// (where the single scanner looked from before the views were fixed to the machine).
+pub const FIRST_VIEW_AZIMUTH_DEG: f64 = -68.2;
+
+/// The seeded tilts of the views after the first, degrees from the thickness axis.
+pub const VIEW_TILT_RANGE_DEG: [f64; 2] = [10.0, 55.0];
+
+/// The seeded jitter of the views' azimuths after the first (± this about the even spread), degrees.
+pub const VIEW_AZIMUTH_JITTER_DEG: f64 = 20.0;
+
+/// One view of the scanner. Views are fixed to the machine: defined in the scan frame about the
+/// fixture's *nominal* pose of the part, whatever its true pose.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ScanView {
+    /// The scanner's position (its projection centre), scan frame, mm: what registration's
+    /// `scanner_viewpoint_mm` means.
+    pub scanner_in_scan_mm: Point3,
+    /// Unit direction from the part's nominal centre toward the scanner, scan frame (what
+    /// registration's `view_direction` means).
+    pub toward_scanner_in_scan: Vector3,
+    /// Tilt from the nominal thickness axis on the view's side, degrees.
+    pub tilt_deg: f64,
+    /// Azimuth about the nominal thickness axis, from the nominal `+x`, degrees.
+    pub azimuth_deg: f64,
+    /// The side it looks at: `true` the top face's (nominal `+z`), `false` the bottom's.
+    pub top_side: bool,
+}
+
+/// The views of `params` (`scanner_views` of them) about the fixture's nominal pose: view `k`
+/// looks at the top side for even `k` and the bottom side for odd `k`; view 0 at
+/// `scanner_tilt_deg` and [`FIRST_VIEW_AZIMUTH_DEG`], view `k ≥ 1` at `view_tilts_deg[k − 1]`
+/// (else seeded in [`VIEW_TILT_RANGE_DEG`]) and an azimuth `k·360°/n` further on, ± a seeded
+/// [`VIEW_AZIMUTH_JITTER_DEG`]. Draws the same numbers from `rng` whatever the tilts given.
+pub(crate) fn fixed_views(
+    params: &SynthParams,
+    scan_from_cad_nominal: &Similarity3,
+    rng: &mut Xoshiro256PlusPlus,
+) -> Vec<ScanView> {
+    let aim = scan_from_cad_nominal * design_point(0.0, 0.0, 0.0);
+    let rotation = scan_from_cad_nominal.isometry.rotation;
+    let (x, y, z) = (
+        rotation * Vector3::x(),
+        rotation * Vector3::y(),
+        rotation * Vector3::z(),
+    );
+    let n = params.scanner_views;
+    (0..n)
+        .map(|k| {
+            let (tilt_deg, azimuth_deg) = if k == 0 {
+                (params.scanner_tilt_deg, FIRST_VIEW_AZIMUTH_DEG)
+            } else {
+                let [lo, hi] = VIEW_TILT_RANGE_DEG;
+                let seeded = rng.random_range(lo..=hi);
+                let jitter = rng.random_range(-VIEW_AZIMUTH_JITTER_DEG..=VIEW_AZIMUTH_JITTER_DEG);
+                (
+                    params.view_tilts_deg.get(k - 1).copied().unwrap_or(seeded),
+                    FIRST_VIEW_AZIMUTH_DEG + 360.0 * k as f64 / n as f64 + jitter,
+                )
+            };
+            let top_side = k % 2 == 0;
+            let side = if top_side { 1.0 } else { -1.0 };
+            let (tilt, azimuth) = (tilt_deg.to_radians(), azimuth_deg.to_radians());
+            let toward = (z * (side * tilt.cos())
+                + (x * azimuth.cos() + y * azimuth.sin()) * tilt.sin())
+            .normalize();
+            ScanView {
+                scanner_in_scan_mm: aim + toward * SCANNER_DISTANCE_MM,
+                toward_scanner_in_scan: toward,
+                tilt_deg,
+                azimuth_deg,
+                top_side,
+            }
+        })
+        .collect()
+}
+
+/// What the scanner sees of the deformed, placed part (and its burrs): samples of the surface
+/// seen by at least one view (facing it within `MAX_VIEW_INCIDENCE_DEG` and not hidden by the
+/// part itself: a ray cast toward that view's scanner against the deformed mesh), with dropout
+/// patches, Gaussian noise and outliers. The part and the burrs are sampled in proportion to
+/// their areas. Returns the scan, scan frame. Draws from `rng` in a fixed order, so a seed
+/// gives the same scan.
 pub(crate) fn scan_part(
     params: &SynthParams,
     rng: &mut Xoshiro256PlusPlus,
     sampler: &SurfaceSampler,
+    burrs: &BurrSampler,
     mesh: &DomainMesh,
     scan_from_domain: &dyn Fn(&Point3) -> Point3,
-    scan_from_cad_true: &Similarity3,
-    deformation: &Deformation,
-) -> Result<(PointCloud, Point3)> {
+    views: &[ScanView],
+) -> Result<PointCloud> {
     // The deformed mesh in the scan frame, for occlusion.
     let scan_vertices: Vec<Point3> = mesh.vertices.iter().map(scan_from_domain).collect();
     let trimesh = TriMesh::new(scan_vertices, mesh.triangles.clone())
         .map_err(|e| GeomError::invalid("synth mesh", format!("{e:?}")))?;
-    let tilt = params.scanner_tilt_deg.to_radians();
-    let view_in_cad =
-        UnitQuaternion::from_scaled_axis(Vector3::new(tilt, 0.4 * tilt, 0.0)) * Vector3::z();
-    let centre_in_scan = scan_from_cad_true * deformation.apply(&design_point(0.0, 0.0, 0.0));
-    let scanner_in_scan =
-        centre_in_scan + scan_from_cad_true.isometry.rotation * view_in_cad * SCANNER_DISTANCE_MM;
     let cos_max = MAX_VIEW_INCIDENCE_DEG.to_radians().cos();
+    let seen = |p: &Point3, n: &Vector3| {
+        views.iter().any(|view| {
+            let to_scanner = (view.scanner_in_scan_mm - p).normalize();
+            if n.dot(&to_scanner) < cos_max {
+                return false;
+            }
+            let ray = Ray::new(p + to_scanner * RAY_START_OFFSET_MM, to_scanner);
+            trimesh
+                .cast_local_ray(&ray, SCANNER_DISTANCE_MM * 2.0, false)
+                .is_none()
+        })
+    };
+    let (part_area, burr_area) = (sampler.area(), burrs.area());
 
     let mut visible = Vec::with_capacity(params.scan_points);
     let max_attempts = params.scan_points.saturating_mul(20);
     let mut attempts = 0usize;
     while visible.len() < params.scan_points && attempts < max_attempts {
         attempts += 1;
-        let s = sampler.sample(rng);
+        // No extra draw without burrs: such cases are what they were.
+        let on_burr = burr_area > 0.0 && rng.random_range(0.0..part_area + burr_area) < burr_area;
+        let s = if on_burr {
+            burrs.sample(rng)
+        } else {
+            sampler.sample(rng)
+        };
         let p = scan_from_domain(&s.point);
         let n = mapped_normal(&scan_from_domain, &s.point, &s.normal);
-        let to_scanner = (scanner_in_scan - p).normalize();
-        if n.dot(&to_scanner) < cos_max {
-            continue;
+        if seen(&p, &n) {
+            visible.push(p);
         }
-        let origin = p + to_scanner * RAY_START_OFFSET_MM;
-        let ray = Ray::new(origin, to_scanner);
-        if trimesh
-            .cast_local_ray(&ray, SCANNER_DISTANCE_MM * 2.0, false)
-            .is_some()
-        {
-            continue;
-        }
-        visible.push(p);
     }
     if visible.len() < params.scan_points {
         return Err(GeomError::TooFewPoints {
@@ -102,5 +183,5 @@ pub(crate) fn scan_part(
             ));
         }
     }
-    Ok((PointCloud::new(scan_pts)?, scanner_in_scan))
+    PointCloud::new(scan_pts)
 }
