@@ -186,9 +186,7 @@ fn flags_a_contour_without_scan_points_and_keeps_the_rest() {
         .report
         .contours
         .iter()
-        .filter(|q| {
-            q.flags.contains(&Flag::LowCoverage) || q.flags.contains(&Flag::NoScanPoints)
-        })
+        .filter(|q| q.flags.contains(&Flag::LowCoverage) || q.flags.contains(&Flag::NoScanPoints))
         .count();
     let bound_only = reg
         .report

@@ -32,6 +32,10 @@ pub const FIT_RADIUS_PER_GRID: f64 = 2.0;
 pub const FIT_RADIUS_GROWTH_STEPS: usize = 3;
 /// The grid covers the boundary's box plus this many grid spacings on every side.
 pub const GRID_MARGIN_CELLS: f64 = 4.0;
+/// Scan points farther than this from the boundary's plane, beyond the boundary's own height
+/// spread, are not on the patch (the far face of a thin part scanned from both sides), mm.
+pub const LAYER_BAND_MM: f64 = 1.0;
+
 /// Residuals beyond this many robust standard deviations (1.4826 × median) are dropped.
 pub const OUTLIER_SIGMAS: f64 = 3.0;
 /// Residuals below this (mm) are never dropped (a noise floor for very smooth scans).
@@ -149,14 +153,28 @@ impl Surface {
         let up = if up.norm() > 1e-9 { up } else { Vector3::z() };
         // First frame from the boundary, then refined on the points it encloses.
         let mut frame = PlaneFrame::fit(boundary, &up);
+        // The patch is one surface: only scan points within LAYER_BAND_MM (beyond the
+        // boundary's own height spread) of the boundary's plane belong to it; a scan that sees
+        // the part from both sides also holds the far face a thickness below.
+        let band = boundary
+            .iter()
+            .map(|p| frame.height(p).abs())
+            .fold(0.0, f64::max)
+            + LAYER_BAND_MM;
+        let boundary_frame = frame;
+        let layer: Vec<Point3> = cloud
+            .points()
+            .par_iter()
+            .filter(|p| boundary_frame.height(p).abs() <= band)
+            .copied()
+            .collect();
         let mut near = Vec::new();
         let mut inside = Vec::new();
         let mut h = 0.0;
         for _ in 0..2 {
             let polygon = Polygon::new(boundary.iter().map(|p| frame.to_plane(p)).collect());
             let area = polygon.area();
-            inside = cloud
-                .points()
+            inside = layer
                 .par_iter()
                 .filter(|p| polygon.contains(frame.to_plane(p)))
                 .copied()
@@ -171,8 +189,7 @@ impl Surface {
             let spacing = (area / inside.len() as f64).sqrt();
             h = grid_mm.unwrap_or(GRID_PER_SPACING * spacing);
             let margin = GRID_MARGIN_CELLS * h;
-            near = cloud
-                .points()
+            near = layer
                 .par_iter()
                 .filter(|p| {
                     let st = frame.to_plane(p);
@@ -476,29 +493,62 @@ fn fit_node(points: &[([f64; 2], f64)], bins: &Bins, node: [f64; 2], r: f64) -> 
     if quadrants.iter().filter(|&&q| q).count() < 3 {
         return None;
     }
-    let mut q = solve_quadratic(&local, r)?;
-    let mut residuals: Vec<f64> = local
+    // Gross outliers first (a cluster of points millimetres off the surface bends the first
+    // quadratic enough to hide itself in the residuals): heights beyond
+    // GROSS_OUTLIER_SIGMAS robust deviations of the local heights, and at least
+    // GROSS_OUTLIER_FLOOR_MM, from their median are left out. Then reject and refit until the
+    // kept set stops changing.
+    let mut heights: Vec<f64> = local.iter().map(|l| l.2).collect();
+    let median_height = median(&mut heights);
+    let mut spread: Vec<f64> = heights.iter().map(|h| (h - median_height).abs()).collect();
+    let gross = (GROSS_OUTLIER_SIGMAS * 1.4826 * median(&mut spread)).max(GROSS_OUTLIER_FLOOR_MM);
+    let mut kept: Vec<_> = local
         .iter()
-        .map(|&(ds, dt, f, _)| (f - eval(&q, ds, dt)).abs())
+        .filter(|l| (l.2 - median_height).abs() <= gross)
+        .copied()
         .collect();
-    let mut sorted = residuals.clone();
-    sorted.sort_by(f64::total_cmp);
-    let sigma = 1.4826 * sorted[sorted.len() / 2];
-    let limit = (OUTLIER_SIGMAS * sigma).max(OUTLIER_FLOOR_MM);
-    if residuals.iter().any(|&e| e > limit) {
-        let kept: Vec<_> = local
+    if kept.len() < MIN_FIT_POINTS {
+        kept.clone_from(&local);
+    }
+    let mut q = solve_quadratic(&kept, r)?;
+    for _ in 0..REFITS {
+        let mut residuals: Vec<f64> = local
             .iter()
-            .zip(&residuals)
-            .filter(|(_, e)| **e <= limit)
+            .map(|&(ds, dt, f, _)| (f - eval(&q, ds, dt)).abs())
+            .collect();
+        let limit =
+            (OUTLIER_SIGMAS * 1.4826 * median(&mut residuals.clone())).max(OUTLIER_FLOOR_MM);
+        let next: Vec<_> = local
+            .iter()
+            .zip(residuals.drain(..))
+            .filter(|(_, e)| *e <= limit)
             .map(|(l, _)| *l)
             .collect();
-        if kept.len() >= MIN_FIT_POINTS {
-            q = solve_quadratic(&kept, r)?;
+        if next.len() < MIN_FIT_POINTS || next.len() == kept.len() {
+            break;
         }
+        kept = next;
+        q = solve_quadratic(&kept, r)?;
     }
-    residuals.clear();
     Some(q)
 }
+
+/// The median of `values` (reordered), 0 when empty.
+fn median(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let mid = values.len() / 2;
+    *values.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// A local height this many robust deviations from the local median height is a gross outlier
+/// (before the first fit)…
+const GROSS_OUTLIER_SIGMAS: f64 = 6.0;
+/// …and at least this far from it, mm (the local heights of a curved patch spread too).
+const GROSS_OUTLIER_FLOOR_MM: f64 = 0.5;
+/// Reject-and-refit rounds after the first fit at most.
+const REFITS: usize = 3;
 
 fn eval(q: &Quad, ds: f64, dt: f64) -> f64 {
     q[0] + q[1] * ds + q[2] * dt + 0.5 * q[3] * ds * ds + q[4] * ds * dt + 0.5 * q[5] * dt * dt

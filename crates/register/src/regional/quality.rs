@@ -229,7 +229,10 @@ fn end_support_distance(moved: &[Point3], matches: &[Match]) -> f64 {
     if !is_open(moved) || n < 2 {
         return 0.0;
     }
-    let ends = [(moved[0], moved[1] - moved[0]), (moved[n - 1], moved[n - 1] - moved[n - 2])];
+    let ends = [
+        (moved[0], moved[1] - moved[0]),
+        (moved[n - 1], moved[n - 1] - moved[n - 2]),
+    ];
     ends.iter()
         .map(|(p, d)| {
             let Some(t) = d.try_normalize(1e-12) else {
