@@ -612,7 +612,7 @@ mod tests {
             Vector3::new(0.01, -0.005, 0.02),
             1.0,
         );
-        let source = surface(8_000, 2).transformed(&truth.inverse());
+        let source = surface(8_000, 2).transformed(&truth.inverse()).unwrap();
         let settings = IcpSettings {
             max_correspondence_distance_mm: 2.0,
             ..IcpSettings::default()

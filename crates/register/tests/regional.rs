@@ -123,11 +123,14 @@ fn beats_the_papers_method_by_the_issues_factors() {
 #[test]
 fn refuses_a_scan_that_does_not_overlap_the_cad() {
     let c = case(31, false);
-    let far = c.scan.transformed(&Similarity3::new(
-        Vector3::new(0.0, 0.0, 200.0),
-        Vector3::zeros(),
-        1.0,
-    ));
+    let far = c
+        .scan
+        .transformed(&Similarity3::new(
+            Vector3::new(0.0, 0.0, 200.0),
+            Vector3::zeros(),
+            1.0,
+        ))
+        .unwrap();
     let err = register(
         &c.cad_points,
         &far,
