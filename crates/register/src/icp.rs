@@ -398,6 +398,7 @@ pub fn icp(
     let mut iterations = 0;
     let mut buffers = Correspondences::default();
     for it in 0..settings.max_iterations {
+        trim_geom::cancel::check()?;
         let step = step_with(
             source,
             target,
