@@ -7,7 +7,9 @@
 //! sample spacing).
 //! Issue 24 point 12: a plan put one point strictly inside two layers.
 
-use trim_geom::{Path, Point3};
+use rand::{Rng, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
+use trim_geom::{Contour, Path, Point3, Vector3};
 use trim_plan::hatch::{HatchSettings, hatch};
 use trim_plan::job::{Job, galvo_to_workpiece};
 use trim_plan::planner::{PlanSettings, plan_with_report};
@@ -67,7 +69,7 @@ fn holds(polyline: &[Point3], p: &Point3) -> Holds {
 
 /// Every violation of "each point in exactly one layer", as text naming the contour, the
 /// sample and the (zone, layer) pairs that hold it.
-pub fn partition_violations(path: &Path, job: &Job) -> Vec<String> {
+fn partition_violations(path: &Path, job: &Job) -> Vec<String> {
     let mut out = Vec::new();
     for c in path.contours() {
         // The contour's polylines in the work-piece frame, with where they are.
@@ -256,6 +258,78 @@ fn the_demo_part_with_its_hatched_region_marks_each_point_once() {
             &path,
             &s,
         );
+    }
+}
+
+/// A seeded path of awkward contours: random walks with repeated points, 1e-10 mm steps,
+/// 5 mm jumps and features that drift, some closed back onto their first point (never fewer than
+/// six points, so no contour retraces itself: that one would be marked twice by definition).
+fn awkward_path(seed: u64) -> Path {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    let mut contours = Vec::new();
+    for id in 0..rng.random_range(1..12) {
+        let m = rng.random_range(2..80);
+        let mut p = Point3::new(
+            rng.random_range(-30.0..30.0),
+            rng.random_range(-30.0..30.0),
+            rng.random_range(-3.0..3.0),
+        );
+        let (mut a, mut b): (f64, f64) = (rng.random_range(-0.3..0.3), rng.random_range(-0.3..0.3));
+        let (mut points, mut features) = (Vec::new(), Vec::new());
+        for _ in 0..m {
+            points.push(p);
+            features.push(Vector3::new(a.sin(), b.sin(), 1.0).normalize());
+            let step = match rng.random_range(0..10) {
+                0 => 0.0,
+                1 => 1e-10,
+                2 => 5.0,
+                _ => rng.random_range(0.01..1.5),
+            };
+            let d = Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-0.6..0.6),
+            )
+            .normalize();
+            p += d * step;
+            a += rng.random_range(-0.08..0.08);
+            b += rng.random_range(-0.08..0.08);
+        }
+        if m >= 6 && rng.random_bool(0.3) {
+            points.push(points[0]);
+            features.push(features[0]);
+        }
+        if let Ok(c) = Contour::with_features(id, points, features) {
+            contours.push(c);
+        }
+    }
+    if contours.is_empty() {
+        contours.push(
+            Contour::new(
+                0,
+                vec![Point3::origin(), Point3::new(1.0, 0.0, 0.0)],
+                Vector3::z(),
+            )
+            .expect("a segment"),
+        );
+    }
+    Path::new(contours).expect("distinct ids")
+}
+
+#[test]
+fn seeded_awkward_paths_mark_each_point_once() {
+    for seed in 0..40 {
+        let path = awkward_path(seed);
+        for method in [ZoningMethod::Cover, ZoningMethod::Kmeans] {
+            let out = plan_with_report(&path, &settings_for(method)).expect("plans");
+            let bad = partition_violations(&path, &out.job);
+            assert!(
+                bad.is_empty(),
+                "seed {seed}, {method:?}: {} points not in exactly one layer, e.g. {:?}",
+                bad.len(),
+                &bad[..bad.len().min(5)]
+            );
+        }
     }
 }
 
