@@ -44,7 +44,9 @@ fn bench_ops(c: &mut Criterion) {
     group.sample_size(10);
     for n in SIZES {
         let target = wavy_surface(n, SEED);
-        let source = wavy_surface(n, SEED + 1).transformed(&small_motion());
+        let source = wavy_surface(n, SEED + 1)
+            .transformed(&small_motion())
+            .expect("a finite motion");
         group.bench_with_input(BenchmarkId::new("kdtree_build", n), &target, |b, t| {
             b.iter(|| KdTree::build(t.points()));
         });

@@ -102,3 +102,13 @@ def test_bad_input_is_refused_by_name(rng):
         trimctl.hatch(bad, boundary, pitch=0.5)
     with pytest.raises(ValueError, match="boundary"):
         trimctl.hatch(scan, boundary[:, :2], pitch=0.5)
+
+
+def test_a_boundary_without_its_closing_row_is_closed_implicitly(rng):
+    """A boundary is a polygon: without its last row (one 0.4 mm sample step short of the
+    first) it is closed implicitly and hatched exactly as with it."""
+    scan, boundary = cylinder_scan(rng, 10_000), square_boundary()
+    closed = trimctl.hatch(scan, boundary, pitch=1.0)
+    implicit = trimctl.hatch(scan, boundary[:-1], pitch=1.0)
+    assert len(closed) > 5 and len(implicit) == len(closed)
+    np.testing.assert_array_equal(implicit.points, closed.points)

@@ -360,6 +360,10 @@ impl JobConfig {
         self.part
             .scan_from_cad
             .scan_from_cad("part.scan_from_cad")?;
+        self.part
+            .scan_pose
+            .validate()
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
         let parts = [&self.part.cad, &self.part.path, &self.part.scan];
         let given = parts.iter().filter(|p| p.is_some()).count();
         if given != 0 && given != 3 {
@@ -385,11 +389,16 @@ impl JobConfig {
 
     /// The scan (scanner frame) in the work-piece frame: through the scanner's pose on the
     /// head, the machine pose of `[part.scan_pose]` and the rotary axes, all as `[calibration]`
-    /// says.
+    /// says. Refuses a non-finite pose by its key, and a chain that carries a point out of the
+    /// finite range.
     pub fn scan_to_workpiece(
         &self,
         scan_in_scanner: &trim_geom::PointCloud,
-    ) -> trim_geom::PointCloud {
+    ) -> anyhow::Result<trim_geom::PointCloud> {
+        self.part
+            .scan_pose
+            .validate()
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
         let settings = self.plan_settings();
         let chain = trim_plan::cell::ScanChain {
             table: settings.table(),
@@ -397,10 +406,12 @@ impl JobConfig {
             pose: self.part.scan_pose,
             workpiece_origin_mm: settings.machine.workpiece_origin_mm.into(),
         };
-        scan_in_scanner.transformed(&trim_geom::math::Similarity3::from_isometry(
-            chain.workpiece_from_scanner(),
-            1.0,
-        ))
+        scan_in_scanner
+            .transformed(&trim_geom::math::Similarity3::from_isometry(
+                chain.workpiece_from_scanner(),
+                1.0,
+            ))
+            .context("the scan through [calibration] at [part.scan_pose] into the work-piece frame")
     }
 
     /// Whether the job runs the built-in demo part.
@@ -747,6 +758,45 @@ mod tests {
         let docs = key_docs();
         assert!(docs["part.scan_pose"].contains("not the part's"));
         assert!(docs["part.scan_from_cad"].contains("not the machine's"));
+    }
+
+    #[test]
+    fn a_non_finite_scan_pose_is_refused_by_key_wherever_it_enters() {
+        for (text, key) in [
+            (
+                "[part.scan_pose]\nxyz_mm = [0.0, nan, 0.0]\n",
+                "part.scan_pose.xyz_mm",
+            ),
+            (
+                "[part.scan_pose]\ntilt_deg = inf\n",
+                "part.scan_pose.tilt_deg",
+            ),
+            ("[part.scan_pose]\nc_deg = -inf\n", "part.scan_pose.c_deg"),
+        ] {
+            let e = format!("{:#}", JobConfig::parse(text).unwrap_err());
+            assert!(e.contains(key), "{text}: {e}");
+        }
+        // Built in code, past the parser: the scan is refused, not carried to NaN (voxel 0).
+        let scan = trim_geom::PointCloud::new(vec![trim_geom::Point3::new(1.0, 2.0, 3.0)]).unwrap();
+        let mut c = JobConfig::default();
+        assert!(
+            c.scan_to_workpiece(&scan).unwrap().points()[0]
+                .iter()
+                .all(|v| v.is_finite())
+        );
+        c.part.scan_pose.c_deg = f64::NAN;
+        let e = format!("{:#}", c.scan_to_workpiece(&scan).unwrap_err());
+        assert!(e.contains("part.scan_pose.c_deg"), "{e}");
+        // A finite pose whose chain overflows a point is refused too.
+        let mut c = JobConfig::default();
+        c.part.scan_pose.xyz_mm = [f64::MAX, 0.0, 0.0];
+        let huge =
+            trim_geom::PointCloud::new(vec![trim_geom::Point3::new(f64::MAX, 0.0, 0.0)]).unwrap();
+        let e = format!("{:#}", c.scan_to_workpiece(&huge).unwrap_err());
+        assert!(
+            e.contains("part.scan_pose") && e.contains("not finite"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -2,9 +2,10 @@
 //! --out tracks.csv [--svg tracks.svg]`: equal-spacing hatch tracks on a scanned surface
 //! (`trim_plan::hatch`).
 //!
-//! `B.csv` is a path CSV holding one closed contour on the surface (its last row repeats the
-//! first). `tracks.csv` is a path CSV: `contour` = track id in execution order (serpentine; the
-//! outline, if any, last), `x y z` in the scan's frame (mm), `u v w` the unit surface normal.
+//! `B.csv` is a path CSV holding one closed contour on the surface: a polygon, whose last row
+//! may repeat the first or not (the closing edge is implied; `hatch::close_boundary`).
+//! `tracks.csv` is a path CSV: `contour` = track id in execution order (serpentine; the outline,
+//! if any, last), `x y z` in the scan's frame (mm), `u v w` the unit surface normal.
 //! Stdout: the number of tracks, the neighbour spacing across the surface (mean, CV, min, max),
 //! coverage (scan points inside the boundary within pitch/2 × 1.05 of a track), the boundary
 //! error and the planning time. Bad input exits 1 with a message naming the file.

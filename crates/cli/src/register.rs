@@ -97,7 +97,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // With a job file, the scan (scanner frame) goes into the work-piece frame through its
     // [calibration] and [part.scan_pose], as `trimctl run` does.
     let scan = match &config {
-        Some(c) => c.scan_to_workpiece(&scan),
+        Some(c) => c.scan_to_workpiece(&scan)?,
         None => scan,
     };
     let path = read_path(&args.path).with_context(|| format!("reading {}", args.path.display()))?;
@@ -145,7 +145,7 @@ fn datum_positioning(
     let t = Instant::now();
     let fit = datum_fit(cad, scan, &datums, initial, view, &settings.coarse)?;
     let fit_s = t.elapsed().as_secs_f64();
-    let registered = path.transformed(&fit.scan_from_cad);
+    let registered = path.transformed(&fit.scan_from_cad)?;
     write_path(&args.out, &registered)
         .with_context(|| format!("writing {}", args.out.display()))?;
     let report = serde_json::json!({

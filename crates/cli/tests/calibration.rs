@@ -1,7 +1,8 @@
 //! The calibration on the digital twin, end to end through the binary: the twin's artefacts
 //! (`synth --calibration`), `calibrate cell`, `calibrate field`, and the same demo run before
 //! and after. After calibration the spot error on the true part (registration included) must
-//! be P95 ≤ 25 µm and max ≤ 50 µm; before, the cell's errors must show.
+//! be within the product's ±30 µm trimming tolerance (max ≤ 30 µm, P95 ≤ 25 µm); before, the
+//! cell's errors must show.
 
 #![expect(
     clippy::unwrap_used,
@@ -27,6 +28,14 @@ fn trimctl(args: &[&str], dir: &Path) -> String {
     );
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
+
+/// The product's trimming tolerance (µm): every spot within ±30 µm of the true trimming line.
+/// After calibration the largest spot error is measured at 18.0 µm (P95 8.7 µm; before it
+/// 528 µm, P95 423 µm): the bound is the tolerance itself, a margin of 12 µm (1.7×) on what is
+/// measured, not a looser figure.
+const SPOT_TOLERANCE_UM: f64 = 30.0;
+/// P95 bound after calibration (µm): most spots well inside the tolerance (measured 8.7 µm).
+const SPOT_P95_UM: f64 = 25.0;
 
 fn spot(dir: &Path) -> (f64, f64) {
     let s: serde_json::Value =
@@ -110,8 +119,8 @@ fn calibrating_the_twin_brings_the_spot_error_within_tolerance() {
         "spot error before: P95 {before_p95:.1} µm, max {before_max:.1} µm; after: P95 {after_p95:.1} µm, max {after_max:.1} µm"
     );
     assert!(
-        after_p95 <= 25.0 && after_max <= 50.0,
-        "after: {after_p95} / {after_max}"
+        after_p95 <= SPOT_P95_UM && after_max <= SPOT_TOLERANCE_UM,
+        "after: P95 {after_p95} µm, max {after_max} µm (tolerance ±{SPOT_TOLERANCE_UM} µm)"
     );
     assert!(
         before_p95 > 100.0,

@@ -135,6 +135,42 @@ fn hatches_a_cylinder_patch() {
     }
 }
 
+/// A boundary is a polygon: a file whose last row is one sample step (0.28 mm) short of its
+/// first is closed implicitly and hatched exactly like the same ring with the first row
+/// repeated.
+#[test]
+fn a_boundary_without_its_closing_row_is_closed_implicitly() {
+    let dir = tempfile::tempdir().unwrap();
+    let (scan, boundary) = fixture(dir.path());
+    let mut ring = read_path(&boundary).unwrap().contours()[0]
+        .points()
+        .to_vec();
+    assert_eq!(ring.first(), ring.last());
+    ring.pop();
+    let gap = (ring[ring.len() - 1] - ring[0]).norm();
+    assert!(gap > 0.25, "one sample step: {gap}");
+    let open_by_one = dir.path().join("open_by_one.csv");
+    write_boundary(&open_by_one, vec![ring]);
+    let hatched = |b: &FsPath, name: &str| {
+        let out = dir.path().join(name);
+        let o = trimctl(&[
+            "--scan",
+            s(&scan),
+            "--boundary",
+            s(b),
+            "--pitch",
+            "0.8",
+            "--out",
+            s(&out),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read_to_string(out).unwrap()
+    };
+    let closed = hatched(&boundary, "closed.csv");
+    assert!(closed.lines().count() > 100);
+    assert_eq!(hatched(&open_by_one, "implicit.csv"), closed);
+}
+
 /// Runs a bad case: exit 1, nothing on stdout, the message on stderr contains `needle`.
 fn refused(args: &[&str], needle: &str) {
     let o = trimctl(args);
@@ -173,6 +209,8 @@ fn refuses_bad_input() {
     write_boundary(&open, vec![ring.clone()]);
     run(&open, "1", "open.csv");
     run(&open, "1", "not closed");
+    // The message says why: the gap against the point spacing.
+    run(&open, "1", "longest edge (0.5000 mm)");
     // Two contours.
     let two = dir.path().join("two.csv");
     let mut closed = ring.clone();

@@ -47,14 +47,20 @@ fn posed_case(dir: &Path) -> String {
         .expect("trimctl synth runs");
     assert!(status.success());
     let e = fixture();
-    let scan = read_points(&case.join("scan.ply")).unwrap().transformed(&e);
+    let scan = read_points(&case.join("scan.ply"))
+        .unwrap()
+        .transformed(&e)
+        .unwrap();
     write_ply(
         &dir.join("scan_posed.ply"),
         &scan,
         PlyEncoding::BinaryLittleEndian,
     )
     .unwrap();
-    let truth = read_path(&case.join("truth.csv")).unwrap().transformed(&e);
+    let truth = read_path(&case.join("truth.csv"))
+        .unwrap()
+        .transformed(&e)
+        .unwrap();
     trim_geom::formats::write_path(&dir.join("truth_posed.csv"), &truth).unwrap();
     let info: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(case.join("case.json")).unwrap()).unwrap();

@@ -9,6 +9,11 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 const TRIMCTL: &str = env!("CARGO_BIN_EXE_trimctl");
+/// The product's trimming tolerance (µm): the spot must land within ±30 µm of the true trimming
+/// line. The demo's largest spot error (registration, plan and the twin's nominal cell) is
+/// measured at 9.6 µm (P95 4.8 µm; 10–17 µm in the runs issue 24 quotes): the bound is the
+/// tolerance itself, a margin of about 2–3× on what is measured, not a looser figure.
+const SPOT_TOLERANCE_UM: f64 = 30.0;
 
 /// How long the demo may take in a debug build on a loaded 2-core machine before the test
 /// gives up (not a performance check: a hang guard).
@@ -184,10 +189,12 @@ fn demo_hatch_is_planned_and_marked(out: &Path, stdout: &str) {
         spots["excluded_spots"].as_u64().expect("excluded_spots") > 0,
         "{spots}"
     );
-    assert!(
-        spots["overall"]["max_um"].as_f64().expect("max_um") < 50.0,
-        "{spots}"
+    let max_um = spots["overall"]["max_um"].as_f64().expect("max_um");
+    eprintln!(
+        "demo spot error: max {max_um:.1} µm, P95 {:.1} µm (tolerance ±{SPOT_TOLERANCE_UM} µm)",
+        spots["overall"]["p95_um"].as_f64().unwrap_or(f64::NAN)
     );
+    assert!(max_um <= SPOT_TOLERANCE_UM, "{spots}");
 }
 
 #[test]

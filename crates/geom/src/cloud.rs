@@ -4,6 +4,7 @@ use rayon::prelude::*;
 
 use crate::error::{GeomError, Result};
 use crate::math::{Point3, Similarity3, Vector3, is_finite_point, unit_or_none};
+use crate::transform::check_transform;
 
 /// Normals shorter than this are refused as undefined.
 pub const MIN_NORMAL_NORM: f64 = 1e-12;
@@ -128,19 +129,28 @@ impl PointCloud {
     }
 
     /// The cloud in frame `b`, given `b_from_a` for a cloud in frame `a`. Normals are rotated.
-    #[must_use]
-    pub fn transformed(&self, b_from_a: &Similarity3) -> PointCloud {
+    /// Refuses a transform with a NaN or infinite entry (or a scale that is not finite and > 0)
+    /// and a point that leaves the finite range on the way, so the result keeps the cloud's
+    /// promise: finite points (a NaN point would otherwise land in voxel 0 downstream).
+    pub fn transformed(&self, b_from_a: &Similarity3) -> Result<PointCloud> {
+        check_transform(b_from_a)?;
         let points = self
             .points
             .par_iter()
             .map(|p| b_from_a * p)
             .collect::<Vec<_>>();
+        if let Some(index) = points.iter().position(|p| !is_finite_point(p)) {
+            return Err(GeomError::NonFinite {
+                what: "transformed point",
+                index,
+            });
+        }
         let rotation = b_from_a.isometry.rotation;
         let normals = self
             .normals
             .as_ref()
             .map(|ns| ns.par_iter().map(|n| rotation * n).collect());
-        PointCloud { points, normals }
+        Ok(PointCloud { points, normals })
     }
 
     /// The sub-cloud of the given indices, in their order. Out-of-range indices are refused.
@@ -237,9 +247,45 @@ mod tests {
             Vector3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
             2.0,
         );
-        let t = c.transformed(&b_from_a);
+        let t = c.transformed(&b_from_a).unwrap();
         assert!((t.points()[0] - Point3::new(0.0, 2.0, 5.0)).norm() < 1e-12);
         assert!((t.normals().unwrap()[0] - Vector3::new(0.0, 1.0, 0.0)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn transform_refuses_non_finite_transforms_and_overflowing_points() {
+        let c = PointCloud::new(vec![Point3::origin(), Point3::new(1e300, 0.0, 0.0)]).unwrap();
+        for bad in [
+            Similarity3::new(Vector3::new(f64::NAN, 0.0, 0.0), Vector3::zeros(), 1.0),
+            Similarity3::new(Vector3::zeros(), Vector3::new(0.0, f64::INFINITY, 0.0), 1.0),
+            Similarity3::new(Vector3::zeros(), Vector3::zeros(), f64::NAN),
+        ] {
+            let e = c.transformed(&bad).unwrap_err();
+            assert!(
+                matches!(
+                    e,
+                    GeomError::InvalidArgument {
+                        name: "b_from_a",
+                        ..
+                    }
+                ),
+                "{e}"
+            );
+        }
+        // Finite, but it carries point 1 past f64::MAX.
+        let e = c
+            .transformed(&Similarity3::new(Vector3::zeros(), Vector3::zeros(), 1e10))
+            .unwrap_err();
+        assert!(
+            matches!(
+                e,
+                GeomError::NonFinite {
+                    what: "transformed point",
+                    index: 1
+                }
+            ),
+            "{e}"
+        );
     }
 
     #[test]

@@ -106,6 +106,9 @@ pub enum GeomError {
         /// What was wrong.
         message: String,
     },
+    /// The work was cancelled ([`crate::cancel`]): its caller asked it to stop.
+    #[error("cancelled")]
+    Cancelled,
     /// An argument is out of its valid range.
     #[error("{name}: {message}")]
     InvalidArgument {

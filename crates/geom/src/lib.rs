@@ -5,6 +5,7 @@
 //! `b`, and compose right to left (`c_from_a = c_from_b * b_from_a`).
 //!
 //! - [`cloud`]: point clouds with optional unit normals.
+//! - [`cancel`]: cooperative cancellation of long work (a per-thread flag the loops check).
 //! - [`path`]: trimming paths made of contours with ids and feature vectors (the path CSV contract).
 //! - [`transform`]: rigid and similarity transforms on nalgebra.
 //! - [`kdtree`]: nearest, k-nearest and radius queries on kiddo.
@@ -12,6 +13,7 @@
 //! - [`mesh`]: triangle meshes on parry3d, area-weighted sampling, point-to-mesh distance.
 //! - [`formats`]: PLY, PCD, XYZ, STL and path CSV readers and writers.
 
+pub mod cancel;
 pub mod cloud;
 pub mod crop;
 pub mod error;

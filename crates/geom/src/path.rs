@@ -9,6 +9,7 @@ use std::collections::HashSet;
 use crate::cloud::Aabb;
 use crate::error::{GeomError, Result};
 use crate::math::{Point3, Similarity3, UnitVector3, Vector3, is_finite_point, unit_or_none};
+use crate::transform::check_transform;
 
 /// A contour id, as in the path CSV's `contour` column.
 pub type ContourId = i64;
@@ -126,15 +127,26 @@ impl Contour {
             .fold(0.0, f64::max)
     }
 
-    /// The contour in frame `b`, given `b_from_a`. Feature vectors are rotated.
-    #[must_use]
-    pub fn transformed(&self, b_from_a: &Similarity3) -> Contour {
+    /// The contour in frame `b`, given `b_from_a`. Feature vectors are rotated. Refuses a
+    /// non-finite transform, and a point that leaves the finite range, naming the contour.
+    pub fn transformed(&self, b_from_a: &Similarity3) -> Result<Contour> {
+        check_transform(b_from_a).map_err(|e| GeomError::InvalidContour {
+            contour: self.id,
+            message: e.to_string(),
+        })?;
         let rotation = b_from_a.isometry.rotation;
-        Contour {
-            id: self.id,
-            points: self.points.iter().map(|p| b_from_a * p).collect(),
-            features: self.features.iter().map(|f| rotation * f).collect(),
+        let points: Vec<Point3> = self.points.iter().map(|p| b_from_a * p).collect();
+        if let Some(i) = points.iter().position(|p| !is_finite_point(p)) {
+            return Err(GeomError::InvalidContour {
+                contour: self.id,
+                message: format!("point {i} is not finite after the transform"),
+            });
         }
+        Ok(Contour {
+            id: self.id,
+            points,
+            features: self.features.iter().map(|f| rotation * f).collect(),
+        })
     }
 
     /// A copy with new point positions (same count, same features), e.g. after registration.
@@ -221,16 +233,15 @@ impl Path {
         })
     }
 
-    /// The path in frame `b`, given `b_from_a`.
-    #[must_use]
-    pub fn transformed(&self, b_from_a: &Similarity3) -> Path {
-        Path {
+    /// The path in frame `b`, given `b_from_a`; refuses what [`Contour::transformed`] refuses.
+    pub fn transformed(&self, b_from_a: &Similarity3) -> Result<Path> {
+        Ok(Path {
             contours: self
                 .contours
                 .iter()
                 .map(|c| c.transformed(b_from_a))
-                .collect(),
-        }
+                .collect::<Result<_>>()?,
+        })
     }
 }
 

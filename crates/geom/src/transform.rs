@@ -17,6 +17,31 @@ pub fn similarity_from_rigid(b_from_a: &Rigid3) -> Similarity3 {
     Similarity3::from_isometry(*b_from_a, 1.0)
 }
 
+/// Refuses a transform with a NaN or infinite entry, or a scale that is not > 0, naming it
+/// `b_from_a` (the caller adds where it came from: a job.toml key, a file).
+pub fn check_transform(b_from_a: &Similarity3) -> Result<()> {
+    let iso = &b_from_a.isometry;
+    let finite = iso.translation.vector.iter().all(|c| c.is_finite())
+        && iso.rotation.coords.iter().all(|c| c.is_finite())
+        && b_from_a.scaling().is_finite();
+    if !finite {
+        return Err(GeomError::invalid(
+            "b_from_a",
+            "the transform has a NaN or infinite entry",
+        ));
+    }
+    if b_from_a.scaling() <= 0.0 {
+        return Err(GeomError::invalid(
+            "b_from_a",
+            format!(
+                "the transform's scale must be > 0, got {}",
+                b_from_a.scaling()
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// The homogeneous 4×4 matrix of a similarity: `[s·R t; 0 1]`.
 #[must_use]
 pub fn to_matrix(b_from_a: &Similarity3) -> Matrix4<f64> {

@@ -656,12 +656,16 @@ async fn a_journal_write_failure_mid_run_takes_the_way_down_laser_first() {
 /// seen): emission on, `EXECUTE`, emission off, the journal's write and fsync and the record. Of
 /// that, the laser's replies to emission on and off (on the pty) and the journal's write + fsync
 /// (the disk) are the devices' own time; the rest (progress events, bookkeeping, scheduling) is
-/// the host's. Bound: the host's share ≤ 1 ms per layer
-/// (median over the layers, so one scheduling hiccup on a shared machine does not decide), and
-/// every load is hidden behind its move.
+/// the host's. Bounds, each the median over the layers (so one scheduling hiccup on a shared
+/// machine does not decide): the host's share ≤ 1 ms per layer, and the whole overhead, the
+/// devices' time included, ≤ 10 ms per layer (measured 1.37–1.54 ms on the demo with the
+/// simulators, the laser on a pty and the journal on a local disk; 10 ms leaves room for a slow
+/// fsync on a loaded machine and still catches a layer end that waits on something it should
+/// not); and every load is hidden behind its move.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn preloading_hides_the_list_load_and_the_overhead_per_layer_is_at_most_1_ms() {
+async fn preloading_hides_the_list_load_and_the_host_share_of_the_overhead_is_at_most_1_ms() {
     const HOST_OVERHEAD_BOUND_S: f64 = 1e-3;
+    const WHOLE_OVERHEAD_BOUND_S: f64 = 10e-3;
     let sim = sim_cell("monaco").await;
     let job = demo_job(10);
     let dir = tempfile::tempdir().unwrap();
@@ -700,7 +704,7 @@ async fn preloading_hides_the_list_load_and_the_overhead_per_layer_is_at_most_1_
     let motion = ms(&|l| l.motion_s);
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     eprintln!(
-        "preloading: per layer (ms, mean / median / max): overhead {:.3} / {:.3} / {:.3}; host share {:.3} / {:.3} / {:.3}; in position → EXECUTE acked {:.3} / {:.3}; done → journaled {:.3} / {:.3} (of it the journal write + fsync {:.3} / {:.3}); load {:.3} (hidden in motion {:.1})",
+        "preloading: per layer (ms, mean / median / max): whole overhead {:.3} / {:.3} / {:.3}; host share {:.3} / {:.3} / {:.3}; in position → EXECUTE acked {:.3} / {:.3}; done → journaled {:.3} / {:.3} (of it the journal write + fsync {:.3} / {:.3}); load {:.3} (hidden in motion {:.1})",
         mean(&overhead),
         median(overhead.clone()),
         overhead.iter().copied().fold(0.0, f64::max),
@@ -728,7 +732,12 @@ async fn preloading_hides_the_list_load_and_the_overhead_per_layer_is_at_most_1_
     let host_median_s = median(host) * 1e-3;
     assert!(
         host_median_s <= HOST_OVERHEAD_BOUND_S,
-        "host overhead {host_median_s} s per layer"
+        "host share of the overhead {host_median_s} s per layer (median)"
+    );
+    let whole_median_s = median(overhead) * 1e-3;
+    assert!(
+        whole_median_s <= WHOLE_OVERHEAD_BOUND_S,
+        "whole overhead {whole_median_s} s per layer (median), devices' time included"
     );
 }
 

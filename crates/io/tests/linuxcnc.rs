@@ -1,8 +1,13 @@
 //! Integration test against a real, headless LinuxCNC (xyzac-trt sim config) started through
 //! `scripts/linuxcnc-sim`, following docs/cnc/LINUXCNC.md. Fails with a clear message when
-//! LinuxCNC is not installed, unless `TRIMCTL_SKIP_LINUXCNC=1`.
+//! LinuxCNC is not installed, unless `TRIMCTL_SKIP_LINUXCNC=1`: then it is reported as ignored
+//! (libtest-mimic, `harness = false`: see `support/linuxcnc_sim.rs`).
 //!
 //! Everything runs in one test function: LinuxCNC is one instance per machine.
+#![expect(
+    clippy::unwrap_used,
+    reason = "a test binary without libtest (harness = false): a failed step fails the test"
+)]
 
 mod common;
 #[path = "support/linuxcnc_sim.rs"]
@@ -53,11 +58,21 @@ fn planned_poses(m: &MachineSettings) -> Vec<(Point3, UnitVector3, AxisPose)> {
         .collect()
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+fn main() -> std::process::ExitCode {
+    linuxcnc_sim::run_test(
+        "real_linuxcnc_takes_planned_poses_and_runs_a_whole_job",
+        || {
+            tokio::runtime::Builder::new_multi_thread()
+                .worker_threads(2)
+                .enable_all()
+                .build()
+                .expect("a tokio runtime")
+                .block_on(real_linuxcnc_takes_planned_poses_and_runs_a_whole_job());
+        },
+    )
+}
+
 async fn real_linuxcnc_takes_planned_poses_and_runs_a_whole_job() {
-    if !linuxcnc_sim::available() {
-        return;
-    }
     let _instance = linuxcnc_sim::Instance::start(PORT, "/tmp/trimctl-linuxcnc-test");
     let addr: SocketAddr = format!("127.0.0.1:{PORT}").parse().unwrap();
     let t = Instant::now();

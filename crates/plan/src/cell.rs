@@ -505,6 +505,23 @@ pub struct ScanPose {
     pub c_deg: f64,
 }
 
+impl ScanPose {
+    /// Refuses a NaN or infinite position or angle, naming its job.toml key
+    /// (`part.scan_pose.xyz_mm`): a non-finite pose would carry every scan point to NaN.
+    pub fn validate(&self) -> Result<(), PlanError> {
+        for (key, v) in [
+            ("part.scan_pose.xyz_mm", self.xyz_mm.to_vec()),
+            ("part.scan_pose.tilt_deg", vec![self.tilt_deg]),
+            ("part.scan_pose.c_deg", vec![self.c_deg]),
+        ] {
+            if !v.iter().all(|x| x.is_finite()) {
+                return Err(PlanError::setting(key, format!("{v:?}"), "must be finite"));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// The whole chain from the scanner to the work-piece frame at one scan pose.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ScanChain {

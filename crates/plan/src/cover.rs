@@ -787,7 +787,8 @@ fn select(problem: &CoverProblem<'_>, atoms: &[Atom]) -> Selection {
     // time. Wider windows lose more to seeds that turn out skipped.
     let width = rayon::current_num_threads().max(1);
     let mut next = 0;
-    while next < n {
+    // A cancelled plan stops growing and improving; `cover` reports it when this returns.
+    while next < n && !trim_geom::cancel::is_cancelled() {
         let mut window = Vec::with_capacity(width);
         while next < n && window.len() < width {
             if !skipped(&inside, next) {
@@ -834,7 +835,7 @@ fn select(problem: &CoverProblem<'_>, atoms: &[Atom]) -> Selection {
     // (4) local improvement.
     let (mut merges, mut dropped, mut absorbed) = (0, 0, 0);
     let cache = FitCache::default();
-    loop {
+    while !trim_geom::cancel::is_cancelled() {
         dropped += drop_redundant(&mut chosen, n);
         if merge_one(problem, atoms, &mut chosen, &cache) {
             merges += 1;
@@ -904,7 +905,9 @@ pub fn cover(path: &Path, problem: &CoverProblem<'_>) -> Result<Cover, PlanError
         .flatten()
         .collect();
     let n = atoms.len();
+    crate::error::check_cancel()?;
     let mut sel = select(problem, &atoms);
+    crate::error::check_cancel()?;
     // (6) lower bound, over the atoms some reachable pose covers.
     let lower_bound = lower_bound(problem, &atoms, &sel.candidates);
     // Atoms no reachable pose covers: covered again without the reach, so they are grouped;
@@ -913,6 +916,7 @@ pub fn cover(path: &Path, problem: &CoverProblem<'_>) -> Result<Cover, PlanError
     if !uncovered.is_empty() {
         let rest: Vec<Atom> = uncovered.iter().map(|&j| atoms[j].clone()).collect();
         let more = select(&unlimited, &rest);
+        crate::error::check_cancel()?;
         for (pose, c) in more.chosen {
             sel.chosen
                 .push((pose, c.iter().map(|&k| uncovered[k]).collect()));

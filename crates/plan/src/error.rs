@@ -100,6 +100,19 @@ pub enum PlanError {
         /// linfa's message.
         message: String,
     },
+    /// The caller asked the planning to stop (`trim_geom::cancel`; Ctrl-C in Python).
+    #[error("planning cancelled")]
+    Cancelled,
+}
+
+/// `Err(PlanError::Cancelled)` once the caller has asked the work on this thread to stop
+/// (`trim_geom::cancel`); the planner's long loops call it once per step.
+pub(crate) fn check_cancel() -> Result<(), PlanError> {
+    if trim_geom::cancel::is_cancelled() {
+        Err(PlanError::Cancelled)
+    } else {
+        Ok(())
+    }
 }
 
 impl PlanError {

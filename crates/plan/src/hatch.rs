@@ -45,8 +45,13 @@ pub use measure::{HatchReport, SpacingStats, measure};
 use polygon::Polygon;
 use surface::{PlaneFrame, Surface};
 
-/// A boundary's last point must be within this distance of its first (mm) to count as closed.
+/// A boundary whose last point is within this distance of its first (mm) repeats its first
+/// point: it is closed as given.
 pub const BOUNDARY_CLOSURE_TOL_MM: f64 = 0.01;
+/// A boundary is a polygon: when its last point does not repeat its first, the closing edge is
+/// implied, provided it is no longer than this many times the boundary's longest edge. A wider
+/// gap is an open curve (a trimming line, say), not a region, and is refused.
+pub const BOUNDARY_CLOSING_EDGE_FACTOR: f64 = 1.5;
 /// A boundary vertex farther than this from the fitted surface (mm) is refused as off it.
 pub const BOUNDARY_ON_SURFACE_TOL_MM: f64 = 0.1;
 /// The fewest distinct boundary vertices.
@@ -266,14 +271,17 @@ pub enum HatchError {
         /// Distinct points given.
         got: usize,
     },
-    /// The boundary's last point does not return to its first.
+    /// The boundary's last point is too far from its first for the closing edge to be implied.
     #[error(
-        "the boundary is not closed: its last point is {gap_mm:.4} mm from its first (at most \
-         {BOUNDARY_CLOSURE_TOL_MM} mm)"
+        "the boundary is not closed: its last point is {gap_mm:.4} mm from its first, more than \
+         {BOUNDARY_CLOSING_EDGE_FACTOR} × its longest edge ({longest_edge_mm:.4} mm), so it is an \
+         open curve, not a region (the closing edge is implied when it is no longer than that)"
     )]
     BoundaryNotClosed {
         /// The gap, mm.
         gap_mm: f64,
+        /// The longest edge between consecutive points, mm.
+        longest_edge_mm: f64,
     },
     /// A boundary vertex does not lie on the scanned surface.
     #[error(
@@ -427,9 +435,18 @@ impl Hatch {
     }
 }
 
-/// Checks a boundary: finite, closed (last point within [`BOUNDARY_CLOSURE_TOL_MM`] of the
-/// first), at least [`MIN_BOUNDARY_POINTS`] distinct vertices.
+/// Checks a boundary: finite, closed, at least [`MIN_BOUNDARY_POINTS`] distinct vertices.
+/// See [`close_boundary`] for what closed means.
 pub fn check_boundary(boundary: &[Point3]) -> Result<(), HatchError> {
+    close_boundary(boundary).map(|_| ())
+}
+
+/// The boundary as a closed polyline (its last point repeats its first): as given when its last
+/// point is within [`BOUNDARY_CLOSURE_TOL_MM`] of its first, else with the closing edge added
+/// (a boundary is a polygon) when that edge is at most [`BOUNDARY_CLOSING_EDGE_FACTOR`] × the
+/// longest edge between its points. Refuses non-finite points, fewer than
+/// [`MIN_BOUNDARY_POINTS`] distinct vertices, and a wider gap (an open curve).
+pub fn close_boundary(boundary: &[Point3]) -> Result<Vec<Point3>, HatchError> {
     if let Some(i) = boundary
         .iter()
         .position(|p| !p.iter().all(|c| c.is_finite()))
@@ -439,29 +456,37 @@ pub fn check_boundary(boundary: &[Point3]) -> Result<(), HatchError> {
             index: i,
         });
     }
-    let distinct = boundary
-        .windows(2)
-        .filter(|w| (w[1] - w[0]).norm() > 1e-9)
-        .count();
-    // A closed polyline of n distinct vertices has n segments.
-    if boundary.len() < MIN_BOUNDARY_POINTS + 1 || distinct < MIN_BOUNDARY_POINTS {
+    let edges: Vec<f64> = boundary.windows(2).map(|w| (w[1] - w[0]).norm()).collect();
+    let gap = match (boundary.first(), boundary.last()) {
+        (Some(a), Some(b)) => (b - a).norm(),
+        _ => 0.0,
+    };
+    let repeated = gap <= BOUNDARY_CLOSURE_TOL_MM;
+    // Distinct vertices: the points that start an edge of non-zero length, plus the last one
+    // unless it repeats the first.
+    let distinct = edges.iter().filter(|&&e| e > 1e-9).count() + usize::from(!repeated);
+    if boundary.len() < MIN_BOUNDARY_POINTS || distinct < MIN_BOUNDARY_POINTS {
         return Err(HatchError::BoundaryTooShort {
             needed: MIN_BOUNDARY_POINTS,
             got: distinct.min(boundary.len()),
         });
     }
-    let gap = match (boundary.first(), boundary.last()) {
-        (Some(a), Some(b)) => (b - a).norm(),
-        _ => 0.0,
-    };
-    if gap > BOUNDARY_CLOSURE_TOL_MM {
-        return Err(HatchError::BoundaryNotClosed { gap_mm: gap });
+    let mut closed = boundary.to_vec();
+    if !repeated {
+        let longest_edge_mm = edges.iter().copied().fold(0.0, f64::max);
+        if gap > BOUNDARY_CLOSING_EDGE_FACTOR * longest_edge_mm {
+            return Err(HatchError::BoundaryNotClosed {
+                gap_mm: gap,
+                longest_edge_mm,
+            });
+        }
+        closed.push(boundary[0]);
     }
-    Ok(())
+    Ok(closed)
 }
 
-/// Plans the hatch (see the module docs). `boundary` is a closed polyline on the surface,
-/// world frame, mm (its last point repeats the first).
+/// Plans the hatch (see the module docs). `boundary` is a polygon on the surface, world frame,
+/// mm: its last point may repeat the first, or the closing edge is implied ([`close_boundary`]).
 pub fn hatch(
     cloud: &PointCloud,
     boundary: &[Point3],
@@ -491,7 +516,7 @@ pub fn hatch_with_progress(
             index: i,
         });
     }
-    check_boundary(boundary)?;
+    let boundary = &close_boundary(boundary)?;
     progress(HatchStage::Fit);
     let surface = Surface::fit(cloud, boundary, settings.grid_mm)?;
     for (index, p) in boundary.iter().enumerate() {
@@ -719,14 +744,38 @@ mod tests {
             }
             v
         };
-        assert!(check_boundary(&sq(true)).is_ok());
+        assert_eq!(close_boundary(&sq(true)).unwrap(), sq(true));
+        // A polygon: the closing edge is implied.
+        assert_eq!(close_boundary(&sq(false)).unwrap(), sq(true));
+        // A gap of 0.005 mm repeats the first point: kept as given.
+        let mut almost = sq(true);
+        almost[4].x += 0.005;
+        assert_eq!(close_boundary(&almost).unwrap(), almost);
+        // Three sides of a square with a point every 0.1 mm: a 1 mm gap is an open curve.
+        let u: Vec<Point3> = (0..=30)
+            .map(|k| {
+                let s = f64::from(k) * 0.1;
+                match k {
+                    0..=10 => Point3::new(0.0, 1.0 - s, 0.0),
+                    11..=20 => Point3::new(s - 1.0, 0.0, 0.0),
+                    _ => Point3::new(1.0, s - 2.0, 0.0),
+                }
+            })
+            .collect();
+        match close_boundary(&u) {
+            Err(e @ HatchError::BoundaryNotClosed { .. }) => {
+                let m = e.to_string();
+                assert!(m.contains("1.0000 mm") && m.contains("0.1000 mm"), "{m}");
+            }
+            other => panic!("an open curve: {other:?}"),
+        }
         assert!(matches!(
-            check_boundary(&sq(false)),
-            Err(HatchError::BoundaryNotClosed { .. })
+            check_boundary(&sq(true)[3..]),
+            Err(HatchError::BoundaryTooShort { .. })
         ));
         assert!(matches!(
-            check_boundary(&sq(true)[2..]),
-            Err(HatchError::BoundaryTooShort { .. })
+            check_boundary(&[sq(true)[0], sq(true)[1], sq(true)[0]]),
+            Err(HatchError::BoundaryTooShort { got: 2, .. })
         ));
         let mut nan = sq(true);
         nan[1].x = f64::NAN;

@@ -59,6 +59,10 @@ pub fn order(
     let mut best_cost = path_cost(&best, &st, &c);
     if n <= MULTI_START_MAX_ZONES {
         for forced in 0..n {
+            // A cancelled plan stops here; the planner reports it after the order returns.
+            if trim_geom::cancel::is_cancelled() {
+                break;
+            }
             let candidate = local_search(nearest_neighbour(n, Some(forced), &st, &c), &st, &c);
             let cost = path_cost(&candidate, &st, &c);
             if cost < best_cost - IMPROVEMENT_EPS {

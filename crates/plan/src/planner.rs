@@ -346,6 +346,7 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
     // (3) sections; (4) layers.
     let mut planned = Vec::new();
     for (cluster, group) in zoning.groups.iter().enumerate() {
+        crate::error::check_cancel()?;
         let members: Vec<Piece> = group.pieces.iter().map(|&i| pieces[i].clone()).collect();
         for section in sections(
             members,
@@ -423,7 +424,9 @@ fn finish_plan(
     let mut table = Vec::with_capacity(planned.len());
     let mut previous = AxisPose::HOME;
     let mut estimate = TimeEstimate::default();
+    crate::error::check_cancel()?;
     for (zone_id, &idx) in order.iter().enumerate() {
+        crate::error::check_cancel()?;
         let p = &planned[idx];
         let contours = pieces_contours(&p.section);
         // An unreachable zone is planned all the same, with the nearest poses outside the
@@ -988,6 +991,29 @@ mod tests {
         // The marked zone survives the Job's JSON round trip.
         let back = Job::from_json(&job.to_json().unwrap()).unwrap();
         assert_eq!(back.zones[0].unreachable, job.zones[0].unreachable);
+    }
+
+    #[test]
+    fn a_cancelled_plan_stops_with_cancelled_and_an_uncancelled_one_plans() {
+        use std::sync::Arc;
+        use std::sync::atomic::AtomicBool;
+        let path = synthetic_core_path(60, 1);
+        for method in [ZoningMethod::Cover, ZoningMethod::Kmeans] {
+            let settings = PlanSettings {
+                zoning: ZoningSettings {
+                    method,
+                    ..ZoningSettings::default()
+                },
+                ..PlanSettings::default()
+            };
+            let cancelled = Arc::new(AtomicBool::new(true));
+            let e = trim_geom::cancel::run_cancellable(cancelled, || plan(&path, &settings))
+                .expect_err("a cancelled plan");
+            assert!(matches!(e, PlanError::Cancelled), "{method:?}: {e}");
+            let running = Arc::new(AtomicBool::new(false));
+            trim_geom::cancel::run_cancellable(running, || plan(&path, &settings))
+                .expect("an uncancelled plan");
+        }
     }
 
     #[test]

@@ -566,6 +566,7 @@ pub fn zone_pieces(
     let cap = n.min(settings.max_auto_k);
     let mut tried: BTreeMap<usize, Vec<ZoneGroup>> = BTreeMap::new();
     let mut feasible = |k: usize| -> Result<bool, PlanError> {
+        crate::error::check_cancel()?;
         let groups = run(k)?;
         let ok = complies(&groups, limit_rad);
         tried.insert(k, groups);
@@ -602,6 +603,7 @@ pub fn zone_pieces(
     let mut groups = tried.remove(&cap).unwrap_or_default();
     let mut splits = 0;
     while let Some(pos) = groups.iter().position(|g| g.max_incidence_rad > limit_rad) {
+        crate::error::check_cancel()?;
         let Some((a, b)) = split_group(pieces, &groups[pos]) else {
             // A single piece over the limit cannot be split further; validation reports it.
             break;

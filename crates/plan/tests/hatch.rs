@@ -515,6 +515,25 @@ fn path_output_matches_the_contract() {
     assert!(n < 2000, "{n} points");
 }
 
+/// A boundary is a polygon: without its repeated first point (a gap of one 0.2 mm sample step)
+/// it is closed implicitly and hatched exactly as the closed ring.
+#[test]
+fn a_boundary_without_its_closing_point_is_closed_implicitly() {
+    let s = saddle();
+    let cloud = s.cloud(10_000, 5);
+    let b = s.boundary();
+    let open_by_one = &b[..b.len() - 1];
+    assert!((open_by_one[open_by_one.len() - 1] - b[0]).norm() > 0.1);
+    let ok = HatchSettings::with_pitch(1.0);
+    let closed = hatch(&cloud, &b, &ok).unwrap();
+    let implicit = hatch(&cloud, open_by_one, &ok).unwrap();
+    assert!(closed.tracks.len() > 5);
+    assert_eq!(implicit.tracks.len(), closed.tracks.len());
+    for (a, c) in implicit.tracks.iter().zip(&closed.tracks) {
+        assert_eq!(a.points, c.points);
+    }
+}
+
 #[test]
 fn bad_input_is_refused() {
     let s = saddle();
@@ -527,8 +546,9 @@ fn bad_input_is_refused() {
         hatch(&cloud, &b[..3], &ok),
         Err(HatchError::BoundaryTooShort { .. } | HatchError::BoundaryNotClosed { .. })
     ));
+    // Half the ring: an open curve, its gap far longer than its 0.2 mm point spacing.
     assert!(matches!(
-        hatch(&cloud, &b[..b.len() - 1], &ok),
+        hatch(&cloud, &b[..b.len() / 2], &ok),
         Err(HatchError::BoundaryNotClosed { .. })
     ));
     let lifted: Vec<Point3> = b.iter().map(|p| p + Vector3::z() * 1.0).collect();

@@ -1,5 +1,7 @@
 //! The one helper that runs long work without the GIL and keeps Ctrl-C working.
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{RecvTimeoutError, channel};
 use std::time::Duration;
 
@@ -12,18 +14,24 @@ const SIGNAL_POLL: Duration = Duration::from_millis(50);
 
 /// Runs `work` on a worker thread while the calling thread releases the GIL, so other Python
 /// threads run meanwhile. Every [`SIGNAL_POLL`] the caller re-takes the GIL to check signals: a
-/// Ctrl-C raises `KeyboardInterrupt` at once (the worker is abandoned and its result dropped).
-/// A panic in `work` becomes `InternalError`, never a crash of the interpreter.
+/// Ctrl-C raises `KeyboardInterrupt` at once and sets the worker's cancel flag
+/// (`trim_geom::cancel`), so registration and planning stop at their next iteration instead of
+/// running on to the end; the result is dropped. A panic in `work` becomes `InternalError`,
+/// never a crash of the interpreter.
 pub fn run_detached<T, F>(py: Python<'_>, work: F) -> PyResult<T>
 where
     T: Send + 'static,
     F: FnOnce() -> T + Send + 'static,
 {
     let (tx, rx) = channel();
+    let cancel = Arc::new(AtomicBool::new(false));
+    let flag = cancel.clone();
     std::thread::Builder::new()
         .name("trimctl-worker".into())
         .spawn(move || {
-            let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(work));
+            let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                trim_geom::cancel::run_cancellable(flag, work)
+            }));
             // The receiver is gone only when the caller was interrupted: nothing to tell.
             let _ = tx.send(result);
         })
@@ -45,7 +53,12 @@ where
                     "internal error (please report): {message}"
                 )));
             }
-            Err(RecvTimeoutError::Timeout) => py.check_signals()?,
+            Err(RecvTimeoutError::Timeout) => {
+                if let Err(interrupted) = py.check_signals() {
+                    cancel.store(true, Ordering::Relaxed);
+                    return Err(interrupted);
+                }
+            }
             Err(RecvTimeoutError::Disconnected) => {
                 return Err(InternalError::new_err(
                     "worker thread ended without a result",

@@ -179,7 +179,7 @@ pub fn plan_path(
 
 /// Plans equal-spacing hatch tracks on a scanned surface (`trim_plan::hatch`). `points` (N, 3)
 /// and optional `normals` (N, 3): the surface scan, mm; `boundary` (M, 3): a closed polyline on
-/// it (the last row repeats the first); `settings_json`: the `[[hatch]]` keys (`pitch_mm`,
+/// it (a polygon: the last row may repeat the first, else the closing edge is implied); `settings_json`: the `[[hatch]]` keys (`pitch_mm`,
 /// `angle_deg`, `method`, `step_mm`, `chord_tolerance_mm`, `outline`, `grid_mm`). Returns the
 /// tracks as a Path: contour = track id in serpentine order, features = unit surface normals.
 /// `spot`: `(spot diameter mm, overlap)`, which sets the pitch (`HatchSettings::from_spot`).

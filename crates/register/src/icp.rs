@@ -398,6 +398,7 @@ pub fn icp(
     let mut iterations = 0;
     let mut buffers = Correspondences::default();
     for it in 0..settings.max_iterations {
+        trim_geom::cancel::check()?;
         let step = step_with(
             source,
             target,
@@ -612,7 +613,7 @@ mod tests {
             Vector3::new(0.01, -0.005, 0.02),
             1.0,
         );
-        let source = surface(8_000, 2).transformed(&truth.inverse());
+        let source = surface(8_000, 2).transformed(&truth.inverse()).unwrap();
         let settings = IcpSettings {
             max_correspondence_distance_mm: 2.0,
             ..IcpSettings::default()

@@ -83,7 +83,7 @@ pub fn paper_local_fits(
 ) -> Result<Path> {
     let cad_plain = PointCloud::new(cad.points().to_vec())?;
     let scan_from_cad = *scan_from_cad;
-    let cad_moved = cad_plain.transformed(&scan_from_cad);
+    let cad_moved = cad_plain.transformed(&scan_from_cad)?;
     let cad_tree = KdTree::build(cad_moved.points());
     let scan_tree = KdTree::build(scan.points());
     let local = IcpSettings {
@@ -96,8 +96,8 @@ pub fn paper_local_fits(
     let contours = path
         .contours()
         .par_iter()
-        .map(|c| {
-            let moved = c.transformed(&scan_from_cad);
+        .map(|c| -> Result<trim_geom::Contour> {
+            let moved = c.transformed(&scan_from_cad)?;
             let fit = (|| -> Result<Similarity3> {
                 let ci = crop_near_polyline(
                     cad_moved.points(),
@@ -115,11 +115,11 @@ pub fn paper_local_fits(
                 let tgt = IcpTarget::new(scan.select(&si)?)?;
                 Ok(icp(&src, &tgt, &Similarity3::identity(), &local)?.target_from_source)
             })();
-            match fit {
-                Ok(t) => moved.transformed(&t),
+            Ok(match fit {
+                Ok(t) => moved.transformed(&t)?,
                 Err(_) => moved,
-            }
+            })
         })
-        .collect();
+        .collect::<Result<Vec<_>>>()?;
     Ok(Path::new(contours)?)
 }

@@ -123,11 +123,14 @@ fn beats_the_papers_method_by_the_issues_factors() {
 #[test]
 fn refuses_a_scan_that_does_not_overlap_the_cad() {
     let c = case(31, false);
-    let far = c.scan.transformed(&Similarity3::new(
-        Vector3::new(0.0, 0.0, 200.0),
-        Vector3::zeros(),
-        1.0,
-    ));
+    let far = c
+        .scan
+        .transformed(&Similarity3::new(
+            Vector3::new(0.0, 0.0, 200.0),
+            Vector3::zeros(),
+            1.0,
+        ))
+        .unwrap();
     let err = register(
         &c.cad_points,
         &far,
@@ -276,5 +279,28 @@ fn settings_refuse_out_of_range_keys_by_name() {
     assert_eq!(
         parsed.field.spacing_mm,
         RegisterSettings::default().field.spacing_mm
+    );
+}
+
+/// A registration whose cancel flag is set (Ctrl-C in Python) stops with `Cancelled` instead of
+/// running on; the loops check the flag every iteration (tests/python/test_cancel.py measures
+/// that the work stops).
+#[test]
+fn a_cancelled_registration_stops_with_cancelled() {
+    let c = case(31, false);
+    let flag = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
+    let e = trim_geom::cancel::run_cancellable(flag, || {
+        register(
+            &c.cad_points,
+            &c.scan,
+            &c.path,
+            &c.scan_from_cad_nominal,
+            &RegisterSettings::default(),
+        )
+    })
+    .expect_err("a cancelled registration");
+    assert!(
+        matches!(e, RegisterError::Geom(trim_geom::GeomError::Cancelled)),
+        "{e}"
     );
 }

@@ -109,6 +109,14 @@ impl Default for SynthParams {
     }
 }
 
+/// The most scan or CAD points a case may ask for: 10 million points with normals take about
+/// 0.5 GB each, and the registration's working copies several times that; a larger count
+/// would exhaust the memory (and abort a Python interpreter) instead of being refused.
+pub const MAX_POINTS: usize = 10_000_000;
+
+/// The most dropout patches a case may ask for.
+pub const MAX_DROPOUTS: usize = 1000;
+
 impl SynthParams {
     /// Refuses out-of-range values, naming the field.
     pub fn validate(&self) -> Result<()> {
@@ -139,15 +147,19 @@ impl SynthParams {
             (0.0..=1.0).contains(&self.noise_mm),
             "must be in [0, 1] mm",
         )?;
+        let count = |name: &'static str, n: usize, most: usize| {
+            check(
+                name,
+                (1000..=most).contains(&n),
+                &format!("must be in [1000, {most}], got {n}"),
+            )
+        };
+        count("scan_points", self.scan_points, MAX_POINTS)?;
+        count("cad_points", self.cad_points, MAX_POINTS)?;
         check(
-            "scan_points",
-            self.scan_points >= 1000,
-            "must be at least 1000",
-        )?;
-        check(
-            "cad_points",
-            self.cad_points >= 1000,
-            "must be at least 1000",
+            "dropouts",
+            self.dropouts <= MAX_DROPOUTS,
+            &format!("must be at most {MAX_DROPOUTS}, got {}", self.dropouts),
         )?;
         check(
             "pose_deg",
@@ -456,4 +468,49 @@ fn pressing_axes(tilt_deg: f64, seed: u64) -> [[f64; 3]; 3] {
         e[i] = 1.0;
         (rotation * e).into()
     })
+}
+
+#[cfg(test)]
+mod limits {
+    use super::*;
+
+    /// A point count that would exhaust the memory is refused by name, before anything is
+    /// allocated.
+    #[test]
+    fn point_counts_and_dropouts_have_an_upper_bound() {
+        for (params, key) in [
+            (
+                SynthParams {
+                    scan_points: MAX_POINTS + 1,
+                    ..SynthParams::default()
+                },
+                "scan_points",
+            ),
+            (
+                SynthParams {
+                    cad_points: usize::MAX,
+                    ..SynthParams::default()
+                },
+                "cad_points",
+            ),
+            (
+                SynthParams {
+                    dropouts: MAX_DROPOUTS + 1,
+                    ..SynthParams::default()
+                },
+                "dropouts",
+            ),
+        ] {
+            let e = params.validate().unwrap_err().to_string();
+            assert!(e.contains(key), "{e}");
+            assert!(generate(&params).is_err(), "{key}");
+        }
+        SynthParams {
+            scan_points: MAX_POINTS,
+            dropouts: MAX_DROPOUTS,
+            ..SynthParams::default()
+        }
+        .validate()
+        .unwrap();
+    }
 }

@@ -44,8 +44,14 @@ pub(super) fn load_inputs(
         let mut case = generate(&params).context("building the demo part")?;
         // The fixture holds the demo part at [part.scan_from_cad]: the synthetic scene (placed
         // about the identity) moves there, the ground truth with it.
-        case.scan = case.scan.transformed(&fixture);
-        case.truth = case.truth.transformed(&fixture);
+        case.scan = case
+            .scan
+            .transformed(&fixture)
+            .context("part.scan_from_cad")?;
+        case.truth = case
+            .truth
+            .transformed(&fixture)
+            .context("part.scan_from_cad")?;
         case.scan_from_cad_nominal = fixture * case.scan_from_cad_nominal;
         let dir = run_dir.join(files::INPUTS);
         std::fs::create_dir_all(&dir)
@@ -57,7 +63,10 @@ pub(super) fn load_inputs(
             truth_cell.scanner_from_workpiece(&config.part.scan_pose),
             1.0,
         );
-        let scan_in_scanner = case.scan.transformed(&scanner_from_workpiece);
+        let scan_in_scanner = case
+            .scan
+            .transformed(&scanner_from_workpiece)
+            .context("sim.truth at part.scan_pose")?;
         formats::write_path(&dir.join("path.csv"), &case.path)?;
         formats::write_path(&dir.join(files::TRUTH), &case.truth)?;
         formats::write_ply(
@@ -93,7 +102,7 @@ pub(super) fn load_inputs(
                 case.scan.len()
             ),
             cad: case.cad_points,
-            scan: config.scan_to_workpiece(&scan_in_scanner),
+            scan: config.scan_to_workpiece(&scan_in_scanner)?,
             path: case.path,
             scan_from_cad_initial: case.scan_from_cad_nominal,
         });
@@ -104,7 +113,9 @@ pub(super) fn load_inputs(
         bail!("part: give all of cad, path and scan");
     };
     let cad = load_cad(cad_file, "part.cad", config.register.cad_sample_points)?;
-    let scan = config.scan_to_workpiece(&formats::read_points(scan_file)?);
+    let scan = config
+        .scan_to_workpiece(&formats::read_points(scan_file)?)
+        .with_context(|| format!("part.scan {}", scan_file.display()))?;
     let path = formats::read_path(path_file)?;
     if !config.hatch.is_empty() {
         crate::hatch::check_path_ids(&path, path_file)?;

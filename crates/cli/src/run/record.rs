@@ -65,7 +65,7 @@ pub(super) fn record_inputs(
     };
     let t_ns = now_ns();
     r.point_cloud(topic::SCAN, t_ns, &to_rows(&inputs.scan))?;
-    let cad_in_scan = inputs.cad.transformed(&registration.scan_from_cad);
+    let cad_in_scan = inputs.cad.transformed(&registration.scan_from_cad)?;
     r.point_cloud(topic::CAD, t_ns, &to_rows(&cad_in_scan))?;
     let paths = |p: &TrimPath| {
         p.contours()
@@ -73,7 +73,7 @@ pub(super) fn record_inputs(
             .map(|c| (c.id(), c.points().iter().map(|q| [q.x, q.y, q.z]).collect()))
             .collect::<Vec<_>>()
     };
-    let template_in_scan = inputs.path.transformed(&registration.scan_from_cad);
+    let template_in_scan = inputs.path.transformed(&registration.scan_from_cad)?;
     r.paths(
         topic::TEMPLATE,
         t_ns,

@@ -1,33 +1,56 @@
 //! A real, headless LinuxCNC for the tests that need one (`scripts/linuxcnc-sim`, following
 //! docs/cnc/LINUXCNC.md), shared by trim-io's and trimctl's LinuxCNC tests (the latter include
 //! this file by path). One instance per machine: each test uses its own port and run folder.
+//!
+//! A skip must show as one: libtest decides `#[ignore]` when the test is compiled, and whether
+//! LinuxCNC is here is known only when it runs, so these test binaries run on libtest-mimic
+//! (`harness = false`, [`run_test`]). Without LinuxCNC and with `TRIMCTL_SKIP_LINUXCNC=1` the
+//! test is reported `ignored, needs LinuxCNC …` and counted in cargo test's summary
+//! (`0 passed; 0 failed; 1 ignored`), not "ok"; without the variable it fails, saying how to
+//! install LinuxCNC.
 
 use std::path::PathBuf;
-use std::process::Command;
+use std::process::{Command, ExitCode};
 use std::time::Instant;
 
 fn script() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/linuxcnc-sim")
 }
 
-/// Whether LinuxCNC is installed. Without it the test fails with a clear message, unless
-/// `TRIMCTL_SKIP_LINUXCNC=1` (then `false`: the test is skipped, saying so).
-pub fn available() -> bool {
+/// Why the test is skipped: `None` when LinuxCNC is installed; the reason when it is not and
+/// `TRIMCTL_SKIP_LINUXCNC=1`. Without LinuxCNC and without the variable the test fails here,
+/// saying how to install it.
+pub fn skip_reason() -> Option<String> {
     let installed = Command::new("sh")
         .args(["-c", "command -v linuxcnc"])
         .output()
         .is_ok_and(|o| o.status.success());
     if installed {
-        return true;
+        return None;
     }
     if std::env::var("TRIMCTL_SKIP_LINUXCNC").as_deref() == Ok("1") {
-        eprintln!("SKIPPED: linuxcnc is not installed and TRIMCTL_SKIP_LINUXCNC=1");
-        return false;
+        return Some("needs LinuxCNC: not installed, and TRIMCTL_SKIP_LINUXCNC=1".to_owned());
     }
     panic!(
         "linuxcnc is not installed: run scripts/install-deps (Debian package linuxcnc-uspace, \
          --no-install-recommends), or set TRIMCTL_SKIP_LINUXCNC=1 to skip this test"
     );
+}
+
+/// The `main` of a LinuxCNC test binary: runs `test` as the trial `name` under libtest-mimic
+/// (cargo test's arguments, filters and `--list` included), ignored at run time with the reason
+/// from [`skip_reason`] (printed as a `SKIPPED:` line as well), failed if it panics.
+pub fn run_test(name: &'static str, test: fn()) -> ExitCode {
+    let args = libtest_mimic::Arguments::from_args();
+    let trial = libtest_mimic::Trial::ignorable_test(name, move || {
+        if let Some(why) = skip_reason() {
+            eprintln!("SKIPPED: {name}: {why}");
+            return Ok(libtest_mimic::Completion::ignored_with(why));
+        }
+        test();
+        Ok(libtest_mimic::Completion::Completed)
+    });
+    libtest_mimic::run(&args, vec![trial]).exit_code()
 }
 
 /// A running LinuxCNC, stopped when dropped.

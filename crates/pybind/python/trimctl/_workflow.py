@@ -386,7 +386,7 @@ def hatch(
 
     ``points`` (N, 3) is the surface scan in mm, ``normals`` (N, 3) its normals if known (else
     they come from the surface fit); ``boundary`` (M, 3) a closed polyline lying on the surface
-    (the last row repeats the first). The track pitch is ``pitch`` mm, or
+    (a polygon: the last row may repeat the first, else the closing edge is implied). The track pitch is ``pitch`` mm, or
     ``spot_diameter × (1 − overlap)``. ``angle_deg`` turns the hatch direction in the patch's
     best-fit plane from world X; ``method`` is ``"geodesic"`` (default) or ``"slab"`` (the
     paper's); points along a track are ``step`` mm apart (default: the pitch), or placed by

@@ -168,6 +168,7 @@ pub fn capture(
     }
     if best.as_ref().is_none_or(|(s, _)| *s < CAPTURE_ACCEPT_SCORE) {
         for rotation in frame.further_rotations() {
+            trim_geom::cancel::check()?;
             if tried
                 .iter()
                 .any(|r| r.is_some_and(|r| r.angle_to(&rotation) < SAME_START_RAD))

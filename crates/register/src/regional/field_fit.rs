@@ -230,6 +230,7 @@ pub(crate) fn fit_field(
     // EARLY_STRIDE-th point (the points are in voxel order, so that is an even thinning).
     let early: Vec<Point3> = points.iter().step_by(EARLY_STRIDE).copied().collect();
     for it in 0..settings.iterations {
+        trim_geom::cancel::check()?;
         let t = (it as f64 / shrink_steps as f64).min(1.0);
         let max_d = settings.max_distance_start_mm * ratio.powf(t);
         let matched = match_points(

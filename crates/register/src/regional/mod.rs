@@ -154,6 +154,8 @@ fn stage<T>(
     name: &str,
     f: impl FnOnce() -> Result<T>,
 ) -> Result<T> {
+    // A cancelled registration stops between stages as well as inside their loops.
+    trim_geom::cancel::check()?;
     let t0 = Instant::now();
     let out = f()?;
     timings.push((name.to_string(), t0.elapsed().as_secs_f64()));
@@ -259,8 +261,9 @@ pub fn register(
     // The CAD's local shapes (the field's matching) are worked out beside the refinement.
     let regional = settings.mode == Mode::Regional;
     let (coarse, shapes) = stage(&mut timings, "coarse similarity + cad curvature", || {
+        let cancel = trim_geom::cancel::current();
         let (coarse, shapes) = rayon::join(
-            || refine(&pyramid, &target, &captured, &settings.coarse),
+            || cancel.run(|| refine(&pyramid, &target, &captured, &settings.coarse)),
             || regional.then(|| local_shapes(target.cloud(), target.tree())),
         );
         Ok((coarse?, shapes.unwrap_or_default()))

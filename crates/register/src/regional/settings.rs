@@ -268,6 +268,49 @@ impl Default for RegisterSettings {
     }
 }
 
+/// The most points sampled from a CAD mesh (`cad_sample_points`): 10 million points with
+/// normals, their kd-tree and the registration's working copies take a few GB; more exhausts the
+/// memory of a cell PC instead of being refused.
+pub const MAX_CAD_SAMPLE_POINTS: usize = 10_000_000;
+
+/// The ranges of the quality gates (job.toml `[register.quality]`, `[register.coarse]`): a
+/// value outside switches the gate off, or flags every contour, and is refused by name. Each
+/// is (smallest, largest), both allowed.
+pub mod gate {
+    /// `quality.tolerance_um`: above 100 µm (over 3× the ±30 µm product tolerance of the
+    /// paper's cores) a predicted error bound no longer guards the trim.
+    pub const TOLERANCE_UM: (f64, f64) = (1.0, 100.0);
+    /// `quality.min_coverage`: below 0.2 a contour four-fifths unseen passes.
+    pub const MIN_COVERAGE: (f64, f64) = (0.2, 1.0);
+    /// `quality.min_overlap`: below 0.05 a scan that barely meets the CAD passes.
+    pub const MIN_OVERLAP: (f64, f64) = (0.05, 1.0);
+    /// `quality.max_residual_mm`: above 0.5 mm a patch that misses the surface passes.
+    pub const MAX_RESIDUAL_MM: (f64, f64) = (0.001, 0.5);
+    /// `quality.coverage_radius_mm`: above 5 mm any scan point nearby covers a contour.
+    pub const COVERAGE_RADIUS_MM: (f64, f64) = (0.01, 5.0);
+    /// `quality.overlap_distance_mm`: above 10 mm any scan overlaps the CAD.
+    pub const OVERLAP_DISTANCE_MM: (f64, f64) = (0.01, 10.0);
+    /// `quality.patch_radius_mm`: the patch a contour's residual is measured on.
+    pub const PATCH_RADIUS_MM: (f64, f64) = (0.01, 20.0);
+    /// `quality.support_radius_mm`: the surroundings that give the support ratio.
+    pub const SUPPORT_RADIUS_MM: (f64, f64) = (0.1, 100.0);
+    /// `coarse.capture_translation_mm`: beyond 200 mm the capture test refuses nothing on a
+    /// part of this size.
+    pub const CAPTURE_TRANSLATION_MM: (f64, f64) = (0.01, 200.0);
+}
+
+/// Refuses `v` outside `[lo, hi]` (or non-finite), naming the key.
+pub(crate) fn within(name: &str, v: f64, (lo, hi): (f64, f64)) -> Result<()> {
+    if v.is_finite() && (lo..=hi).contains(&v) {
+        Ok(())
+    } else {
+        Err(RegisterError::setting(
+            name,
+            format!("must be in [{lo}, {hi}], got {v}"),
+        ))
+    }
+}
+
 pub(crate) fn positive(name: &str, v: f64) -> Result<()> {
     if v.is_finite() && v > 0.0 {
         Ok(())
@@ -275,17 +318,6 @@ pub(crate) fn positive(name: &str, v: f64) -> Result<()> {
         Err(RegisterError::setting(
             name,
             format!("must be finite and > 0, got {v}"),
-        ))
-    }
-}
-
-pub(crate) fn fraction(name: &str, v: f64) -> Result<()> {
-    if (0.0..=1.0).contains(&v) {
-        Ok(())
-    } else {
-        Err(RegisterError::setting(
-            name,
-            format!("must be in [0, 1], got {v}"),
         ))
     }
 }
@@ -315,10 +347,13 @@ impl RegisterSettings {
             ));
         }
         positive("support_distance_mm", self.support_distance_mm)?;
-        if self.cad_sample_points < 1000 {
+        if !(1000..=MAX_CAD_SAMPLE_POINTS).contains(&self.cad_sample_points) {
             return Err(RegisterError::setting(
                 "cad_sample_points",
-                "must be at least 1000",
+                format!(
+                    "must be in [1000, {MAX_CAD_SAMPLE_POINTS}], got {}",
+                    self.cad_sample_points
+                ),
             ));
         }
         if self.coarse.levels.is_empty() {
@@ -354,9 +389,10 @@ impl RegisterSettings {
                 ),
             ));
         }
-        positive(
+        within(
             "coarse.capture_translation_mm",
             self.coarse.capture_translation_mm,
+            gate::CAPTURE_TRANSLATION_MM,
         )?;
         let f = &self.field;
         positive("field.spacing_mm", f.spacing_mm)?;
@@ -377,15 +413,132 @@ impl RegisterSettings {
             ));
         }
         let q = &self.quality;
-        positive("quality.coverage_radius_mm", q.coverage_radius_mm)?;
-        positive("quality.patch_radius_mm", q.patch_radius_mm)?;
-        positive("quality.max_residual_mm", q.max_residual_mm)?;
-        positive("quality.support_radius_mm", q.support_radius_mm)?;
-        positive("quality.overlap_distance_mm", q.overlap_distance_mm)?;
-        fraction("quality.min_coverage", q.min_coverage)?;
-        positive("quality.tolerance_um", q.tolerance_um)?;
-        fraction("quality.min_overlap", q.min_overlap)?;
+        for (name, v, range) in [
+            (
+                "quality.coverage_radius_mm",
+                q.coverage_radius_mm,
+                gate::COVERAGE_RADIUS_MM,
+            ),
+            (
+                "quality.patch_radius_mm",
+                q.patch_radius_mm,
+                gate::PATCH_RADIUS_MM,
+            ),
+            (
+                "quality.max_residual_mm",
+                q.max_residual_mm,
+                gate::MAX_RESIDUAL_MM,
+            ),
+            (
+                "quality.support_radius_mm",
+                q.support_radius_mm,
+                gate::SUPPORT_RADIUS_MM,
+            ),
+            (
+                "quality.overlap_distance_mm",
+                q.overlap_distance_mm,
+                gate::OVERLAP_DISTANCE_MM,
+            ),
+            ("quality.min_coverage", q.min_coverage, gate::MIN_COVERAGE),
+            ("quality.tolerance_um", q.tolerance_um, gate::TOLERANCE_UM),
+            ("quality.min_overlap", q.min_overlap, gate::MIN_OVERLAP),
+        ] {
+            within(name, v, range)?;
+        }
+        // A stricter part-level gate is always safe; 0 refuses any part with a flagged contour.
         fraction("quality.max_untrusted_fraction", q.max_untrusted_fraction)?;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every gate has a range: a value that would switch it off (or a point count that would
+    /// exhaust the memory) is refused, naming the key; the defaults and the ends pass.
+    #[test]
+    fn gates_and_point_counts_are_refused_by_key_outside_their_ranges() {
+        RegisterSettings::default().validate().unwrap();
+        type Set = fn(&mut RegisterSettings, f64);
+        let cases: [(&str, Set, (f64, f64)); 9] = [
+            (
+                "quality.tolerance_um",
+                |s, v| s.quality.tolerance_um = v,
+                gate::TOLERANCE_UM,
+            ),
+            (
+                "quality.min_coverage",
+                |s, v| s.quality.min_coverage = v,
+                gate::MIN_COVERAGE,
+            ),
+            (
+                "quality.min_overlap",
+                |s, v| s.quality.min_overlap = v,
+                gate::MIN_OVERLAP,
+            ),
+            (
+                "quality.max_residual_mm",
+                |s, v| s.quality.max_residual_mm = v,
+                gate::MAX_RESIDUAL_MM,
+            ),
+            (
+                "quality.coverage_radius_mm",
+                |s, v| s.quality.coverage_radius_mm = v,
+                gate::COVERAGE_RADIUS_MM,
+            ),
+            (
+                "quality.overlap_distance_mm",
+                |s, v| s.quality.overlap_distance_mm = v,
+                gate::OVERLAP_DISTANCE_MM,
+            ),
+            (
+                "quality.patch_radius_mm",
+                |s, v| s.quality.patch_radius_mm = v,
+                gate::PATCH_RADIUS_MM,
+            ),
+            (
+                "quality.support_radius_mm",
+                |s, v| s.quality.support_radius_mm = v,
+                gate::SUPPORT_RADIUS_MM,
+            ),
+            (
+                "coarse.capture_translation_mm",
+                |s, v| s.coarse.capture_translation_mm = v,
+                gate::CAPTURE_TRANSLATION_MM,
+            ),
+        ];
+        for (key, set, (lo, hi)) in cases {
+            for ok in [lo, hi] {
+                let mut s = RegisterSettings::default();
+                set(&mut s, ok);
+                assert!(s.validate().is_ok(), "{key} = {ok}");
+            }
+            for bad in [0.0, lo * 0.5, hi * 1.5, 1e12, f64::NAN, f64::INFINITY] {
+                let mut s = RegisterSettings::default();
+                set(&mut s, bad);
+                let e = s.validate().expect_err(key).to_string();
+                assert!(e.contains(key), "{key} = {bad}: {e}");
+            }
+        }
+        for (n, ok) in [
+            (999, false),
+            (1000, true),
+            (MAX_CAD_SAMPLE_POINTS, true),
+            (MAX_CAD_SAMPLE_POINTS + 1, false),
+            (usize::MAX, false),
+        ] {
+            let s = RegisterSettings {
+                cad_sample_points: n,
+                ..RegisterSettings::default()
+            };
+            match s.validate() {
+                Ok(()) => assert!(ok, "cad_sample_points = {n} accepted"),
+                Err(e) => {
+                    assert!(!ok, "cad_sample_points = {n}: {e}");
+                    assert!(e.to_string().contains("cad_sample_points"), "{e}");
+                }
+            }
+        }
     }
 }

@@ -75,8 +75,8 @@ pub fn posed_case(seed: u64, scan_points: usize, error: &Similarity3) -> PosedCa
     PosedCase {
         cad: case.cad_points,
         path: case.path,
-        scan: case.scan.transformed(error),
-        truth: case.truth.transformed(error),
+        scan: case.scan.transformed(error).unwrap(),
+        truth: case.truth.transformed(error).unwrap(),
         scanner_mm: error * case.scanner_in_scan,
         scan_from_cad_true: *error,
     }

@@ -1,0 +1,386 @@
+//! Each point of a contour is marked once: the planned polylines of a contour, carried back from
+//! the Job to the work-piece frame (galvo point + height along the zone axis), partition it.
+//! Checked independently of the planner's own validation, in space: sample points along every
+//! contour (its vertices and points inside each segment) each lie strictly inside exactly one
+//! polyline, or at the ends of polylines only (a junction, or the contour's own ends); and no
+//! polyline's end lies strictly inside another (which catches an overlap shorter than the
+//! sample spacing).
+//! Issue 24 point 12: a plan put one point strictly inside two layers.
+
+use rand::{Rng, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
+use trim_geom::{Contour, Path, Point3, Vector3};
+use trim_plan::hatch::{HatchSettings, hatch};
+use trim_plan::job::{Job, galvo_to_workpiece};
+use trim_plan::planner::{PlanSettings, plan_with_report};
+use trim_plan::zoning::{ZoningMethod, ZoningSettings};
+use trim_synth::testing::synthetic_core_path;
+
+/// A point this close (mm) to a polyline is on it; the round trip is exact to ~1e-14 mm.
+const ON_MM: f64 = 1e-6;
+
+/// Where samples are taken inside each contour segment (fractions of it).
+const FRACTIONS: [f64; 4] = [0.0, 0.25, 0.5, 0.75];
+
+/// The built-in demo part's path (`trimctl run` without a job file).
+fn demo_path() -> Path {
+    let params = trim_synth::SynthParams {
+        scan_points: 2_000,
+        cad_points: 2_000,
+        ..trim_synth::SynthParams::default()
+    };
+    trim_synth::generate(&params).expect("demo part").path
+}
+
+/// The distance from `p` to the segment `a`–`b` and the parameter of its foot (0 at `a`).
+fn to_segment(p: &Point3, a: &Point3, b: &Point3) -> (f64, f64) {
+    let d = b - a;
+    let len2 = d.norm_squared();
+    let t = if len2 > 0.0 {
+        ((p - a).dot(&d) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    ((a + d * t - p).norm(), t)
+}
+
+/// How a polyline holds a point: strictly inside it, at one of its ends, or not at all.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Holds {
+    Inside,
+    End,
+    No,
+}
+
+fn holds(polyline: &[Point3], p: &Point3) -> Holds {
+    let near = |q: &Point3| (q - p).norm() <= ON_MM;
+    if near(&polyline[0]) || near(&polyline[polyline.len() - 1]) {
+        return Holds::End;
+    }
+    if polyline
+        .windows(2)
+        .any(|w| to_segment(p, &w[0], &w[1]).0 <= ON_MM)
+    {
+        Holds::Inside
+    } else {
+        Holds::No
+    }
+}
+
+/// Every violation of "each point in exactly one layer", as text naming the contour, the
+/// sample and the (zone, layer) pairs that hold it.
+fn partition_violations(path: &Path, job: &Job) -> Vec<String> {
+    let mut out = Vec::new();
+    for c in path.contours() {
+        // The contour's polylines in the work-piece frame, with where they are.
+        let polylines: Vec<((usize, usize), Vec<Point3>)> = job
+            .zones
+            .iter()
+            .flat_map(|z| z.layers.iter().map(move |l| (z, l)))
+            .flat_map(|(z, l)| {
+                l.polylines
+                    .iter()
+                    .filter(|pl| pl.contour == c.id())
+                    .map(move |pl| {
+                        let fz = z.frame.z_axis();
+                        let pts = pl
+                            .points
+                            .iter()
+                            .zip(&pl.heights_mm)
+                            .map(|(xy, h)| galvo_to_workpiece(z, l, *xy) + fz * *h)
+                            .collect();
+                        ((z.id, l.index), pts)
+                    })
+            })
+            .collect();
+        let pts = c.points();
+        for (i, w) in pts.windows(2).enumerate() {
+            for f in FRACTIONS {
+                let s = w[0] + (w[1] - w[0]) * f;
+                let held: Vec<((usize, usize), Holds)> = polylines
+                    .iter()
+                    .map(|(at, pl)| (*at, holds(pl, &s)))
+                    .filter(|(_, h)| *h != Holds::No)
+                    .collect();
+                let inside = held.iter().filter(|(_, h)| *h == Holds::Inside).count();
+                let ok = if inside > 0 {
+                    held.len() == 1
+                } else {
+                    !held.is_empty()
+                };
+                if !ok {
+                    out.push(format!(
+                        "contour {} at vertex {}{}: held by {held:?} (zone, layer)",
+                        c.id(),
+                        i,
+                        if f > 0.0 {
+                            format!(" + {f}")
+                        } else {
+                            String::new()
+                        }
+                    ));
+                }
+            }
+        }
+        // However short an overlap, one polyline's end lies strictly inside another.
+        for (at, pl) in &polylines {
+            for end in [pl[0], pl[pl.len() - 1]] {
+                let inside: Vec<(usize, usize)> = polylines
+                    .iter()
+                    .filter(|(_, other)| holds(other, &end) == Holds::Inside)
+                    .map(|(o, _)| *o)
+                    .collect();
+                if !inside.is_empty() {
+                    out.push(format!(
+                        "contour {}: an end of the polyline in (zone, layer) {at:?} lies strictly inside {inside:?}",
+                        c.id()
+                    ));
+                }
+            }
+        }
+        let last = pts[pts.len() - 1];
+        if !polylines
+            .iter()
+            .any(|(_, pl)| holds(pl, &last) != Holds::No)
+        {
+            out.push(format!("contour {}: its last point is not planned", c.id()));
+        }
+    }
+    out
+}
+
+fn settings_for(method: ZoningMethod) -> PlanSettings {
+    PlanSettings {
+        zoning: ZoningSettings {
+            method,
+            ..ZoningSettings::default()
+        },
+        ..PlanSettings::default()
+    }
+}
+
+fn check(name: &str, path: &Path, settings: &PlanSettings) {
+    let out = plan_with_report(path, settings).expect("plans");
+    let v = &out.job.validation;
+    assert!(v.passed, "{name}: {:?}", v.violations);
+    let bad = partition_violations(path, &out.job);
+    assert!(
+        bad.is_empty(),
+        "{name}: {} points not in exactly one layer, e.g. {:?}",
+        bad.len(),
+        &bad[..bad.len().min(5)]
+    );
+}
+
+#[test]
+fn the_demo_part_marks_each_point_once() {
+    let path = demo_path();
+    check("demo, cover", &path, &settings_for(ZoningMethod::Cover));
+    check("demo, k-means", &path, &settings_for(ZoningMethod::Kmeans));
+}
+
+#[test]
+fn seeded_synthetic_cores_mark_each_point_once() {
+    for seed in [1, 2, 3, 0x5eed_0060] {
+        let path = synthetic_core_path(52, seed);
+        check(
+            &format!("core seed {seed}, cover"),
+            &path,
+            &settings_for(ZoningMethod::Cover),
+        );
+        check(
+            &format!("core seed {seed}, k-means"),
+            &path,
+            &settings_for(ZoningMethod::Kmeans),
+        );
+    }
+}
+
+/// The demo run's plan: the demo part's true (registered) path plus the tracks of its hatched
+/// region (0.05 mm pitch, 2 µm chord tolerance, on the scan), as `trimctl run` plans it: hatch
+/// tracks split by the incidence limit across the cambered face.
+#[test]
+fn the_demo_part_with_its_hatched_region_marks_each_point_once() {
+    let params = trim_synth::SynthParams {
+        cad_points: 2_000,
+        ..trim_synth::SynthParams::default()
+    };
+    let case = trim_synth::generate(&params).expect("demo part");
+    let boundary: Vec<Point3> = trim_synth::demo_hatch_boundary()
+        .expect("demo boundary")
+        .points()
+        .iter()
+        .map(|p| case.scan_from_cad_point(p))
+        .collect();
+    let settings = HatchSettings {
+        pitch_mm: 0.05,
+        chord_tolerance_mm: Some(0.002),
+        ..HatchSettings::default()
+    };
+    let tracks = hatch(&case.scan, &boundary, &settings)
+        .expect("hatches")
+        .to_path()
+        .expect("tracks");
+    let mut contours = case.truth.contours().to_vec();
+    for (t, c) in tracks.contours().iter().enumerate() {
+        contours.push(
+            trim_geom::Contour::with_features(
+                -1 - t as i64,
+                c.points().to_vec(),
+                c.features().to_vec(),
+            )
+            .expect("a track"),
+        );
+    }
+    let path = Path::new(contours).expect("path");
+    check(
+        "demo + hatch, cover",
+        &path,
+        &settings_for(ZoningMethod::Cover),
+    );
+    check(
+        "demo + hatch, k-means",
+        &path,
+        &settings_for(ZoningMethod::Kmeans),
+    );
+    for telecentric in [false, true] {
+        let mut s = settings_for(ZoningMethod::Cover);
+        s.field.telecentric = telecentric;
+        s.galvo.field_mm = [20.0, 20.0];
+        check(
+            &format!("demo + hatch, 20 mm field, telecentric {telecentric}"),
+            &path,
+            &s,
+        );
+        s.zoning.method = ZoningMethod::Kmeans;
+        check(
+            &format!("demo + hatch, 20 mm field, k-means, telecentric {telecentric}"),
+            &path,
+            &s,
+        );
+    }
+}
+
+/// A seeded path of awkward contours: random walks with repeated points, 1e-10 mm steps,
+/// 5 mm jumps and features that drift, some closed back onto their first point (never fewer than
+/// six points, so no contour retraces itself: that one would be marked twice by definition).
+fn awkward_path(seed: u64) -> Path {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    let mut contours = Vec::new();
+    for id in 0..rng.random_range(1..12) {
+        let m = rng.random_range(2..80);
+        let mut p = Point3::new(
+            rng.random_range(-30.0..30.0),
+            rng.random_range(-30.0..30.0),
+            rng.random_range(-3.0..3.0),
+        );
+        let (mut a, mut b): (f64, f64) = (rng.random_range(-0.3..0.3), rng.random_range(-0.3..0.3));
+        let (mut points, mut features) = (Vec::new(), Vec::new());
+        for _ in 0..m {
+            points.push(p);
+            features.push(Vector3::new(a.sin(), b.sin(), 1.0).normalize());
+            let step = match rng.random_range(0..10) {
+                0 => 0.0,
+                1 => 1e-10,
+                2 => 5.0,
+                _ => rng.random_range(0.01..1.5),
+            };
+            let d = Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-0.6..0.6),
+            )
+            .normalize();
+            p += d * step;
+            a += rng.random_range(-0.08..0.08);
+            b += rng.random_range(-0.08..0.08);
+        }
+        if m >= 6 && rng.random_bool(0.3) {
+            points.push(points[0]);
+            features.push(features[0]);
+        }
+        if let Ok(c) = Contour::with_features(id, points, features) {
+            contours.push(c);
+        }
+    }
+    if contours.is_empty() {
+        contours.push(
+            Contour::new(
+                0,
+                vec![Point3::origin(), Point3::new(1.0, 0.0, 0.0)],
+                Vector3::z(),
+            )
+            .expect("a segment"),
+        );
+    }
+    Path::new(contours).expect("distinct ids")
+}
+
+#[test]
+fn seeded_awkward_paths_mark_each_point_once() {
+    for seed in 0..40 {
+        let path = awkward_path(seed);
+        for method in [ZoningMethod::Cover, ZoningMethod::Kmeans] {
+            let out = plan_with_report(&path, &settings_for(method)).expect("plans");
+            let bad = partition_violations(&path, &out.job);
+            assert!(
+                bad.is_empty(),
+                "seed {seed}, {method:?}: {} points not in exactly one layer, e.g. {:?}",
+                bad.len(),
+                &bad[..bad.len().min(5)]
+            );
+        }
+    }
+}
+
+/// The check itself: a polyline that runs on past a junction, over the start of the next one,
+/// is caught.
+#[test]
+fn an_overlap_between_two_layers_is_caught() {
+    let path = synthetic_core_path(8, 1);
+    let mut job = plan_with_report(&path, &settings_for(ZoningMethod::Cover))
+        .expect("plans")
+        .job;
+    assert!(partition_violations(&path, &job).is_empty());
+    // A junction: polyline A ends where polyline B (same contour) starts.
+    let at = |z: usize, l: usize, k: usize, i: usize| {
+        let zone = &job.zones[z];
+        let layer = &zone.layers[l];
+        let pl = &layer.polylines[k];
+        galvo_to_workpiece(zone, layer, pl.points[i]) + zone.frame.z_axis() * pl.heights_mm[i]
+    };
+    let mut index = Vec::new();
+    for (z, zone) in job.zones.iter().enumerate() {
+        for (l, layer) in zone.layers.iter().enumerate() {
+            for (k, pl) in layer.polylines.iter().enumerate() {
+                index.push((z, l, k, pl.contour, pl.points.len()));
+            }
+        }
+    }
+    let (a, b_first, b_second) = index
+        .iter()
+        .flat_map(|a| index.iter().map(move |b| (a, b)))
+        .find_map(|(&(za, la, ka, ca, na), &(zb, lb, kb, cb, _))| {
+            let junction = ca == cb
+                && (za, la, ka) != (zb, lb, kb)
+                && (at(za, la, ka, na - 1) - at(zb, lb, kb, 0)).norm() < 1e-9;
+            junction.then(|| ((za, la, ka), at(zb, lb, kb, 0), at(zb, lb, kb, 1)))
+        })
+        .expect("a contour split at a junction");
+    // A runs on by half of B's first segment.
+    let on = b_first + (b_second - b_first) * 0.5;
+    let zone = &mut job.zones[a.0];
+    let (fx, fy, fz) = (
+        zone.frame.x_axis(),
+        zone.frame.y_axis(),
+        zone.frame.z_axis(),
+    );
+    let layer = &mut zone.layers[a.1];
+    let d = on - Point3::from(layer.focus_point);
+    let pl = &mut layer.polylines[a.2];
+    pl.points.push([d.dot(&fx), d.dot(&fy)]);
+    pl.heights_mm.push(d.dot(&fz));
+    let bad = partition_violations(&path, &job);
+    assert!(!bad.is_empty(), "an overlap went unseen");
+    eprintln!("caught: {:?}", &bad[..bad.len().min(3)]);
+}
