@@ -114,9 +114,6 @@ impl Default for SynthParams {
 /// would exhaust the memory (and abort a Python interpreter) instead of being refused.
 pub const MAX_POINTS: usize = 10_000_000;
 
-/// The most dropout patches a case may ask for.
-pub const MAX_DROPOUTS: usize = 1000;
-
 impl SynthParams {
     /// Refuses out-of-range values, naming the field.
     pub fn validate(&self) -> Result<()> {
@@ -175,11 +172,6 @@ impl SynthParams {
             "outlier_fraction",
             (0.0..=0.5).contains(&self.outlier_fraction),
             "must be in [0, 0.5]",
-        )?;
-        check(
-            "dropouts",
-            self.dropouts <= MAX_DROPOUTS,
-            &format!("must be at most {MAX_DROPOUTS}"),
         )?;
         check(
             "pressing_tilt_deg",

@@ -284,6 +284,9 @@ pub mod gate {
     pub const MIN_COVERAGE: (f64, f64) = (0.2, 1.0);
     /// `quality.min_overlap`: below 0.05 a scan that barely meets the CAD passes.
     pub const MIN_OVERLAP: (f64, f64) = (0.05, 1.0);
+    /// `quality.max_untrusted_fraction`: a stricter part-level gate is always safe (0 refuses
+    /// any part with a flagged contour); 1 never refuses the part as a whole.
+    pub const MAX_UNTRUSTED_FRACTION: (f64, f64) = (0.0, 1.0);
     /// `quality.max_residual_mm`: above 0.5 mm a patch that misses the surface passes.
     pub const MAX_RESIDUAL_MM: (f64, f64) = (0.001, 0.5);
     /// `quality.coverage_radius_mm`: above 5 mm any scan point nearby covers a contour.
@@ -445,8 +448,11 @@ impl RegisterSettings {
         ] {
             within(name, v, range)?;
         }
-        // A stricter part-level gate is always safe; 0 refuses any part with a flagged contour.
-        fraction("quality.max_untrusted_fraction", q.max_untrusted_fraction)?;
+        within(
+            "quality.max_untrusted_fraction",
+            q.max_untrusted_fraction,
+            gate::MAX_UNTRUSTED_FRACTION,
+        )?;
         Ok(())
     }
 }
