@@ -51,6 +51,9 @@ fn basis(t: f64) -> ([f64; 3], [f64; 3]) {
     )
 }
 
+/// A finite-difference stencil over control points: their flat indices and coefficients.
+pub type Stencil = (Vec<usize>, Vec<f64>);
+
 impl BSplineField {
     /// A zero field covering the box `[min, max]` with cells of `spacing_mm` (at least one per
     /// axis).
@@ -279,7 +282,7 @@ impl BSplineField {
     /// twist, have zero energy). Returns the stencils as `(indices, coefficients)`; orders other
     /// than 1–3 give none.
     #[must_use]
-    pub fn differences(&self, order: usize) -> Vec<(Vec<usize>, Vec<f64>)> {
+    pub fn differences(&self, order: usize) -> Vec<Stencil> {
         self.differences_along(order)
             .into_iter()
             .map(|(_, s)| s)
@@ -289,7 +292,7 @@ impl BSplineField {
     /// [`Self::differences`], each stencil with the grid axis (0 = x, 1 = y, 2 = z) it runs
     /// along.
     #[must_use]
-    pub fn differences_along(&self, order: usize) -> Vec<(usize, (Vec<usize>, Vec<f64>))> {
+    pub fn differences_along(&self, order: usize) -> Vec<(usize, Stencil)> {
         let coefficients: Vec<f64> = match order {
             1 => vec![-1.0, 1.0],
             2 => vec![1.0, -2.0, 1.0],
