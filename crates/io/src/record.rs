@@ -66,6 +66,12 @@ pub mod topic {
     pub const CALIBRATION: &str = "/calibration";
     /// The twin's spot errors (trimctl.SpotError, JSON object).
     pub const SPOT_ERROR: &str = "/twin/spot_error";
+    /// How a stopped run's way down went: each step acknowledged or not, every emission-off
+    /// attempt (trimctl.Shutdown, JSON object: the executor's `ShutdownReport` with the stop's
+    /// cause, layer and phase).
+    pub const SHUTDOWN: &str = "/shutdown";
+    /// Schema name of [`SHUTDOWN`].
+    pub const SHUTDOWN_SCHEMA: &str = "trimctl.Shutdown";
     /// Schema name of [`CALIBRATION`].
     pub const CALIBRATION_SCHEMA: &str = "trimctl.Calibration";
     /// Schema name of [`SPOT_ERROR`].
@@ -634,6 +640,7 @@ pub fn declare_run_channels(context: &Arc<Context>) -> Result<(), RecordError> {
     for (t, name) in [
         (topic::CALIBRATION, topic::CALIBRATION_SCHEMA),
         (topic::SPOT_ERROR, topic::SPOT_ERROR_SCHEMA),
+        (topic::SHUTDOWN, topic::SHUTDOWN_SCHEMA),
     ] {
         build_channel(context, t, Some(object_schema(name)), "json".to_owned())?;
     }

@@ -11,7 +11,7 @@ use common::{
 };
 use tokio_util::sync::CancellationToken;
 use trim_io::cell::SimCell;
-use trim_io::executor::{ExecError, ExecOptions, Executor, Phase, Progress, RunSummary};
+use trim_io::executor::{ExecError, ExecOptions, Executor, OffPort, Phase, Progress, RunSummary};
 use trim_io::fault::{Fault, FaultKind, Trigger};
 use trim_io::journal;
 use trim_io::record::{Recorder, device_tap};
@@ -36,6 +36,7 @@ fn options() -> ExecOptions {
         // One laser check per layer (right after EXECUTE), so fault triggers count exactly.
         laser_poll: Duration::from_secs(60),
         cut_layer: None,
+        machine: None,
     }
 }
 
@@ -405,6 +406,29 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
                 "{label}: {:?}",
                 sim.monitor.violations()
             );
+            // The laser's own emission is off, not only the light path closed; only a laser
+            // that answers nothing (stalled, cable pulled) leaves it unknown, and the report
+            // says so.
+            let laser_unreachable =
+                device == Device::Laser && matches!(kind, FaultKind::Stall | FaultKind::DropLink);
+            assert_eq!(
+                s.shutdown.laser_off_ok, !laser_unreachable,
+                "{label}: {:?}",
+                s.shutdown
+            );
+            if laser_unreachable {
+                assert!(
+                    s.shutdown
+                        .failures
+                        .iter()
+                        .any(|f| f.step == trim_io::executor::ShutdownStep::EmissionOff),
+                    "{label}: {:?}",
+                    s.shutdown
+                );
+                assert!(s.shutdown.emission_off.len() >= 2, "{label}: no retry");
+            } else {
+                assert!(!sim.laser.state().emission, "{label}: emission left on");
+            }
 
             // The journal is intact: every line parses, the two layers before are finished.
             let st = journal::read(&path).unwrap_or_else(|e| panic!("{label}: {e}"));
@@ -412,7 +436,13 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
             assert_eq!(st.finished.len(), 2, "{label}");
             assert!(!st.finished.contains(&target), "{label}");
 
-            // Resume on a repaired cell finishes the job, each vector marked once.
+            // Resume on a repaired cell finishes the job, each vector marked once. A laser that
+            // never acknowledged its emission-off got one more from the client's drop guard as
+            // the run ended: the stalled simulator reads it (every 10 ms) before the repair, so
+            // its reply does not reach the next client.
+            if laser_unreachable {
+                tokio::time::sleep(Duration::from_millis(100)).await;
+            }
             sim.clear_faults();
             let summary = resume(&sim, &job, &path).await;
             assert_eq!(summary.layers_skipped, 2, "{label}");
@@ -756,4 +786,383 @@ async fn a_job_with_an_unreachable_zone_is_refused_before_anything_moves_or_emit
             .any(|(_, e)| matches!(e, trim_io::safety::CellEvent::Emission(true))),
         "emission switched on before refusing"
     );
+}
+
+/// A hand-edited job with a pose outside `[machine]`'s limits (a layer of zone 1 moved to
+/// X = 250 mm, past the X travel of ±200 mm; or C made non-finite) is refused before anything
+/// moves or emits, naming the layer and the axis; with the limits unknown (`machine: None`) it
+/// would be sent to the CNC.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_pose_outside_the_machine_limits_is_refused_before_anything_moves() {
+    let machine = trim_plan::kinematics::MachineSettings::default();
+    // The untouched job passes the check.
+    trim_io::limits::check_poses(&demo_job(2), &machine, None).expect("demo poses inside");
+    for (axis, value, names) in [
+        ("x", 250.0, "X = 250.000 mm"),
+        ("c", f64::NAN, "axis c = NaN"),
+    ] {
+        let sim = sim_cell("monaco").await;
+        let mut job = demo_job(2);
+        job.zones[1].layers[1].pose.0.insert(axis.into(), value);
+        let dir = tempfile::tempdir().unwrap();
+        let cell = connect(&sim, Tap::none()).await;
+        let e = Executor::new(job.clone(), cell, dir.path().join("run.journal"), None)
+            .with_options(ExecOptions {
+                machine: Some(machine),
+                ..options()
+            })
+            .run(CancellationToken::new(), None)
+            .await
+            .expect_err("a pose outside the limits must be refused");
+        assert!(matches!(e, ExecError::Job(_)), "{e}");
+        let text = e.to_string();
+        assert!(
+            text.contains("zone 1 layer 1") && text.contains(names),
+            "{text}"
+        );
+        assert_eq!(sim.cnc.moves(), 0, "{axis}: moved before refusing");
+        assert!(
+            sim.galvo.marks().is_empty(),
+            "{axis}: marked before refusing"
+        );
+        assert!(
+            !dir.path().join("run.journal").exists(),
+            "{axis}: a journal was started"
+        );
+        assert!(
+            !sim.monitor
+                .events()
+                .iter()
+                .any(|(_, e)| matches!(e, trim_io::safety::CellEvent::Emission(true))),
+            "{axis}: emission switched on before refusing"
+        );
+    }
+}
+
+/// A laser that misses one reply mid-list and then answers again: the stop path still sends the
+/// emission-off (the link is marked broken for ordinary commands, not for the way down), and
+/// when that emission-off is lost too, it reopens the port and sends it again. The laser's
+/// emission is off at the end in both cases.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_missed_laser_reply_does_not_disable_the_emission_off() {
+    let drop_one = |name: &str, nth: u32| Fault {
+        kind: FaultKind::DropOne,
+        trigger: Trigger::Command {
+            name: name.into(),
+            nth,
+        },
+    };
+    // The fault check right after layer 0's EXECUTE is the 2nd `faults` query (preparation
+    // checks once); the way down's emission-off is the 2nd `emission_off` (preparation's first).
+    for (label, lost_offs, want_ports) in [
+        ("status reply lost", 0, vec![OffPort::Open]),
+        (
+            "status reply and the first emission-off lost",
+            1,
+            vec![OffPort::Open, OffPort::Reopened],
+        ),
+    ] {
+        let sim = sim_cell_scaled("monaco", 20.0).await;
+        sim.laser.faults().arm(drop_one("faults", 2));
+        for i in 0..lost_offs {
+            sim.laser.faults().arm(drop_one("emission_off", 2 + i));
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.journal");
+        let err = run_fresh(&sim, &demo_job(2), &path, CancellationToken::new())
+            .await
+            .expect_err(label);
+        let ExecError::Stopped(s) = err else {
+            panic!("{label}: {err}")
+        };
+        assert_eq!(s.phase, Phase::WaitDone, "{label}: {:?}", s.cause);
+        assert!(
+            matches!(&s.cause, trim_io::executor::StopCause::Link { device: Device::Laser, message } if message.contains("no reply")),
+            "{label}: {:?}",
+            s.cause
+        );
+        assert!(s.shutdown.laser_off_ok, "{label}: {:?}", s.shutdown);
+        let ports: Vec<OffPort> = s.shutdown.emission_off.iter().map(|a| a.port).collect();
+        assert_eq!(ports, want_ports, "{label}: {:?}", s.shutdown.emission_off);
+        assert!(
+            s.shutdown.emission_off.last().unwrap().error.is_none(),
+            "{label}"
+        );
+        assert!(!sim.laser.state().emission, "{label}: emission left on");
+        assert!(!sim.monitor.light(), "{label}");
+        assert!(
+            sim.monitor.violations().is_empty(),
+            "{label}: {:?}",
+            sim.monitor.violations()
+        );
+        assert_eq!(
+            sim.laser.faults().armed(),
+            vec![],
+            "{label}: a fault did not fire"
+        );
+    }
+}
+
+/// The laser's pty vanishes mid-list (a USB adapter pulled): the stop names the I/O error,
+/// the way down tries the emission-off on the old port and on reopening it until the budget is
+/// spent, and reports it NOT acknowledged; the galvo's laser signals close the light path.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_vanished_laser_port_is_named_and_the_emission_off_reported_unacknowledged() {
+    let mut sim = sim_cell_scaled("monaco", 20.0).await;
+    let job = demo_job(2);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.journal");
+    let cell = connect(&sim, Tap::none()).await;
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    let run = Executor::new(job.clone(), cell, path.clone(), None)
+        .with_options(options())
+        .run(CancellationToken::new(), Some(tx));
+    let laser = &mut sim.laser;
+    let unplug = async {
+        // Layer 0's list runs and its one laser check (right after EXECUTE) is answered: the
+        // laser's next command is the emission-off after the list.
+        while let Some(p) = rx.recv().await {
+            if matches!(p, Progress::Vectors { key, .. } if key == LayerKey { zone: 0, layer: 0 }) {
+                break;
+            }
+        }
+        let emitting = laser.state().emission;
+        laser.vanish();
+        emitting
+    };
+    let (result, emitting) = tokio::join!(run, unplug);
+    assert!(emitting, "layer 0 marks with emission on");
+    let err = result.expect_err("the laser vanished");
+    let ExecError::Stopped(s) = err else {
+        panic!("{err}")
+    };
+    assert_eq!(s.phase, Phase::GateOff, "{:?}", s.cause);
+    assert!(
+        matches!(&s.cause, trim_io::executor::StopCause::Link { device: Device::Laser, message } if message.contains("os error 5")),
+        "the I/O error is not named: {:?}",
+        s.cause
+    );
+    assert!(!s.shutdown.laser_off_ok, "{:?}", s.shutdown);
+    let failure = s
+        .shutdown
+        .failures
+        .iter()
+        .find(|f| f.step == trim_io::executor::ShutdownStep::EmissionOff)
+        .unwrap_or_else(|| panic!("no emission-off failure: {:?}", s.shutdown));
+    assert!(!failure.error.is_empty());
+    let attempts = &s.shutdown.emission_off;
+    assert!(attempts.len() >= 2, "{attempts:?}");
+    assert_eq!(attempts[0].port, OffPort::Open);
+    assert!(
+        attempts[1..]
+            .iter()
+            .all(|a| a.port == OffPort::Reopened && a.error.is_some())
+    );
+    // Within the budget (plus one reply timeout for the attempt running when it ran out).
+    let t = test_timeouts();
+    assert!(
+        attempts.last().unwrap().after_s <= (t.laser_off_budget + t.laser_reply).as_secs_f64(),
+        "{attempts:?}"
+    );
+    // The rest of the way down was done and acknowledged.
+    assert!(
+        s.shutdown.galvo_signals_off_ok && s.shutdown.galvo_stop_ok && s.shutdown.cnc_abort_ok,
+        "{:?}",
+        s.shutdown
+    );
+    assert!(!sim.galvo.status().laser_signals);
+    assert!(!sim.monitor.light());
+}
+
+/// A cancel that lands after the last layer's emission-off (the operator's Ctrl-C as the run
+/// ends) does not skip the final galvo laser signals off.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_late_cancel_still_switches_the_laser_signals_off_at_the_end() {
+    let sim = sim_cell("monaco").await;
+    let job = demo_job(2);
+    let layers = job.layers().count();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.journal");
+    let cancel = CancellationToken::new();
+    // Cancelled as the last emission-off's reply arrives (emission-offs: preparation's, then
+    // one per layer; monaco's `?L` query is answered "L=0" too, so commands are counted).
+    let (c, sent) = (
+        cancel.clone(),
+        std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0)),
+    );
+    let tap = Tap::new(move |io| {
+        if io.device != Device::Laser || io.text != "L=0" {
+            return;
+        }
+        match io.direction {
+            trim_io::tap::Direction::Command => {
+                sent.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+            }
+            trim_io::tap::Direction::Reply => {
+                if sent.load(std::sync::atomic::Ordering::SeqCst) == 1 + layers {
+                    c.cancel();
+                }
+            }
+        }
+    });
+    let summary = Executor::new(job.clone(), connect(&sim, tap).await, &path, None)
+        .with_options(options())
+        .run(cancel.clone(), None)
+        .await
+        .expect("the last layer was journaled before the cancel was looked at");
+    assert!(cancel.is_cancelled(), "the tap never cancelled");
+    assert_eq!(summary.layers_marked, layers);
+    assert!(
+        !sim.galvo.status().laser_signals,
+        "the galvo's laser signals were left on at the end"
+    );
+    assert!(!sim.laser.state().emission);
+}
+
+/// A panic on the executor's task while the laser emits (here in the device tap, at the laser's
+/// fault check right after layer 0's `EXECUTE`) unwinds through the executor: the laser client's
+/// guard writes the emission-off as it is dropped, and the galvo, its session closed, drops its
+/// laser signals.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_panic_on_the_executor_with_the_emission_on_switches_the_laser_off() {
+    let sim = sim_cell_scaled("monaco", 20.0).await;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.journal");
+    // Preparation asks `?F` once; the second is the check right after EXECUTE.
+    let queries = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let tap = Tap::new(move |io| {
+        if io.device == Device::Laser
+            && io.direction == trim_io::tap::Direction::Command
+            && io.text == "?F"
+            && queries.fetch_add(1, std::sync::atomic::Ordering::SeqCst) == 1
+        {
+            panic!("injected: a bug on the executor's task mid-layer");
+        }
+    });
+    let run = Executor::new(demo_job(2), connect(&sim, tap).await, path, None)
+        .with_options(options())
+        .run(CancellationToken::new(), None);
+    // As a panic unwinds through the executor's task: caught, the future dropped.
+    let caught = futures::FutureExt::catch_unwind(std::panic::AssertUnwindSafe(run)).await;
+    assert!(caught.is_err(), "the executor did not panic");
+    assert!(
+        sim.monitor
+            .events()
+            .iter()
+            .any(|(_, e)| *e == trim_io::safety::CellEvent::Emission(true)),
+        "the panic came before the emission was on"
+    );
+    // The simulator reads the pty every 10 ms.
+    let t = Instant::now();
+    while sim.laser.state().emission && t.elapsed() < Duration::from_secs(2) {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    assert!(
+        !sim.laser.state().emission,
+        "emission left on after the panic"
+    );
+    while sim.galvo.status().laser_signals && t.elapsed() < Duration::from_secs(2) {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    assert!(!sim.monitor.light());
+}
+
+/// A journal on a disk that hangs: the `hang_at`-th line (0-based, after the start line) takes
+/// `hang` before it is written through (the disk recovers later).
+struct SlowDisk {
+    inner: Box<dyn journal::JournalSink>,
+    lines: usize,
+    hang_at: usize,
+    hang: Duration,
+    hung_at: std::sync::Arc<std::sync::Mutex<Option<Instant>>>,
+}
+
+impl journal::JournalSink for SlowDisk {
+    fn append_line(&mut self, line: &[u8]) -> std::io::Result<()> {
+        let i = self.lines;
+        self.lines += 1;
+        if i == self.hang_at {
+            *self
+                .hung_at
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(Instant::now());
+            std::thread::sleep(self.hang);
+        }
+        self.inner.append_line(line)
+    }
+}
+
+/// A journal write (with its fsync) that hangs past the journal-write timeout takes the way
+/// down at the timeout, laser first, instead of hanging the run; the stop names the hung
+/// journal. Once the disk has recovered, resume finishes with every vector marked once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hung_journal_write_takes_the_way_down_at_its_timeout() {
+    let target = LayerKey { zone: 1, layer: 0 };
+    let t = test_timeouts();
+    let hang = t.journal_write * 3;
+    // Line 4 is layer index 2's layer_begin (before its move ends), line 5 its layer_done.
+    for (hang_at, phase) in [(4, Phase::LoadList), (5, Phase::Journal)] {
+        let label = format!("journal line {hang_at} hangs");
+        let sim = sim_cell("monaco").await;
+        let job = demo_job(2);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.journal");
+        let hung_at = std::sync::Arc::new(std::sync::Mutex::new(None));
+        let hung2 = hung_at.clone();
+        let err = Executor::new(job.clone(), connect(&sim, Tap::none()).await, &path, None)
+            .with_options(options())
+            .with_journal_sink(move |inner| {
+                Box::new(SlowDisk {
+                    inner,
+                    lines: 0,
+                    hang_at,
+                    hang,
+                    hung_at: hung2,
+                })
+            })
+            .run(CancellationToken::new(), None)
+            .await
+            .expect_err(&label);
+        let stopped_at = Instant::now();
+        let ExecError::Stopped(s) = err else {
+            panic!("{label}: not stopped through the way down: {err}")
+        };
+        assert!(
+            matches!(&s.cause, trim_io::executor::StopCause::Journal { message } if message.contains("did not return within 1000 ms")),
+            "{label}: {:?}",
+            s.cause
+        );
+        assert_eq!((s.key, s.phase), (Some(target), phase), "{label}");
+        // Detected at the timeout, not when the disk came back.
+        let hung = hung_at.lock().unwrap().expect("the sink hung");
+        let detected = s.detected_at.unwrap().saturating_duration_since(hung);
+        // The timeout starts as the write's thread is started, a moment before the sink hangs.
+        assert!(
+            detected + Duration::from_millis(50) >= t.journal_write
+                && detected < t.journal_write + Duration::from_millis(500),
+            "{label}: detected {detected:?} after the hang began"
+        );
+        assert!(
+            stopped_at.saturating_duration_since(hung) < hang,
+            "{label}: waited for the disk"
+        );
+        assert!(s.shutdown.all_acknowledged(), "{label}: {:?}", s.shutdown);
+        assert!(!sim.laser.state().emission, "{label}");
+        assert!(!sim.galvo.status().laser_signals, "{label}");
+        assert!(!sim.monitor.light(), "{label}");
+        assert!(sim.monitor.violations().is_empty(), "{label}");
+
+        // The disk comes back (the hung write lands); resume finishes, each vector once.
+        tokio::time::sleep(hang).await;
+        let st = journal::read(&path).unwrap();
+        assert!(!st.torn_tail, "{label}");
+        let summary = resume(&sim, &job, &path).await;
+        assert!(summary.layers_skipped >= 2, "{label}");
+        assert_eq!(
+            assert_marked_exactly_once(&job, &sim.galvo.marks()),
+            0,
+            "{label}"
+        );
+        assert_eq!(journal::read(&path).unwrap().finished.len(), 4, "{label}");
+    }
 }

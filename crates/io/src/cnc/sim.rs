@@ -234,6 +234,7 @@ async fn serve(mut stream: TcpStream, shared: Arc<Shared>) {
                     shared.faults.wait_released().await;
                     return;
                 }
+                Some(FaultKind::DropOne) => continue,
                 Some(FaultKind::Garble) => {
                     let _ = stream.write_all(b"\x07?!GARBLE \x01\r\n").await;
                     continue;

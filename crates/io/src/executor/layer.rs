@@ -137,8 +137,12 @@ impl Executor {
     }
 
     /// A layer whose every vector was marked before the cut: journaled as done, nothing moves.
-    pub(super) fn complete_layer(&self, journal: &mut Journal, work: &LayerWork) -> LayerStep<()> {
-        Self::journal_done(journal, work, false)?;
+    pub(super) async fn complete_layer(
+        &self,
+        journal: &mut Journal,
+        work: &LayerWork,
+    ) -> LayerStep<()> {
+        self.journal_done(journal, work, false).await?;
         self.layer_done(work);
         Ok(())
     }
@@ -151,7 +155,7 @@ impl Executor {
         list_buf: u8,
     ) -> LayerStep<LayerTiming> {
         self.start_move(work).await?;
-        let list = self.begin_list(journal, work)?;
+        let list = self.begin_list(journal, work).await?;
         let in_position = self.load_while_moving(work, &list, list_buf).await?;
         let running = self.start_list(work, list_buf, in_position.at).await?;
         let t_done = self
@@ -160,7 +164,7 @@ impl Executor {
         let gate_off_s = self.gate_off(work).await?;
         self.phase(work, Phase::Journal);
         let t_journal = Instant::now();
-        Self::journal_done(journal, work, true)?;
+        self.journal_done(journal, work, true).await?;
         let journal_s = t_journal.elapsed().as_secs_f64();
         self.layer_done(work);
         let total_s = work.started.elapsed().as_secs_f64();
@@ -213,7 +217,7 @@ impl Executor {
     /// [`Phase::LoadList`], host side: the list built from `work.first` and its `layer_begin`
     /// journaled. Until `EXECUTE` the galvo reports the previous list, so a stop from here to
     /// `EXECUTE` journals the cut at `first` (a preloaded list is not a marked layer).
-    fn begin_list(&self, journal: &mut Journal, work: &LayerWork) -> LayerStep<BegunList> {
+    async fn begin_list(&self, journal: &mut Journal, work: &LayerWork) -> LayerStep<BegunList> {
         self.phase(work, Phase::LoadList);
         let commands = layer_list(&work.layer, &self.job.settings.galvo, work.first)
             .map_err(|e| StopCause::Job {
@@ -223,12 +227,16 @@ impl Executor {
         let modelled_s = list_time_s(&commands);
         let tag = journal.next_tag();
         journal
-            .append(&Entry::LayerBegin {
-                key: work.key,
-                first_vector: work.first,
-                vectors: work.vectors,
-                tag,
-            })
+            .append_within(
+                &Entry::LayerBegin {
+                    key: work.key,
+                    first_vector: work.first,
+                    vectors: work.vectors,
+                    tag,
+                },
+                self.options.timeouts.journal_write,
+            )
+            .await
             .map_err(|e| journal_failed(&e))
             .at(Phase::LoadList, false)?;
         Ok(BegunList {
@@ -454,12 +462,22 @@ impl Executor {
 
     /// [`Phase::Journal`]: the layer's `layer_done`, fsynced before the next layer begins.
     /// `began`: this run journaled the layer's `layer_begin` (see [`LayerFault::began`]).
-    fn journal_done(journal: &mut Journal, work: &LayerWork, began: bool) -> LayerStep<()> {
+    /// Bounded by the journal-write timeout: a hung disk takes the way down.
+    async fn journal_done(
+        &self,
+        journal: &mut Journal,
+        work: &LayerWork,
+        began: bool,
+    ) -> LayerStep<()> {
         journal
-            .append(&Entry::LayerDone {
-                key: work.key,
-                vectors: work.vectors,
-            })
+            .append_within(
+                &Entry::LayerDone {
+                    key: work.key,
+                    vectors: work.vectors,
+                },
+                self.options.timeouts.journal_write,
+            )
+            .await
             .map_err(|e| journal_failed(&e))
             .at(Phase::Journal, began)
     }

@@ -40,6 +40,7 @@ use crate::galvo::list::{layer_list, vector_count};
 use crate::galvo::protocol::StatusBlock;
 use crate::galvo::timing::polylines_time_s;
 use crate::journal::{CutLayer, Journal, JournalError, JournalSink, JournalState};
+pub use crate::laser::client::{OffAttempt, OffPort};
 use crate::record::{LogLevel, SharedRecorder};
 use crate::tap::{Device, now_ns};
 
@@ -185,10 +186,12 @@ impl std::fmt::Display for StopCause {
     }
 }
 
-/// What the way down did, in order, and how long the laser-off took (host view).
+/// What the way down did, in order: each step acknowledged or not, what went wrong, and when
+/// (host view, from the fault's detection).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct ShutdownReport {
-    /// The serial emission-off was acknowledged.
+    /// The serial emission-off was acknowledged (by one of [`ShutdownReport::emission_off`]'s
+    /// attempts). When not, the laser's state is unknown.
     pub laser_off_ok: bool,
     /// The galvo laser signals off was acknowledged.
     pub galvo_signals_off_ok: bool,
@@ -196,10 +199,58 @@ pub struct ShutdownReport {
     pub galvo_stop_ok: bool,
     /// The CNC abort was acknowledged.
     pub cnc_abort_ok: bool,
-    /// From the fault's detection to both laser-off commands answered or timed out (s).
+    /// From the fault's detection to both laser-off commands answered or given up (s).
     pub laser_off_s: f64,
     /// From detection to the end of the way down (s).
     pub total_s: f64,
+    /// Every attempt of the serial emission-off (the port already open, then reopened).
+    pub emission_off: Vec<OffAttempt>,
+    /// Why each step that was not acknowledged failed, in the way down's order.
+    pub failures: Vec<StepFailure>,
+}
+
+impl ShutdownReport {
+    /// Every step acknowledged.
+    #[must_use]
+    pub fn all_acknowledged(&self) -> bool {
+        self.laser_off_ok && self.galvo_signals_off_ok && self.galvo_stop_ok && self.cnc_abort_ok
+    }
+}
+
+/// A step of the way down.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ShutdownStep {
+    /// The laser's serial emission-off.
+    EmissionOff,
+    /// The galvo's laser signals off.
+    GalvoSignalsOff,
+    /// The galvo list stopped.
+    GalvoStop,
+    /// The CNC's motion aborted.
+    CncAbort,
+}
+
+impl std::fmt::Display for ShutdownStep {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            ShutdownStep::EmissionOff => "laser emission-off",
+            ShutdownStep::GalvoSignalsOff => "galvo laser signals off",
+            ShutdownStep::GalvoStop => "galvo stop",
+            ShutdownStep::CncAbort => "CNC abort",
+        })
+    }
+}
+
+/// A step of the way down that was not acknowledged.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct StepFailure {
+    /// The step.
+    pub step: ShutdownStep,
+    /// What went wrong (the last attempt's error for the emission-off).
+    pub error: String,
+    /// From detection to the step given up (s).
+    pub after_s: f64,
 }
 
 /// A run that stopped before the end.
@@ -227,7 +278,9 @@ pub struct Stopped {
 /// A run that did not finish.
 #[derive(Debug, thiserror::Error)]
 pub enum ExecError {
-    /// Stopped by a fault or a cancel; the laser is off, the layer journaled as cut.
+    /// Stopped by a fault or a cancel after the way down (whose steps, acknowledged or not,
+    /// are in [`Stopped::shutdown`]: the laser is off only when `laser_off_ok`); the layer
+    /// journaled as cut.
     #[error("run stopped in {} ({phase:?}): {cause}; {done} of {total} vectors of the layer marked", .0.key.map_or("preparation".to_owned(), |k| k.to_string()), phase = .0.phase, cause = .0.cause, done = .0.vectors_done.map_or("unknown".to_owned(), |v| v.to_string()), total = .0.vectors)]
     Stopped(Box<Stopped>),
     /// The journal.
@@ -339,6 +392,9 @@ pub struct ExecOptions {
     /// can tell (`None`: refuse with [`ExecError::ResumeUnknown`]). Not used when the progress
     /// is known.
     pub cut_layer: Option<CutLayer>,
+    /// The machine (`[machine]`): every layer's pose is checked against its axis limits before
+    /// anything moves ([`crate::limits`]). `None`: only the CNC's own limits guard the moves.
+    pub machine: Option<trim_plan::kinematics::MachineSettings>,
 }
 
 impl Default for ExecOptions {
@@ -348,6 +404,7 @@ impl Default for ExecOptions {
             laser_power_pct: None,
             laser_poll: Duration::from_millis(LASER_POLL_MS),
             cut_layer: None,
+            machine: None,
         }
     }
 }
@@ -461,6 +518,10 @@ impl Executor {
                 z.contours,
                 z.unreachable.as_deref().unwrap_or_default()
             )));
+        }
+        if let Some(machine) = &self.options.machine {
+            crate::limits::check_poses(&self.job, machine, None)
+                .map_err(|e| ExecError::Job(e.to_string()))?;
         }
         for (key, _, layer) in self.job.layers() {
             layer_list(layer, &self.job.settings.galvo, 0)
@@ -703,7 +764,7 @@ impl Executor {
             }
             let work = LayerWork::new(key, index, layer, first);
             let marked = if work.all_marked_before() {
-                self.complete_layer(journal, &work).map(|()| None)
+                self.complete_layer(journal, &work).await.map(|()| None)
             } else {
                 self.mark_layer(journal, &work, list_buf).await.map(Some)
             };
@@ -727,8 +788,8 @@ impl Executor {
         Ok(self.finish(summary, elapsed0, started).await)
     }
 
-    /// After the last layer: the galvo's modelled time, the laser signals off, the log and the
-    /// record flushed.
+    /// After the last layer: the galvo's modelled time, the laser signals off (always, even
+    /// when a cancel came after the last layer), the log and the record flushed.
     async fn finish(
         &mut self,
         mut summary: RunSummary,
@@ -741,9 +802,11 @@ impl Executor {
             .map(|s| s.elapsed_ns)
             .unwrap_or(elapsed0);
         summary.galvo_modelled_s = elapsed1.saturating_sub(elapsed0) as f64 * 1e-9;
-        let (c, gt) = (self.cancel.clone(), self.galvo_timeout());
+        // Not guarded by the run's cancel token: a cancel that lands after the last layer
+        // must not skip the signals off.
+        let (never, gt) = (CancellationToken::new(), self.galvo_timeout());
         if let Err(cause) = Self::guard(
-            &c,
+            &never,
             gt,
             Device::Galvo,
             "LASER_SIGNALS off",
