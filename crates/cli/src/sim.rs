@@ -102,6 +102,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 async fn serve(args: Args, faults: Faults) -> anyhow::Result<()> {
+    // Installed before the simulators start: a stop signal from then on stops them cleanly.
+    let mut signals = crate::stop_signal::StopSignals::install()?;
     let monitor = SafetyMonitor::new();
     let want = |w: Which| args.which == w || args.which == Which::All;
     let mut galvo = None;
@@ -147,10 +149,9 @@ async fn serve(args: Args, faults: Faults) -> anyhow::Result<()> {
         println!("{}", serde_json::json!({"cnc": sim.addr().to_string()}));
         cnc = Some(sim);
     }
-    eprintln!("trimctl sim: running; Ctrl-C stops");
-    tokio::signal::ctrl_c()
-        .await
-        .context("waiting for Ctrl-C")?;
+    eprintln!("trimctl sim: running; Ctrl-C (or SIGTERM, SIGHUP, SIGQUIT) stops");
+    let name = signals.next().await;
+    eprintln!("trimctl sim: {name}: stopping");
     if let Some(g) = &galvo {
         eprintln!(
             "galvo: {} vectors executed, {:.3} s modelled",

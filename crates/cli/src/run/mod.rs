@@ -30,7 +30,7 @@ use crate::summary;
 use cell::execute;
 pub(crate) use cell::{connect, start_simulators};
 use inputs::load_inputs;
-use report::{SpotReport, append_resume_report, write_report};
+use report::{SpotReport, append_resume_report, shutdown_of, shutdown_sentence, write_report};
 
 mod cell;
 mod inputs;
@@ -461,7 +461,7 @@ fn finish(
         plan,
         timings,
         outcome.as_ref().ok(),
-        stopped.as_deref(),
+        stopped.as_deref().map(|s| (s, shutdown_of(&outcome))),
         spots.as_ref(),
     )?;
     if let Some(r) = &spots {
@@ -478,21 +478,27 @@ fn finish(
 }
 
 /// The exit code and message of a run that did not finish: interrupted 3; stopped by a fault
-/// (a device, or the journal's disk) 2; refused before anything was switched on 1.
+/// (a device, or the journal's disk) 2; either of them with the laser's emission-off not
+/// acknowledged 4 (its state is unknown); refused before anything was switched on 1. The
+/// message says what the way down acknowledged and what it did not.
 fn exec_failure(e: ExecError, run_dir: &Path) -> anyhow::Error {
     let exit = match &e {
+        ExecError::Stopped(s) if !s.shutdown.laser_off_ok => Exit::LaserStateUnknown,
         ExecError::Stopped(s) if s.cause == StopCause::Cancelled => Exit::Interrupted,
         ExecError::Stopped(_) => Exit::DeviceFault,
         _ => Exit::Refused,
     };
     match e {
-        ExecError::Stopped(_) => Failure::with_exit(
-            exit,
-            anyhow::anyhow!(
-                "{e}; the laser is off; continue with: trimctl run --resume {}",
-                run_dir.display()
-            ),
-        ),
+        ExecError::Stopped(ref s) => {
+            let way_down = shutdown_sentence(&s.shutdown);
+            Failure::with_exit(
+                exit,
+                anyhow::anyhow!(
+                    "{e}; {way_down}; continue with: trimctl run --resume {}",
+                    run_dir.display()
+                ),
+            )
+        }
         ExecError::ResumeUnknown { .. } => Failure::with_exit(
             exit,
             anyhow::anyhow!(
