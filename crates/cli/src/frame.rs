@@ -209,8 +209,23 @@ async fn frame_all(
     let mut lines = interactive.then(stdin_lines);
     let settings = FrameSettings {
         timeouts,
+        enable: args.cell.enable_steps(),
         ..FrameSettings::new(args.outline.into())
     };
+    // A machine in E-stop, off or unhomed is refused before anything is switched on, unless
+    // the operator allowed the step.
+    let state = tokio::time::timeout(timeouts.cnc_reply * 3, cell.cnc.state())
+        .await
+        .map_err(|_| anyhow::anyhow!("the CNC did not report its state"))
+        .and_then(|r| r.map_err(anyhow::Error::from))
+        .and_then(|r| r.map_err(anyhow::Error::from))
+        .map_err(|e| Failure::with_exit(Exit::DeviceFault, e))?;
+    if let Some(refusal) = settings.enable.refusal(state) {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!("the CNC: {refusal}; nothing was switched on"),
+        ));
+    }
     let mut framed = Vec::new();
     for (i, key) in keys.iter().enumerate() {
         if interactive {

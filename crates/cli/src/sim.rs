@@ -55,6 +55,10 @@ pub struct Args {
     /// CNC motion: real seconds per simulated second.
     #[arg(long, default_value_t = 1.0)]
     cnc_time_scale: f64,
+    /// Start the CNC out of E-stop, switched on and homed (else in E-stop and unhomed, as a
+    /// real machine after power-up: `run` and `frame` then need --enable-machine and --home).
+    #[arg(long)]
+    cnc_ready: bool,
     /// A fault to inject, `DEVICE=KIND@COMMAND[#N]` or `galvo=KIND@marks:M[#LIST]`; KIND is
     /// drop-link, stall, garble or refuse. E.g. `galvo=stall@EXECUTE#2`,
     /// `laser=garble@emission_on`, `cnc=refuse@mdi#3`. Repeatable.
@@ -139,6 +143,7 @@ async fn serve(args: Args, faults: Faults) -> anyhow::Result<()> {
             SocketAddr::new(args.bind, args.cnc_port),
             CncSimConfig {
                 time_scale: args.cnc_time_scale,
+                start_ready: args.cnc_ready,
                 ..CncSimConfig::default()
             },
             monitor.clone(),

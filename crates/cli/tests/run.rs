@@ -353,7 +353,8 @@ impl SimServer {
         }
     }
 
-    /// `trimctl run` arguments that point at these simulators.
+    /// `trimctl run` arguments that point at these simulators (its CNC starts in E-stop and
+    /// unhomed: both steps allowed).
     fn cell_args(&self) -> Vec<String> {
         [
             "--galvo",
@@ -362,6 +363,8 @@ impl SimServer {
             &self.cnc,
             "--laser",
             &self.laser,
+            "--enable-machine",
+            "--home",
         ]
         .iter()
         .map(|s| (*s).to_owned())
@@ -720,4 +723,40 @@ fn each_stop_signal_takes_the_way_down_and_the_run_resumes() {
             assert_eq!(after.get(&key), Some(&1), "SIG{sig}: layer {key:?}");
         }
     }
+}
+
+/// Against a CNC that stands in E-stop and unhomed (`trimctl sim`'s, as a machine after
+/// power-up), `trimctl run` refuses without --enable-machine and --home (exit 1, naming the
+/// state, nothing switched on); the built-in demo needs neither (its in-process simulator
+/// stands ready).
+#[test]
+fn run_refuses_a_machine_in_estop_without_enable_machine() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let sim = SimServer::start(&[]);
+    let args: Vec<String> = sim
+        .cell_args()
+        .into_iter()
+        .filter(|a| a != "--enable-machine" && a != "--home")
+        .collect();
+    let result = Command::new(TRIMCTL)
+        .args(["run", "--out"])
+        .arg(&out)
+        .args(&args)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr).into_owned();
+    assert_eq!(result.status.code(), Some(1), "{stderr}");
+    for want in [
+        "the machine is in E-stop",
+        "--enable-machine",
+        "nothing was switched on",
+    ] {
+        assert!(stderr.contains(want), "{want:?} missing: {stderr}");
+    }
+    assert!(
+        !journal_kinds(&out).iter().any(|k| k == "layer_begin"),
+        "a layer began"
+    );
+    drop(sim);
 }

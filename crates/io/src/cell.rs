@@ -250,6 +250,9 @@ impl SimCell {
             lo,
             CncSimConfig {
                 time_scale: options.cnc_time_scale,
+                // The in-process simulated cell stands ready (the demo needs no flags); a
+                // machine after power-up is `trimctl sim`'s.
+                start_ready: true,
                 ..CncSimConfig::default()
             },
             monitor.clone(),

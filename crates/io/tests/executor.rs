@@ -36,6 +36,8 @@ fn options() -> ExecOptions {
         // One laser check per layer (right after EXECUTE), so fault triggers count exactly.
         laser_poll: Duration::from_secs(60),
         cut_layer: None,
+        // The in-process simulated CNC stands ready: no step needs allowing.
+        enable: trim_io::cnc::EnableSteps::default(),
         machine: None,
     }
 }
@@ -481,7 +483,11 @@ async fn the_monitor_catches_emission_during_motion_in_the_simulated_cell() {
     // Drive the devices in a wrong order by hand: the cell's monitor must see it.
     let sim = sim_cell("ipg").await;
     let mut cell = connect(&sim, Tap::none()).await;
-    cell.cnc.enable().await.unwrap().unwrap();
+    cell.cnc
+        .enable(trim_io::cnc::EnableSteps::default())
+        .await
+        .unwrap()
+        .unwrap();
     cell.laser.emission(true).await.unwrap().unwrap();
     let mut pose = trim_plan::job::Pose::default();
     pose.0.insert("x".into(), 20.0);
@@ -1165,4 +1171,66 @@ async fn a_hung_journal_write_takes_the_way_down_at_its_timeout() {
         );
         assert_eq!(journal::read(&path).unwrap().finished.len(), 4, "{label}");
     }
+}
+
+/// A CNC in E-stop, or unhomed, is refused before anything is switched on unless the operator
+/// allowed the step (`--enable-machine`, `--home`); the refusal names the state, nothing is
+/// journaled, the machine is left as it was. Allowed, the run resets and homes it and finishes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_machine_in_estop_or_unhomed_is_refused_unless_the_step_is_allowed() {
+    let power_only = trim_io::cnc::EnableSteps {
+        enable_machine: true,
+        home: false,
+    };
+    for (label, allowed, says) in [
+        (
+            "E-stop, nothing allowed",
+            trim_io::cnc::EnableSteps::default(),
+            "in E-stop",
+        ),
+        ("E-stop, only --enable-machine", power_only, "not homed"),
+    ] {
+        let sim = sim_cell("monaco").await;
+        sim.cnc.set_estop(true);
+        sim.cnc.set_unhomed();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.journal");
+        let e = Executor::new(demo_job(2), connect(&sim, Tap::none()).await, &path, None)
+            .with_options(ExecOptions {
+                enable: allowed,
+                ..options()
+            })
+            .run(CancellationToken::new(), None)
+            .await
+            .expect_err(label);
+        assert!(matches!(e, ExecError::MachineNotReady(_)), "{label}: {e}");
+        assert!(e.to_string().contains(says), "{label}: {e}");
+        assert_eq!(sim.cnc.machine_state(), (true, false, false), "{label}");
+        assert!(!path.exists(), "{label}: journaled");
+        assert_eq!(
+            sim.laser.state().lines_received,
+            0,
+            "{label}: the laser was addressed"
+        );
+        assert!(!sim.galvo.status().laser_signals, "{label}");
+    }
+    let sim = sim_cell("monaco").await;
+    sim.cnc.set_estop(true);
+    sim.cnc.set_unhomed();
+    let dir = tempfile::tempdir().unwrap();
+    let summary = Executor::new(
+        demo_job(2),
+        connect(&sim, Tap::none()).await,
+        dir.path().join("run.journal"),
+        None,
+    )
+    .with_options(ExecOptions {
+        enable: trim_io::cnc::EnableSteps::ALL,
+        ..options()
+    })
+    .run(CancellationToken::new(), None)
+    .await
+    .expect("both steps allowed");
+    assert_eq!(summary.layers_marked, 4);
+    assert_eq!(sim.cnc.machine_state(), (false, true, true));
 }

@@ -15,7 +15,7 @@ use tokio_util::sync::CancellationToken;
 use trim_geom::{Point3, UnitVector3, Vector3};
 use trim_io::cell::{Cell, Timeouts};
 use trim_io::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
-use trim_io::cnc::{Cnc, CncFault};
+use trim_io::cnc::{Cnc, CncFault, EnableSteps};
 use trim_io::executor::{ExecOptions, Executor};
 use trim_io::tap::Tap;
 use trim_plan::kinematics::{
@@ -65,7 +65,11 @@ async fn real_linuxcnc_takes_planned_poses_and_runs_a_whole_job() {
         .await
         .expect("link")
         .expect("session");
-    cnc.enable().await.expect("link").expect("enable");
+    // The real LinuxCNC starts in E-stop and unhomed: the test allows both steps explicitly.
+    cnc.enable(EnableSteps::ALL)
+        .await
+        .expect("link")
+        .expect("enable");
     eprintln!(
         "connect + enable (estop off, machine on, home, M428): {:.2} s",
         t.elapsed().as_secs_f64()
@@ -223,6 +227,7 @@ async fn real_linuxcnc_takes_planned_poses_and_runs_a_whole_job() {
     let summary = Executor::new(job.clone(), cell, dir.path().join("run.journal"), None)
         .with_options(ExecOptions {
             timeouts,
+            enable: EnableSteps::ALL,
             ..ExecOptions::default()
         })
         .run(CancellationToken::new(), None)

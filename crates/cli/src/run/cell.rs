@@ -92,6 +92,7 @@ pub(super) fn execute(
             timeouts,
             cut_layer: args.cut_layer.map(CutLayer::from),
             machine: Some(config.machine),
+            enable: args.cell.enable_steps(),
             ..ExecOptions::default()
         });
         let executor = if args.frame {

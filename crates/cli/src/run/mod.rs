@@ -82,9 +82,25 @@ pub struct CellOverrides {
     /// The laser's serial device, overriding `cell.laser`.
     #[arg(long, value_name = "DEVICE")]
     laser: Option<String>,
+    /// Allow trimctl to reset the CNC's E-stop and switch the machine on. Without it a machine
+    /// in E-stop or switched off is refused (exit 1), naming its state.
+    #[arg(long)]
+    enable_machine: bool,
+    /// Allow trimctl to home the CNC (the axes move). Without it an unhomed machine is refused
+    /// (exit 1).
+    #[arg(long)]
+    home: bool,
 }
 
 impl CellOverrides {
+    /// What preparing the CNC may do (`--enable-machine`, `--home`).
+    pub fn enable_steps(&self) -> trim_io::cnc::EnableSteps {
+        trim_io::cnc::EnableSteps {
+            enable_machine: self.enable_machine,
+            home: self.home,
+        }
+    }
+
     /// Puts the given addresses into `config.cell`.
     pub fn apply(&self, config: &mut JobConfig) {
         if let Some(c) = &self.cnc {

@@ -286,9 +286,14 @@ pub enum ExecError {
     /// The journal.
     #[error(transparent)]
     Journal(#[from] JournalError),
-    /// The job cannot be sent to the galvo.
+    /// The job cannot be sent to the galvo, or moves outside the machine's limits.
     #[error("job: {0}")]
     Job(String),
+    /// The CNC is not ready (in E-stop, off, not homed) and the step that would make it so was
+    /// not allowed ([`ExecOptions::enable`]), or its state could not be read; nothing was
+    /// switched on.
+    #[error("the CNC: {0}; nothing was switched on")]
+    MachineNotReady(String),
     /// Resume cannot tell how far the cut layer got and no choice was given
     /// ([`ExecOptions::cut_layer`]); nothing was switched on.
     #[error("resume: cannot tell how far {key} got: {reason}. Choose what to do with the layer: redo (marks it again from vector {first_vector}: up to {} of its {vectors} vectors may be marked twice) or skip (leaves it out, unmarked; the report lists it)", vectors - first_vector)]
@@ -392,6 +397,10 @@ pub struct ExecOptions {
     /// can tell (`None`: refuse with [`ExecError::ResumeUnknown`]). Not used when the progress
     /// is known.
     pub cut_layer: Option<CutLayer>,
+    /// What preparation may do to the CNC beyond its mode: reset the E-stop and switch it on,
+    /// home it. A machine that needs a step not allowed is refused before anything is switched
+    /// on ([`ExecError::MachineNotReady`]).
+    pub enable: crate::cnc::EnableSteps,
     /// The machine (`[machine]`): every layer's pose is checked against its axis limits before
     /// anything moves ([`crate::limits`]). `None`: only the CNC's own limits guard the moves.
     pub machine: Option<trim_plan::kinematics::MachineSettings>,
@@ -404,6 +413,7 @@ impl Default for ExecOptions {
             laser_power_pct: None,
             laser_poll: Duration::from_millis(LASER_POLL_MS),
             cut_layer: None,
+            enable: crate::cnc::EnableSteps::default(),
             machine: None,
         }
     }
@@ -489,6 +499,7 @@ impl Executor {
         self.cancel = cancel;
         self.progress = progress;
         self.check_job()?;
+        self.check_machine().await?;
         let mut journal = Journal::create(&self.journal_path, &self.job)?;
         self.wrap_journal(&mut journal);
         self.execute(journal, JournalState::default()).await
@@ -504,6 +515,7 @@ impl Executor {
         self.cancel = cancel;
         self.progress = progress;
         self.check_job()?;
+        self.check_machine().await?;
         let (mut journal, state) = Journal::resume(&self.journal_path, &self.job)?;
         self.wrap_journal(&mut journal);
         self.execute(journal, state).await
@@ -528,6 +540,27 @@ impl Executor {
                 .map_err(|e| ExecError::Job(format!("{key}: {e}")))?;
         }
         Ok(())
+    }
+
+    /// Refuses a machine that is in E-stop, off or unhomed when the step that fixes it was not
+    /// allowed, before anything is switched on.
+    async fn check_machine(&mut self) -> Result<(), ExecError> {
+        let timeout = self.options.timeouts.cnc_reply * 3;
+        let state = match tokio::time::timeout(timeout, self.cell.cnc.state()).await {
+            Ok(Ok(Ok(s))) => s,
+            Ok(Ok(Err(f))) => return Err(ExecError::MachineNotReady(f.to_string())),
+            Ok(Err(e)) => return Err(ExecError::MachineNotReady(e.to_string())),
+            Err(_) => {
+                return Err(ExecError::MachineNotReady(format!(
+                    "no state within {} ms",
+                    timeout.as_millis()
+                )));
+            }
+        };
+        match self.options.enable.refusal(state) {
+            Some(f) => Err(ExecError::MachineNotReady(f.to_string())),
+            None => Ok(()),
+        }
     }
 
     fn emit(&self, p: Progress) {
@@ -655,7 +688,7 @@ impl Executor {
             enable_timeout,
             Device::Cnc,
             "enable",
-            self.cell.cnc.enable(),
+            self.cell.cnc.enable(self.options.enable),
         )
         .await?;
         Ok(())
