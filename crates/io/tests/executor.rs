@@ -35,6 +35,8 @@ fn options() -> ExecOptions {
         laser_power_pct: Some(80.0),
         // One laser check per layer (right after EXECUTE), so fault triggers count exactly.
         laser_poll: Duration::from_secs(60),
+        // One CNC check per layer (right after EXECUTE), so fault triggers count exactly.
+        cnc_poll: Duration::from_secs(60),
         cut_layer: None,
         // The in-process simulated CNC stands ready: no step needs allowing.
         enable: trim_io::cnc::EnableSteps::default(),
@@ -1233,4 +1235,101 @@ async fn a_machine_in_estop_or_unhomed_is_refused_unless_the_step_is_allowed() {
     .expect("both steps allowed");
     assert_eq!(summary.layers_marked, 4);
     assert_eq!(sim.cnc.machine_state(), (false, true, true));
+}
+
+/// Another session moves the machine (an MDI move, as a jog would) or puts it in E-stop while a
+/// layer marks: the executor's poll of the CNC sees the machine leave the layer's pose or its
+/// enabled state and takes the way down, laser first, within the poll period plus the way
+/// down's laser-off; the cut is journaled and resume finishes the job. (The move itself is
+/// outside trimctl's control: the monitor records emission during it, which is what the poll
+/// bounds.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_cnc_leaving_the_layers_pose_or_its_enabled_state_mid_layer_takes_the_way_down() {
+    use trim_io::cnc::Cnc as _;
+    use trim_io::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
+    const POLL: Duration = Duration::from_millis(20);
+    for intrusion in ["move", "estop"] {
+        let sim = sim_cell_scaled("monaco", 20.0).await;
+        let job = demo_job(2);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.journal");
+        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+        let run = Executor::new(job.clone(), connect(&sim, Tap::none()).await, &path, None)
+            .with_options(ExecOptions {
+                cnc_poll: POLL,
+                ..options()
+            })
+            .run(CancellationToken::new(), Some(tx));
+        let cnc_addr = sim.cnc.addr();
+        let intrude = async {
+            // Layer 0's list runs (its first vectors reported), then the second session acts.
+            while let Some(p) = rx.recv().await {
+                if matches!(p, Progress::Vectors { key, .. } if key == LayerKey { zone: 0, layer: 0 })
+                {
+                    break;
+                }
+            }
+            let mut other = LinuxCnc::connect(cnc_addr, LinuxCncConfig::default(), Tap::none())
+                .await
+                .unwrap()
+                .unwrap();
+            let at = Instant::now();
+            match intrusion {
+                "move" => {
+                    let mut p = trim_plan::job::Pose::default();
+                    p.0.insert("x".into(), 30.0);
+                    other.start_move(&p).await.unwrap().unwrap();
+                }
+                _ => other.estop().await.unwrap().unwrap(),
+            }
+            at
+        };
+        let (result, intruded_at) = tokio::join!(run, intrude);
+        let err = result.expect_err(intrusion);
+        let ExecError::Stopped(s) = err else {
+            panic!("{intrusion}: {err}")
+        };
+        assert_eq!(s.phase, Phase::WaitDone, "{intrusion}: {:?}", s.cause);
+        assert_eq!(s.key, Some(LayerKey { zone: 0, layer: 0 }), "{intrusion}");
+        let want = if intrusion == "move" {
+            "the machine moved while the layer marked: x at"
+        } else {
+            "left its enabled state while the layer marked (E-stop)"
+        };
+        assert!(
+            matches!(&s.cause, trim_io::executor::StopCause::Fault { device: Device::Cnc, message } if message.contains(want)),
+            "{intrusion}: {:?}",
+            s.cause
+        );
+        // Laser first: the light path closed within a poll period plus the way down's laser
+        // off of the intrusion.
+        let closed = sim
+            .monitor
+            .light_closed_since(intruded_at)
+            .unwrap_or_else(|| panic!("{intrusion}: light still on"));
+        let after = closed.saturating_duration_since(intruded_at);
+        assert!(
+            after < POLL + Duration::from_millis(200),
+            "{intrusion}: light off {after:?} after the intrusion"
+        );
+        assert!(s.shutdown.laser_off_ok, "{intrusion}: {:?}", s.shutdown);
+        assert!(!sim.laser.state().emission, "{intrusion}");
+        let st = journal::read(&path).unwrap();
+        assert!(!st.torn_tail && st.finished.is_empty(), "{intrusion}");
+
+        // The operator puts the machine back; resume (allowed to enable it again) finishes.
+        let summary = Executor::new(job.clone(), connect(&sim, Tap::none()).await, &path, None)
+            .with_options(ExecOptions {
+                enable: trim_io::cnc::EnableSteps::ALL,
+                ..options()
+            })
+            .resume(CancellationToken::new(), None)
+            .await
+            .unwrap_or_else(|e| panic!("{intrusion}: resume: {e}"));
+        assert_eq!(summary.layers_marked, 4, "{intrusion}");
+        assert!(
+            assert_marked_exactly_once(&job, &sim.galvo.marks()) <= 1,
+            "{intrusion}"
+        );
+    }
 }

@@ -18,7 +18,7 @@ use trim_plan::job::Pose;
 
 use super::{
     AXES, Cnc, CncError, CncFault, CncResult, EnableSteps, IN_POSITION_TOLERANCE, MachineState,
-    Positions,
+    Positions, Watch,
 };
 use crate::tap::{Device, Direction, Tap};
 
@@ -546,6 +546,20 @@ impl Cnc for LinuxCnc {
 
     fn positions(&mut self) -> BoxFuture<'_, CncResult<Positions>> {
         Box::pin(self.read_positions())
+    }
+
+    fn watch(&mut self) -> BoxFuture<'_, CncResult<Watch>> {
+        Box::pin(async move {
+            let positions = match self.read_positions().await? {
+                Ok(p) => p,
+                Err(f) => return Ok(Err(f)),
+            };
+            let state = match self.read_state().await? {
+                Ok(s) => s,
+                Err(f) => return Ok(Err(f)),
+            };
+            Ok(Ok(Watch { positions, state }))
+        })
     }
 
     fn abort(&mut self) -> BoxFuture<'_, CncResult<()>> {

@@ -161,6 +161,19 @@ pub type CncResult<T> = Result<Result<T, CncFault>, CncError>;
 /// (mm for linear, degrees for rotary axes).
 pub const IN_POSITION_TOLERANCE: f64 = 1e-3;
 
+/// While a layer marks, the largest distance from the layer's pose the machine may show before
+/// the run stops (mm, degrees): above the control's reported jitter, far below a layer step.
+pub const HOLD_TOLERANCE: f64 = 5e-3;
+
+/// What the control reports while a layer marks: where the machine is and its state.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Watch {
+    /// The positions.
+    pub positions: Positions,
+    /// E-stop, on, homed.
+    pub state: MachineState,
+}
+
 /// A five-axis CNC control.
 pub trait Cnc: Send {
     /// Reads whether the machine is in E-stop, on, and homed.
@@ -175,6 +188,8 @@ pub trait Cnc: Send {
     fn wait_in_position(&mut self, timeout: Duration) -> BoxFuture<'_, CncResult<Positions>>;
     /// Reads the positions.
     fn positions(&mut self) -> BoxFuture<'_, CncResult<Positions>>;
+    /// Reads the positions and the machine's state (polled while a layer marks).
+    fn watch(&mut self) -> BoxFuture<'_, CncResult<Watch>>;
     /// Stops motion (the machine stays enabled).
     fn abort(&mut self) -> BoxFuture<'_, CncResult<()>>;
     /// Emergency stop.

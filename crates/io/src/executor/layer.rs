@@ -358,10 +358,17 @@ impl Executor {
             + Duration::from_secs_f64(list.modelled_s * t.list_time_factor)
             + t.list_time_margin;
         let mut last_laser_check: Option<Instant> = None;
+        let mut last_cnc_check: Option<Instant> = None;
         let done_status = loop {
             if last_laser_check.is_none_or(|l| l.elapsed() >= self.options.laser_poll) {
                 self.check_laser().await.at(Phase::WaitDone, true)?;
                 last_laser_check = Some(Instant::now());
+            }
+            if last_cnc_check.is_none_or(|l| l.elapsed() >= self.options.cnc_poll) {
+                self.check_cnc_holds(&work.layer.pose)
+                    .await
+                    .at(Phase::WaitDone, true)?;
+                last_cnc_check = Some(Instant::now());
             }
             let s = self.galvo_status().await.at(Phase::WaitDone, true)?;
             if s.tag != list.tag || s.list != list_buf {
@@ -407,6 +414,45 @@ impl Executor {
         let t_done = Instant::now();
         Self::check_marks(work, list, &done_status).at(Phase::WaitDone, true)?;
         Ok(t_done)
+    }
+
+    /// The CNC, while a list runs: still at the layer's pose (within
+    /// [`crate::cnc::HOLD_TOLERANCE`]), out of E-stop and on. Anything else (a jog or an MDI
+    /// from another session, an E-stop, an abort that left it elsewhere) is a CNC fault.
+    async fn check_cnc_holds(&mut self, pose: &trim_plan::job::Pose) -> Result<(), StopCause> {
+        let t = self.options.timeouts;
+        let w = Self::guard(
+            &self.cancel,
+            t.cnc_reply,
+            Device::Cnc,
+            "position and state",
+            self.cell.cnc.watch(),
+        )
+        .await?;
+        let fault = |message: String| StopCause::Fault {
+            device: Device::Cnc,
+            message,
+        };
+        if w.state.estop || !w.state.on {
+            return Err(fault(format!(
+                "the machine left its enabled state while the layer marked ({})",
+                if w.state.estop {
+                    "E-stop"
+                } else {
+                    "switched off"
+                }
+            )));
+        }
+        for (axis, &commanded) in &pose.0 {
+            let actual = w.positions.world.axis(axis).unwrap_or(f64::NAN);
+            let held = (actual - commanded).abs() <= crate::cnc::HOLD_TOLERANCE; // false for NaN
+            if !held {
+                return Err(fault(format!(
+                    "the machine moved while the layer marked: {axis} at {actual:.4}, the layer's pose {commanded:.4}"
+                )));
+            }
+        }
+        Ok(())
     }
 
     /// The laser's faults, while a list runs.

@@ -59,6 +59,9 @@ pub const STATUS_POLL_MS: u64 = 10;
 /// How often the laser's faults are checked while a list runs (ms); also once right after
 /// `EXECUTE`.
 pub const LASER_POLL_MS: u64 = 250;
+/// How often the CNC's position and state are read while a list runs (ms); also once right
+/// after `EXECUTE`.
+pub const CNC_POLL_MS: u64 = 50;
 
 /// The steps of a layer (and the run's preparation).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize)]
@@ -393,6 +396,10 @@ pub struct ExecOptions {
     /// How often the laser's faults are checked while a list runs (also once right after
     /// `EXECUTE`).
     pub laser_poll: Duration,
+    /// How often the CNC is read while a list runs (also once right after `EXECUTE`): a
+    /// position off the layer's pose by more than [`crate::cnc::HOLD_TOLERANCE`], or the
+    /// machine in E-stop or off, takes the way down.
+    pub cnc_poll: Duration,
     /// On resume, what to do with a cut layer whose progress neither the galvo nor the journal
     /// can tell (`None`: refuse with [`ExecError::ResumeUnknown`]). Not used when the progress
     /// is known.
@@ -412,6 +419,7 @@ impl Default for ExecOptions {
             timeouts: Timeouts::default(),
             laser_power_pct: None,
             laser_poll: Duration::from_millis(LASER_POLL_MS),
+            cnc_poll: Duration::from_millis(CNC_POLL_MS),
             cut_layer: None,
             enable: crate::cnc::EnableSteps::default(),
             machine: None,
