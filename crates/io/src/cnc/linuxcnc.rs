@@ -435,19 +435,25 @@ impl LinuxCnc {
         if let Some(refusal) = steps.refusal(state) {
             return Ok(Err(refusal));
         }
-        let mut power = Vec::new();
-        if state.estop {
-            power.push("set estop off");
-        }
+        // Allowed and needed: the sequence as it always was (estop off, machine on, then the
+        // homed state read again, which also gives LinuxCNC the moment it needs after
+        // `set machine on` under `set_wait received`).
         if state.estop || !state.on {
-            power.push("set machine on");
-        }
-        for cmd in power {
-            if let Err(f) = self.set(cmd, None).await? {
-                return Ok(Err(f));
+            for cmd in ["set estop off", "set machine on"] {
+                if let Err(f) = self.set(cmd, None).await? {
+                    return Ok(Err(f));
+                }
             }
         }
-        if !state.homed {
+        if !self.homed().await? {
+            // Unhomed only now (homing lost with the E-stop): still the operator's decision.
+            if let Some(refusal) = steps.refusal(MachineState {
+                estop: false,
+                on: true,
+                homed: false,
+            }) {
+                return Ok(Err(refusal));
+            }
             for cmd in ["set mode manual", "set home -1"] {
                 if let Err(f) = self.set(cmd, None).await? {
                     return Ok(Err(f));
