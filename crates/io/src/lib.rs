@@ -20,6 +20,7 @@
 
 pub mod cell;
 pub mod cnc;
+pub mod disk;
 pub mod executor;
 pub mod fault;
 pub mod frame;

@@ -1333,3 +1333,98 @@ async fn the_cnc_leaving_the_layers_pose_or_its_enabled_state_mid_layer_takes_th
         );
     }
 }
+
+/// A record file whose flush hangs once `hang` is set (the disk under the MCAP record stops
+/// answering).
+struct HangingFile {
+    inner: std::io::BufWriter<std::fs::File>,
+    hang: std::sync::Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl std::io::Write for HangingFile {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.inner.write(buf)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        if self.hang.load(std::sync::atomic::Ordering::SeqCst) {
+            std::thread::sleep(Duration::from_millis(trim_io::record::FLUSH_TIMEOUT_MS * 2));
+        }
+        self.inner.flush()
+    }
+}
+
+impl std::io::Seek for HangingFile {
+    fn seek(&mut self, to: std::io::SeekFrom) -> std::io::Result<u64> {
+        self.inner.seek(to)
+    }
+}
+
+/// The MCAP record's disk hangs after layer 0: the flush during the next move is bounded by
+/// the record's flush timeout and takes the way down (laser first) instead of hanging the run;
+/// the journal is intact and resume finishes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hung_record_flush_takes_the_way_down_at_its_timeout() {
+    let sim = sim_cell("monaco").await;
+    let job = demo_job(2);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.journal");
+    let hang = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let file = HangingFile {
+        inner: std::io::BufWriter::new(std::fs::File::create(dir.path().join("run.mcap")).unwrap()),
+        hang: hang.clone(),
+    };
+    let recorder = Recorder::create_on(file, &dir.path().join("run.mcap"))
+        .unwrap()
+        .shared();
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    let t0 = Instant::now();
+    // The CLI keeps its own handle (it finishes the record after the run): so does the test, so
+    // the executor's end does not close the file.
+    let run = Executor::new(
+        job.clone(),
+        connect(&sim, Tap::none()).await,
+        &path,
+        Some(recorder.clone()),
+    )
+    .with_options(options())
+    .run(CancellationToken::new(), Some(tx));
+    let arm = async {
+        while let Some(p) = rx.recv().await {
+            if matches!(p, Progress::LayerDone { index: 0, .. }) {
+                hang.store(true, std::sync::atomic::Ordering::SeqCst);
+            }
+        }
+    };
+    let (result, ()) = tokio::join!(run, arm);
+    let err = result.expect_err("the record's disk hung");
+    let ExecError::Stopped(s) = err else {
+        panic!("{err}")
+    };
+    assert!(
+        matches!(&s.cause, trim_io::executor::StopCause::Record { message } if message.contains("did not flush within")),
+        "{:?}",
+        s.cause
+    );
+    // The next move after the disk hung (the hang is armed from the progress events, so it
+    // may land a layer late).
+    assert_eq!(s.phase, Phase::Move, "{:?}", s.key);
+    assert!(s.layers_finished >= 1, "{s:?}");
+    // Bounded: the flush timeout, not the disk's hang (twice as long), and no second wait.
+    let took = t0.elapsed();
+    assert!(
+        took < Duration::from_millis(trim_io::record::FLUSH_TIMEOUT_MS * 2),
+        "the run waited for the disk: {took:?}"
+    );
+    assert!(s.shutdown.all_acknowledged(), "{:?}", s.shutdown);
+    assert!(!sim.laser.state().emission);
+    assert!(!sim.monitor.light());
+    let st = journal::read(&path).unwrap();
+    assert_eq!(st.finished.len(), s.layers_finished);
+    let summary = resume(&sim, &job, &path).await;
+    assert_eq!(summary.layers_skipped, s.layers_finished);
+    assert_eq!(assert_marked_exactly_once(&job, &sim.galvo.marks()), 0);
+    // Closing the record on the hung disk is bounded too (one flush timeout).
+    let t = Instant::now();
+    drop(recorder);
+    assert!(t.elapsed() < Duration::from_millis(trim_io::record::FLUSH_TIMEOUT_MS * 2));
+}

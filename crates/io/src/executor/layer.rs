@@ -209,8 +209,17 @@ impl Executor {
         .await
         .at(Phase::Move, false)?;
         // The previous layer's record goes to disk while the CNC moves, not between its done
-        // and this move.
+        // and this move. A flush that timed out (a hung disk) takes the way down.
         self.flush_record();
+        if self.record_disk_hung() {
+            return Err(StopCause::Record {
+                message: format!(
+                    "the record's disk did not flush within {} ms",
+                    crate::record::FLUSH_TIMEOUT_MS
+                ),
+            })
+            .at(Phase::Move, false);
+        }
         Ok(())
     }
 

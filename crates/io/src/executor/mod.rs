@@ -175,6 +175,11 @@ pub enum StopCause {
         /// What happened.
         message: String,
     },
+    /// The run record's disk hangs: a flush did not return within its timeout.
+    Record {
+        /// What happened.
+        message: String,
+    },
 }
 
 impl std::fmt::Display for StopCause {
@@ -185,6 +190,7 @@ impl std::fmt::Display for StopCause {
             StopCause::Fault { device, message } => write!(f, "{device} fault: {message}"),
             StopCause::Journal { message } => write!(f, "journal: {message}"),
             StopCause::Job { message } => write!(f, "job: {message}"),
+            StopCause::Record { message } => write!(f, "record: {message}"),
         }
     }
 }
@@ -590,22 +596,40 @@ impl Executor {
         if let Some(r) = &self.recorder {
             let mut r = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
             let res = r.layer(now_ns(), key, state, done, total, &self.job);
-            let res = res.and_then(|()| if flush { r.flush() } else { Ok(()) });
+            // A hung disk is not asked again (each flush would wait its whole timeout).
+            let res = res.and_then(|()| {
+                if flush && !r.disk_hung() {
+                    r.flush()
+                } else {
+                    Ok(())
+                }
+            });
             if let Err(e) = res {
                 tracing::warn!(error = %e, "record: layer message lost");
             }
         }
     }
 
-    /// Writes what the record holds to disk (a failure is logged: the record is not the
-    /// journal, and losing it never stops the cell).
-    fn flush_record(&self) {
-        if let Some(r) = &self.recorder
-            && let Err(e) = r
-                .lock()
+    /// Whether the record's disk hangs (a flush timed out).
+    fn record_disk_hung(&self) -> bool {
+        self.recorder.as_ref().is_some_and(|r| {
+            r.lock()
                 .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .flush()
-        {
+                .disk_hung()
+        })
+    }
+
+    /// Writes what the record holds to disk, bounded by the record's flush timeout (a failure is
+    /// logged: the record is not the journal; a hung disk is seen by
+    /// [`Executor::record_disk_hung`]).
+    fn flush_record(&self) {
+        let Some(r) = &self.recorder else { return };
+        let mut r = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        // A hung disk is not asked again (each flush would wait its whole timeout).
+        if r.disk_hung() {
+            return;
+        }
+        if let Err(e) = r.flush() {
             tracing::warn!(error = %e, "record: flush failed");
         }
     }
