@@ -760,3 +760,39 @@ fn run_refuses_a_machine_in_estop_without_enable_machine() {
     );
     drop(sim);
 }
+
+/// `trimctl sim` stops cleanly (exit 0, its report printed) on SIGTERM, SIGHUP and SIGQUIT as
+/// on Ctrl-C, instead of dying with its devices mid-answer.
+#[test]
+fn sim_stops_cleanly_on_each_stop_signal() {
+    use std::io::BufRead as _;
+    for sig in ["INT", "TERM", "HUP", "QUIT"] {
+        let tmp = tempfile::tempdir().unwrap();
+        let stderr_path = tmp.path().join("stderr");
+        let mut child = Command::new(TRIMCTL)
+            .args(["sim", "all", "--galvo-port", "0", "--cnc-port", "0"])
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&stderr_path).unwrap())
+            .spawn()
+            .unwrap();
+        // Running once it printed its three addresses.
+        let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
+        for _ in 0..3 {
+            lines.next().expect("an address line").unwrap();
+        }
+        std::thread::sleep(Duration::from_millis(200));
+        let killed = Command::new("kill")
+            .arg(format!("-{sig}"))
+            .arg(child.id().to_string())
+            .status()
+            .unwrap();
+        assert!(killed.success());
+        let status = child.wait().unwrap();
+        let stderr = std::fs::read_to_string(&stderr_path).unwrap();
+        assert_eq!(status.code(), Some(0), "SIG{sig}: {stderr}");
+        assert!(
+            stderr.contains(&format!("SIG{sig}")) && stderr.contains("stopping"),
+            "SIG{sig}: {stderr}"
+        );
+    }
+}
