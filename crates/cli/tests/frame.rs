@@ -250,3 +250,38 @@ fn frame_refuses_a_hand_edited_pose_outside_the_machine_limits() {
     }
     assert!(!report.exists(), "framed anyway");
 }
+
+/// `trimctl frame` takes its way down (pointer off, exit 3) on SIGTERM, SIGHUP and SIGQUIT as
+/// on Ctrl-C.
+#[test]
+fn frame_stops_on_each_stop_signal() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("run");
+    planned_demo(&dir);
+    for sig in ["TERM", "HUP", "QUIT"] {
+        let stderr_path = tmp.path().join(format!("{sig}.stderr"));
+        let mut child = Command::new(TRIMCTL)
+            .arg("frame")
+            .arg(&dir)
+            .args(["--seconds", "60", "--sim-time-scale", "1.0"])
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&stderr_path).unwrap())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_secs(3));
+        assert!(child.try_wait().unwrap().is_none(), "SIG{sig}: ended early");
+        let killed = Command::new("kill")
+            .arg(format!("-{sig}"))
+            .arg(child.id().to_string())
+            .status()
+            .unwrap();
+        assert!(killed.success());
+        let status = child.wait().unwrap();
+        let stderr = std::fs::read_to_string(&stderr_path).unwrap();
+        assert_eq!(status.code(), Some(3), "SIG{sig}: {stderr}");
+        assert!(
+            stderr.contains(&format!("SIG{sig}")) && stderr.contains("the pointer is off"),
+            "SIG{sig}: {stderr}"
+        );
+    }
+}
