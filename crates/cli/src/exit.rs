@@ -4,8 +4,12 @@
 //! |---|---|
 //! | 0 | done |
 //! | 1 | refused or bad input (nothing was started, or the job refused to start) |
-//! | 2 | device fault (the laser was switched off first; the cell is safe) |
-//! | 3 | interrupted (Ctrl-C; the laser was switched off first; resume with `--resume`) |
+//! | 2 | device fault (the laser acknowledged its emission-off on the way down) |
+//! | 3 | interrupted (Ctrl-C, SIGTERM, SIGHUP, SIGQUIT; the laser acknowledged its emission-off; resume with `--resume`) |
+//! | 4 | stopped (a fault or an interruption), and the laser's state is unknown: its emission-off was never acknowledged. Switch the laser off at its key. |
+//!
+//! 2 and 3 are used only when the laser acknowledged its emission-off on the way down; when it
+//! did not, 4 replaces either, whatever stopped the run.
 //!
 //! Commands return `anyhow::Result<()>`. An error that is not a [`Failure`] exits with 1. A
 //! command line clap cannot parse is bad input too (1, not clap's own 2, which would read as a
@@ -22,6 +26,8 @@ pub enum Exit {
     DeviceFault = 2,
     /// Interrupted by the operator.
     Interrupted = 3,
+    /// Stopped, and the laser's emission-off was not acknowledged: its state is unknown.
+    LaserStateUnknown = 4,
 }
 
 /// An error that carries its exit code.

@@ -162,7 +162,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.target.clone()
     };
     let keys = targets(&job, &args, &plan)?;
-    // Every layer is checked before anything moves.
+    // Every layer is checked before anything moves: its pose inside `[machine]`'s limits, ...
+    trim_io::limits::check_poses(&job, &config.machine, Some(&keys))
+        .map_err(|e| anyhow::anyhow!("{}: {e}; refusing to move there", plan.display()))?;
     for key in &keys {
         trim_io::frame::find_layer(&job, *key)
             .map_err(|e| anyhow::anyhow!("{}: {e}", plan.display()))?;
@@ -199,18 +201,31 @@ async fn frame_all(
     let timeouts = Timeouts::default();
     let mut cell = crate::run::connect(&addresses, &timeouts, Tap::none()).await?;
     let cancel = CancellationToken::new();
-    let on_ctrl_c = cancel.clone();
-    tokio::spawn(async move {
-        if tokio::signal::ctrl_c().await.is_ok() {
-            eprintln!("\ntrimctl frame: interrupted: pointer off, stopping");
-            on_ctrl_c.cancel();
-        }
-    });
+    crate::stop_signal::StopSignals::install()?.cancel_on_first(
+        cancel.clone(),
+        "trimctl frame",
+        "interrupted: pointer off, stopping",
+    );
     let mut lines = interactive.then(stdin_lines);
     let settings = FrameSettings {
         timeouts,
+        enable: args.cell.enable_steps(),
         ..FrameSettings::new(args.outline.into())
     };
+    // A machine in E-stop, off or unhomed is refused before anything is switched on, unless
+    // the operator allowed the step.
+    let state = tokio::time::timeout(timeouts.cnc_reply * 3, cell.cnc.state())
+        .await
+        .map_err(|_| anyhow::anyhow!("the CNC did not report its state"))
+        .and_then(|r| r.map_err(anyhow::Error::from))
+        .and_then(|r| r.map_err(anyhow::Error::from))
+        .map_err(|e| Failure::with_exit(Exit::DeviceFault, e))?;
+    if let Some(refusal) = settings.enable.refusal(state) {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!("the CNC: {refusal}; nothing was switched on"),
+        ));
+    }
     let mut framed = Vec::new();
     for (i, key) in keys.iter().enumerate() {
         if interactive {

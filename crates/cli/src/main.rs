@@ -19,6 +19,7 @@ mod register;
 mod report_cmd;
 mod run;
 mod sim;
+mod stop_signal;
 mod summary;
 mod synth;
 mod timing_record;

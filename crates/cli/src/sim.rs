@@ -55,6 +55,10 @@ pub struct Args {
     /// CNC motion: real seconds per simulated second.
     #[arg(long, default_value_t = 1.0)]
     cnc_time_scale: f64,
+    /// Start the CNC out of E-stop, switched on and homed (else in E-stop and unhomed, as a
+    /// real machine after power-up: `run` and `frame` then need --enable-machine and --home).
+    #[arg(long)]
+    cnc_ready: bool,
     /// A fault to inject, `DEVICE=KIND@COMMAND[#N]` or `galvo=KIND@marks:M[#LIST]`; KIND is
     /// drop-link, stall, garble or refuse. E.g. `galvo=stall@EXECUTE#2`,
     /// `laser=garble@emission_on`, `cnc=refuse@mdi#3`. Repeatable.
@@ -102,6 +106,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 async fn serve(args: Args, faults: Faults) -> anyhow::Result<()> {
+    // Installed before the simulators start: a stop signal from then on stops them cleanly.
+    let mut signals = crate::stop_signal::StopSignals::install()?;
     let monitor = SafetyMonitor::new();
     let want = |w: Which| args.which == w || args.which == Which::All;
     let mut galvo = None;
@@ -137,6 +143,7 @@ async fn serve(args: Args, faults: Faults) -> anyhow::Result<()> {
             SocketAddr::new(args.bind, args.cnc_port),
             CncSimConfig {
                 time_scale: args.cnc_time_scale,
+                start_ready: args.cnc_ready,
                 ..CncSimConfig::default()
             },
             monitor.clone(),
@@ -147,10 +154,9 @@ async fn serve(args: Args, faults: Faults) -> anyhow::Result<()> {
         println!("{}", serde_json::json!({"cnc": sim.addr().to_string()}));
         cnc = Some(sim);
     }
-    eprintln!("trimctl sim: running; Ctrl-C stops");
-    tokio::signal::ctrl_c()
-        .await
-        .context("waiting for Ctrl-C")?;
+    eprintln!("trimctl sim: running; Ctrl-C (or SIGTERM, SIGHUP, SIGQUIT) stops");
+    let name = signals.next().await;
+    eprintln!("trimctl sim: {name}: stopping");
     if let Some(g) = &galvo {
         eprintln!(
             "galvo: {} vectors executed, {:.3} s modelled",

@@ -215,3 +215,73 @@ fn run_frame_asks_before_each_zone_and_quit_stops_the_run_resumably() {
     assert_eq!(done.len(), first_layers, "{done:?}");
     assert!(done.iter().all(|(z, _)| *z == first), "{done:?}");
 }
+
+/// `trimctl frame` on a hand-edited plan whose pose leaves `[machine]`'s travel refuses before
+/// anything moves (exit 1), naming the layer, the axis and the limit.
+#[test]
+fn frame_refuses_a_hand_edited_pose_outside_the_machine_limits() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("run");
+    planned_demo(&dir);
+    let plan_path = dir.join("plan.json");
+    let mut plan = json(&plan_path);
+    let zone = plan["zones"][0]["id"].as_u64().expect("zone id");
+    let layer = plan["zones"][0]["layers"][0]["index"]
+        .as_u64()
+        .expect("layer index");
+    plan["zones"][0]["layers"][0]["pose"]["x"] = serde_json::json!(500.0);
+    std::fs::write(&plan_path, serde_json::to_string(&plan).unwrap()).unwrap();
+    let report = tmp.path().join("frame.json");
+    let out = Command::new(TRIMCTL)
+        .arg("frame")
+        .arg(&dir)
+        .args(["--zone", &zone.to_string(), "--passes", "1", "--report"])
+        .arg(&report)
+        .output()
+        .expect("trimctl runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    for want in [
+        format!("zone {zone} layer {layer}"),
+        "X = 500.000 mm outside".to_owned(),
+        "refusing to move there".to_owned(),
+    ] {
+        assert!(stderr.contains(&want), "{want:?} missing: {stderr}");
+    }
+    assert!(!report.exists(), "framed anyway");
+}
+
+/// `trimctl frame` takes its way down (pointer off, exit 3) on SIGTERM, SIGHUP and SIGQUIT as
+/// on Ctrl-C.
+#[test]
+fn frame_stops_on_each_stop_signal() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("run");
+    planned_demo(&dir);
+    for sig in ["TERM", "HUP", "QUIT"] {
+        let stderr_path = tmp.path().join(format!("{sig}.stderr"));
+        let mut child = Command::new(TRIMCTL)
+            .arg("frame")
+            .arg(&dir)
+            .args(["--seconds", "60", "--sim-time-scale", "1.0"])
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&stderr_path).unwrap())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_secs(3));
+        assert!(child.try_wait().unwrap().is_none(), "SIG{sig}: ended early");
+        let killed = Command::new("kill")
+            .arg(format!("-{sig}"))
+            .arg(child.id().to_string())
+            .status()
+            .unwrap();
+        assert!(killed.success());
+        let status = child.wait().unwrap();
+        let stderr = std::fs::read_to_string(&stderr_path).unwrap();
+        assert_eq!(status.code(), Some(3), "SIG{sig}: {stderr}");
+        assert!(
+            stderr.contains(&format!("SIG{sig}")) && stderr.contains("the pointer is off"),
+            "SIG{sig}: {stderr}"
+        );
+    }
+}

@@ -360,7 +360,8 @@ impl SimServer {
         }
     }
 
-    /// `trimctl run` arguments that point at these simulators.
+    /// `trimctl run` arguments that point at these simulators (its CNC starts in E-stop and
+    /// unhomed: both steps allowed).
     fn cell_args(&self) -> Vec<String> {
         [
             "--galvo",
@@ -369,6 +370,8 @@ impl SimServer {
             &self.cnc,
             "--laser",
             &self.laser,
+            "--enable-machine",
+            "--home",
         ]
         .iter()
         .map(|s| (*s).to_owned())
@@ -560,4 +563,243 @@ fn a_layer_cut_at_an_unknown_point_resumes_by_the_operators_choice() {
     assert!(stdout.contains(&line), "{line:?} missing:\n{stdout}");
     assert_eq!(layers_done(&skip_dir), done);
     drop(sim);
+}
+
+/// The error line, `report.md` and `summary.json` say what the way down acknowledged: with a
+/// laser that stops answering mid-list, its emission-off is NOT acknowledged, the run exits 4
+/// (the laser's state unknown) and the operator is told to switch it off at its key; with a
+/// galvo that hangs, the laser's emission-off is acknowledged (exit 2) and the galvo's steps
+/// are named as not acknowledged. "The laser is off" is said only when it was acknowledged.
+#[test]
+fn a_stopped_run_says_which_steps_of_the_way_down_were_acknowledged() {
+    let tmp = tempfile::tempdir().unwrap();
+    // The laser's 2nd fault query is the check right after the first EXECUTE (preparation
+    // checks once); the galvo's 2nd EXECUTE is layer index 1.
+    for (fault, code, says, report_says, not_acked) in [
+        (
+            "laser=stall@faults#2",
+            4,
+            "laser emission-off NOT acknowledged",
+            "laser emission-off NOT acknowledged",
+            "emission_off",
+        ),
+        (
+            "galvo=stall@EXECUTE#2",
+            2,
+            "the laser's emission is off (acknowledged)",
+            "laser emission-off acknowledged (1 attempt(s)",
+            "galvo_stop",
+        ),
+    ] {
+        let out = tmp.path().join(fault.replace(['=', '@', '#'], "-"));
+        let sim = SimServer::start(&[fault]);
+        let result = Command::new(TRIMCTL)
+            .args(["run", "--out"])
+            .arg(&out)
+            .args(sim.cell_args())
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&result.stderr).into_owned();
+        assert_eq!(result.status.code(), Some(code), "{fault}: {stderr}");
+        let error = stderr
+            .lines()
+            .find(|l| l.starts_with("trimctl: error"))
+            .unwrap_or_else(|| panic!("{fault}: no error line: {stderr}"));
+        assert!(error.contains(says), "{fault}: {error}");
+        assert!(!error.contains("the laser is off"), "{fault}: {error}");
+        if code == 4 {
+            assert!(
+                error.contains("switch the laser off at its key"),
+                "{fault}: {error}"
+            );
+        }
+        let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+        assert!(report.contains("## Way down"), "{fault}: {report}");
+        assert!(report.contains(report_says), "{fault}: {report}");
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
+                .unwrap();
+        let shutdown = &summary["shutdown"];
+        assert_eq!(
+            shutdown["laser_off_ok"].as_bool(),
+            Some(code == 2),
+            "{fault}: {shutdown}"
+        );
+        let failed: Vec<&str> = shutdown["failures"]
+            .as_array()
+            .unwrap_or_else(|| panic!("{fault}: {shutdown}"))
+            .iter()
+            .filter_map(|f| f["step"].as_str())
+            .collect();
+        assert!(failed.contains(&not_acked), "{fault}: {failed:?}");
+        assert!(
+            !shutdown["emission_off"].as_array().unwrap().is_empty(),
+            "{fault}: {shutdown}"
+        );
+        // The MCAP record holds it on /shutdown.
+        let record = std::fs::read(out.join("run.mcap")).unwrap();
+        assert!(
+            record
+                .windows(b"/shutdown".len())
+                .any(|w| w == b"/shutdown")
+                && record
+                    .windows(b"laser_off_ok".len())
+                    .any(|w| w == b"laser_off_ok"),
+            "{fault}: no /shutdown message in the record"
+        );
+        drop(sim);
+    }
+}
+
+/// SIGTERM, SIGHUP and SIGQUIT stop a run mid-layer the way Ctrl-C does: the way down (laser
+/// off first, acknowledged), exit 3, the cut layer journaled; `--resume` finishes the job with
+/// every layer finished once.
+#[test]
+fn each_stop_signal_takes_the_way_down_and_the_run_resumes() {
+    let tmp = tempfile::tempdir().unwrap();
+    for sig in ["TERM", "HUP", "QUIT"] {
+        let out = tmp.path().join(sig);
+        // stderr to a file: a pipe nobody reads until the end could fill and block the run.
+        let stderr_path = tmp.path().join(format!("{sig}.stderr"));
+        let child = Command::new(TRIMCTL)
+            .args(["run", "--sim-time-scale", "1.0", "--out"])
+            .arg(&out)
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&stderr_path).unwrap())
+            .spawn()
+            .unwrap();
+        // Mid-layer: a layer finished, and the last entry is a later layer's begin.
+        let start = Instant::now();
+        let mut child = child;
+        loop {
+            let entries = journal_entries(&out);
+            let mid_layer = !layers_done(&out).is_empty()
+                && entries.last().is_some_and(|e| e["kind"] == "layer_begin");
+            if mid_layer {
+                break;
+            }
+            if let Some(status) = child.try_wait().unwrap() {
+                panic!("SIG{sig}: the run ended ({status}) before the signal");
+            }
+            assert!(
+                start.elapsed() < RUN_TIMEOUT,
+                "SIG{sig}: no layer began in time"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let killed = Command::new("kill")
+            .arg(format!("-{sig}"))
+            .arg(child.id().to_string())
+            .status()
+            .unwrap();
+        assert!(killed.success());
+        let status = child.wait().unwrap();
+        let stderr = std::fs::read_to_string(&stderr_path).unwrap();
+        assert_eq!(status.code(), Some(3), "SIG{sig}: {stderr}");
+        assert!(stderr.contains(&format!("SIG{sig}")), "SIG{sig}: {stderr}");
+        assert!(
+            stderr.contains("the laser is off (emission-off acknowledged"),
+            "SIG{sig}: {stderr}"
+        );
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
+                .unwrap();
+        assert_eq!(summary["shutdown"]["laser_off_ok"].as_bool(), Some(true));
+        // The journal is consistent: the begun layer is journaled as cut, nothing after it.
+        let kinds = journal_kinds(&out);
+        assert_eq!(
+            kinds[kinds.len() - 2..],
+            ["layer_begin".to_owned(), "layer_cut".to_owned()],
+            "SIG{sig}: {kinds:?}"
+        );
+        let before = layers_done(&out);
+        assert!(before.values().all(|&n| n == 1));
+
+        let result = Command::new(TRIMCTL)
+            .args(["run", "--sim-time-scale", "0.01", "--resume"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(
+            result.status.success(),
+            "SIG{sig}: resume failed:\n{}",
+            String::from_utf8_lossy(&result.stderr)
+        );
+        let after = layers_done(&out);
+        for key in planned_layers(&out) {
+            assert_eq!(after.get(&key), Some(&1), "SIG{sig}: layer {key:?}");
+        }
+    }
+}
+
+/// Against a CNC that stands in E-stop and unhomed (`trimctl sim`'s, as a machine after
+/// power-up), `trimctl run` refuses without --enable-machine and --home (exit 1, naming the
+/// state, nothing switched on); the built-in demo needs neither (its in-process simulator
+/// stands ready).
+#[test]
+fn run_refuses_a_machine_in_estop_without_enable_machine() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let sim = SimServer::start(&[]);
+    let args: Vec<String> = sim
+        .cell_args()
+        .into_iter()
+        .filter(|a| a != "--enable-machine" && a != "--home")
+        .collect();
+    let result = Command::new(TRIMCTL)
+        .args(["run", "--out"])
+        .arg(&out)
+        .args(&args)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr).into_owned();
+    assert_eq!(result.status.code(), Some(1), "{stderr}");
+    for want in [
+        "the machine is in E-stop",
+        "--enable-machine",
+        "nothing was switched on",
+    ] {
+        assert!(stderr.contains(want), "{want:?} missing: {stderr}");
+    }
+    assert!(
+        !journal_kinds(&out).iter().any(|k| k == "layer_begin"),
+        "a layer began"
+    );
+    drop(sim);
+}
+
+/// `trimctl sim` stops cleanly (exit 0, its report printed) on SIGTERM, SIGHUP and SIGQUIT as
+/// on Ctrl-C, instead of dying with its devices mid-answer.
+#[test]
+fn sim_stops_cleanly_on_each_stop_signal() {
+    use std::io::BufRead as _;
+    for sig in ["INT", "TERM", "HUP", "QUIT"] {
+        let tmp = tempfile::tempdir().unwrap();
+        let stderr_path = tmp.path().join("stderr");
+        let mut child = Command::new(TRIMCTL)
+            .args(["sim", "all", "--galvo-port", "0", "--cnc-port", "0"])
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&stderr_path).unwrap())
+            .spawn()
+            .unwrap();
+        // Running once it printed its three addresses.
+        let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
+        for _ in 0..3 {
+            lines.next().expect("an address line").unwrap();
+        }
+        std::thread::sleep(Duration::from_millis(200));
+        let killed = Command::new("kill")
+            .arg(format!("-{sig}"))
+            .arg(child.id().to_string())
+            .status()
+            .unwrap();
+        assert!(killed.success());
+        let status = child.wait().unwrap();
+        let stderr = std::fs::read_to_string(&stderr_path).unwrap();
+        assert_eq!(status.code(), Some(0), "SIG{sig}: {stderr}");
+        assert!(
+            stderr.contains(&format!("SIG{sig}")) && stderr.contains("stopping"),
+            "SIG{sig}: {stderr}"
+        );
+    }
 }

@@ -133,6 +133,9 @@ fn a_timing_model_fitted_on_one_linuxcnc_run_estimates_another_within_3_percent(
                 job.to_str().unwrap(),
                 "--cnc",
                 &cnc,
+                // The real LinuxCNC starts in E-stop, unhomed: the test allows both steps.
+                "--enable-machine",
+                "--home",
                 "--sim-time-scale",
                 "1",
                 "--out",

@@ -29,6 +29,13 @@ pub const LIST_TIME_MARGIN_MS: u64 = 2000;
 /// Timeout of each laser-off / galvo-stop / motion-stop command on the way down (ms): short,
 /// because the link may be the thing that failed.
 pub const SHUTDOWN_STEP_TIMEOUT_MS: u64 = 500;
+/// How long the way down keeps trying the serial emission-off (ms): the port already open, then
+/// reopened, again, until acknowledged. The galvo's laser signals go off meanwhile; the galvo
+/// stop and the motion stop wait for this.
+pub const LASER_OFF_BUDGET_MS: u64 = 2000;
+/// Timeout of one journal write with its fsync (ms): past it the disk counts as hung and the run
+/// takes the way down.
+pub const JOURNAL_WRITE_TIMEOUT_MS: u64 = 5000;
 
 /// Every timeout of a run.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -49,8 +56,12 @@ pub struct Timeouts {
     pub list_time_factor: f64,
     /// ... plus this margin.
     pub list_time_margin: Duration,
-    /// Each step of the way down (laser off, galvo stop, motion stop).
+    /// Each step of the way down (galvo laser signals off, galvo stop, motion stop).
     pub shutdown_step: Duration,
+    /// The serial emission-off on the way down, all its attempts together.
+    pub laser_off_budget: Duration,
+    /// One journal write with its fsync.
+    pub journal_write: Duration,
 }
 
 impl Default for Timeouts {
@@ -65,6 +76,8 @@ impl Default for Timeouts {
             list_time_factor: LIST_TIME_FACTOR,
             list_time_margin: Duration::from_millis(LIST_TIME_MARGIN_MS),
             shutdown_step: Duration::from_millis(SHUTDOWN_STEP_TIMEOUT_MS),
+            laser_off_budget: Duration::from_millis(LASER_OFF_BUDGET_MS),
+            journal_write: Duration::from_millis(JOURNAL_WRITE_TIMEOUT_MS),
         }
     }
 }
@@ -237,6 +250,9 @@ impl SimCell {
             lo,
             CncSimConfig {
                 time_scale: options.cnc_time_scale,
+                // The in-process simulated cell stands ready (the demo needs no flags); a
+                // machine after power-up is `trimctl sim`'s.
+                start_ready: true,
                 ..CncSimConfig::default()
             },
             monitor.clone(),

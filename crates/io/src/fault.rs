@@ -20,10 +20,15 @@ pub enum FaultKind {
     Garble,
     /// The device answers with a refusal (error status, NAK, error reply).
     Refuse,
+    /// One command is lost on the wire, once: neither executed nor answered; the next one is
+    /// handled as usual (a missed reply that the link recovers from). Mid-list (galvo
+    /// `marks:` triggers) there is no command to lose: nothing happens.
+    DropOne,
 }
 
 impl FaultKind {
-    /// All four kinds.
+    /// The four kinds of the fault matrix ([`FaultKind::DropOne`] is not among them: the
+    /// link recovers from it by itself).
     pub const ALL: [FaultKind; 4] = [
         FaultKind::DropLink,
         FaultKind::Stall,
@@ -40,8 +45,9 @@ impl FromStr for FaultKind {
             "stall" => Ok(FaultKind::Stall),
             "garble" => Ok(FaultKind::Garble),
             "refuse" => Ok(FaultKind::Refuse),
+            "drop-one" => Ok(FaultKind::DropOne),
             other => Err(format!(
-                "unknown fault {other:?} (expected drop-link, stall, garble or refuse)"
+                "unknown fault {other:?} (expected drop-link, stall, garble, refuse or drop-one)"
             )),
         }
     }

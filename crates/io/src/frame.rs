@@ -39,6 +39,8 @@ pub struct FrameSettings {
     /// Before moving: reset the galvo's latched error and enable the CNC, as a run's
     /// preparation does (a standalone `trimctl frame`; not inside a run, which prepared already).
     pub prepare: bool,
+    /// What that preparation may do to the CNC (see [`crate::cnc::EnableSteps`]).
+    pub enable: crate::cnc::EnableSteps,
 }
 
 impl FrameSettings {
@@ -50,6 +52,7 @@ impl FrameSettings {
             outline,
             list: 0,
             prepare: true,
+            enable: crate::cnc::EnableSteps::default(),
         }
     }
 
@@ -195,7 +198,7 @@ async fn trace<T>(
             t.cnc_motion,
             Device::Cnc,
             "enable",
-            cell.cnc.enable(),
+            cell.cnc.enable(settings.enable),
         )
         .await?;
     }

@@ -8,7 +8,9 @@
 //! mid-write, no newline) is ignored and cut off on resume; any other bad line is an error.
 //!
 //! Lines go to a [`JournalSink`]: the file (write, then `fsync`), or in tests a stand-in that
-//! fails on demand ([`Journal::wrap_sink`]).
+//! fails on demand ([`Journal::wrap_sink`]). [`Journal::append_within`] bounds a write: it runs
+//! on a thread of its own, and a write that has not returned within the timeout (a hung disk) is
+//! abandoned; the journal then refuses every later append.
 
 use std::collections::BTreeSet;
 use std::fs::{File, OpenOptions};
@@ -150,6 +152,17 @@ pub enum JournalError {
     /// Resume was asked for but there is no journal.
     #[error("journal {0} does not exist: nothing to resume")]
     Missing(PathBuf),
+    /// A write (with its fsync) did not return in time: the disk hangs. The write is
+    /// abandoned; the journal takes no more entries.
+    #[error(
+        "journal {path}: the write and fsync did not return within {timeout_ms} ms (a hung disk?)"
+    )]
+    Timeout {
+        /// The file.
+        path: PathBuf,
+        /// The timeout (ms).
+        timeout_ms: u64,
+    },
 }
 
 /// What a journal says about a run.
@@ -188,6 +201,15 @@ impl std::fmt::Debug for Journal {
             .field("digest", &self.digest)
             .field("begins", &self.begins)
             .finish_non_exhaustive()
+    }
+}
+
+/// Where lines go after a write was abandoned: nowhere, with the reason.
+struct AbandonedSink(String);
+
+impl JournalSink for AbandonedSink {
+    fn append_line(&mut self, _line: &[u8]) -> std::io::Result<()> {
+        Err(std::io::Error::other(self.0.clone()))
     }
 }
 
@@ -371,16 +393,61 @@ impl Journal {
         high | (self.begins & 0xFFFF)
     }
 
-    /// Appends an entry and fsyncs.
-    pub fn append(&mut self, entry: &Entry) -> Result<(), JournalError> {
+    fn line(&self, entry: &Entry) -> Result<String, JournalError> {
         let mut line = serde_json::to_string(entry).map_err(|e| JournalError::Io {
             path: self.path.clone(),
             source: std::io::Error::other(e),
         })?;
         line.push('\n');
+        Ok(line)
+    }
+
+    /// Appends an entry and fsyncs, on the caller's thread (no bound on a hung disk: the
+    /// executor uses [`Journal::append_within`]).
+    pub fn append(&mut self, entry: &Entry) -> Result<(), JournalError> {
+        let line = self.line(entry)?;
         self.sink
             .append_line(line.as_bytes())
             .map_err(io(&self.path))
+    }
+
+    /// Appends an entry and fsyncs within `timeout`: the write runs on a thread of its own
+    /// (an OS thread, not the runtime's blocking pool, so a write hung for good never holds up
+    /// the runtime's shutdown). Past the timeout the write is abandoned ([`JournalError::Timeout`])
+    /// and every later append fails at once.
+    pub async fn append_within(
+        &mut self,
+        entry: &Entry,
+        timeout: std::time::Duration,
+    ) -> Result<(), JournalError> {
+        let line = self.line(entry)?;
+        let timeout_ms = u64::try_from(timeout.as_millis()).unwrap_or(u64::MAX);
+        let abandoned = format!(
+            "an earlier write did not return within {timeout_ms} ms: the journal is abandoned"
+        );
+        let mut sink = std::mem::replace(&mut self.sink, Box::new(AbandonedSink(abandoned)));
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        std::thread::Builder::new()
+            .name("journal-write".into())
+            .spawn(move || {
+                let result = sink.append_line(line.as_bytes());
+                // Nobody listens when the write was abandoned: the sink is dropped here.
+                let _ = tx.send((sink, result));
+            })
+            .map_err(io(&self.path))?;
+        match tokio::time::timeout(timeout, rx).await {
+            Ok(Ok((sink, result))) => {
+                self.sink = sink;
+                result.map_err(io(&self.path))
+            }
+            Ok(Err(_)) => Err(io(&self.path)(std::io::Error::other(
+                "the journal write thread ended without an answer (it panicked)",
+            ))),
+            Err(_) => Err(JournalError::Timeout {
+                path: self.path.clone(),
+                timeout_ms,
+            }),
+        }
     }
 
     /// Replaces where lines go by `wrap(current)`: tests wrap the file in a sink that fails

@@ -9,6 +9,8 @@
 //!   WebSocket protocol with `run --live`.
 //! - [`frame`]: red-light framing: a layer's outline traced with the galvo's pointer, the
 //!   process laser's light path shut.
+//! - [`limits`]: the Job's poses checked against the machine's axis limits before anything
+//!   moves.
 //! - [`cell`]: the three devices together, and [`cell::SimCell`], all three simulated.
 //! - [`twin`]: the digital twin: a true cell in the simulators, and the spot error on the true
 //!   part.
@@ -18,12 +20,14 @@
 
 pub mod cell;
 pub mod cnc;
+pub mod disk;
 pub mod executor;
 pub mod fault;
 pub mod frame;
 pub mod galvo;
 pub mod journal;
 pub mod laser;
+pub mod limits;
 pub mod live;
 pub mod record;
 pub mod safety;

@@ -66,6 +66,12 @@ pub mod topic {
     pub const CALIBRATION: &str = "/calibration";
     /// The twin's spot errors (trimctl.SpotError, JSON object).
     pub const SPOT_ERROR: &str = "/twin/spot_error";
+    /// How a stopped run's way down went: each step acknowledged or not, every emission-off
+    /// attempt (trimctl.Shutdown, JSON object: the executor's `ShutdownReport` with the stop's
+    /// cause, layer and phase).
+    pub const SHUTDOWN: &str = "/shutdown";
+    /// Schema name of [`SHUTDOWN`].
+    pub const SHUTDOWN_SCHEMA: &str = "trimctl.Shutdown";
     /// Schema name of [`CALIBRATION`].
     pub const CALIBRATION_SCHEMA: &str = "trimctl.Calibration";
     /// Schema name of [`SPOT_ERROR`].
@@ -77,6 +83,9 @@ pub mod topic {
         format!("/device/{}", device.name())
     }
 }
+/// How long a flush of the record may take before its disk counts as hung (ms): the executor
+/// then takes the way down. Writes never wait for the disk (they queue: [`crate::disk`]).
+pub const FLUSH_TIMEOUT_MS: u64 = 5000;
 /// The id of the current layer's scene entity.
 pub const LAYER_ENTITY: &str = "current_layer";
 /// Colour of the layer being marked (RGBA).
@@ -217,7 +226,8 @@ enum Latch<'a> {
 /// The MCAP writer with its channels.
 pub struct Recorder {
     context: Arc<Context>,
-    writer: Option<McapWriterHandle<BufWriter<File>>>,
+    writer: Option<McapWriterHandle<crate::disk::DiskWriter>>,
+    disk_hung: crate::disk::HungFlag,
     channels: HashMap<String, Arc<RawChannel>>,
     scene: StaticScene,
     messages: u64,
@@ -284,16 +294,41 @@ impl Recorder {
             path: path.to_owned(),
             source,
         })?;
+        Recorder::create_on_in(BufWriter::new(file), path, context, scene)
+    }
+
+    /// Records to `file` (tests: a disk that hangs); `path` names it in errors.
+    pub fn create_on(
+        file: impl crate::disk::RecordFile,
+        path: &Path,
+    ) -> Result<Recorder, RecordError> {
+        Recorder::create_on_in(file, path, Context::new(), StaticScene::default())
+    }
+
+    fn create_on_in(
+        file: impl crate::disk::RecordFile,
+        path: &Path,
+        context: Arc<Context>,
+        scene: StaticScene,
+    ) -> Result<Recorder, RecordError> {
+        let disk =
+            crate::disk::DiskWriter::new(file, std::time::Duration::from_millis(FLUSH_TIMEOUT_MS))
+                .map_err(|source| RecordError::Io {
+                    path: path.to_owned(),
+                    source,
+                })?;
+        let disk_hung = disk.hung();
         let options = McapWriteOptions::new()
             .compression(None::<McapCompression>)
             .chunk_size(Some(CHUNK_BYTES))
             .profile("");
         let writer = McapWriter::with_options(options)
             .context(&context)
-            .create(BufWriter::new(file))?;
+            .create(disk)?;
         Ok(Recorder {
             context,
             writer: Some(writer),
+            disk_hung,
             channels: HashMap::new(),
             scene,
             messages: 0,
@@ -573,6 +608,12 @@ impl Recorder {
         self.write(&topic::device(io.device), io.time_ns, &Json(io), Latch::No)
     }
 
+    /// A flush did not return within [`FLUSH_TIMEOUT_MS`]: the record's disk hangs.
+    #[must_use]
+    pub fn disk_hung(&self) -> bool {
+        self.disk_hung.is_hung()
+    }
+
     /// Closes the current chunk and flushes the file: everything so far survives a crash.
     pub fn flush(&mut self) -> Result<(), RecordError> {
         self.writer.as_ref().ok_or(RecordError::Finished)?.flush()?;
@@ -634,6 +675,7 @@ pub fn declare_run_channels(context: &Arc<Context>) -> Result<(), RecordError> {
     for (t, name) in [
         (topic::CALIBRATION, topic::CALIBRATION_SCHEMA),
         (topic::SPOT_ERROR, topic::SPOT_ERROR_SCHEMA),
+        (topic::SHUTDOWN, topic::SHUTDOWN_SCHEMA),
     ] {
         build_channel(context, t, Some(object_schema(name)), "json".to_owned())?;
     }

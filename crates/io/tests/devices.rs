@@ -8,7 +8,7 @@ use tokio::net::TcpStream;
 use tokio_util::codec::Framed;
 use trim_io::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
 use trim_io::cnc::sim::{CncSim, CncSimConfig};
-use trim_io::cnc::{Cnc, CncFault};
+use trim_io::cnc::{Cnc, CncFault, EnableSteps};
 use trim_io::fault::{Fault, FaultKind, FaultSwitch, Trigger};
 use trim_io::galvo::protocol::{
     ControllerState, Frame, FrameCodec, ListCommand, REPLY_BIT, Request, StatusCode, split_reply,
@@ -244,7 +244,7 @@ async fn the_monitor_reports_a_provoked_violation_from_the_device_simulators() {
         .await
         .unwrap()
         .unwrap();
-    c.enable().await.unwrap().unwrap();
+    c.enable(EnableSteps::ALL).await.unwrap().unwrap();
     l.emission(true).await.unwrap().unwrap();
     assert!(monitor.violations().is_empty());
     let mut pose = Pose::default();
@@ -614,10 +614,47 @@ async fn cnc_client_against_the_linuxcncrsh_simulator() {
         .await
         .unwrap()
         .unwrap();
-    c.enable().await.unwrap().unwrap();
+    // The machine starts as after power-up: in E-stop, off, unhomed. Preparing it refuses each
+    // step the operator did not allow, naming the state, and changes nothing.
+    let refusal = |r: Result<(), CncFault>| match r {
+        Err(CncFault::NotReady { state, remedy }) => format!("{state}: {remedy}"),
+        other => panic!("not refused: {other:?}"),
+    };
+    let why = refusal(c.enable(EnableSteps::default()).await.unwrap());
+    assert!(
+        why.starts_with("in E-stop") && why.contains("--enable-machine"),
+        "{why}"
+    );
+    assert_eq!(
+        sim.machine_state(),
+        (true, false, false),
+        "changed while refusing"
+    );
+    let power_only = EnableSteps {
+        enable_machine: true,
+        home: false,
+    };
+    let why = refusal(c.enable(power_only).await.unwrap());
+    assert!(
+        why.starts_with("not homed") && why.contains("--home"),
+        "{why}"
+    );
+    assert_eq!(
+        sim.machine_state(),
+        (true, false, false),
+        "changed while refusing"
+    );
+    c.enable(EnableSteps::ALL).await.unwrap().unwrap();
+    assert_eq!(sim.machine_state(), (false, true, true));
     assert!(sim.tcp_kinematics());
-    // Enabling again does not home again (that would queue "must be in joint mode to home").
-    c.enable().await.unwrap().unwrap();
+    // Enabling again does not home again (that would queue "must be in joint mode to home"),
+    // and a ready machine needs no step allowed.
+    c.enable(EnableSteps::default()).await.unwrap().unwrap();
+    // Switched off (E-stop released) is refused too.
+    sim.set_estop(false);
+    let why = refusal(c.enable(EnableSteps::default()).await.unwrap());
+    assert!(why.starts_with("switched off"), "{why}");
+    c.enable(power_only).await.unwrap().unwrap();
     assert!(c.errors().await.unwrap().unwrap().is_empty());
     let mut p = Pose::default();
     for (k, v) in [

@@ -11,7 +11,7 @@ use common::{
 };
 use tokio_util::sync::CancellationToken;
 use trim_io::cell::SimCell;
-use trim_io::executor::{ExecError, ExecOptions, Executor, Phase, Progress, RunSummary};
+use trim_io::executor::{ExecError, ExecOptions, Executor, OffPort, Phase, Progress, RunSummary};
 use trim_io::fault::{Fault, FaultKind, Trigger};
 use trim_io::journal;
 use trim_io::record::{Recorder, device_tap};
@@ -35,7 +35,12 @@ fn options() -> ExecOptions {
         laser_power_pct: Some(80.0),
         // One laser check per layer (right after EXECUTE), so fault triggers count exactly.
         laser_poll: Duration::from_secs(60),
+        // One CNC check per layer (right after EXECUTE), so fault triggers count exactly.
+        cnc_poll: Duration::from_secs(60),
         cut_layer: None,
+        // The in-process simulated CNC stands ready: no step needs allowing.
+        enable: trim_io::cnc::EnableSteps::default(),
+        machine: None,
     }
 }
 
@@ -405,6 +410,29 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
                 "{label}: {:?}",
                 sim.monitor.violations()
             );
+            // The laser's own emission is off, not only the light path closed; only a laser
+            // that answers nothing (stalled, cable pulled) leaves it unknown, and the report
+            // says so.
+            let laser_unreachable =
+                device == Device::Laser && matches!(kind, FaultKind::Stall | FaultKind::DropLink);
+            assert_eq!(
+                s.shutdown.laser_off_ok, !laser_unreachable,
+                "{label}: {:?}",
+                s.shutdown
+            );
+            if laser_unreachable {
+                assert!(
+                    s.shutdown
+                        .failures
+                        .iter()
+                        .any(|f| f.step == trim_io::executor::ShutdownStep::EmissionOff),
+                    "{label}: {:?}",
+                    s.shutdown
+                );
+                assert!(s.shutdown.emission_off.len() >= 2, "{label}: no retry");
+            } else {
+                assert!(!sim.laser.state().emission, "{label}: emission left on");
+            }
 
             // The journal is intact: every line parses, the two layers before are finished.
             let st = journal::read(&path).unwrap_or_else(|e| panic!("{label}: {e}"));
@@ -412,7 +440,13 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
             assert_eq!(st.finished.len(), 2, "{label}");
             assert!(!st.finished.contains(&target), "{label}");
 
-            // Resume on a repaired cell finishes the job, each vector marked once.
+            // Resume on a repaired cell finishes the job, each vector marked once. A laser that
+            // never acknowledged its emission-off got one more from the client's drop guard as
+            // the run ended: the stalled simulator reads it (every 10 ms) before the repair, so
+            // its reply does not reach the next client.
+            if laser_unreachable {
+                tokio::time::sleep(Duration::from_millis(100)).await;
+            }
             sim.clear_faults();
             let summary = resume(&sim, &job, &path).await;
             assert_eq!(summary.layers_skipped, 2, "{label}");
@@ -451,7 +485,11 @@ async fn the_monitor_catches_emission_during_motion_in_the_simulated_cell() {
     // Drive the devices in a wrong order by hand: the cell's monitor must see it.
     let sim = sim_cell("ipg").await;
     let mut cell = connect(&sim, Tap::none()).await;
-    cell.cnc.enable().await.unwrap().unwrap();
+    cell.cnc
+        .enable(trim_io::cnc::EnableSteps::default())
+        .await
+        .unwrap()
+        .unwrap();
     cell.laser.emission(true).await.unwrap().unwrap();
     let mut pose = trim_plan::job::Pose::default();
     pose.0.insert("x".into(), 20.0);
@@ -765,4 +803,637 @@ async fn a_job_with_an_unreachable_zone_is_refused_before_anything_moves_or_emit
             .any(|(_, e)| matches!(e, trim_io::safety::CellEvent::Emission(true))),
         "emission switched on before refusing"
     );
+}
+
+/// A hand-edited job with a pose outside `[machine]`'s limits (a layer of zone 1 moved to
+/// X = 250 mm, past the X travel of ±200 mm; or C made non-finite) is refused before anything
+/// moves or emits, naming the layer and the axis; with the limits unknown (`machine: None`) it
+/// would be sent to the CNC.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_pose_outside_the_machine_limits_is_refused_before_anything_moves() {
+    let machine = trim_plan::kinematics::MachineSettings::default();
+    // The untouched job passes the check.
+    trim_io::limits::check_poses(&demo_job(2), &machine, None).expect("demo poses inside");
+    for (axis, value, names) in [
+        ("x", 250.0, "X = 250.000 mm"),
+        ("c", f64::NAN, "axis c = NaN"),
+    ] {
+        let sim = sim_cell("monaco").await;
+        let mut job = demo_job(2);
+        job.zones[1].layers[1].pose.0.insert(axis.into(), value);
+        let dir = tempfile::tempdir().unwrap();
+        let cell = connect(&sim, Tap::none()).await;
+        let e = Executor::new(job.clone(), cell, dir.path().join("run.journal"), None)
+            .with_options(ExecOptions {
+                machine: Some(machine),
+                ..options()
+            })
+            .run(CancellationToken::new(), None)
+            .await
+            .expect_err("a pose outside the limits must be refused");
+        assert!(matches!(e, ExecError::Job(_)), "{e}");
+        let text = e.to_string();
+        assert!(
+            text.contains("zone 1 layer 1") && text.contains(names),
+            "{text}"
+        );
+        assert_eq!(sim.cnc.moves(), 0, "{axis}: moved before refusing");
+        assert!(
+            sim.galvo.marks().is_empty(),
+            "{axis}: marked before refusing"
+        );
+        assert!(
+            !dir.path().join("run.journal").exists(),
+            "{axis}: a journal was started"
+        );
+        assert!(
+            !sim.monitor
+                .events()
+                .iter()
+                .any(|(_, e)| matches!(e, trim_io::safety::CellEvent::Emission(true))),
+            "{axis}: emission switched on before refusing"
+        );
+    }
+}
+
+/// A laser that misses one reply mid-list and then answers again: the stop path still sends the
+/// emission-off (the link is marked broken for ordinary commands, not for the way down), and
+/// when that emission-off is lost too, it reopens the port and sends it again. The laser's
+/// emission is off at the end in both cases.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_missed_laser_reply_does_not_disable_the_emission_off() {
+    let drop_one = |name: &str, nth: u32| Fault {
+        kind: FaultKind::DropOne,
+        trigger: Trigger::Command {
+            name: name.into(),
+            nth,
+        },
+    };
+    // The fault check right after layer 0's EXECUTE is the 2nd `faults` query (preparation
+    // checks once); the way down's emission-off is the 2nd `emission_off` (preparation's first).
+    for (label, lost_offs, want_ports) in [
+        ("status reply lost", 0, vec![OffPort::Open]),
+        (
+            "status reply and the first emission-off lost",
+            1,
+            vec![OffPort::Open, OffPort::Reopened],
+        ),
+    ] {
+        let sim = sim_cell_scaled("monaco", 20.0).await;
+        sim.laser.faults().arm(drop_one("faults", 2));
+        for i in 0..lost_offs {
+            sim.laser.faults().arm(drop_one("emission_off", 2 + i));
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.journal");
+        let err = run_fresh(&sim, &demo_job(2), &path, CancellationToken::new())
+            .await
+            .expect_err(label);
+        let ExecError::Stopped(s) = err else {
+            panic!("{label}: {err}")
+        };
+        assert_eq!(s.phase, Phase::WaitDone, "{label}: {:?}", s.cause);
+        assert!(
+            matches!(&s.cause, trim_io::executor::StopCause::Link { device: Device::Laser, message } if message.contains("no reply")),
+            "{label}: {:?}",
+            s.cause
+        );
+        assert!(s.shutdown.laser_off_ok, "{label}: {:?}", s.shutdown);
+        let ports: Vec<OffPort> = s.shutdown.emission_off.iter().map(|a| a.port).collect();
+        assert_eq!(ports, want_ports, "{label}: {:?}", s.shutdown.emission_off);
+        assert!(
+            s.shutdown.emission_off.last().unwrap().error.is_none(),
+            "{label}"
+        );
+        assert!(!sim.laser.state().emission, "{label}: emission left on");
+        assert!(!sim.monitor.light(), "{label}");
+        assert!(
+            sim.monitor.violations().is_empty(),
+            "{label}: {:?}",
+            sim.monitor.violations()
+        );
+        assert_eq!(
+            sim.laser.faults().armed(),
+            vec![],
+            "{label}: a fault did not fire"
+        );
+    }
+}
+
+/// The laser's pty vanishes mid-list (a USB adapter pulled): the stop names the I/O error,
+/// the way down tries the emission-off on the old port and on reopening it until the budget is
+/// spent, and reports it NOT acknowledged; the galvo's laser signals close the light path.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_vanished_laser_port_is_named_and_the_emission_off_reported_unacknowledged() {
+    let mut sim = sim_cell_scaled("monaco", 20.0).await;
+    let job = demo_job(2);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.journal");
+    let cell = connect(&sim, Tap::none()).await;
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    let run = Executor::new(job.clone(), cell, path.clone(), None)
+        .with_options(options())
+        .run(CancellationToken::new(), Some(tx));
+    let laser = &mut sim.laser;
+    let unplug = async {
+        // Layer 0's list runs and its one laser check (right after EXECUTE) is answered: the
+        // laser's next command is the emission-off after the list.
+        while let Some(p) = rx.recv().await {
+            if matches!(p, Progress::Vectors { key, .. } if key == LayerKey { zone: 0, layer: 0 }) {
+                break;
+            }
+        }
+        let emitting = laser.state().emission;
+        laser.vanish();
+        emitting
+    };
+    let (result, emitting) = tokio::join!(run, unplug);
+    assert!(emitting, "layer 0 marks with emission on");
+    let err = result.expect_err("the laser vanished");
+    let ExecError::Stopped(s) = err else {
+        panic!("{err}")
+    };
+    assert_eq!(s.phase, Phase::GateOff, "{:?}", s.cause);
+    assert!(
+        matches!(&s.cause, trim_io::executor::StopCause::Link { device: Device::Laser, message } if message.contains("os error 5")),
+        "the I/O error is not named: {:?}",
+        s.cause
+    );
+    assert!(!s.shutdown.laser_off_ok, "{:?}", s.shutdown);
+    let failure = s
+        .shutdown
+        .failures
+        .iter()
+        .find(|f| f.step == trim_io::executor::ShutdownStep::EmissionOff)
+        .unwrap_or_else(|| panic!("no emission-off failure: {:?}", s.shutdown));
+    assert!(!failure.error.is_empty());
+    let attempts = &s.shutdown.emission_off;
+    assert!(attempts.len() >= 2, "{attempts:?}");
+    assert_eq!(attempts[0].port, OffPort::Open);
+    assert!(
+        attempts[1..]
+            .iter()
+            .all(|a| a.port == OffPort::Reopened && a.error.is_some())
+    );
+    // Within the budget (plus one reply timeout for the attempt running when it ran out).
+    let t = test_timeouts();
+    assert!(
+        attempts.last().unwrap().after_s <= (t.laser_off_budget + t.laser_reply).as_secs_f64(),
+        "{attempts:?}"
+    );
+    // The rest of the way down was done and acknowledged.
+    assert!(
+        s.shutdown.galvo_signals_off_ok && s.shutdown.galvo_stop_ok && s.shutdown.cnc_abort_ok,
+        "{:?}",
+        s.shutdown
+    );
+    assert!(!sim.galvo.status().laser_signals);
+    assert!(!sim.monitor.light());
+}
+
+/// A cancel that lands after the last layer's emission-off (the operator's Ctrl-C as the run
+/// ends) does not skip the final galvo laser signals off.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_late_cancel_still_switches_the_laser_signals_off_at_the_end() {
+    let sim = sim_cell("monaco").await;
+    let job = demo_job(2);
+    let layers = job.layers().count();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.journal");
+    let cancel = CancellationToken::new();
+    // Cancelled as the last emission-off's reply arrives (emission-offs: preparation's, then
+    // one per layer; monaco's `?L` query is answered "L=0" too, so commands are counted).
+    let (c, sent) = (
+        cancel.clone(),
+        std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0)),
+    );
+    let tap = Tap::new(move |io| {
+        if io.device != Device::Laser || io.text != "L=0" {
+            return;
+        }
+        match io.direction {
+            trim_io::tap::Direction::Command => {
+                sent.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+            }
+            trim_io::tap::Direction::Reply => {
+                if sent.load(std::sync::atomic::Ordering::SeqCst) == 1 + layers {
+                    c.cancel();
+                }
+            }
+        }
+    });
+    let summary = Executor::new(job.clone(), connect(&sim, tap).await, &path, None)
+        .with_options(options())
+        .run(cancel.clone(), None)
+        .await
+        .expect("the last layer was journaled before the cancel was looked at");
+    assert!(cancel.is_cancelled(), "the tap never cancelled");
+    assert_eq!(summary.layers_marked, layers);
+    assert!(
+        !sim.galvo.status().laser_signals,
+        "the galvo's laser signals were left on at the end"
+    );
+    assert!(!sim.laser.state().emission);
+}
+
+/// A panic on the executor's task while the laser emits (here in the device tap, at the laser's
+/// fault check right after layer 0's `EXECUTE`) unwinds through the executor: the laser client's
+/// guard writes the emission-off as it is dropped, and the galvo, its session closed, drops its
+/// laser signals.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_panic_on_the_executor_with_the_emission_on_switches_the_laser_off() {
+    let sim = sim_cell_scaled("monaco", 20.0).await;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.journal");
+    // Preparation asks `?F` once; the second is the check right after EXECUTE.
+    let queries = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let tap = Tap::new(move |io| {
+        if io.device == Device::Laser
+            && io.direction == trim_io::tap::Direction::Command
+            && io.text == "?F"
+            && queries.fetch_add(1, std::sync::atomic::Ordering::SeqCst) == 1
+        {
+            panic!("injected: a bug on the executor's task mid-layer");
+        }
+    });
+    let run = Executor::new(demo_job(2), connect(&sim, tap).await, path, None)
+        .with_options(options())
+        .run(CancellationToken::new(), None);
+    // As a panic unwinds through the executor's task: caught, the future dropped.
+    let caught = futures::FutureExt::catch_unwind(std::panic::AssertUnwindSafe(run)).await;
+    assert!(caught.is_err(), "the executor did not panic");
+    assert!(
+        sim.monitor
+            .events()
+            .iter()
+            .any(|(_, e)| *e == trim_io::safety::CellEvent::Emission(true)),
+        "the panic came before the emission was on"
+    );
+    // The simulator reads the pty every 10 ms.
+    let t = Instant::now();
+    while sim.laser.state().emission && t.elapsed() < Duration::from_secs(2) {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    assert!(
+        !sim.laser.state().emission,
+        "emission left on after the panic"
+    );
+    while sim.galvo.status().laser_signals && t.elapsed() < Duration::from_secs(2) {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    assert!(!sim.monitor.light());
+}
+
+/// A journal on a disk that hangs: the `hang_at`-th line (0-based, after the start line) takes
+/// `hang` before it is written through (the disk recovers later).
+struct SlowDisk {
+    inner: Box<dyn journal::JournalSink>,
+    lines: usize,
+    hang_at: usize,
+    hang: Duration,
+    hung_at: std::sync::Arc<std::sync::Mutex<Option<Instant>>>,
+}
+
+impl journal::JournalSink for SlowDisk {
+    fn append_line(&mut self, line: &[u8]) -> std::io::Result<()> {
+        let i = self.lines;
+        self.lines += 1;
+        if i == self.hang_at {
+            *self
+                .hung_at
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(Instant::now());
+            std::thread::sleep(self.hang);
+        }
+        self.inner.append_line(line)
+    }
+}
+
+/// A journal write (with its fsync) that hangs past the journal-write timeout takes the way
+/// down at the timeout, laser first, instead of hanging the run; the stop names the hung
+/// journal. Once the disk has recovered, resume finishes with every vector marked once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hung_journal_write_takes_the_way_down_at_its_timeout() {
+    let target = LayerKey { zone: 1, layer: 0 };
+    let t = test_timeouts();
+    let hang = t.journal_write * 3;
+    // Line 4 is layer index 2's layer_begin (before its move ends), line 5 its layer_done.
+    for (hang_at, phase) in [(4, Phase::LoadList), (5, Phase::Journal)] {
+        let label = format!("journal line {hang_at} hangs");
+        let sim = sim_cell("monaco").await;
+        let job = demo_job(2);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.journal");
+        let hung_at = std::sync::Arc::new(std::sync::Mutex::new(None));
+        let hung2 = hung_at.clone();
+        let err = Executor::new(job.clone(), connect(&sim, Tap::none()).await, &path, None)
+            .with_options(options())
+            .with_journal_sink(move |inner| {
+                Box::new(SlowDisk {
+                    inner,
+                    lines: 0,
+                    hang_at,
+                    hang,
+                    hung_at: hung2,
+                })
+            })
+            .run(CancellationToken::new(), None)
+            .await
+            .expect_err(&label);
+        let stopped_at = Instant::now();
+        let ExecError::Stopped(s) = err else {
+            panic!("{label}: not stopped through the way down: {err}")
+        };
+        assert!(
+            matches!(&s.cause, trim_io::executor::StopCause::Journal { message } if message.contains("did not return within 1000 ms")),
+            "{label}: {:?}",
+            s.cause
+        );
+        assert_eq!((s.key, s.phase), (Some(target), phase), "{label}");
+        // Detected at the timeout, not when the disk came back.
+        let hung = hung_at.lock().unwrap().expect("the sink hung");
+        let detected = s.detected_at.unwrap().saturating_duration_since(hung);
+        // The timeout starts as the write's thread is started, a moment before the sink hangs.
+        assert!(
+            detected + Duration::from_millis(50) >= t.journal_write
+                && detected < t.journal_write + Duration::from_millis(500),
+            "{label}: detected {detected:?} after the hang began"
+        );
+        assert!(
+            stopped_at.saturating_duration_since(hung) < hang,
+            "{label}: waited for the disk"
+        );
+        assert!(s.shutdown.all_acknowledged(), "{label}: {:?}", s.shutdown);
+        assert!(!sim.laser.state().emission, "{label}");
+        assert!(!sim.galvo.status().laser_signals, "{label}");
+        assert!(!sim.monitor.light(), "{label}");
+        assert!(sim.monitor.violations().is_empty(), "{label}");
+
+        // The disk comes back (the hung write lands); resume finishes, each vector once.
+        tokio::time::sleep(hang).await;
+        let st = journal::read(&path).unwrap();
+        assert!(!st.torn_tail, "{label}");
+        let summary = resume(&sim, &job, &path).await;
+        assert!(summary.layers_skipped >= 2, "{label}");
+        assert_eq!(
+            assert_marked_exactly_once(&job, &sim.galvo.marks()),
+            0,
+            "{label}"
+        );
+        assert_eq!(journal::read(&path).unwrap().finished.len(), 4, "{label}");
+    }
+}
+
+/// A CNC in E-stop, or unhomed, is refused before anything is switched on unless the operator
+/// allowed the step (`--enable-machine`, `--home`); the refusal names the state, nothing is
+/// journaled, the machine is left as it was. Allowed, the run resets and homes it and finishes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_machine_in_estop_or_unhomed_is_refused_unless_the_step_is_allowed() {
+    let power_only = trim_io::cnc::EnableSteps {
+        enable_machine: true,
+        home: false,
+    };
+    for (label, allowed, says) in [
+        (
+            "E-stop, nothing allowed",
+            trim_io::cnc::EnableSteps::default(),
+            "in E-stop",
+        ),
+        ("E-stop, only --enable-machine", power_only, "not homed"),
+    ] {
+        let sim = sim_cell("monaco").await;
+        sim.cnc.set_estop(true);
+        sim.cnc.set_unhomed();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.journal");
+        let e = Executor::new(demo_job(2), connect(&sim, Tap::none()).await, &path, None)
+            .with_options(ExecOptions {
+                enable: allowed,
+                ..options()
+            })
+            .run(CancellationToken::new(), None)
+            .await
+            .expect_err(label);
+        assert!(matches!(e, ExecError::MachineNotReady(_)), "{label}: {e}");
+        assert!(e.to_string().contains(says), "{label}: {e}");
+        assert_eq!(sim.cnc.machine_state(), (true, false, false), "{label}");
+        assert!(!path.exists(), "{label}: journaled");
+        assert_eq!(
+            sim.laser.state().lines_received,
+            0,
+            "{label}: the laser was addressed"
+        );
+        assert!(!sim.galvo.status().laser_signals, "{label}");
+    }
+    let sim = sim_cell("monaco").await;
+    sim.cnc.set_estop(true);
+    sim.cnc.set_unhomed();
+    let dir = tempfile::tempdir().unwrap();
+    let summary = Executor::new(
+        demo_job(2),
+        connect(&sim, Tap::none()).await,
+        dir.path().join("run.journal"),
+        None,
+    )
+    .with_options(ExecOptions {
+        enable: trim_io::cnc::EnableSteps::ALL,
+        ..options()
+    })
+    .run(CancellationToken::new(), None)
+    .await
+    .expect("both steps allowed");
+    assert_eq!(summary.layers_marked, 4);
+    assert_eq!(sim.cnc.machine_state(), (false, true, true));
+}
+
+/// Another session moves the machine (an MDI move, as a jog would) or puts it in E-stop while a
+/// layer marks: the executor's poll of the CNC sees the machine leave the layer's pose or its
+/// enabled state and takes the way down, laser first, within the poll period plus the way
+/// down's laser-off; the cut is journaled and resume finishes the job. (The move itself is
+/// outside trimctl's control: the monitor records emission during it, which is what the poll
+/// bounds.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_cnc_leaving_the_layers_pose_or_its_enabled_state_mid_layer_takes_the_way_down() {
+    use trim_io::cnc::Cnc as _;
+    use trim_io::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
+    const POLL: Duration = Duration::from_millis(20);
+    for intrusion in ["move", "estop"] {
+        let sim = sim_cell_scaled("monaco", 20.0).await;
+        let job = demo_job(2);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.journal");
+        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+        let run = Executor::new(job.clone(), connect(&sim, Tap::none()).await, &path, None)
+            .with_options(ExecOptions {
+                cnc_poll: POLL,
+                ..options()
+            })
+            .run(CancellationToken::new(), Some(tx));
+        let cnc_addr = sim.cnc.addr();
+        let intrude = async {
+            // Layer 0's list runs (its first vectors reported), then the second session acts.
+            while let Some(p) = rx.recv().await {
+                if matches!(p, Progress::Vectors { key, .. } if key == LayerKey { zone: 0, layer: 0 })
+                {
+                    break;
+                }
+            }
+            let mut other = LinuxCnc::connect(cnc_addr, LinuxCncConfig::default(), Tap::none())
+                .await
+                .unwrap()
+                .unwrap();
+            let at = Instant::now();
+            match intrusion {
+                "move" => {
+                    let mut p = trim_plan::job::Pose::default();
+                    p.0.insert("x".into(), 30.0);
+                    other.start_move(&p).await.unwrap().unwrap();
+                }
+                _ => other.estop().await.unwrap().unwrap(),
+            }
+            at
+        };
+        let (result, intruded_at) = tokio::join!(run, intrude);
+        let err = result.expect_err(intrusion);
+        let ExecError::Stopped(s) = err else {
+            panic!("{intrusion}: {err}")
+        };
+        assert_eq!(s.phase, Phase::WaitDone, "{intrusion}: {:?}", s.cause);
+        assert_eq!(s.key, Some(LayerKey { zone: 0, layer: 0 }), "{intrusion}");
+        let want = if intrusion == "move" {
+            "the machine moved while the layer marked: x at"
+        } else {
+            "left its enabled state while the layer marked (E-stop)"
+        };
+        assert!(
+            matches!(&s.cause, trim_io::executor::StopCause::Fault { device: Device::Cnc, message } if message.contains(want)),
+            "{intrusion}: {:?}",
+            s.cause
+        );
+        // Laser first: the light path closed within a poll period plus the way down's laser
+        // off of the intrusion.
+        let closed = sim
+            .monitor
+            .light_closed_since(intruded_at)
+            .unwrap_or_else(|| panic!("{intrusion}: light still on"));
+        let after = closed.saturating_duration_since(intruded_at);
+        assert!(
+            after < POLL + Duration::from_millis(200),
+            "{intrusion}: light off {after:?} after the intrusion"
+        );
+        assert!(s.shutdown.laser_off_ok, "{intrusion}: {:?}", s.shutdown);
+        assert!(!sim.laser.state().emission, "{intrusion}");
+        let st = journal::read(&path).unwrap();
+        assert!(!st.torn_tail && st.finished.is_empty(), "{intrusion}");
+
+        // The operator puts the machine back; resume (allowed to enable it again) finishes.
+        let summary = Executor::new(job.clone(), connect(&sim, Tap::none()).await, &path, None)
+            .with_options(ExecOptions {
+                enable: trim_io::cnc::EnableSteps::ALL,
+                ..options()
+            })
+            .resume(CancellationToken::new(), None)
+            .await
+            .unwrap_or_else(|e| panic!("{intrusion}: resume: {e}"));
+        assert_eq!(summary.layers_marked, 4, "{intrusion}");
+        assert!(
+            assert_marked_exactly_once(&job, &sim.galvo.marks()) <= 1,
+            "{intrusion}"
+        );
+    }
+}
+
+/// A record file whose flush hangs once `hang` is set (the disk under the MCAP record stops
+/// answering).
+struct HangingFile {
+    inner: std::io::BufWriter<std::fs::File>,
+    hang: std::sync::Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl std::io::Write for HangingFile {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.inner.write(buf)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        if self.hang.load(std::sync::atomic::Ordering::SeqCst) {
+            std::thread::sleep(Duration::from_millis(trim_io::record::FLUSH_TIMEOUT_MS * 2));
+        }
+        self.inner.flush()
+    }
+}
+
+impl std::io::Seek for HangingFile {
+    fn seek(&mut self, to: std::io::SeekFrom) -> std::io::Result<u64> {
+        self.inner.seek(to)
+    }
+}
+
+/// The MCAP record's disk hangs after layer 0: the flush during the next move is bounded by
+/// the record's flush timeout and takes the way down (laser first) instead of hanging the run;
+/// the journal is intact and resume finishes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hung_record_flush_takes_the_way_down_at_its_timeout() {
+    let sim = sim_cell("monaco").await;
+    let job = demo_job(2);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.journal");
+    let hang = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let file = HangingFile {
+        inner: std::io::BufWriter::new(std::fs::File::create(dir.path().join("run.mcap")).unwrap()),
+        hang: hang.clone(),
+    };
+    let recorder = Recorder::create_on(file, &dir.path().join("run.mcap"))
+        .unwrap()
+        .shared();
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    let t0 = Instant::now();
+    // The CLI keeps its own handle (it finishes the record after the run): so does the test, so
+    // the executor's end does not close the file.
+    let run = Executor::new(
+        job.clone(),
+        connect(&sim, Tap::none()).await,
+        &path,
+        Some(recorder.clone()),
+    )
+    .with_options(options())
+    .run(CancellationToken::new(), Some(tx));
+    let arm = async {
+        while let Some(p) = rx.recv().await {
+            if matches!(p, Progress::LayerDone { index: 0, .. }) {
+                hang.store(true, std::sync::atomic::Ordering::SeqCst);
+            }
+        }
+    };
+    let (result, ()) = tokio::join!(run, arm);
+    let err = result.expect_err("the record's disk hung");
+    let ExecError::Stopped(s) = err else {
+        panic!("{err}")
+    };
+    assert!(
+        matches!(&s.cause, trim_io::executor::StopCause::Record { message } if message.contains("did not flush within")),
+        "{:?}",
+        s.cause
+    );
+    // The next move after the disk hung (the hang is armed from the progress events, so it
+    // may land a layer late).
+    assert_eq!(s.phase, Phase::Move, "{:?}", s.key);
+    assert!(s.layers_finished >= 1, "{s:?}");
+    // Bounded: the flush timeout, not the disk's hang (twice as long), and no second wait.
+    let took = t0.elapsed();
+    assert!(
+        took < Duration::from_millis(trim_io::record::FLUSH_TIMEOUT_MS * 2),
+        "the run waited for the disk: {took:?}"
+    );
+    assert!(s.shutdown.all_acknowledged(), "{:?}", s.shutdown);
+    assert!(!sim.laser.state().emission);
+    assert!(!sim.monitor.light());
+    let st = journal::read(&path).unwrap();
+    assert_eq!(st.finished.len(), s.layers_finished);
+    let summary = resume(&sim, &job, &path).await;
+    assert_eq!(summary.layers_skipped, s.layers_finished);
+    assert_eq!(assert_marked_exactly_once(&job, &sim.galvo.marks()), 0);
+    // Closing the record on the hung disk is bounded too (one flush timeout).
+    let t = Instant::now();
+    drop(recorder);
+    assert!(t.elapsed() < Duration::from_millis(trim_io::record::FLUSH_TIMEOUT_MS * 2));
 }

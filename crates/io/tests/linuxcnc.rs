@@ -20,13 +20,15 @@ use tokio_util::sync::CancellationToken;
 use trim_geom::{Point3, UnitVector3, Vector3};
 use trim_io::cell::{Cell, Timeouts};
 use trim_io::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
-use trim_io::cnc::{Cnc, CncFault};
-use trim_io::executor::{ExecOptions, Executor};
-use trim_io::tap::Tap;
+use trim_io::cnc::{Cnc, CncFault, EnableSteps};
+use trim_io::executor::{ExecError, ExecOptions, Executor, Phase, Progress, StopCause};
+use trim_io::tap::{Device, Tap};
 use trim_plan::kinematics::{
     AxisPose, KinematicsKind, MachineSettings, forward, inverse, joints_of,
 };
 
+/// How often the intrusion test polls the CNC while a layer marks.
+const CNC_POLL: Duration = Duration::from_millis(20);
 /// The port the test's LinuxCNC listens on (not the default 5007, to stay clear of a user's).
 const PORT: u16 = 5017;
 /// Reached vs commanded, world and joints (mm, degrees).
@@ -80,7 +82,11 @@ async fn real_linuxcnc_takes_planned_poses_and_runs_a_whole_job() {
         .await
         .expect("link")
         .expect("session");
-    cnc.enable().await.expect("link").expect("enable");
+    // The real LinuxCNC starts in E-stop and unhomed: the test allows both steps explicitly.
+    cnc.enable(EnableSteps::ALL)
+        .await
+        .expect("link")
+        .expect("enable");
     eprintln!(
         "connect + enable (estop off, machine on, home, M428): {:.2} s",
         t.elapsed().as_secs_f64()
@@ -238,6 +244,7 @@ async fn real_linuxcnc_takes_planned_poses_and_runs_a_whole_job() {
     let summary = Executor::new(job.clone(), cell, dir.path().join("run.journal"), None)
         .with_options(ExecOptions {
             timeouts,
+            enable: EnableSteps::ALL,
             ..ExecOptions::default()
         })
         .run(CancellationToken::new(), None)
@@ -261,6 +268,82 @@ async fn real_linuxcnc_takes_planned_poses_and_runs_a_whole_job() {
         summary.galvo_modelled_s,
         summary.galvo_estimate_s
     );
-    // The simulators' other helpers are for the executor tests.
-    let _ = (common::sim_cell_scaled, common::connect);
+
+    // Another linuxcncrsh session moves the machine mid-layer (an MDI move, as a jog would),
+    // or puts it in E-stop: the executor's poll of the CNC sees it and takes the way down,
+    // laser first.
+    for intrusion in ["move", "estop"] {
+        let sim = common::sim_cell_scaled("monaco", 20.0).await;
+        let mut addrs = sim.addresses();
+        addrs.cnc = addr;
+        let cell = Cell::connect(&addrs, &timeouts, Tap::none())
+            .await
+            .expect("cell");
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+        let run = Executor::new(job.clone(), cell, dir.path().join("run.journal"), None)
+            .with_options(ExecOptions {
+                timeouts,
+                enable: EnableSteps::ALL,
+                cnc_poll: CNC_POLL,
+                ..ExecOptions::default()
+            })
+            .run(CancellationToken::new(), Some(tx));
+        let first = job.zones[0].layers[0].pose.clone();
+        let intrude = async {
+            while let Some(p) = rx.recv().await {
+                if matches!(p, Progress::Vectors { key, .. } if key.zone == 0 && key.layer == 0) {
+                    break;
+                }
+            }
+            let mut other = LinuxCnc::connect(addr, LinuxCncConfig::default(), Tap::none())
+                .await
+                .expect("link")
+                .expect("second session");
+            let at = Instant::now();
+            if intrusion == "move" {
+                let mut p = first.clone();
+                p.0.insert("x".into(), first.axis("x").unwrap_or(0.0) + 5.0);
+                other.start_move(&p).await.expect("link").expect("MDI move");
+            } else {
+                other.estop().await.expect("link").expect("estop");
+            }
+            at
+        };
+        let (result, intruded_at) = tokio::join!(run, intrude);
+        let err = result.expect_err(intrusion);
+        let ExecError::Stopped(s) = err else {
+            panic!("{intrusion}: {err}")
+        };
+        assert_eq!(s.phase, Phase::WaitDone, "{intrusion}: {:?}", s.cause);
+        assert!(
+            matches!(
+                &s.cause,
+                StopCause::Fault {
+                    device: Device::Cnc,
+                    ..
+                }
+            ),
+            "{intrusion}: {:?}",
+            s.cause
+        );
+        let closed = sim
+            .monitor
+            .light_closed_since(intruded_at)
+            .unwrap_or_else(|| panic!("{intrusion}: light still on"));
+        let after = closed.saturating_duration_since(intruded_at);
+        eprintln!(
+            "real LinuxCNC, {intrusion} from another session mid-layer: {:?}; light off {:.0} ms after",
+            s.cause,
+            after.as_secs_f64() * 1e3
+        );
+        assert!(
+            after < CNC_POLL + Duration::from_millis(500),
+            "{intrusion}: light off {after:?} after the intrusion"
+        );
+        assert!(s.shutdown.laser_off_ok, "{intrusion}: {:?}", s.shutdown);
+        assert!(!sim.laser.state().emission, "{intrusion}");
+    }
+    // The simulators' other helper is for the executor tests.
+    let _ = common::connect;
 }

@@ -75,13 +75,11 @@ pub(super) fn execute(
             _ => None,
         };
         let cancel = CancellationToken::new();
-        let on_ctrl_c = cancel.clone();
-        tokio::spawn(async move {
-            if tokio::signal::ctrl_c().await.is_ok() {
-                eprintln!("\ntrimctl run: interrupted: switching the laser off and stopping");
-                on_ctrl_c.cancel();
-            }
-        });
+        crate::stop_signal::StopSignals::install()?.cancel_on_first(
+            cancel.clone(),
+            "trimctl run",
+            "interrupted: switching the laser off and stopping",
+        );
         let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
         let bars = tokio::spawn(draw_progress(rx, job.clone(), recorder.clone()));
         let executor = Executor::new(
@@ -93,6 +91,8 @@ pub(super) fn execute(
         .with_options(ExecOptions {
             timeouts,
             cut_layer: args.cut_layer.map(CutLayer::from),
+            machine: Some(config.machine),
+            enable: args.cell.enable_steps(),
             ..ExecOptions::default()
         });
         let executor = if args.frame {

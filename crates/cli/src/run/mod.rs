@@ -30,7 +30,7 @@ use crate::summary;
 use cell::execute;
 pub(crate) use cell::{connect, start_simulators};
 use inputs::load_inputs;
-use report::{SpotReport, append_resume_report, write_report};
+use report::{SpotReport, append_resume_report, shutdown_of, shutdown_sentence, write_report};
 
 mod cell;
 mod inputs;
@@ -82,9 +82,25 @@ pub struct CellOverrides {
     /// The laser's serial device, overriding `cell.laser`.
     #[arg(long, value_name = "DEVICE")]
     laser: Option<String>,
+    /// Allow trimctl to reset the CNC's E-stop and switch the machine on. Without it a machine
+    /// in E-stop or switched off is refused (exit 1), naming its state.
+    #[arg(long)]
+    enable_machine: bool,
+    /// Allow trimctl to home the CNC (the axes move). Without it an unhomed machine is refused
+    /// (exit 1).
+    #[arg(long)]
+    home: bool,
 }
 
 impl CellOverrides {
+    /// What preparing the CNC may do (`--enable-machine`, `--home`).
+    pub fn enable_steps(&self) -> trim_io::cnc::EnableSteps {
+        trim_io::cnc::EnableSteps {
+            enable_machine: self.enable_machine,
+            home: self.home,
+        }
+    }
+
     /// Puts the given addresses into `config.cell`.
     pub fn apply(&self, config: &mut JobConfig) {
         if let Some(c) = &self.cnc {
@@ -470,7 +486,7 @@ fn finish(
         plan,
         timings,
         outcome.as_ref().ok(),
-        stopped.as_deref(),
+        stopped.as_deref().map(|s| (s, shutdown_of(&outcome))),
         spots.as_ref(),
     )?;
     if let Some(r) = &spots {
@@ -487,21 +503,27 @@ fn finish(
 }
 
 /// The exit code and message of a run that did not finish: interrupted 3; stopped by a fault
-/// (a device, or the journal's disk) 2; refused before anything was switched on 1.
+/// (a device, or the journal's disk) 2; either of them with the laser's emission-off not
+/// acknowledged 4 (its state is unknown); refused before anything was switched on 1. The
+/// message says what the way down acknowledged and what it did not.
 fn exec_failure(e: ExecError, run_dir: &Path) -> anyhow::Error {
     let exit = match &e {
+        ExecError::Stopped(s) if !s.shutdown.laser_off_ok => Exit::LaserStateUnknown,
         ExecError::Stopped(s) if s.cause == StopCause::Cancelled => Exit::Interrupted,
         ExecError::Stopped(_) => Exit::DeviceFault,
         _ => Exit::Refused,
     };
     match e {
-        ExecError::Stopped(_) => Failure::with_exit(
-            exit,
-            anyhow::anyhow!(
-                "{e}; the laser is off; continue with: trimctl run --resume {}",
-                run_dir.display()
-            ),
-        ),
+        ExecError::Stopped(ref s) => {
+            let way_down = shutdown_sentence(&s.shutdown);
+            Failure::with_exit(
+                exit,
+                anyhow::anyhow!(
+                    "{e}; {way_down}; continue with: trimctl run --resume {}",
+                    run_dir.display()
+                ),
+            )
+        }
         ExecError::ResumeUnknown { .. } => Failure::with_exit(
             exit,
             anyhow::anyhow!(

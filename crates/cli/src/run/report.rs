@@ -5,7 +5,7 @@ use std::path::Path;
 
 use anyhow::Context;
 use serde::Serialize;
-use trim_io::executor::{ExecError, RunSummary};
+use trim_io::executor::{ExecError, RunSummary, ShutdownReport, ShutdownStep};
 use trim_io::journal::Entry;
 use trim_io::twin::{Spot, SpotStats};
 use trim_plan::Job;
@@ -133,6 +133,101 @@ impl SpotReport {
     }
 }
 
+/// What the operator must do when a step of the way down was not acknowledged.
+fn operator_action(step: ShutdownStep) -> &'static str {
+    match step {
+        ShutdownStep::EmissionOff => "switch the laser off at its key",
+        ShutdownStep::GalvoSignalsOff => {
+            "the galvo's laser signals may be on: switch the laser off at its key"
+        }
+        ShutdownStep::GalvoStop => "the galvo list may still run: stop the scan head controller",
+        ShutdownStep::CncAbort => "the machine may still move: press its E-stop",
+    }
+}
+
+/// One line per step of the way down, in order: acknowledged (and when) or NOT, with what
+/// went wrong and what the operator must do.
+pub(super) fn shutdown_lines(r: &ShutdownReport) -> Vec<String> {
+    let failure = |step: ShutdownStep| r.failures.iter().find(|f| f.step == step);
+    let attempts = r.emission_off.len();
+    let mut out = Vec::new();
+    for (step, ok) in [
+        (ShutdownStep::EmissionOff, r.laser_off_ok),
+        (ShutdownStep::GalvoSignalsOff, r.galvo_signals_off_ok),
+        (ShutdownStep::GalvoStop, r.galvo_stop_ok),
+        (ShutdownStep::CncAbort, r.cnc_abort_ok),
+    ] {
+        let line = match (ok, failure(step)) {
+            (true, _) if step == ShutdownStep::EmissionOff => {
+                let after_ms = r.emission_off.last().map_or(0.0, |a| a.after_s * 1e3);
+                format!("{step} acknowledged ({attempts} attempt(s), {after_ms:.0} ms)")
+            }
+            (true, _) => format!("{step} acknowledged"),
+            (false, Some(f)) => format!(
+                "{step} NOT acknowledged ({}; gave up {:.0} ms after the stop): {}",
+                f.error,
+                f.after_s * 1e3,
+                operator_action(step)
+            ),
+            (false, None) => format!("{step} NOT acknowledged: {}", operator_action(step)),
+        };
+        out.push(line);
+    }
+    out
+}
+
+/// One sentence on the way down for the error line: "the laser is off" only when its
+/// emission-off was acknowledged, and every step that was not, named.
+pub(super) fn shutdown_sentence(r: &ShutdownReport) -> String {
+    if r.all_acknowledged() {
+        return format!(
+            "the laser is off (emission-off acknowledged {:.0} ms after the stop; galvo laser signals off, galvo stopped, motion stopped)",
+            r.laser_off_s * 1e3
+        );
+    }
+    let lines = shutdown_lines(r);
+    let bad: Vec<&String> = lines.iter().filter(|l| l.contains("NOT")).collect();
+    let head = if r.laser_off_ok {
+        "the laser's emission is off (acknowledged), but NOT every step of the way down was"
+    } else {
+        "the laser's state is UNKNOWN"
+    };
+    format!(
+        "{head}: {}",
+        bad.iter()
+            .map(|s| s.as_str())
+            .collect::<Vec<_>>()
+            .join("; ")
+    )
+}
+
+/// The way down's section of `report.md`.
+pub(super) fn shutdown_markdown(r: &ShutdownReport) -> String {
+    let mut s = String::from("\n## Way down\n\n");
+    for line in shutdown_lines(r) {
+        s.push_str(&format!("- {line}\n"));
+    }
+    s.push_str("\n| emission-off attempt | port | after ms | result |\n|---|---|---|---|\n");
+    for (i, a) in r.emission_off.iter().enumerate() {
+        s.push_str(&format!(
+            "| {} | {:?} | {:.0} | {} |\n",
+            i + 1,
+            a.port,
+            a.after_s * 1e3,
+            a.error.as_deref().unwrap_or("acknowledged")
+        ));
+    }
+    s
+}
+
+/// The way down of a stopped run, if it stopped through it.
+pub(super) fn shutdown_of(outcome: &Result<RunSummary, ExecError>) -> Option<&ShutdownReport> {
+    match outcome {
+        Err(ExecError::Stopped(s)) => Some(&s.shutdown),
+        _ => None,
+    }
+}
+
 /// Appends a resume's outcome to the run's report (`report.md`) and records it in
 /// `summary.json` under `resumes`.
 pub(super) fn append_resume_report(
@@ -155,11 +250,16 @@ pub(super) fn append_resume_report(
         .or_insert_with(|| serde_json::json!([]));
     let n = resumes.as_array().map_or(0, Vec::len) + 1;
     report.push_str(&summary::resume_markdown(n, job, outcome, wall_s));
+    let shutdown = shutdown_of(outcome);
+    if let Some(r) = shutdown {
+        report.push_str(&shutdown_markdown(r));
+    }
     if let Some(list) = resumes.as_array_mut() {
         list.push(serde_json::json!({
             "wall_s": wall_s,
             "run": outcome.as_ref().ok(),
             "stopped": outcome.as_ref().err().map(ToString::to_string),
+            "shutdown": shutdown,
         }));
     }
     std::fs::write(&report_path, report)
@@ -181,9 +281,10 @@ pub(super) fn write_report(
     plan: &PlanOutput,
     timings: &Timings,
     run: Option<&RunSummary>,
-    stopped: Option<&str>,
+    stopped: Option<(&str, Option<&ShutdownReport>)>,
     spots: Option<&SpotReport>,
 ) -> anyhow::Result<()> {
+    let (stopped, shutdown) = stopped.map_or((None, None), |(s, r)| (Some(s), r));
     let mut report = summary::report_markdown(
         config,
         description,
@@ -199,6 +300,9 @@ pub(super) fn write_report(
             ("execute", timings.execute_s),
         ],
     );
+    if let Some(r) = shutdown {
+        report.push_str(&shutdown_markdown(r));
+    }
     if let Some(s) = spots {
         report.push_str(&s.markdown());
     }
@@ -207,6 +311,7 @@ pub(super) fn write_report(
         "timings_s": timings,
         "run": run,
         "stopped": stopped,
+        "shutdown": shutdown,
         "zoning": {
             "method": if plan.cover.is_some() { "cover" } else { "kmeans" },
             "zones": plan.job.zones.len(),

@@ -1,7 +1,8 @@
 //! A client for LinuxCNC's `linuxcncrsh` text protocol (TCP port 5007), following
 //! docs/cnc/LINUXCNC.md: `hello`, `set echo off`, `set verbose on` (else `set` gets no
 //! reply), `set enable`, `set set_wait received` on every connect (it is global to the server),
-//! drain `get error`, estop off, machine on, home if not homed, `set mode mdi`, `set mdi M428`
+//! drain `get error`; to prepare: `get estop`, `get machine`, `get joint_homed`, and estop off,
+//! machine on, home only when the operator allowed each ([`EnableSteps`]), `set mode mdi`, `set mdi M428`
 //! (TCP kinematics), MDI `G0` moves, `set wait done`, `get abs_act_pos` (X Y Z A B C, B padded),
 //! `set abort`, `set estop on`. Replies end in `\r\n` or `\n\r`: lines split on any run of CR/LF.
 
@@ -15,7 +16,10 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use trim_plan::job::Pose;
 
-use super::{AXES, Cnc, CncError, CncFault, CncResult, IN_POSITION_TOLERANCE, Positions};
+use super::{
+    AXES, Cnc, CncError, CncFault, CncResult, EnableSteps, IN_POSITION_TOLERANCE, MachineState,
+    Positions, Watch,
+};
 use crate::tap::{Device, Direction, Tap};
 
 /// The default linuxcncrsh port.
@@ -402,13 +406,54 @@ impl LinuxCnc {
         Ok(Ok(Positions { world, joints }))
     }
 
-    async fn do_enable(&mut self) -> CncResult<()> {
-        for cmd in ["set estop off", "set machine on"] {
-            if let Err(f) = self.set(cmd, None).await? {
-                return Ok(Err(f));
+    /// `get WORD` whose reply is `WORD ON` or `WORD OFF`.
+    async fn on_off(&mut self, word: &str) -> Result<bool, CncError> {
+        let words = self.get(word).await?;
+        match words.first().map(String::as_str) {
+            Some("ON") => Ok(true),
+            Some("OFF") => Ok(false),
+            _ => Err(CncError::BadReply {
+                command: format!("get {word}"),
+                reply: words.join(" "),
+            }),
+        }
+    }
+
+    async fn read_state(&mut self) -> CncResult<MachineState> {
+        Ok(Ok(MachineState {
+            estop: self.on_off("estop").await?,
+            on: self.on_off("machine").await?,
+            homed: self.homed().await?,
+        }))
+    }
+
+    async fn do_enable(&mut self, steps: EnableSteps) -> CncResult<()> {
+        let state = match self.read_state().await? {
+            Ok(s) => s,
+            Err(f) => return Ok(Err(f)),
+        };
+        if let Some(refusal) = steps.refusal(state) {
+            return Ok(Err(refusal));
+        }
+        // Allowed and needed: the sequence as it always was (estop off, machine on, then the
+        // homed state read again, which also gives LinuxCNC the moment it needs after
+        // `set machine on` under `set_wait received`).
+        if state.estop || !state.on {
+            for cmd in ["set estop off", "set machine on"] {
+                if let Err(f) = self.set(cmd, None).await? {
+                    return Ok(Err(f));
+                }
             }
         }
         if !self.homed().await? {
+            // Unhomed only now (homing lost with the E-stop): still the operator's decision.
+            if let Some(refusal) = steps.refusal(MachineState {
+                estop: false,
+                on: true,
+                homed: false,
+            }) {
+                return Ok(Err(refusal));
+            }
             for cmd in ["set mode manual", "set home -1"] {
                 if let Err(f) = self.set(cmd, None).await? {
                     return Ok(Err(f));
@@ -482,8 +527,12 @@ impl LinuxCnc {
 }
 
 impl Cnc for LinuxCnc {
-    fn enable(&mut self) -> BoxFuture<'_, CncResult<()>> {
-        Box::pin(self.do_enable())
+    fn state(&mut self) -> BoxFuture<'_, CncResult<MachineState>> {
+        Box::pin(self.read_state())
+    }
+
+    fn enable(&mut self, steps: EnableSteps) -> BoxFuture<'_, CncResult<()>> {
+        Box::pin(self.do_enable(steps))
     }
 
     fn start_move<'a>(&'a mut self, pose: &'a Pose) -> BoxFuture<'a, CncResult<()>> {
@@ -503,6 +552,20 @@ impl Cnc for LinuxCnc {
 
     fn positions(&mut self) -> BoxFuture<'_, CncResult<Positions>> {
         Box::pin(self.read_positions())
+    }
+
+    fn watch(&mut self) -> BoxFuture<'_, CncResult<Watch>> {
+        Box::pin(async move {
+            let positions = match self.read_positions().await? {
+                Ok(p) => p,
+                Err(f) => return Ok(Err(f)),
+            };
+            let state = match self.read_state().await? {
+                Ok(s) => s,
+                Err(f) => return Ok(Err(f)),
+            };
+            Ok(Ok(Watch { positions, state }))
+        })
     }
 
     fn abort(&mut self) -> BoxFuture<'_, CncResult<()>> {

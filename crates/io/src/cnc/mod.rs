@@ -85,6 +85,73 @@ pub enum CncFault {
     /// Homing did not finish.
     #[error("cnc homing did not finish: {0}")]
     NotHomed(String),
+    /// The machine is not ready and the step that would make it so was not allowed
+    /// ([`EnableSteps`]).
+    #[error("the machine is {state}: {remedy}")]
+    NotReady {
+        /// What it is (in E-stop, off, not homed).
+        state: String,
+        /// What makes it ready.
+        remedy: String,
+    },
+}
+
+/// The machine's state as the control reports it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct MachineState {
+    /// In E-stop.
+    pub estop: bool,
+    /// Switched on.
+    pub on: bool,
+    /// Every joint homed.
+    pub homed: bool,
+}
+
+/// What preparing the machine may do beyond switching its mode and kinematics: each step only
+/// when the operator allowed it (`--enable-machine`, `--home`). Resetting an E-stop or homing
+/// (the axes move) is the operator's decision, never trimctl's own.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct EnableSteps {
+    /// Reset the E-stop and switch the machine on.
+    pub enable_machine: bool,
+    /// Home the machine's joints.
+    pub home: bool,
+}
+
+impl EnableSteps {
+    /// Every step allowed (tests and CI against a simulated control).
+    pub const ALL: EnableSteps = EnableSteps {
+        enable_machine: true,
+        home: true,
+    };
+
+    /// Why the machine in `state` cannot be made ready with these steps, or `None`.
+    #[must_use]
+    pub fn refusal(self, state: MachineState) -> Option<CncFault> {
+        let refuse = |what: &str, remedy: &str| CncFault::NotReady {
+            state: what.to_owned(),
+            remedy: remedy.to_owned(),
+        };
+        if state.estop && !self.enable_machine {
+            return Some(refuse(
+                "in E-stop",
+                "release it and switch the machine on at the control, or allow trimctl to with --enable-machine",
+            ));
+        }
+        if !state.estop && !state.on && !self.enable_machine {
+            return Some(refuse(
+                "switched off",
+                "switch it on at the control, or allow trimctl to with --enable-machine",
+            ));
+        }
+        if !state.homed && !self.home {
+            return Some(refuse(
+                "not homed",
+                "home it at the control, or allow trimctl to (the axes move) with --home",
+            ));
+        }
+        None
+    }
 }
 
 /// A device result: transport error outside, the control's refusal inside.
@@ -94,10 +161,26 @@ pub type CncResult<T> = Result<Result<T, CncFault>, CncError>;
 /// (mm for linear, degrees for rotary axes).
 pub const IN_POSITION_TOLERANCE: f64 = 1e-3;
 
+/// While a layer marks, the largest distance from the layer's pose the machine may show before
+/// the run stops (mm, degrees): above the control's reported jitter, far below a layer step.
+pub const HOLD_TOLERANCE: f64 = 5e-3;
+
+/// What the control reports while a layer marks: where the machine is and its state.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Watch {
+    /// The positions.
+    pub positions: Positions,
+    /// E-stop, on, homed.
+    pub state: MachineState,
+}
+
 /// A five-axis CNC control.
 pub trait Cnc: Send {
-    /// Makes the machine ready: estop off, machine on, homed, TCP kinematics active.
-    fn enable(&mut self) -> BoxFuture<'_, CncResult<()>>;
+    /// Reads whether the machine is in E-stop, on, and homed.
+    fn state(&mut self) -> BoxFuture<'_, CncResult<MachineState>>;
+    /// Makes the machine ready: E-stop reset and machine on, homed (each only when `steps`
+    /// allows it, else [`CncFault::NotReady`] naming the state), MDI mode, TCP kinematics.
+    fn enable(&mut self, steps: EnableSteps) -> BoxFuture<'_, CncResult<()>>;
     /// Starts a rapid move to a pose (returns when the control accepted it).
     fn start_move<'a>(&'a mut self, pose: &'a Pose) -> BoxFuture<'a, CncResult<()>>;
     /// Waits until the last move is done and checks the position (within
@@ -105,6 +188,8 @@ pub trait Cnc: Send {
     fn wait_in_position(&mut self, timeout: Duration) -> BoxFuture<'_, CncResult<Positions>>;
     /// Reads the positions.
     fn positions(&mut self) -> BoxFuture<'_, CncResult<Positions>>;
+    /// Reads the positions and the machine's state (polled while a layer marks).
+    fn watch(&mut self) -> BoxFuture<'_, CncResult<Watch>>;
     /// Stops motion (the machine stays enabled).
     fn abort(&mut self) -> BoxFuture<'_, CncResult<()>>;
     /// Emergency stop.

@@ -33,6 +33,9 @@ pub struct CncSimConfig {
     pub max_rotary_deg_per_s: f64,
     /// Real seconds per simulated second (0 = moves are instant).
     pub time_scale: f64,
+    /// Start out of E-stop, on and homed (the built-in simulated cell of `trimctl run`'s demo);
+    /// else in E-stop, off and not homed, as a real machine after power-up.
+    pub start_ready: bool,
 }
 
 impl Default for CncSimConfig {
@@ -49,6 +52,7 @@ impl Default for CncSimConfig {
             max_linear_mm_per_s: 20.0,
             max_rotary_deg_per_s: 30.0,
             time_scale: 1.0,
+            start_ready: false,
         }
     }
 }
@@ -109,7 +113,8 @@ impl Drop for CncSim {
 
 impl CncSim {
     /// Starts a simulator on `bind` (port 0: any free port). The machine starts in estop,
-    /// not homed, identity kinematics, at 0.
+    /// not homed (or out of E-stop, on and homed with [`CncSimConfig::start_ready`]), identity
+    /// kinematics, at 0.
     pub async fn start(
         bind: SocketAddr,
         config: CncSimConfig,
@@ -118,12 +123,13 @@ impl CncSim {
     ) -> std::io::Result<CncSim> {
         let listener = TcpListener::bind(bind).await?;
         let addr = listener.local_addr()?;
+        let ready = config.start_ready;
         let shared = Arc::new(Shared {
             config,
             m: Mutex::new(Machine {
-                estop: true,
-                on: false,
-                homed: false,
+                estop: !ready,
+                on: ready,
+                homed: ready,
                 mode: "MANUAL".into(),
                 tcp: false,
                 pos: [0.0; 6],
@@ -181,6 +187,27 @@ impl CncSim {
         self.shared.m().moves
     }
 
+    /// Puts the machine in E-stop (as its button would: motion stops, the machine goes off),
+    /// or leaves the E-stop released and the machine off.
+    pub fn set_estop(&self, on: bool) {
+        let mut m = self.shared.m();
+        m.estop = on;
+        m.on = false;
+        stop_motion(&self.shared, &mut m);
+    }
+
+    /// Marks the joints unhomed (as after a power cycle of the control).
+    pub fn set_unhomed(&self) {
+        self.shared.m().homed = false;
+    }
+
+    /// The machine's state: (E-stop, on, homed).
+    #[must_use]
+    pub fn machine_state(&self) -> (bool, bool, bool) {
+        let m = self.shared.m();
+        (m.estop, m.on, m.homed)
+    }
+
     /// Whether TCP kinematics (M428) is active.
     #[must_use]
     pub fn tcp_kinematics(&self) -> bool {
@@ -234,6 +261,7 @@ async fn serve(mut stream: TcpStream, shared: Arc<Shared>) {
                     shared.faults.wait_released().await;
                     return;
                 }
+                Some(FaultKind::DropOne) => continue,
                 Some(FaultKind::Garble) => {
                     let _ = stream.write_all(b"\x07?!GARBLE \x01\r\n").await;
                     continue;

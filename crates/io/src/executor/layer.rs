@@ -137,8 +137,12 @@ impl Executor {
     }
 
     /// A layer whose every vector was marked before the cut: journaled as done, nothing moves.
-    pub(super) fn complete_layer(&self, journal: &mut Journal, work: &LayerWork) -> LayerStep<()> {
-        Self::journal_done(journal, work, false)?;
+    pub(super) async fn complete_layer(
+        &self,
+        journal: &mut Journal,
+        work: &LayerWork,
+    ) -> LayerStep<()> {
+        self.journal_done(journal, work, false).await?;
         self.layer_done(work);
         Ok(())
     }
@@ -151,7 +155,7 @@ impl Executor {
         list_buf: u8,
     ) -> LayerStep<LayerTiming> {
         self.start_move(work).await?;
-        let list = self.begin_list(journal, work)?;
+        let list = self.begin_list(journal, work).await?;
         let in_position = self.load_while_moving(work, &list, list_buf).await?;
         let running = self.start_list(work, list_buf, in_position.at).await?;
         let t_done = self
@@ -160,7 +164,7 @@ impl Executor {
         let gate_off_s = self.gate_off(work).await?;
         self.phase(work, Phase::Journal);
         let t_journal = Instant::now();
-        Self::journal_done(journal, work, true)?;
+        self.journal_done(journal, work, true).await?;
         let journal_s = t_journal.elapsed().as_secs_f64();
         self.layer_done(work);
         let total_s = work.started.elapsed().as_secs_f64();
@@ -205,15 +209,24 @@ impl Executor {
         .await
         .at(Phase::Move, false)?;
         // The previous layer's record goes to disk while the CNC moves, not between its done
-        // and this move.
+        // and this move. A flush that timed out (a hung disk) takes the way down.
         self.flush_record();
+        if self.record_disk_hung() {
+            return Err(StopCause::Record {
+                message: format!(
+                    "the record's disk did not flush within {} ms",
+                    crate::record::FLUSH_TIMEOUT_MS
+                ),
+            })
+            .at(Phase::Move, false);
+        }
         Ok(())
     }
 
     /// [`Phase::LoadList`], host side: the list built from `work.first` and its `layer_begin`
     /// journaled. Until `EXECUTE` the galvo reports the previous list, so a stop from here to
     /// `EXECUTE` journals the cut at `first` (a preloaded list is not a marked layer).
-    fn begin_list(&self, journal: &mut Journal, work: &LayerWork) -> LayerStep<BegunList> {
+    async fn begin_list(&self, journal: &mut Journal, work: &LayerWork) -> LayerStep<BegunList> {
         self.phase(work, Phase::LoadList);
         let commands = layer_list(&work.layer, &self.job.settings.galvo, work.first)
             .map_err(|e| StopCause::Job {
@@ -223,12 +236,16 @@ impl Executor {
         let modelled_s = list_time_s(&commands);
         let tag = journal.next_tag();
         journal
-            .append(&Entry::LayerBegin {
-                key: work.key,
-                first_vector: work.first,
-                vectors: work.vectors,
-                tag,
-            })
+            .append_within(
+                &Entry::LayerBegin {
+                    key: work.key,
+                    first_vector: work.first,
+                    vectors: work.vectors,
+                    tag,
+                },
+                self.options.timeouts.journal_write,
+            )
+            .await
             .map_err(|e| journal_failed(&e))
             .at(Phase::LoadList, false)?;
         Ok(BegunList {
@@ -350,10 +367,17 @@ impl Executor {
             + Duration::from_secs_f64(list.modelled_s * t.list_time_factor)
             + t.list_time_margin;
         let mut last_laser_check: Option<Instant> = None;
+        let mut last_cnc_check: Option<Instant> = None;
         let done_status = loop {
             if last_laser_check.is_none_or(|l| l.elapsed() >= self.options.laser_poll) {
                 self.check_laser().await.at(Phase::WaitDone, true)?;
                 last_laser_check = Some(Instant::now());
+            }
+            if last_cnc_check.is_none_or(|l| l.elapsed() >= self.options.cnc_poll) {
+                self.check_cnc_holds(&work.layer.pose)
+                    .await
+                    .at(Phase::WaitDone, true)?;
+                last_cnc_check = Some(Instant::now());
             }
             let s = self.galvo_status().await.at(Phase::WaitDone, true)?;
             if s.tag != list.tag || s.list != list_buf {
@@ -399,6 +423,45 @@ impl Executor {
         let t_done = Instant::now();
         Self::check_marks(work, list, &done_status).at(Phase::WaitDone, true)?;
         Ok(t_done)
+    }
+
+    /// The CNC, while a list runs: still at the layer's pose (within
+    /// [`crate::cnc::HOLD_TOLERANCE`]), out of E-stop and on. Anything else (a jog or an MDI
+    /// from another session, an E-stop, an abort that left it elsewhere) is a CNC fault.
+    async fn check_cnc_holds(&mut self, pose: &trim_plan::job::Pose) -> Result<(), StopCause> {
+        let t = self.options.timeouts;
+        let w = Self::guard(
+            &self.cancel,
+            t.cnc_reply,
+            Device::Cnc,
+            "position and state",
+            self.cell.cnc.watch(),
+        )
+        .await?;
+        let fault = |message: String| StopCause::Fault {
+            device: Device::Cnc,
+            message,
+        };
+        if w.state.estop || !w.state.on {
+            return Err(fault(format!(
+                "the machine left its enabled state while the layer marked ({})",
+                if w.state.estop {
+                    "E-stop"
+                } else {
+                    "switched off"
+                }
+            )));
+        }
+        for (axis, &commanded) in &pose.0 {
+            let actual = w.positions.world.axis(axis).unwrap_or(f64::NAN);
+            let held = (actual - commanded).abs() <= crate::cnc::HOLD_TOLERANCE; // false for NaN
+            if !held {
+                return Err(fault(format!(
+                    "the machine moved while the layer marked: {axis} at {actual:.4}, the layer's pose {commanded:.4}"
+                )));
+            }
+        }
+        Ok(())
     }
 
     /// The laser's faults, while a list runs.
@@ -454,12 +517,22 @@ impl Executor {
 
     /// [`Phase::Journal`]: the layer's `layer_done`, fsynced before the next layer begins.
     /// `began`: this run journaled the layer's `layer_begin` (see [`LayerFault::began`]).
-    fn journal_done(journal: &mut Journal, work: &LayerWork, began: bool) -> LayerStep<()> {
+    /// Bounded by the journal-write timeout: a hung disk takes the way down.
+    async fn journal_done(
+        &self,
+        journal: &mut Journal,
+        work: &LayerWork,
+        began: bool,
+    ) -> LayerStep<()> {
         journal
-            .append(&Entry::LayerDone {
-                key: work.key,
-                vectors: work.vectors,
-            })
+            .append_within(
+                &Entry::LayerDone {
+                    key: work.key,
+                    vectors: work.vectors,
+                },
+                self.options.timeouts.journal_write,
+            )
+            .await
             .map_err(|e| journal_failed(&e))
             .at(Phase::Journal, began)
     }

@@ -40,6 +40,7 @@ use crate::galvo::list::{layer_list, vector_count};
 use crate::galvo::protocol::StatusBlock;
 use crate::galvo::timing::polylines_time_s;
 use crate::journal::{CutLayer, Journal, JournalError, JournalSink, JournalState};
+pub use crate::laser::client::{OffAttempt, OffPort};
 use crate::record::{LogLevel, SharedRecorder};
 use crate::tap::{Device, now_ns};
 
@@ -58,6 +59,9 @@ pub const STATUS_POLL_MS: u64 = 10;
 /// How often the laser's faults are checked while a list runs (ms); also once right after
 /// `EXECUTE`.
 pub const LASER_POLL_MS: u64 = 250;
+/// How often the CNC's position and state are read while a list runs (ms); also once right
+/// after `EXECUTE`.
+pub const CNC_POLL_MS: u64 = 50;
 
 /// The steps of a layer (and the run's preparation).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize)]
@@ -171,6 +175,11 @@ pub enum StopCause {
         /// What happened.
         message: String,
     },
+    /// The run record's disk hangs: a flush did not return within its timeout.
+    Record {
+        /// What happened.
+        message: String,
+    },
 }
 
 impl std::fmt::Display for StopCause {
@@ -181,14 +190,17 @@ impl std::fmt::Display for StopCause {
             StopCause::Fault { device, message } => write!(f, "{device} fault: {message}"),
             StopCause::Journal { message } => write!(f, "journal: {message}"),
             StopCause::Job { message } => write!(f, "job: {message}"),
+            StopCause::Record { message } => write!(f, "record: {message}"),
         }
     }
 }
 
-/// What the way down did, in order, and how long the laser-off took (host view).
+/// What the way down did, in order: each step acknowledged or not, what went wrong, and when
+/// (host view, from the fault's detection).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct ShutdownReport {
-    /// The serial emission-off was acknowledged.
+    /// The serial emission-off was acknowledged (by one of [`ShutdownReport::emission_off`]'s
+    /// attempts). When not, the laser's state is unknown.
     pub laser_off_ok: bool,
     /// The galvo laser signals off was acknowledged.
     pub galvo_signals_off_ok: bool,
@@ -196,10 +208,58 @@ pub struct ShutdownReport {
     pub galvo_stop_ok: bool,
     /// The CNC abort was acknowledged.
     pub cnc_abort_ok: bool,
-    /// From the fault's detection to both laser-off commands answered or timed out (s).
+    /// From the fault's detection to both laser-off commands answered or given up (s).
     pub laser_off_s: f64,
     /// From detection to the end of the way down (s).
     pub total_s: f64,
+    /// Every attempt of the serial emission-off (the port already open, then reopened).
+    pub emission_off: Vec<OffAttempt>,
+    /// Why each step that was not acknowledged failed, in the way down's order.
+    pub failures: Vec<StepFailure>,
+}
+
+impl ShutdownReport {
+    /// Every step acknowledged.
+    #[must_use]
+    pub fn all_acknowledged(&self) -> bool {
+        self.laser_off_ok && self.galvo_signals_off_ok && self.galvo_stop_ok && self.cnc_abort_ok
+    }
+}
+
+/// A step of the way down.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ShutdownStep {
+    /// The laser's serial emission-off.
+    EmissionOff,
+    /// The galvo's laser signals off.
+    GalvoSignalsOff,
+    /// The galvo list stopped.
+    GalvoStop,
+    /// The CNC's motion aborted.
+    CncAbort,
+}
+
+impl std::fmt::Display for ShutdownStep {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            ShutdownStep::EmissionOff => "laser emission-off",
+            ShutdownStep::GalvoSignalsOff => "galvo laser signals off",
+            ShutdownStep::GalvoStop => "galvo stop",
+            ShutdownStep::CncAbort => "CNC abort",
+        })
+    }
+}
+
+/// A step of the way down that was not acknowledged.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct StepFailure {
+    /// The step.
+    pub step: ShutdownStep,
+    /// What went wrong (the last attempt's error for the emission-off).
+    pub error: String,
+    /// From detection to the step given up (s).
+    pub after_s: f64,
 }
 
 /// A run that stopped before the end.
@@ -227,15 +287,22 @@ pub struct Stopped {
 /// A run that did not finish.
 #[derive(Debug, thiserror::Error)]
 pub enum ExecError {
-    /// Stopped by a fault or a cancel; the laser is off, the layer journaled as cut.
+    /// Stopped by a fault or a cancel after the way down (whose steps, acknowledged or not,
+    /// are in [`Stopped::shutdown`]: the laser is off only when `laser_off_ok`); the layer
+    /// journaled as cut.
     #[error("run stopped in {} ({phase:?}): {cause}; {done} of {total} vectors of the layer marked", .0.key.map_or("preparation".to_owned(), |k| k.to_string()), phase = .0.phase, cause = .0.cause, done = .0.vectors_done.map_or("unknown".to_owned(), |v| v.to_string()), total = .0.vectors)]
     Stopped(Box<Stopped>),
     /// The journal.
     #[error(transparent)]
     Journal(#[from] JournalError),
-    /// The job cannot be sent to the galvo.
+    /// The job cannot be sent to the galvo, or moves outside the machine's limits.
     #[error("job: {0}")]
     Job(String),
+    /// The CNC is not ready (in E-stop, off, not homed) and the step that would make it so was
+    /// not allowed ([`ExecOptions::enable`]), or its state could not be read; nothing was
+    /// switched on.
+    #[error("the CNC: {0}; nothing was switched on")]
+    MachineNotReady(String),
     /// Resume cannot tell how far the cut layer got and no choice was given
     /// ([`ExecOptions::cut_layer`]); nothing was switched on.
     #[error("resume: cannot tell how far {key} got: {reason}. Choose what to do with the layer: redo (marks it again from vector {first_vector}: up to {} of its {vectors} vectors may be marked twice) or skip (leaves it out, unmarked; the report lists it)", vectors - first_vector)]
@@ -335,10 +402,21 @@ pub struct ExecOptions {
     /// How often the laser's faults are checked while a list runs (also once right after
     /// `EXECUTE`).
     pub laser_poll: Duration,
+    /// How often the CNC is read while a list runs (also once right after `EXECUTE`): a
+    /// position off the layer's pose by more than [`crate::cnc::HOLD_TOLERANCE`], or the
+    /// machine in E-stop or off, takes the way down.
+    pub cnc_poll: Duration,
     /// On resume, what to do with a cut layer whose progress neither the galvo nor the journal
     /// can tell (`None`: refuse with [`ExecError::ResumeUnknown`]). Not used when the progress
     /// is known.
     pub cut_layer: Option<CutLayer>,
+    /// What preparation may do to the CNC beyond its mode: reset the E-stop and switch it on,
+    /// home it. A machine that needs a step not allowed is refused before anything is switched
+    /// on ([`ExecError::MachineNotReady`]).
+    pub enable: crate::cnc::EnableSteps,
+    /// The machine (`[machine]`): every layer's pose is checked against its axis limits before
+    /// anything moves ([`crate::limits`]). `None`: only the CNC's own limits guard the moves.
+    pub machine: Option<trim_plan::kinematics::MachineSettings>,
 }
 
 impl Default for ExecOptions {
@@ -347,7 +425,10 @@ impl Default for ExecOptions {
             timeouts: Timeouts::default(),
             laser_power_pct: None,
             laser_poll: Duration::from_millis(LASER_POLL_MS),
+            cnc_poll: Duration::from_millis(CNC_POLL_MS),
             cut_layer: None,
+            enable: crate::cnc::EnableSteps::default(),
+            machine: None,
         }
     }
 }
@@ -432,6 +513,7 @@ impl Executor {
         self.cancel = cancel;
         self.progress = progress;
         self.check_job()?;
+        self.check_machine().await?;
         let mut journal = Journal::create(&self.journal_path, &self.job)?;
         self.wrap_journal(&mut journal);
         self.execute(journal, JournalState::default()).await
@@ -447,6 +529,7 @@ impl Executor {
         self.cancel = cancel;
         self.progress = progress;
         self.check_job()?;
+        self.check_machine().await?;
         let (mut journal, state) = Journal::resume(&self.journal_path, &self.job)?;
         self.wrap_journal(&mut journal);
         self.execute(journal, state).await
@@ -462,11 +545,36 @@ impl Executor {
                 z.unreachable.as_deref().unwrap_or_default()
             )));
         }
+        if let Some(machine) = &self.options.machine {
+            crate::limits::check_poses(&self.job, machine, None)
+                .map_err(|e| ExecError::Job(e.to_string()))?;
+        }
         for (key, _, layer) in self.job.layers() {
             layer_list(layer, &self.job.settings.galvo, 0)
                 .map_err(|e| ExecError::Job(format!("{key}: {e}")))?;
         }
         Ok(())
+    }
+
+    /// Refuses a machine that is in E-stop, off or unhomed when the step that fixes it was not
+    /// allowed, before anything is switched on.
+    async fn check_machine(&mut self) -> Result<(), ExecError> {
+        let timeout = self.options.timeouts.cnc_reply * 3;
+        let state = match tokio::time::timeout(timeout, self.cell.cnc.state()).await {
+            Ok(Ok(Ok(s))) => s,
+            Ok(Ok(Err(f))) => return Err(ExecError::MachineNotReady(f.to_string())),
+            Ok(Err(e)) => return Err(ExecError::MachineNotReady(e.to_string())),
+            Err(_) => {
+                return Err(ExecError::MachineNotReady(format!(
+                    "no state within {} ms",
+                    timeout.as_millis()
+                )));
+            }
+        };
+        match self.options.enable.refusal(state) {
+            Some(f) => Err(ExecError::MachineNotReady(f.to_string())),
+            None => Ok(()),
+        }
     }
 
     fn emit(&self, p: Progress) {
@@ -488,22 +596,40 @@ impl Executor {
         if let Some(r) = &self.recorder {
             let mut r = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
             let res = r.layer(now_ns(), key, state, done, total, &self.job);
-            let res = res.and_then(|()| if flush { r.flush() } else { Ok(()) });
+            // A hung disk is not asked again (each flush would wait its whole timeout).
+            let res = res.and_then(|()| {
+                if flush && !r.disk_hung() {
+                    r.flush()
+                } else {
+                    Ok(())
+                }
+            });
             if let Err(e) = res {
                 tracing::warn!(error = %e, "record: layer message lost");
             }
         }
     }
 
-    /// Writes what the record holds to disk (a failure is logged: the record is not the
-    /// journal, and losing it never stops the cell).
-    fn flush_record(&self) {
-        if let Some(r) = &self.recorder
-            && let Err(e) = r
-                .lock()
+    /// Whether the record's disk hangs (a flush timed out).
+    fn record_disk_hung(&self) -> bool {
+        self.recorder.as_ref().is_some_and(|r| {
+            r.lock()
                 .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .flush()
-        {
+                .disk_hung()
+        })
+    }
+
+    /// Writes what the record holds to disk, bounded by the record's flush timeout (a failure is
+    /// logged: the record is not the journal; a hung disk is seen by
+    /// [`Executor::record_disk_hung`]).
+    fn flush_record(&self) {
+        let Some(r) = &self.recorder else { return };
+        let mut r = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        // A hung disk is not asked again (each flush would wait its whole timeout).
+        if r.disk_hung() {
+            return;
+        }
+        if let Err(e) = r.flush() {
             tracing::warn!(error = %e, "record: flush failed");
         }
     }
@@ -594,7 +720,7 @@ impl Executor {
             enable_timeout,
             Device::Cnc,
             "enable",
-            self.cell.cnc.enable(),
+            self.cell.cnc.enable(self.options.enable),
         )
         .await?;
         Ok(())
@@ -703,7 +829,7 @@ impl Executor {
             }
             let work = LayerWork::new(key, index, layer, first);
             let marked = if work.all_marked_before() {
-                self.complete_layer(journal, &work).map(|()| None)
+                self.complete_layer(journal, &work).await.map(|()| None)
             } else {
                 self.mark_layer(journal, &work, list_buf).await.map(Some)
             };
@@ -727,8 +853,8 @@ impl Executor {
         Ok(self.finish(summary, elapsed0, started).await)
     }
 
-    /// After the last layer: the galvo's modelled time, the laser signals off, the log and the
-    /// record flushed.
+    /// After the last layer: the galvo's modelled time, the laser signals off (always, even
+    /// when a cancel came after the last layer), the log and the record flushed.
     async fn finish(
         &mut self,
         mut summary: RunSummary,
@@ -741,9 +867,11 @@ impl Executor {
             .map(|s| s.elapsed_ns)
             .unwrap_or(elapsed0);
         summary.galvo_modelled_s = elapsed1.saturating_sub(elapsed0) as f64 * 1e-9;
-        let (c, gt) = (self.cancel.clone(), self.galvo_timeout());
+        // Not guarded by the run's cancel token: a cancel that lands after the last layer
+        // must not skip the signals off.
+        let (never, gt) = (CancellationToken::new(), self.galvo_timeout());
         if let Err(cause) = Self::guard(
-            &c,
+            &never,
             gt,
             Device::Galvo,
             "LASER_SIGNALS off",

@@ -98,14 +98,17 @@ impl Executor {
             CutLayer::Redo => vectors.saturating_sub(*first_vector),
             CutLayer::Skip => 0,
         };
-        journal.append(&Entry::CutLayerChoice {
+        let entry = Entry::CutLayerChoice {
             key: *key,
             choice,
             first_vector: *first_vector,
             vectors: *vectors,
             vectors_maybe_twice,
             reason: reason.clone(),
-        })?;
+        };
+        journal
+            .append_within(&entry, self.options.timeouts.journal_write)
+            .await?;
         self.log(
             LogLevel::Warning,
             &format!("resume: {key}: {reason}; operator chose {choice} ({vectors_maybe_twice} vectors may be marked twice)"),

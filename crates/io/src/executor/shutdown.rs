@@ -11,8 +11,10 @@ use trim_plan::job::LayerKey;
 
 use super::layer::LayerWork;
 use super::{ExecError, Executor, Phase, ShutdownReport, Step, StopCause, Stopped};
+use super::{ShutdownStep, StepFailure};
 use crate::galvo::protocol::NO_LIST;
 use crate::journal::{Entry, Journal};
+use crate::laser::client::EmissionOff;
 use crate::record::LogLevel;
 
 /// A failure after preparation began: what the way down journals and reports.
@@ -37,15 +39,32 @@ pub(super) struct Fault {
     pub(super) laser_off: Option<LaserOff>,
 }
 
-/// The first step of the way down, done: both laser-off commands answered or timed out.
-#[derive(Debug, Clone, Copy)]
+/// The first step of the way down, done: both laser-off commands answered or given up.
+#[derive(Debug, Clone)]
 pub(super) struct LaserOff {
-    /// The serial emission-off was acknowledged.
-    ok: bool,
-    /// The galvo laser signals off was acknowledged.
-    galvo_signals_ok: bool,
-    /// From detection to both answered or timed out (s).
+    /// The serial emission-off: acknowledged or not, every attempt.
+    emission: EmissionOff,
+    /// The galvo laser signals off: `None` acknowledged, else why not.
+    galvo_signals: Option<String>,
+    /// From detection to the serial emission-off acknowledged or given up (s).
+    emission_after_s: f64,
+    /// From detection to the galvo's answer or its timeout (s).
+    galvo_after_s: f64,
+    /// From detection to both answered or given up (s).
     after_s: f64,
+}
+
+/// `None` when the step was acknowledged, else what went wrong (its timeout included).
+fn step_error<E1: std::fmt::Display, E2: std::fmt::Display>(
+    r: Result<Result<Result<(), E2>, E1>, tokio::time::error::Elapsed>,
+    timeout: std::time::Duration,
+) -> Option<String> {
+    match r {
+        Ok(Ok(Ok(()))) => None,
+        Ok(Ok(Err(fault))) => Some(format!("refused: {fault}")),
+        Ok(Err(e)) => Some(e.to_string()),
+        Err(_) => Some(format!("no answer within {} ms", timeout.as_millis())),
+    }
 }
 
 impl Fault {
@@ -168,11 +187,13 @@ impl Executor {
         if let Some(key) = key
             && journal_cut
         {
-            if let Err(e) = journal.append(&Entry::LayerCut {
+            let cut = Entry::LayerCut {
                 key,
                 vectors_done,
                 reason: cause.to_string(),
-            }) {
+            };
+            let timeout = self.options.timeouts.journal_write;
+            if let Err(e) = journal.append_within(&cut, timeout).await {
                 tracing::error!(error = %e, "journal: cut entry lost");
             }
             self.record_layer(key, "cut", vectors_done.unwrap_or(0), vectors, true);
@@ -181,6 +202,7 @@ impl Executor {
             LogLevel::Error,
             &format!("run stopped at {phase:?}: {cause}"),
         );
+        self.record_shutdown(&cause, key, phase, &shutdown);
         self.flush_record();
         ExecError::Stopped(Box::new(Stopped {
             cause,
@@ -194,18 +216,61 @@ impl Executor {
         }))
     }
 
-    /// The laser off: the serial emission-off and the galvo laser signals off, together, each
-    /// within the shutdown step.
+    /// The way down on `/shutdown` (a failure is logged: the record is not the journal).
+    fn record_shutdown(
+        &self,
+        cause: &StopCause,
+        key: Option<LayerKey>,
+        phase: Phase,
+        shutdown: &ShutdownReport,
+    ) {
+        let Some(r) = &self.recorder else { return };
+        let msg = serde_json::json!({
+            "cause": cause.to_string(),
+            "layer": key.map(|k| k.to_string()),
+            "phase": format!("{phase:?}"),
+            "report": shutdown,
+        });
+        let mut r = r.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let res = r.json(
+            crate::record::topic::SHUTDOWN,
+            crate::record::topic::SHUTDOWN_SCHEMA,
+            crate::tap::now_ns(),
+            &msg,
+        );
+        if let Err(e) = res {
+            tracing::warn!(error = %e, "record: shutdown report lost");
+        }
+    }
+
+    /// The laser off: the serial emission-off (retried on the port reopened until acknowledged
+    /// or the laser-off budget is spent: [`LaserClient::emission_off_until`]) and the galvo laser
+    /// signals off (within the shutdown step), together.
+    ///
+    /// [`LaserClient::emission_off_until`]: crate::laser::LaserClient::emission_off_until
     async fn laser_off(&mut self, detected_at: Instant) -> LaserOff {
-        let step = self.options.timeouts.shutdown_step;
+        let t = self.options.timeouts;
+        let deadline = tokio::time::Instant::now() + t.laser_off_budget;
         let cell = &mut self.cell;
-        let (laser, galvo) = tokio::join!(
-            tokio::time::timeout(step, cell.laser.emission(false)),
-            tokio::time::timeout(step, cell.galvo.laser_signals(false)),
+        let (emission, galvo) = tokio::join!(
+            async {
+                let e = cell.laser.emission_off_until(deadline).await;
+                (e, detected_at.elapsed().as_secs_f64())
+            },
+            async {
+                let r =
+                    tokio::time::timeout(t.shutdown_step, cell.galvo.laser_signals(false)).await;
+                (
+                    step_error(r, t.shutdown_step),
+                    detected_at.elapsed().as_secs_f64(),
+                )
+            },
         );
         LaserOff {
-            ok: matches!(laser, Ok(Ok(Ok(())))),
-            galvo_signals_ok: matches!(galvo, Ok(Ok(Ok(())))),
+            emission: emission.0,
+            emission_after_s: emission.1,
+            galvo_signals: galvo.0,
+            galvo_after_s: galvo.1,
             after_s: detected_at.elapsed().as_secs_f64(),
         }
     }
@@ -217,28 +282,64 @@ impl Executor {
             None => self.laser_off(detected_at).await,
         };
         let step = self.options.timeouts.shutdown_step;
+        let mut failures = Vec::new();
+        if !laser.emission.acknowledged {
+            let error = laser
+                .emission
+                .attempts
+                .last()
+                .and_then(|a| a.error.clone())
+                .unwrap_or_else(|| "no attempt".into());
+            failures.push(StepFailure {
+                step: ShutdownStep::EmissionOff,
+                error: format!("{error} ({} attempts)", laser.emission.attempts.len()),
+                after_s: laser.emission_after_s,
+            });
+        }
+        if let Some(error) = &laser.galvo_signals {
+            failures.push(StepFailure {
+                step: ShutdownStep::GalvoSignalsOff,
+                error: error.clone(),
+                after_s: laser.galvo_after_s,
+            });
+        }
         let cell = &mut self.cell;
-        let (laser_off_ok, galvo_signals_off_ok, laser_off_s) =
-            (laser.ok, laser.galvo_signals_ok, laser.after_s);
-        let galvo_stop_ok = matches!(
-            tokio::time::timeout(step, cell.galvo.stop()).await,
-            Ok(Ok(Ok(())))
-        );
+        let galvo_stop = step_error(tokio::time::timeout(step, cell.galvo.stop()).await, step);
+        if let Some(error) = &galvo_stop {
+            failures.push(StepFailure {
+                step: ShutdownStep::GalvoStop,
+                error: error.clone(),
+                after_s: detected_at.elapsed().as_secs_f64(),
+            });
+        }
         // A stop on a fresh CNC session may need a connect: allow it the reply timeout too.
         let cnc_step = step + self.options.timeouts.cnc_reply;
-        let cnc_abort_ok = matches!(
+        let cnc_abort = step_error(
             tokio::time::timeout(cnc_step, cell.cnc.abort()).await,
-            Ok(Ok(Ok(())))
+            cnc_step,
         );
+        if let Some(error) = &cnc_abort {
+            failures.push(StepFailure {
+                step: ShutdownStep::CncAbort,
+                error: error.clone(),
+                after_s: detected_at.elapsed().as_secs_f64(),
+            });
+        }
         let report = ShutdownReport {
-            laser_off_ok,
-            galvo_signals_off_ok,
-            galvo_stop_ok,
-            cnc_abort_ok,
-            laser_off_s,
+            laser_off_ok: laser.emission.acknowledged,
+            galvo_signals_off_ok: laser.galvo_signals.is_none(),
+            galvo_stop_ok: galvo_stop.is_none(),
+            cnc_abort_ok: cnc_abort.is_none(),
+            laser_off_s: laser.after_s,
             total_s: detected_at.elapsed().as_secs_f64(),
+            emission_off: laser.emission.attempts,
+            failures,
         };
-        tracing::warn!(?report, "executor: way down");
+        if report.all_acknowledged() {
+            tracing::warn!(?report, "executor: way down, every step acknowledged");
+        } else {
+            tracing::error!(?report, "executor: way down, NOT every step acknowledged");
+        }
         report
     }
 }

@@ -469,7 +469,7 @@ async fn serve(stream: TcpStream, shared: Arc<Shared>) {
                 shared.trip("link dropped (fault)");
                 return;
             }
-            Some(FaultKind::Stall) => continue,
+            Some(FaultKind::Stall | FaultKind::DropOne) => continue,
             Some(FaultKind::Garble) => {
                 shared.ctl().garble_next = true;
             }
@@ -963,6 +963,7 @@ fn inject_mid_list(shared: &Arc<Shared>, kind: FaultKind) {
             shared.trip("link dropped (fault)");
         }
         FaultKind::Stall => shared.faults.set_stalled(),
+        FaultKind::DropOne => {}
         FaultKind::Garble => shared.ctl().garble_next = true,
         FaultKind::Refuse => {
             let mut c = shared.ctl();

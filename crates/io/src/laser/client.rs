@@ -1,5 +1,12 @@
 //! The laser client: a serial port (tokio-serial) speaking a [`Profile`]; every reply checked,
 //! faults decoded, every await with a timeout.
+//!
+//! A transport failure (a missed reply, an I/O error) marks the link broken: later commands
+//! fail at once without being sent, since a late reply could be taken for theirs. The stop
+//! path's [`LaserClient::emission_off_until`] is the exception: it always sends, first on the
+//! port already open, then on the port reopened, again and again until the laser acknowledges
+//! or the deadline passes, and reports every attempt. A client dropped while the emission may be
+//! on (a panic unwinding, a future dropped) writes the emission-off line on its way out.
 
 use std::time::Duration;
 
@@ -134,13 +141,106 @@ pub enum LaserFault {
 /// A device result: transport error outside, the laser's refusal or fault inside.
 pub type LaserResult<T> = Result<Result<T, LaserFault>, LaserError>;
 
+/// Which port an emission-off attempt of the stop path went out on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OffPort {
+    /// The port already open (even when the link was marked broken).
+    Open,
+    /// The port closed and opened again.
+    Reopened,
+}
+
+/// One attempt of the stop path's emission-off ([`LaserClient::emission_off_until`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct OffAttempt {
+    /// The port it went out on.
+    pub port: OffPort,
+    /// From the first attempt's start to this one's end (s).
+    pub after_s: f64,
+    /// `None`: the laser acknowledged the emission-off; else what went wrong.
+    pub error: Option<String>,
+}
+
+/// The stop path's emission-off: acknowledged or not, and every attempt.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct EmissionOff {
+    /// The laser acknowledged an emission-off.
+    pub acknowledged: bool,
+    /// Every attempt, in order.
+    pub attempts: Vec<OffAttempt>,
+}
+
+/// A pause between two failed emission-off attempts (ms), so a port that cannot be opened is not
+/// hammered.
+const OFF_RETRY_PAUSE_MS: u64 = 20;
+
+type Port = Framed<tokio_serial::SerialStream, LineCodec>;
+
 /// A laser on a serial port.
 pub struct LaserClient {
-    port: Framed<tokio_serial::SerialStream, LineCodec>,
+    /// `None` only while the stop path reopens it (the port is opened exclusively: the old one
+    /// is closed first).
+    port: Option<Port>,
+    path: String,
     profile: Profile,
     reply_timeout: Duration,
     tap: Tap,
     broken: Option<String>,
+    /// An emission-on was sent and no emission-off acknowledged since: the laser may emit.
+    emission_may_be_on: bool,
+}
+
+impl Drop for LaserClient {
+    /// The guard: dropped while the emission may be on (a panic unwinding through the
+    /// executor, its future dropped), the client writes the emission-off line on the port,
+    /// without waiting for a reply.
+    fn drop(&mut self) {
+        if !self.emission_may_be_on {
+            return;
+        }
+        let Some(port) = self.port.as_mut() else {
+            return;
+        };
+        let ex = self.profile.commands.get(ops::EMISSION_OFF);
+        let Some(ex) = ex else { return };
+        let mut line = fill(&ex.send, None).into_bytes();
+        line.extend_from_slice(self.profile.terminator.as_bytes());
+        let written = port.get_mut().try_write(&line);
+        match written {
+            Ok(n) if n == line.len() => {
+                tracing::error!(
+                    "laser: client dropped with the emission possibly on: emission-off written"
+                );
+            }
+            other => tracing::error!(
+                ?other,
+                "laser: client dropped with the emission possibly on: emission-off NOT written"
+            ),
+        }
+    }
+}
+
+/// Drops bytes received and not read yet: the codec's buffer and the port's input queue (a late
+/// reply to a timed-out command, or to another client's last line). A failure to flush the
+/// queue is not an error: a stale line is then skipped or refused as a bad reply.
+fn drop_stale_input(port: &mut Port) {
+    port.read_buffer_mut().clear();
+    let _ = tokio_serial::SerialPort::clear(port.get_ref(), tokio_serial::ClearBuffer::Input);
+}
+
+fn open_port(path: &str, profile: &Profile) -> Result<Port, LaserError> {
+    let stream = tokio_serial::new(path, profile.baud)
+        .data_bits(tokio_serial::DataBits::Eight)
+        .parity(tokio_serial::Parity::None)
+        .stop_bits(tokio_serial::StopBits::One)
+        .flow_control(tokio_serial::FlowControl::None)
+        .open_native_async()
+        .map_err(|e| LaserError::Open {
+            path: path.to_owned(),
+            reason: e.to_string(),
+        })?;
+    Ok(Framed::new(stream, LineCodec::new(&profile.terminator)))
 }
 
 impl LaserClient {
@@ -151,23 +251,15 @@ impl LaserClient {
         reply_timeout: Duration,
         tap: Tap,
     ) -> Result<LaserClient, LaserError> {
-        let stream = tokio_serial::new(path, profile.baud)
-            .data_bits(tokio_serial::DataBits::Eight)
-            .parity(tokio_serial::Parity::None)
-            .stop_bits(tokio_serial::StopBits::One)
-            .flow_control(tokio_serial::FlowControl::None)
-            .open_native_async()
-            .map_err(|e| LaserError::Open {
-                path: path.to_owned(),
-                reason: e.to_string(),
-            })?;
-        let codec = LineCodec::new(&profile.terminator);
+        let port = open_port(path, &profile)?;
         Ok(LaserClient {
-            port: Framed::new(stream, codec),
+            port: Some(port),
+            path: path.to_owned(),
             profile,
             reply_timeout,
             tap,
             broken: None,
+            emission_may_be_on: false,
         })
     }
 
@@ -185,13 +277,19 @@ impl LaserClient {
                 reason: format!("link already lost: {reason}"),
             });
         }
+        let Some(port) = self.port.as_mut() else {
+            return Err(self.broken(LaserError::LinkLost {
+                command: line,
+                reason: "the port is closed".into(),
+            }));
+        };
         // Drop stale bytes (a late reply to a timed-out command) before sending.
-        self.port.read_buffer_mut().clear();
+        drop_stale_input(port);
         self.tap
             .record(Device::Laser, Direction::Command, || line.clone());
         let timeout_ms = u64::try_from(self.reply_timeout.as_millis()).unwrap_or(u64::MAX);
         let deadline = tokio::time::Instant::now() + self.reply_timeout;
-        match tokio::time::timeout_at(deadline, self.port.send(line.clone())).await {
+        match tokio::time::timeout_at(deadline, port.send(line.clone())).await {
             Ok(Ok(())) => {}
             Ok(Err(e)) => {
                 return Err(self.broken(LaserError::LinkLost {
@@ -206,7 +304,7 @@ impl LaserClient {
                 }));
             }
         }
-        let reply = match tokio::time::timeout_at(deadline, self.port.next()).await {
+        let reply = match tokio::time::timeout_at(deadline, port.next()).await {
             Err(_) => {
                 return Err(self.broken(LaserError::Timeout {
                     command: line,
@@ -219,12 +317,19 @@ impl LaserClient {
                     reason: "port closed".into(),
                 }));
             }
-            Ok(Some(Err(e))) => {
+            Ok(Some(Err(e))) if e.kind() == std::io::ErrorKind::InvalidData => {
                 return Err(LaserError::BadReply {
                     command: line,
                     reply: e.to_string(),
                     expected: "a terminated line".into(),
                 });
+            }
+            // The port itself failed (EIO: the device or its pty went away).
+            Ok(Some(Err(e))) => {
+                return Err(self.broken(LaserError::LinkLost {
+                    command: line,
+                    reason: e.to_string(),
+                }));
             }
             Ok(Some(Ok(r))) => r,
         };
@@ -276,17 +381,121 @@ impl LaserClient {
         Ok(Ok(()))
     }
 
-    /// Enables or disables emission.
+    /// Enables or disables emission. Until an emission-off is acknowledged after an
+    /// emission-on was sent, the laser counts as possibly emitting (see the `Drop` guard).
     pub async fn emission(&mut self, on: bool) -> LaserResult<()> {
-        self.command(
-            if on {
-                ops::EMISSION_ON
+        if on {
+            self.emission_may_be_on = true;
+            return self.command(ops::EMISSION_ON, None).await;
+        }
+        let r = self.command(ops::EMISSION_OFF, None).await;
+        if matches!(r, Ok(Ok(()))) {
+            self.emission_may_be_on = false;
+        }
+        r
+    }
+
+    /// The stop path's emission-off: sent on the port already open (whether or not the link
+    /// was marked broken), then, while not acknowledged, on the port closed and reopened, again
+    /// until the laser acknowledges or `deadline` passes. Each attempt waits for the reply at
+    /// most the reply timeout; lines that are not the emission-off's reply (a late reply to an
+    /// earlier command) are skipped. At least one attempt is made. An acknowledgement on a
+    /// reopened port clears the broken mark (the new port is in step).
+    pub async fn emission_off_until(&mut self, deadline: tokio::time::Instant) -> EmissionOff {
+        let started = tokio::time::Instant::now();
+        let mut out = EmissionOff::default();
+        let Some(ex) = self.profile.commands.get(ops::EMISSION_OFF).cloned() else {
+            out.attempts.push(OffAttempt {
+                port: OffPort::Open,
+                after_s: 0.0,
+                error: Some(format!("profile {} has no emission_off", self.profile.name)),
+            });
+            return out;
+        };
+        let line = fill(&ex.send, None);
+        loop {
+            let port_use = if out.attempts.is_empty() {
+                OffPort::Open
             } else {
-                ops::EMISSION_OFF
-            },
-            None,
-        )
-        .await
+                OffPort::Reopened
+            };
+            let result = match port_use {
+                OffPort::Open => self.send_off(&line, &ex.reply, deadline).await,
+                OffPort::Reopened => {
+                    // Exclusive ports: close the old one before opening it again.
+                    self.port = None;
+                    match open_port(&self.path, &self.profile) {
+                        Ok(p) => {
+                            self.port = Some(p);
+                            self.send_off(&line, &ex.reply, deadline).await
+                        }
+                        Err(e) => Err(e.to_string()),
+                    }
+                }
+            };
+            let ok = result.is_ok();
+            if ok && port_use == OffPort::Reopened {
+                self.broken = None;
+            }
+            out.attempts.push(OffAttempt {
+                port: port_use,
+                after_s: started.elapsed().as_secs_f64(),
+                error: result.err(),
+            });
+            if ok {
+                out.acknowledged = true;
+                self.emission_may_be_on = false;
+                return out;
+            }
+            let now = tokio::time::Instant::now();
+            if now >= deadline {
+                return out;
+            }
+            let pause = Duration::from_millis(OFF_RETRY_PAUSE_MS).min(deadline - now);
+            tokio::time::sleep(pause).await;
+        }
+    }
+
+    /// One emission-off on the current port: sent, then lines read until its reply, a refusal
+    /// or the reply timeout (within `deadline`).
+    async fn send_off(
+        &mut self,
+        line: &str,
+        reply_template: &str,
+        deadline: tokio::time::Instant,
+    ) -> Result<(), String> {
+        let Some(port) = self.port.as_mut() else {
+            return Err("the port is closed".into());
+        };
+        drop_stale_input(port);
+        self.tap
+            .record(Device::Laser, Direction::Command, || line.to_owned());
+        let now = tokio::time::Instant::now();
+        let until = deadline.min(now + self.reply_timeout);
+        let wait = until.saturating_duration_since(now);
+        match tokio::time::timeout_at(until, port.send(line.to_owned())).await {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => return Err(format!("link lost: {e}")),
+            Err(_) => return Err("could not send within the reply timeout".into()),
+        }
+        loop {
+            let reply = match tokio::time::timeout_at(until, port.next()).await {
+                Err(_) => return Err(format!("no reply within {} ms", wait.as_millis())),
+                Ok(None) => return Err("link lost: port closed".into()),
+                Ok(Some(Err(e))) if e.kind() == std::io::ErrorKind::InvalidData => continue,
+                Ok(Some(Err(e))) => return Err(format!("link lost: {e}")),
+                Ok(Some(Ok(r))) => r,
+            };
+            self.tap
+                .record(Device::Laser, Direction::Reply, || reply.clone());
+            if self.profile.is_error_reply(&reply) {
+                return Err(format!("refused: {reply:?}"));
+            }
+            if capture(reply_template, &reply).is_some() {
+                return Ok(());
+            }
+            // Not this command's reply (a late one): keep reading.
+        }
     }
 
     /// Sets the power (percent).

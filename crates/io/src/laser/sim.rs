@@ -178,6 +178,15 @@ impl LaserSim {
     pub fn faults(&self) -> &FaultSwitch {
         &self.shared.faults
     }
+
+    /// The pty vanishes (a USB adapter pulled): the simulator stops and closes the master,
+    /// so the client's reads and writes fail with EIO and its node cannot be opened again.
+    pub fn vanish(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
 }
 
 /// How long one poll of the pty waits (ms): the thread's reaction time to stop and faults.
@@ -251,6 +260,8 @@ fn serve(fd: &OwnedFd, shared: &Shared, stop: &AtomicBool) {
                     pending.clear();
                     break;
                 }
+                // This line is lost: not executed, not answered; the next is.
+                Some(FaultKind::DropOne) => continue,
                 Some(FaultKind::Garble) => GARBLE_BYTES.to_vec(),
                 Some(FaultKind::Refuse) => {
                     format!("{}: refused", shared.profile.error_prefixes[0]).into_bytes()

@@ -27,6 +27,8 @@ pub fn test_timeouts() -> Timeouts {
         list_time_factor: 3.0,
         list_time_margin: Duration::from_millis(1500),
         shutdown_step: Duration::from_millis(400),
+        laser_off_budget: Duration::from_millis(1200),
+        journal_write: Duration::from_millis(1000),
     }
 }
 
