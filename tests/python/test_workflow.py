@@ -81,6 +81,10 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
         # The flag follows the bound (default tolerance 30 µm); a trusted contour has no flag.
         assert ("predicted_error" in q.flags) == (q.predicted_max_error_um > 30.0), q
         assert q.trustworthy == (not q.flags), q
+        assert np.isfinite(q.end_support_mm) and q.end_support_mm >= 0.0, q
+    # The demo case is trusted as a part (a refusal would flag every contour part_refused).
+    assert registration.refused is None
+    assert not any("part_refused" in q.flags for q in quality)
     # The bound covers the actual largest cross-edge error on most contours of the demo case
     # (the calibration test asserts >= 95 % on the seeded cases; here a few contours only).
     truth = {cid: case.truth.points[case.truth.ids == cid] for cid in bounds}

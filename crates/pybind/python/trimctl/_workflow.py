@@ -245,6 +245,7 @@ class ContourQuality:
     (``field_sigma_mm`` along ``field_weak_direction``), its residual, its coverage and its
     distance to supporting scan data; over ``quality.tolerance_um`` (default 30) it flags the
     contour ``predicted_error``. ``residual_rms_mm`` is ``None`` when no scan point is near.
+    ``end_support_mm``: for a strip, how far its ends lie from scan surface facing along it.
     """
 
     id: int
@@ -256,6 +257,7 @@ class ContourQuality:
     field_sigma_mm: float
     field_weak_direction: np.ndarray
     support_distance_mm: float
+    end_support_mm: float
     max_field_displacement_mm: float
     degeneracy_ratio: float
     flags: Tuple[str, ...]
@@ -273,6 +275,7 @@ class ContourQuality:
             field_sigma_mm=float(c["field_sigma_mm"]),
             field_weak_direction=np.asarray(c["field_weak_direction"], dtype=np.float64),
             support_distance_mm=float(c["support_distance_mm"]),
+            end_support_mm=float(c.get("end_support_mm", 0.0)),
             max_field_displacement_mm=float(c["max_field_displacement_mm"]),
             degeneracy_ratio=float(c["degeneracy_ratio"]),
             flags=tuple(str(f) for f in c["flags"]),
@@ -306,6 +309,12 @@ class Registration:
     @property
     def untrustworthy(self) -> List[int]:
         return [c["id"] for c in self.report["contours"] if not c["trustworthy"]]
+
+    @property
+    def refused(self) -> Optional[str]:
+        """Why the part as a whole cannot be trusted (every contour is then flagged
+        ``part_refused``), or ``None``."""
+        return self.report["global"].get("refused")
 
 
 def register_path(
