@@ -189,6 +189,9 @@ pub struct LaserClient {
     broken: Option<String>,
     /// An emission-on was sent and no emission-off acknowledged since: the laser may emit.
     emission_may_be_on: bool,
+    /// No reply has been read on the port since it was opened: the first line may still be the
+    /// laser's reply to the emission-off a previous client's drop guard wrote before closing it.
+    fresh_port: bool,
 }
 
 impl Drop for LaserClient {
@@ -260,6 +263,7 @@ impl LaserClient {
             tap,
             broken: None,
             emission_may_be_on: false,
+            fresh_port: true,
         })
     }
 
@@ -304,7 +308,33 @@ impl LaserClient {
                 }));
             }
         }
-        let reply = match tokio::time::timeout_at(deadline, port.next()).await {
+        // On a freshly opened port, the emission-off reply a previous client's drop guard left
+        // (it writes the line and closes the port without waiting) may arrive after the input
+        // was cleared: that one line is skipped, never any other.
+        let stale_off = std::mem::take(&mut self.fresh_port)
+            .then(|| {
+                self.profile
+                    .commands
+                    .get(ops::EMISSION_OFF)
+                    .filter(|ex| fill(&ex.send, None) != line)
+                    .map(|ex| fill(&ex.reply, None))
+            })
+            .flatten();
+        let mut first = true;
+        let reply = loop {
+            let read = tokio::time::timeout_at(deadline, port.next()).await;
+            if let (true, Some(off), Ok(Some(Ok(r)))) = (first, &stale_off, &read)
+                && r == off
+            {
+                self.tap.record(Device::Laser, Direction::Reply, || {
+                    format!("{r} (stale: skipped)")
+                });
+                first = false;
+                continue;
+            }
+            break read;
+        };
+        let reply = match reply {
             Err(_) => {
                 return Err(self.broken(LaserError::Timeout {
                     command: line,
@@ -427,6 +457,7 @@ impl LaserClient {
                     match open_port(&self.path, &self.profile) {
                         Ok(p) => {
                             self.port = Some(p);
+                            self.fresh_port = true;
                             self.send_off(&line, &ex.reply, deadline).await
                         }
                         Err(e) => Err(e.to_string()),
