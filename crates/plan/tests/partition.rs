@@ -201,11 +201,9 @@ fn seeded_synthetic_cores_mark_each_point_once() {
 /// tracks split by the incidence limit across the cambered face.
 #[test]
 fn the_demo_part_with_its_hatched_region_marks_each_point_once() {
-    let params = trim_synth::SynthParams {
-        cad_points: 2_000,
-        ..trim_synth::SynthParams::default()
-    };
-    let case = trim_synth::generate(&params).expect("demo part");
+    // The demo's own part and scan (`trimctl run`'s parameters): the hatch fit is made on
+    // that scan there.
+    let case = trim_synth::generate(&trim_synth::SynthParams::default()).expect("demo part");
     let boundary: Vec<Point3> = trim_synth::demo_hatch_boundary()
         .expect("demo boundary")
         .points()
