@@ -96,7 +96,7 @@ impl Default for SynthParams {
             outlier_fraction: 0.01,
             dropouts: 4,
             pressing_tilt_deg: 0.0,
-            scanner_views: 3,
+            scanner_views: 1,
             scanner_tilt_deg: 25.0,
             view_tilts_deg: Vec::new(),
             path_spacing_mm: DEFAULT_PATH_SPACING_MM,

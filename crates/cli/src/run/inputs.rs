@@ -39,6 +39,10 @@ pub(super) fn load_inputs(
     if config.is_demo() {
         let params = SynthParams {
             seed: args.demo_seed,
+            // A cell's scanner fixed to the machine, looking from three directions (two on the
+            // top side, one below): with one view the ends of the demo's long strips are fixed
+            // by the field alone and registration flags them.
+            scanner_views: DEMO_SCANNER_VIEWS,
             ..SynthParams::default()
         };
         let mut case = generate(&params).context("building the demo part")?;
@@ -143,6 +147,9 @@ const DEMO_HATCH_BOUNDARY: &str = "hatch_boundary.csv";
 /// The demo region's hatching: 0.05 mm pitch across the top face's camber (the planner splits
 /// tracks where the incidence limit requires), points placed by a 2 µm chord tolerance (vector
 /// marking).
+/// Views of the built-in demo's scanner.
+pub const DEMO_SCANNER_VIEWS: usize = 3;
+
 fn demo_hatch_settings() -> trim_plan::hatch::HatchSettings {
     trim_plan::hatch::HatchSettings {
         pitch_mm: 0.05,

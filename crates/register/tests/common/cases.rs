@@ -50,6 +50,8 @@ pub fn case_params(seed: u64, scan_points: usize, cad_points: usize) -> SynthPar
         pose_mm: p(6, POSE_RANGE_MM),
         scan_points,
         cad_points,
+        // A scanner fixed to the machine, looking from three directions (issue 21).
+        scanner_views: 3,
         ..SynthParams::default()
     }
 }
