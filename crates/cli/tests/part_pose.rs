@@ -90,7 +90,9 @@ fn run(job: &Path, out: &Path) -> std::process::Output {
     Command::new(TRIMCTL)
         .arg("run")
         .arg(job)
-        .args(["--dry-run", "--out"])
+        // The test is about where registration starts; a contour the cautious bound flags
+        // (issue 21) is left out of the plan rather than stopping the run.
+        .args(["--dry-run", "--skip-untrusted", "--out"])
         .arg(out)
         .output()
         .expect("trimctl run runs")
