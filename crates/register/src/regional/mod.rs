@@ -249,7 +249,7 @@ pub fn register(
                 &pyramid,
                 &captured.fit.target_from_source,
                 &settings.coarse,
-                settings.support_distance_mm,
+                settings.visible_within_mm,
             ),
             Visibility::View => visible_target(
                 cad,

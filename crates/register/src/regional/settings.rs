@@ -37,7 +37,7 @@ pub enum Mode {
 )]
 #[serde(rename_all = "snake_case")]
 pub enum Visibility {
-    /// The faces the scan shows: CAD points within `support_distance_mm` of the scan at the
+    /// The faces the scan shows: CAD points within `visible_within_mm` of the scan at the
     /// captured pose (the default: it needs no view, and a scanner fixed to the machine may
     /// look from several directions).
     #[default]
@@ -240,7 +240,7 @@ pub struct RegisterSettings {
     pub visibility: Visibility,
     /// With `visibility = "support"`: a CAD point takes part when a scan voxel lies within
     /// this of it at the captured pose, mm.
-    pub support_distance_mm: f64,
+    pub visible_within_mm: f64,
     /// Points sampled from a CAD mesh.
     pub cad_sample_points: usize,
     /// The coarse stage: a global similarity from the fixture pose.
@@ -259,7 +259,7 @@ impl Default for RegisterSettings {
             view_direction: [0.0, 0.0, 1.0],
             facing_min_cos: -0.2,
             visibility: Visibility::Support,
-            support_distance_mm: 1.5,
+            visible_within_mm: 1.5,
             cad_sample_points: 300_000,
             coarse: CoarseSettings::default(),
             field: DeformationSettings::default(),
@@ -349,7 +349,7 @@ impl RegisterSettings {
                 "must be in [−1, 1]",
             ));
         }
-        positive("support_distance_mm", self.support_distance_mm)?;
+        positive("visible_within_mm", self.visible_within_mm)?;
         if !(1000..=MAX_CAD_SAMPLE_POINTS).contains(&self.cad_sample_points) {
             return Err(RegisterError::setting(
                 "cad_sample_points",
