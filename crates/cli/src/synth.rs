@@ -32,6 +32,10 @@ pub struct Args {
     /// Bend: mid-length rise over the ends, mm.
     #[arg(long = "sag", default_value_t = SynthParams::default().sag_mm)]
     pub sag_mm: f64,
+    /// Curl of the part's +Y end along its thickness (rising as the cube past 40 % of the half
+    /// length), mm.
+    #[arg(long = "tip-curl", default_value_t = SynthParams::default().tip_curl_mm)]
+    pub tip_curl_mm: f64,
     /// Twist about the long axis end to end, degrees.
     #[arg(long = "twist", default_value_t = SynthParams::default().twist_deg)]
     pub twist_deg: f64,
@@ -116,6 +120,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let params = SynthParams {
         seed: args.seed,
         sag_mm: args.sag_mm,
+        tip_curl_mm: args.tip_curl_mm,
         twist_deg: args.twist_deg,
         scale_range: args.scale_range,
         pressing_tilt_deg: args.pressing_tilt_deg,

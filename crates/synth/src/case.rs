@@ -40,6 +40,9 @@ pub struct SynthParams {
     pub sag_mm: f64,
     /// Twist about the long axis, end to end, degrees.
     pub twist_deg: f64,
+    /// Curl of the part's free `+Y` end along its thickness, mm (`Deformation::tip_curl_mm`;
+    /// signed as given, no draw).
+    pub tip_curl_mm: f64,
     /// Per-axis scale (shrinkage) is drawn from `[1 − r, 1 + r]`, along the pressing axes.
     pub scale_range: f64,
     /// The pressing axes (along which the per-axis scale acts) are the CAD axes turned by a
@@ -86,6 +89,7 @@ impl Default for SynthParams {
         SynthParams {
             seed: 1,
             sag_mm: 0.3,
+            tip_curl_mm: 0.0,
             twist_deg: 0.6,
             scale_range: 0.01,
             noise_mm: 0.01,
@@ -128,6 +132,11 @@ impl SynthParams {
             "sag_mm",
             self.sag_mm.is_finite() && self.sag_mm.abs() <= 5.0,
             "must be finite, |sag| ≤ 5 mm",
+        )?;
+        check(
+            "tip_curl_mm",
+            self.tip_curl_mm.is_finite() && self.tip_curl_mm.abs() <= 5.0,
+            "must be finite, |curl| ≤ 5 mm",
         )?;
         check(
             "twist_deg",
@@ -380,6 +389,7 @@ pub fn generate(params: &SynthParams) -> Result<SynthCase> {
         twist_rad: params.twist_deg.to_radians() * if rng.random_bool(0.5) { 1.0 } else { -1.0 },
         sag_mm: params.sag_mm * if rng.random_bool(0.5) { 1.0 } else { -1.0 },
         pressing_axes: pressing_axes(params.pressing_tilt_deg, params.seed),
+        tip_curl_mm: params.tip_curl_mm,
     };
     let axis: [f64; 3] = UnitSphere.sample(&mut rng);
     let dir: [f64; 3] = UnitSphere.sample(&mut rng);

@@ -33,7 +33,7 @@ pub(crate) const JACOBIAN_STEP_MM: f64 = 1e-4;
 /// The smooth deformation of the part, in the CAD frame (mm): a per-axis scale about the origin
 /// along the pressing axes (the shrinkage of a pressed and sintered core,
 /// `Σᵢ scaleᵢ (aᵢ·p) aᵢ = R·diag(scale)·Rᵀ·p` with `aᵢ = R·eᵢ`), then a twist about the Y (long)
-/// axis growing linearly along Y, then a bend along Z.
+/// axis growing linearly along Y, then a bend along Z, then a curl of the `+Y` end along Z.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Deformation {
     /// Scale along the three pressing axes (`pressing_axes`, in order).
@@ -47,7 +47,16 @@ pub struct Deformation {
     pub twist_rad: f64,
     /// Bend: the rise of mid-length over the ends along Z, mm.
     pub sag_mm: f64,
+    /// Curl of the free `+Y` end along Z, mm: a sintered core's ends warp on their own (the
+    /// bend is not a parabola), rising as the cube of the distance past
+    /// [`TIP_CURL_START`] of the half length, this much at the end. 0 in cases written
+    /// before it existed.
+    #[serde(default)]
+    pub tip_curl_mm: f64,
 }
+
+/// Where the tip curl starts, as a share of the half length from the middle.
+pub const TIP_CURL_START: f64 = 0.4;
 
 impl Deformation {
     /// No deformation.
@@ -58,6 +67,7 @@ impl Deformation {
             pressing_axes: identity_axes(),
             twist_rad: 0.0,
             sag_mm: 0.0,
+            tip_curl_mm: 0.0,
         }
     }
 
@@ -83,7 +93,12 @@ impl Deformation {
         let x = cos * s.x - sin * s.z;
         let z = sin * s.x + cos * s.z;
         let t = 2.0 * s.y / LENGTH_MM;
-        Point3::new(x, s.y, z + self.sag_mm * (1.0 - t * t))
+        let curl = ((t - TIP_CURL_START) / (1.0 - TIP_CURL_START)).max(0.0);
+        Point3::new(
+            x,
+            s.y,
+            z + self.sag_mm * (1.0 - t * t) + self.tip_curl_mm * curl.powi(3),
+        )
     }
 }
 

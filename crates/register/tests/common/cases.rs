@@ -17,6 +17,13 @@ pub const NOISE_RANGE_MM: (f64, f64) = (0.008, 0.015);
 pub const POSE_RANGE_DEG: (f64, f64) = (1.0, 20.0);
 /// Fixture translation error, mm (drawn `[½, 1] ×` this): the whole capture range.
 pub const POSE_RANGE_MM: (f64, f64) = (1.0, 20.0);
+/// Tilt of the pressing axes (along which shrinkage acts) from the part's axes, degrees
+/// (drawn `[½, 1] ×` this).
+pub const PRESSING_TILT_RANGE_DEG: (f64, f64) = (0.0, 30.0);
+/// The share of contours whose edges carry burrs (flash webs 20–100 µm thick standing
+/// 0.1–0.5 mm off the edge, in the scan): what the laser is there to remove, and what
+/// registration must not be pulled by.
+pub const BURR_FRACTION: f64 = 0.3;
 
 /// A uniform number in `[0, 1)` from `(seed, k)` (SplitMix64; no generator state, so each
 /// parameter of a case depends only on the seed and its position).
@@ -50,6 +57,8 @@ pub fn case_params(seed: u64, scan_points: usize, cad_points: usize) -> SynthPar
         pose_mm: p(6, POSE_RANGE_MM),
         scan_points,
         cad_points,
+        pressing_tilt_deg: p(7, PRESSING_TILT_RANGE_DEG),
+        burr_fraction: BURR_FRACTION,
         // A scanner fixed to the machine, looking from three directions (issue 21).
         scanner_views: 3,
         ..SynthParams::default()
