@@ -1,5 +1,7 @@
-//! The crates point one way (DESIGN.md, STYLE.md practice 2): geom ← register, geom ← plan ← io ←
-//! cli, plan ← calib ← cli; pybind on top; and tokio, pyo3 and clap never reach geom, register or plan.
+//! The crates point one way (DESIGN.md "Crates", STYLE.md practice 2): geom ← register,
+//! geom ← cell ← plan ← cli, cell ← io ← cli, cell ← calib ← cli; pybind on top; trim-calib never
+//! depends on trim-plan (it reaches the cell through trim-cell); and tokio, pyo3 and clap never
+//! reach geom, register, cell, plan or calib.
 
 #![expect(
     clippy::unwrap_used,
@@ -94,6 +96,7 @@ fn workspace_crates_point_one_way() {
     let ours = [
         "trim-geom",
         "trim-register",
+        "trim-cell",
         "trim-plan",
         "trim-calib",
         "trim-io",
@@ -103,14 +106,17 @@ fn workspace_crates_point_one_way() {
     let allowed: BTreeMap<&str, &[&str]> = BTreeMap::from([
         ("trim-geom", &[][..]),
         ("trim-register", &["trim-geom"][..]),
-        ("trim-plan", &["trim-geom"][..]),
-        ("trim-calib", &["trim-geom", "trim-plan"][..]),
-        ("trim-io", &["trim-geom", "trim-plan"][..]),
+        ("trim-cell", &["trim-geom"][..]),
+        ("trim-plan", &["trim-geom", "trim-cell"][..]),
+        ("trim-calib", &["trim-geom", "trim-cell"][..]),
+        // The digital twin (still in trim-io) reads PlanSettings.
+        ("trim-io", &["trim-geom", "trim-cell", "trim-plan"][..]),
         (
             "trimctl",
             &[
                 "trim-geom",
                 "trim-register",
+                "trim-cell",
                 "trim-plan",
                 "trim-calib",
                 "trim-io",
@@ -118,7 +124,13 @@ fn workspace_crates_point_one_way() {
         ),
         (
             "trimctl-py",
-            &["trim-geom", "trim-register", "trim-plan", "trim-calib"][..],
+            &[
+                "trim-geom",
+                "trim-register",
+                "trim-cell",
+                "trim-plan",
+                "trim-calib",
+            ][..],
         ),
     ]);
     for krate in ours {
@@ -138,7 +150,13 @@ fn workspace_crates_point_one_way() {
 #[test]
 fn runtime_frameworks_stay_out_of_the_algorithm_crates() {
     let deps = normal_deps(&metadata());
-    for krate in ["trim-geom", "trim-register", "trim-plan", "trim-calib"] {
+    for krate in [
+        "trim-geom",
+        "trim-register",
+        "trim-cell",
+        "trim-plan",
+        "trim-calib",
+    ] {
         let all = reach(&deps, krate);
         for banned in ["tokio", "pyo3", "clap"] {
             assert!(!all.contains(banned), "{banned} reaches {krate}");

@@ -17,9 +17,9 @@
 
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Unit};
 use serde::Serialize;
+use trim_cell::cell_model::{AxisLine, ScannerPose, TableModel};
+use trim_cell::kinematics::KinematicsKind;
 use trim_geom::{Point3, UnitVector3, Vector3};
-use trim_plan::cell::{AxisLine, ScannerPose, TableModel};
-use trim_plan::kinematics::KinematicsKind;
 
 use crate::error::CalibError;
 

@@ -1,7 +1,7 @@
 //! The cycle-time model fitted from recorded runs (`trimctl calibrate timing`; DESIGN.md
 //! "Estimates learned from runs").
 //!
-//! - *Moves* ([`fit_moves`]): the coordinated move of [`trim_plan::kinematics::coordinated_move_s`]
+//! - *Moves* ([`fit_moves`]): the coordinated move of [`trim_cell::kinematics::coordinated_move_s`]
 //!   (LinuxCNC's G0: the slowest axis limits the path speed and acceleration, trapezoidal
 //!   profile) plus a settle time, over the recorded moves (from/to axis values, measured move
 //!   command → in position). Parameters: linear and rotary speed and acceleration (log scale,
@@ -15,9 +15,9 @@
 //! - *Per-layer overhead*: the median of the measured overheads.
 
 use nalgebra::{DMatrix, DVector};
-use trim_plan::GalvoSettings;
-use trim_plan::kinematics::{AxisPose, MachineSettings, MoveModel, move_time_s};
-use trim_plan::timing::{ListComposition, TimingSettings};
+use trim_cell::GalvoSettings;
+use trim_cell::galvo_timing::{ListComposition, TimingSettings};
+use trim_cell::kinematics::{AxisPose, MachineSettings, MoveModel, move_time_s};
 
 use crate::CalibError;
 

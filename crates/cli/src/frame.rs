@@ -15,12 +15,12 @@ use std::time::Duration;
 use anyhow::{Context, bail};
 use tokio::sync::mpsc::UnboundedReceiver;
 use tokio_util::sync::CancellationToken;
+use trim_cell::{Job, LayerKey};
 use trim_io::cell::{Cell, SimCell, Timeouts};
 use trim_io::executor::{StopCause, ZoneDecision, ZoneGate};
 use trim_io::frame::{FrameSettings, Framed, frame_layer, rearm};
 use trim_io::galvo::outline::OutlineKind;
 use trim_io::tap::Tap;
-use trim_plan::{Job, LayerKey};
 
 use crate::config::JobConfig;
 use crate::exit::{Exit, Failure};

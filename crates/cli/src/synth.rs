@@ -239,7 +239,7 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
     )?;
     // The field marks: a 21 × 21 grid over the field on coupons at 0 and ±2 mm, measured
     // (2 µm noise) relative to the field-centre mark, which the tool mark ties to the machine.
-    let centred = trim_plan::lens::LensDistortion {
+    let centred = trim_cell::lens::LensDistortion {
         offset_mm: [0.0, 0.0],
         ..truth.head
     };
@@ -262,7 +262,7 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
     // poses by the true scanner on the true table; the tool mark at command 0 lands where the
     // true head puts it.
     let plan = defaults.plan_settings();
-    let nominal = trim_plan::cell::TableModel::nominal(&plan.machine);
+    let nominal = trim_cell::cell_model::TableModel::nominal(&plan.machine);
     let true_cell = trim_io::twin::TrueCell::new(&truth, &plan);
     let sphere = trim_geom::Point3::from(SPHERE_TABLE_MM);
     let poses = trim_calib::artefact::default_poses(&nominal, &sphere);

@@ -14,7 +14,7 @@ use std::future::Future;
 use std::time::{Duration, Instant};
 
 use tokio_util::sync::CancellationToken;
-use trim_plan::job::{Job, Layer, LayerKey};
+use trim_cell::job::{Job, Layer, LayerKey};
 
 use crate::cell::{Cell, Timeouts};
 use crate::executor::{Executor, StopCause};

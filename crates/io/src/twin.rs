@@ -20,11 +20,11 @@ use trim_geom::crop::point_segment_distance;
 
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
+use trim_cell::cell_model::{Calibration, ScanPose, ScannerPose, TableModel};
+use trim_cell::kinematics::{AxisPose, KinematicsKind, MachineSettings, joints_of};
+pub use trim_cell::lens::LensDistortion;
 use trim_geom::kdtree::KdTree;
 use trim_geom::{Path, Point3, UnitVector3, Vector3};
-use trim_plan::cell::{Calibration, ScanPose, ScannerPose, TableModel};
-use trim_plan::kinematics::{AxisPose, KinematicsKind, MachineSettings, joints_of};
-pub use trim_plan::lens::LensDistortion;
 use trim_plan::planner::PlanSettings;
 
 /// Neighbouring path vertices searched for the nearest segment of the trimming line.
@@ -149,9 +149,9 @@ impl TrueCell {
         };
         let mut m = self.machine;
         m.pose_mode = if tcp {
-            trim_plan::PoseMode::Tcp
+            trim_cell::PoseMode::Tcp
         } else {
-            trim_plan::PoseMode::Joints
+            trim_cell::PoseMode::Joints
         };
         (joints_of(&m, &pose), tilt, position[5])
     }
@@ -186,7 +186,7 @@ impl TrueCell {
     /// `scanner_from_workpiece` at a scan pose: how the true scanner sees work-piece points.
     #[must_use]
     pub fn scanner_from_workpiece(&self, pose: &ScanPose) -> Isometry3<f64> {
-        trim_plan::cell::ScanChain {
+        trim_cell::cell_model::ScanChain {
             table: self.table,
             scanner: self.scanner,
             pose: *pose,

@@ -6,6 +6,7 @@ use std::time::{Duration, Instant};
 use futures::{SinkExt, StreamExt};
 use tokio::net::TcpStream;
 use tokio_util::codec::Framed;
+use trim_cell::job::Pose;
 use trim_io::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
 use trim_io::cnc::sim::{CncSim, CncSimConfig};
 use trim_io::cnc::{Cnc, CncFault, EnableSteps};
@@ -17,7 +18,6 @@ use trim_io::galvo::{GalvoClient, GalvoClientConfig, GalvoError, GalvoSim, Galvo
 use trim_io::laser::{LaserClient, LaserError, LaserFault, LaserSim, Profile};
 use trim_io::safety::{CellEvent, SafetyMonitor};
 use trim_io::tap::Tap;
-use trim_plan::job::Pose;
 
 const LO: ([u8; 4], u16) = ([127, 0, 0, 1], 0);
 /// Liveness bound for things that happen within a few ms on an idle machine.

@@ -12,6 +12,7 @@ use common::{
 };
 use futures::future::BoxFuture;
 use tokio_util::sync::CancellationToken;
+use trim_cell::job::{Job, LayerKey};
 use trim_io::cell::{Cell, SimCell};
 use trim_io::executor::{
     ExecError, ExecOptions, Executor, Phase, StopCause, ZoneDecision, ZoneGate,
@@ -23,7 +24,6 @@ use trim_io::galvo::protocol::{ControllerState, ListCommand, StatusCode};
 use trim_io::galvo::{GalvoClient, GalvoClientConfig, GalvoSim, GalvoSimConfig, TraceRecord};
 use trim_io::safety::{CellEvent, SafetyMonitor};
 use trim_io::tap::Tap;
-use trim_plan::job::{Job, LayerKey};
 
 /// Liveness bound for things that happen within a few ms on an idle machine.
 const GENEROUS: Duration = Duration::from_secs(5);

@@ -12,12 +12,12 @@ mod common;
 use std::sync::Arc;
 
 use tokio_util::sync::CancellationToken;
+use trim_cell::kinematics::{KinematicsKind, MachineSettings};
 use trim_io::cell::SimCell;
 use trim_io::executor::Executor;
 use trim_io::tap::Tap;
 use trim_io::twin::{SpotStats, TrueCell, TruePart, TruthSettings, Twin};
 use trim_plan::field::LensSettings;
-use trim_plan::kinematics::{KinematicsKind, MachineSettings};
 use trim_plan::planner::{PlanSettings, plan};
 
 use common::{connect, test_timeouts};
@@ -117,7 +117,7 @@ async fn a_planner_that_knows_the_true_axes_lands_on_the_line_for_both_kinematic
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_planner_that_knows_the_head_field_and_pivot_lands_on_the_line() {
-    use trim_plan::lens::{FieldCorrection, LensDistortion};
+    use trim_cell::lens::{FieldCorrection, LensDistortion};
     let truth = TruthSettings {
         head: LensDistortion {
             offset_mm: [0.0, 0.0],

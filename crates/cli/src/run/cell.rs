@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use tokio_util::sync::CancellationToken;
+use trim_cell::Job;
 use trim_geom::Path as TrimPath;
 use trim_geom::formats;
 use trim_io::cell::{Cell, CellAddresses, SimCell, SimOptions, Timeouts};
@@ -15,7 +16,6 @@ use trim_io::live::LiveServer;
 use trim_io::record::{SharedRecorder, device_tap};
 use trim_io::tap::Tap;
 use trim_io::twin::{TrueCell, TruePart, Twin};
-use trim_plan::Job;
 use trim_register::regional::Registration;
 
 use super::inputs::Inputs;
@@ -281,7 +281,7 @@ async fn draw_progress(
         .sum();
     let layers_total = job.layers().count() as u64;
     let mut bars = JobProgress::new(job.zones.len() as u64, layers_total, vectors_total);
-    let vectors_of = |key: trim_plan::LayerKey| -> u64 {
+    let vectors_of = |key: trim_cell::LayerKey| -> u64 {
         job.layers()
             .find(|(k, _, _)| *k == key)
             .map_or(0, |(_, _, l)| {

@@ -13,12 +13,12 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use serde::Serialize;
+use trim_cell::Job;
 use trim_geom::Path as TrimPath;
 use trim_geom::formats;
 use trim_io::executor::{ExecError, RunSummary, StopCause};
 use trim_io::journal::CutLayer;
 use trim_io::live::{DEFAULT_LIVE_ADDR, LiveAddr, LiveServer};
-use trim_plan::Job;
 use trim_plan::planner::{PlanOutput, plan_with_report};
 use trim_register::regional::{Registration, register};
 

@@ -5,10 +5,10 @@ use std::path::Path;
 
 use anyhow::Context;
 use serde::Serialize;
+use trim_cell::Job;
 use trim_io::executor::{ExecError, RunSummary, ShutdownReport, ShutdownStep};
 use trim_io::journal::Entry;
 use trim_io::twin::{Spot, SpotStats};
-use trim_plan::Job;
 use trim_plan::planner::PlanOutput;
 use trim_register::regional::Registration;
 

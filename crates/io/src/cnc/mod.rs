@@ -7,7 +7,7 @@ pub mod sim;
 use std::time::Duration;
 
 use futures::future::BoxFuture;
-use trim_plan::job::Pose;
+use trim_cell::job::Pose;
 
 /// The axes the CNC takes, in G-code order (lower case, as in [`Pose`]).
 pub const AXES: [&str; 6] = ["x", "y", "z", "a", "b", "c"];

@@ -6,7 +6,7 @@
 
 use std::time::{Duration, Instant};
 
-use trim_plan::job::{Layer, LayerKey};
+use trim_cell::job::{Layer, LayerKey};
 
 use super::shutdown::{At, LayerFault, LayerStep};
 use super::{
@@ -428,7 +428,7 @@ impl Executor {
     /// The CNC, while a list runs: still at the layer's pose (within
     /// [`crate::cnc::HOLD_TOLERANCE`]), out of E-stop and on. Anything else (a jog or an MDI
     /// from another session, an E-stop, an abort that left it elsewhere) is a CNC fault.
-    async fn check_cnc_holds(&mut self, pose: &trim_plan::job::Pose) -> Result<(), StopCause> {
+    async fn check_cnc_holds(&mut self, pose: &trim_cell::job::Pose) -> Result<(), StopCause> {
         let t = self.options.timeouts;
         let w = Self::guard(
             &self.cancel,

@@ -33,7 +33,7 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::mpsc::UnboundedSender;
 use tokio_util::sync::CancellationToken;
-use trim_plan::job::{Job, LayerKey};
+use trim_cell::job::{Job, LayerKey};
 
 use crate::cell::{Cell, Timeouts};
 use crate::galvo::list::{layer_list, vector_count};
@@ -416,7 +416,7 @@ pub struct ExecOptions {
     pub enable: crate::cnc::EnableSteps,
     /// The machine (`[machine]`): every layer's pose is checked against its axis limits before
     /// anything moves ([`crate::limits`]). `None`: only the CNC's own limits guard the moves.
-    pub machine: Option<trim_plan::kinematics::MachineSettings>,
+    pub machine: Option<trim_cell::kinematics::MachineSettings>,
 }
 
 impl Default for ExecOptions {

@@ -2,7 +2,7 @@
 //! the simulator's clock runs on) and over a layer's polylines in millimetres (the estimate the
 //! executor and the tests compare the simulated time with).
 
-use trim_plan::job::{GalvoSettings, Polyline};
+use trim_cell::job::{GalvoSettings, Polyline};
 
 use super::protocol::ListCommand;
 
@@ -149,7 +149,7 @@ pub fn list_time_s(commands: &[ListCommand]) -> f64 {
 /// marking).
 #[must_use]
 pub fn polylines_time_s(polylines: &[Polyline], settings: &GalvoSettings) -> (f64, f64) {
-    // One model for the planner and the controller: the Job's own (trim_plan::job).
+    // One model for the planner and the controller: the Job's own (trim_cell::job).
     settings.polylines_time_s(polylines)
 }
 

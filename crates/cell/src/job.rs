@@ -236,7 +236,7 @@ impl Default for GalvoSettings {
 
 impl GalvoSettings {
     /// Refuses out-of-range values, naming the key (`galvo.field_mm`).
-    pub fn validate(&self) -> Result<(), crate::PlanError> {
+    pub fn validate(&self) -> Result<(), crate::CellError> {
         use crate::error::require_positive;
         require_positive("galvo.field_mm", self.field_mm[0])?;
         require_positive("galvo.field_mm", self.field_mm[1])?;
@@ -252,7 +252,7 @@ impl GalvoSettings {
         ];
         for (key, v) in delays {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(crate::PlanError::setting(
+                return Err(crate::CellError::setting(
                     key,
                     v,
                     "must be a finite number ≥ 0",

@@ -10,7 +10,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::PlanError;
+use crate::error::CellError;
 use crate::job::{GalvoSettings, Polyline};
 
 /// Seconds per microsecond.
@@ -35,7 +35,7 @@ pub struct TimingSettings {
 
 impl TimingSettings {
     /// Refuses non-finite values and a negative per-layer overhead, naming the key.
-    pub fn validate(&self) -> Result<(), PlanError> {
+    pub fn validate(&self) -> Result<(), CellError> {
         for (key, v, non_negative) in [
             ("timing.layer_overhead_s", self.layer_overhead_s, true),
             ("timing.list_overhead_s", self.list_overhead_s, false),
@@ -47,7 +47,7 @@ impl TimingSettings {
             ("timing.vertex_overhead_s", self.vertex_overhead_s, false),
         ] {
             if !v.is_finite() || (non_negative && v < 0.0) {
-                return Err(PlanError::setting(
+                return Err(CellError::setting(
                     key,
                     v,
                     if non_negative {
