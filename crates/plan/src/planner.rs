@@ -472,7 +472,11 @@ fn finish_plan(
                     height_mm: heights,
                 });
             }
-            let (marking_s, jumping_s) = settings.galvo.polylines_time_s(&polylines);
+            let list = ListComposition::of(&polylines);
+            let (marking_s, jumping_s) = (
+                list.marking_s(&settings.galvo),
+                list.jumping_s(&settings.galvo),
+            );
             let motion_s = move_time_s(machine, &previous, pose);
             estimate.marking_s += marking_s;
             estimate.jumping_s += jumping_s;
@@ -480,7 +484,7 @@ fn finish_plan(
             if motion_s > 0.0 {
                 estimate.settle_s += machine.settle_s;
             }
-            let overhead_s = settings.timing.extra_s(&ListComposition::of(&polylines));
+            let overhead_s = settings.timing.extra_s(&list);
             estimate.overhead_s += overhead_s;
             zone_s += marking_s + jumping_s + motion_s + overhead_s;
             previous = *pose;

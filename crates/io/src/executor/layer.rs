@@ -14,7 +14,7 @@ use super::{
 };
 use crate::galvo::list::layer_list;
 use crate::galvo::protocol::{ControllerState, ListCommand, StatusBlock};
-use crate::galvo::timing::list_time_s;
+use crate::galvo::timing::ListClock;
 use crate::journal::{Entry, Journal, JournalError};
 use crate::tap::Device;
 
@@ -233,7 +233,7 @@ impl Executor {
                 message: format!("{}: {e}", work.key),
             })
             .at(Phase::LoadList, false)?;
-        let modelled_s = list_time_s(&commands);
+        let modelled_s = ListClock::list_s(&commands);
         let tag = journal.next_tag();
         journal
             .append_within(
