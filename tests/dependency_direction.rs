@@ -1,7 +1,8 @@
 //! The crates point one way (DESIGN.md "Crates", STYLE.md practice 2): geom ← register,
-//! geom ← cell ← plan ← cli, cell ← io ← cli, cell ← calib ← cli; pybind on top; trim-calib never
-//! depends on trim-plan (it reaches the cell through trim-cell); and tokio, pyo3 and clap never
-//! reach geom, register, cell, plan or calib.
+//! geom ← cell ← plan ← cli, cell ← io ← sim ← cli, cell ← calib ← cli; pybind on top. trim-io and
+//! trim-calib never depend on trim-plan (they reach the cell and the Job through trim-cell), and
+//! nothing in the workspace but the CLI links the simulators (trim-sim). tokio, pyo3 and clap
+//! never reach geom, register, cell, plan or calib.
 
 #![expect(
     clippy::unwrap_used,
@@ -100,6 +101,7 @@ fn workspace_crates_point_one_way() {
         "trim-plan",
         "trim-calib",
         "trim-io",
+        "trim-sim",
         "trimctl",
         "trimctl-py",
     ];
@@ -109,8 +111,12 @@ fn workspace_crates_point_one_way() {
         ("trim-cell", &["trim-geom"][..]),
         ("trim-plan", &["trim-geom", "trim-cell"][..]),
         ("trim-calib", &["trim-geom", "trim-cell"][..]),
-        // The digital twin (still in trim-io) reads PlanSettings.
-        ("trim-io", &["trim-geom", "trim-cell", "trim-plan"][..]),
+        ("trim-io", &["trim-geom", "trim-cell"][..]),
+        // The digital twin resolves the true cell against the PlanSettings.
+        (
+            "trim-sim",
+            &["trim-geom", "trim-cell", "trim-plan", "trim-io"][..],
+        ),
         (
             "trimctl",
             &[
@@ -120,6 +126,7 @@ fn workspace_crates_point_one_way() {
                 "trim-plan",
                 "trim-calib",
                 "trim-io",
+                "trim-sim",
             ][..],
         ),
         (
@@ -143,6 +150,31 @@ fn workspace_crates_point_one_way() {
         assert!(
             inner.is_subset(&ok),
             "{krate} depends on {inner:?}; only {ok:?} are allowed"
+        );
+    }
+}
+
+#[test]
+fn io_and_calib_never_reach_the_planner() {
+    let deps = normal_deps(&metadata());
+    for krate in ["trim-io", "trim-calib", "trim-cell"] {
+        let all = reach(&deps, krate);
+        for banned in ["trim-plan", "linfa", "linfa-clustering"] {
+            assert!(
+                !all.contains(banned),
+                "{krate} reaches {banned}: it should reach the cell and the Job through trim-cell"
+            );
+        }
+    }
+}
+
+#[test]
+fn only_the_cli_links_the_simulators() {
+    let deps = normal_deps(&metadata());
+    for (krate, direct) in &deps {
+        assert!(
+            krate == "trimctl" || !direct.contains("trim-sim"),
+            "{krate} depends on trim-sim: only the CLI (feature `sim`) may"
         );
     }
 }

@@ -11,6 +11,7 @@
 //! - [`galvo_timing`]: the galvo's time model (list composition, `[timing]` terms): what a
 //!   layer's list takes.
 //! - [`job`]: the Job model, the planner's output and the executor's input.
+//! - [`truth`]: job.toml `[sim.truth]`, the true cell the digital twin carries.
 //! - [`error`]: the error type, [`CellError`].
 
 pub mod beam;
@@ -21,6 +22,7 @@ pub mod galvo_timing;
 pub mod job;
 pub mod kinematics;
 pub mod lens;
+pub mod truth;
 
 pub use beam::{Beam, BeamReport, LaserLimits};
 pub use error::CellError;

@@ -16,11 +16,12 @@ use anyhow::{Context, bail};
 use tokio::sync::mpsc::UnboundedReceiver;
 use tokio_util::sync::CancellationToken;
 use trim_cell::{Job, LayerKey};
-use trim_io::cell::{Cell, SimCell, Timeouts};
+use trim_io::cell::{Cell, Timeouts};
 use trim_io::executor::{StopCause, ZoneDecision, ZoneGate};
 use trim_io::frame::{FrameSettings, Framed, frame_layer, rearm};
 use trim_io::galvo::outline::OutlineKind;
 use trim_io::tap::Tap;
+use trim_sim::SimCell;
 
 use crate::config::JobConfig;
 use crate::exit::{Exit, Failure};
@@ -316,7 +317,7 @@ fn framed_line(f: &Framed, job: &Job) -> String {
 #[derive(Debug, serde::Serialize)]
 struct SimReport {
     /// Every traced vector (bits), with the pointer, gate and emission during it.
-    traces: Vec<trim_io::galvo::TraceRecord>,
+    traces: Vec<trim_sim::galvo::TraceRecord>,
     /// Traced vectors with the pointer off.
     traced_without_pointer: usize,
     /// Vectors marked (with or without light): framing marks none.
@@ -350,7 +351,7 @@ impl SimReport {
 }
 
 fn sim_report(sim: &SimCell) -> SimReport {
-    use trim_io::safety::CellEvent;
+    use trim_sim::safety::CellEvent;
     let events = sim.monitor.events();
     let count = |e: CellEvent| events.iter().filter(|(_, x)| *x == e).count();
     let traces = sim.galvo.traces();

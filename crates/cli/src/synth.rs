@@ -161,7 +161,7 @@ struct TwinJob<'a> {
 
 #[derive(serde::Serialize)]
 struct TwinSim<'a> {
-    truth: &'a trim_io::twin::TruthSettings,
+    truth: &'a trim_cell::truth::TruthSettings,
 }
 
 /// A link of the chain from the scanner to the spot.
@@ -263,7 +263,7 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
     // true head puts it.
     let plan = defaults.plan_settings();
     let nominal = trim_cell::cell_model::TableModel::nominal(&plan.machine);
-    let true_cell = trim_io::twin::TrueCell::new(&truth, &plan);
+    let true_cell = trim_sim::twin::TrueCell::new(&truth, &plan);
     let sphere = trim_geom::Point3::from(SPHERE_TABLE_MM);
     let poses = trim_calib::artefact::default_poses(&nominal, &sphere);
     let artefacts = trim_calib::artefact::synth_artefacts(

@@ -7,8 +7,9 @@ use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use trim_cell::cell_model::TableModel;
 use trim_cell::kinematics::MachineSettings;
+use trim_cell::lens::LensDistortion;
+use trim_cell::truth::TruthSettings;
 use trim_geom::Vector3;
-use trim_io::twin::{LensDistortion, TruthSettings};
 
 /// How far the demo's true cell is from the nominal one (each error is drawn in `[½, 1] ×`
 /// its magnitude, in a random direction).

@@ -11,12 +11,12 @@ use common::{
 };
 use tokio_util::sync::CancellationToken;
 use trim_cell::job::{Job, LayerKey};
-use trim_io::cell::SimCell;
 use trim_io::executor::{ExecError, ExecOptions, Executor, OffPort, Phase, Progress, RunSummary};
-use trim_io::fault::{Fault, FaultKind, Trigger};
 use trim_io::journal;
 use trim_io::record::{Recorder, device_tap};
 use trim_io::tap::{Device, Tap};
+use trim_sim::SimCell;
+use trim_sim::fault::{Fault, FaultKind, Trigger};
 
 /// The laser must be off (light path closed) within this of the fault's injection. The slowest
 /// cases: a galvo that hangs mid-list (its own heartbeat watchdog, 400 ms, closes the gate) and a
@@ -271,8 +271,8 @@ fn light_on_at(sim: &SimCell, at: Instant) -> bool {
             break;
         }
         match e {
-            trim_io::safety::CellEvent::Emission(on) => emission = on,
-            trim_io::safety::CellEvent::Gate(on) => gate = on,
+            trim_sim::safety::CellEvent::Emission(on) => emission = on,
+            trim_sim::safety::CellEvent::Gate(on) => gate = on,
             _ => {}
         }
     }
@@ -512,7 +512,7 @@ async fn a_planned_job_runs_and_the_simulated_galvo_time_matches_the_planners_es
         .expect("plan");
     let layers = job.layers().count();
     // Fast clocks: the galvo as fast as it can, the CNC 100× faster than real.
-    let mut o = trim_io::cell::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
+    let mut o = trim_sim::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
     o.galvo_time_scale = 0.0;
     o.cnc_time_scale = 0.01;
     let sim = SimCell::start(o).await.unwrap();
@@ -800,7 +800,7 @@ async fn a_job_with_an_unreachable_zone_is_refused_before_anything_moves_or_emit
         !sim.monitor
             .events()
             .iter()
-            .any(|(_, e)| matches!(e, trim_io::safety::CellEvent::Emission(true))),
+            .any(|(_, e)| matches!(e, trim_sim::safety::CellEvent::Emission(true))),
         "emission switched on before refusing"
     );
 }
@@ -850,7 +850,7 @@ async fn a_pose_outside_the_machine_limits_is_refused_before_anything_moves() {
             !sim.monitor
                 .events()
                 .iter()
-                .any(|(_, e)| matches!(e, trim_io::safety::CellEvent::Emission(true))),
+                .any(|(_, e)| matches!(e, trim_sim::safety::CellEvent::Emission(true))),
             "{axis}: emission switched on before refusing"
         );
     }
@@ -1066,7 +1066,7 @@ async fn a_panic_on_the_executor_with_the_emission_on_switches_the_laser_off() {
         sim.monitor
             .events()
             .iter()
-            .any(|(_, e)| *e == trim_io::safety::CellEvent::Emission(true)),
+            .any(|(_, e)| *e == trim_sim::safety::CellEvent::Emission(true)),
         "the panic came before the emission was on"
     );
     // The simulator reads the pty every 10 ms.

@@ -8,15 +8,16 @@ use tokio_util::sync::CancellationToken;
 use trim_cell::Job;
 use trim_geom::Path as TrimPath;
 use trim_geom::formats;
-use trim_io::cell::{Cell, CellAddresses, SimCell, SimOptions, Timeouts};
+use trim_io::cell::{Cell, CellAddresses, Timeouts};
 use trim_io::executor::{ExecOptions, Executor, Progress};
 use trim_io::journal::CutLayer;
 use trim_io::laser::Profile;
 use trim_io::live::LiveServer;
 use trim_io::record::{SharedRecorder, device_tap};
 use trim_io::tap::Tap;
-use trim_io::twin::{TrueCell, TruePart, Twin};
 use trim_register::regional::Registration;
+use trim_sim::twin::{TrueCell, TruePart, Twin};
+use trim_sim::{SimCell, SimOptions};
 
 use super::inputs::Inputs;
 use super::record::{

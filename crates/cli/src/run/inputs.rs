@@ -7,7 +7,7 @@ use anyhow::{Context, bail};
 use trim_geom::formats;
 use trim_geom::math::Similarity3;
 use trim_geom::{Path as TrimPath, PointCloud};
-use trim_io::twin::TrueCell;
+use trim_sim::twin::TrueCell;
 use trim_synth::{SynthParams, generate};
 
 use super::{Args, files};

@@ -8,9 +8,9 @@ use serde::Serialize;
 use trim_cell::Job;
 use trim_io::executor::{ExecError, RunSummary, ShutdownReport, ShutdownStep};
 use trim_io::journal::Entry;
-use trim_io::twin::{Spot, SpotStats};
 use trim_plan::planner::PlanOutput;
 use trim_register::regional::Registration;
+use trim_sim::twin::{Spot, SpotStats};
 
 use super::{Timings, files};
 use crate::config::JobConfig;

@@ -1,8 +1,7 @@
 //! The five-axis CNC behind the [`Cnc`] trait, so other controls can be added: a LinuxCNC
-//! `linuxcncrsh` client ([`linuxcnc::LinuxCnc`]) and a simulator of that protocol ([`sim`]).
+//! `linuxcncrsh` client ([`linuxcnc::LinuxCnc`]); a simulator of that protocol is trim-sim's.
 
 pub mod linuxcnc;
-pub mod sim;
 
 use std::time::Duration;
 
