@@ -263,13 +263,14 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
     // true head puts it.
     let plan = defaults.plan_settings();
     let nominal = trim_cell::cell_model::TableModel::nominal(&plan.machine);
-    let true_cell = trim_sim::twin::TrueCell::new(&truth, &plan);
+    // The true cell's lines and scanner (as the digital twin resolves them).
+    let true_cell = truth.as_calibration();
     let sphere = trim_geom::Point3::from(SPHERE_TABLE_MM);
     let poses = trim_calib::artefact::default_poses(&nominal, &sphere);
     let artefacts = trim_calib::artefact::synth_artefacts(
         &trim_calib::artefact::ArtefactTruth {
-            table: true_cell.table,
-            scanner: true_cell.scanner,
+            table: true_cell.table(&plan.machine),
+            scanner: true_cell.scanner(),
             sphere_table_mm: sphere,
             diameter_mm: SPHERE_DIAMETER_MM,
             tool_offset_mm: truth.head.offset_mm,

@@ -30,7 +30,8 @@ use crate::summary;
 use cell::execute;
 pub(crate) use cell::{connect, start_simulators};
 use inputs::load_inputs;
-use report::{SpotReport, append_resume_report, shutdown_of, shutdown_sentence, write_report};
+pub(crate) use report::SpotReport;
+use report::{append_resume_report, shutdown_of, shutdown_sentence, write_report};
 
 mod cell;
 mod inputs;
