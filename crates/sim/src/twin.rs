@@ -21,7 +21,7 @@ use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 use trim_cell::cell_model::{ScanPose, ScannerPose, TableModel};
 use trim_cell::kinematics::{AxisPose, KinematicsKind, MachineSettings, joints_of};
-pub use trim_cell::lens::LensDistortion;
+use trim_cell::lens::LensDistortion;
 use trim_cell::truth::TruthSettings;
 use trim_geom::kdtree::KdTree;
 use trim_geom::{Path, Point3, UnitVector3, Vector3};

@@ -1,4 +1,5 @@
-//! Shared helpers of the trim-io integration tests: a hand-made job and the simulated cell.
+//! Shared helpers of the trim-io integration tests (and of trim-sim's twin test, which includes
+//! this file by path): a hand-made job and the simulated cell.
 
 use std::collections::BTreeMap;
 use std::time::Duration;
