@@ -1,5 +1,8 @@
-//! The crates point one way (DESIGN.md, STYLE.md practice 2): geom ← register, geom ← plan ← io ←
-//! cli, plan ← calib ← cli; pybind on top; and tokio, pyo3 and clap never reach geom, register or plan.
+//! The crates point one way (DESIGN.md "Crates", STYLE.md practice 2): geom ← register,
+//! geom ← cell ← plan ← cli, cell ← io ← sim ← cli, cell ← calib ← cli; pybind on top. trim-io and
+//! trim-calib never depend on trim-plan (they reach the cell and the Job through trim-cell), and
+//! nothing in the workspace but the CLI links the simulators (trim-sim). tokio, pyo3 and clap
+//! never reach geom, register, cell, plan or calib.
 
 #![expect(
     clippy::unwrap_used,
@@ -94,31 +97,47 @@ fn workspace_crates_point_one_way() {
     let ours = [
         "trim-geom",
         "trim-register",
+        "trim-cell",
         "trim-plan",
         "trim-calib",
         "trim-io",
+        "trim-sim",
         "trimctl",
         "trimctl-py",
     ];
     let allowed: BTreeMap<&str, &[&str]> = BTreeMap::from([
         ("trim-geom", &[][..]),
         ("trim-register", &["trim-geom"][..]),
-        ("trim-plan", &["trim-geom"][..]),
-        ("trim-calib", &["trim-geom", "trim-plan"][..]),
-        ("trim-io", &["trim-geom", "trim-plan"][..]),
+        ("trim-cell", &["trim-geom"][..]),
+        ("trim-plan", &["trim-geom", "trim-cell"][..]),
+        ("trim-calib", &["trim-geom", "trim-cell"][..]),
+        ("trim-io", &["trim-geom", "trim-cell"][..]),
+        // The digital twin resolves the true cell against the PlanSettings.
+        (
+            "trim-sim",
+            &["trim-geom", "trim-cell", "trim-plan", "trim-io"][..],
+        ),
         (
             "trimctl",
             &[
                 "trim-geom",
                 "trim-register",
+                "trim-cell",
                 "trim-plan",
                 "trim-calib",
                 "trim-io",
+                "trim-sim",
             ][..],
         ),
         (
             "trimctl-py",
-            &["trim-geom", "trim-register", "trim-plan", "trim-calib"][..],
+            &[
+                "trim-geom",
+                "trim-register",
+                "trim-cell",
+                "trim-plan",
+                "trim-calib",
+            ][..],
         ),
     ]);
     for krate in ours {
@@ -136,9 +155,40 @@ fn workspace_crates_point_one_way() {
 }
 
 #[test]
+fn io_and_calib_never_reach_the_planner() {
+    let deps = normal_deps(&metadata());
+    for krate in ["trim-io", "trim-calib", "trim-cell"] {
+        let all = reach(&deps, krate);
+        for banned in ["trim-plan", "linfa", "linfa-clustering"] {
+            assert!(
+                !all.contains(banned),
+                "{krate} reaches {banned}: it should reach the cell and the Job through trim-cell"
+            );
+        }
+    }
+}
+
+#[test]
+fn only_the_cli_links_the_simulators() {
+    let deps = normal_deps(&metadata());
+    for (krate, direct) in &deps {
+        assert!(
+            krate == "trimctl" || !direct.contains("trim-sim"),
+            "{krate} depends on trim-sim: only the CLI (feature `sim`) may"
+        );
+    }
+}
+
+#[test]
 fn runtime_frameworks_stay_out_of_the_algorithm_crates() {
     let deps = normal_deps(&metadata());
-    for krate in ["trim-geom", "trim-register", "trim-plan", "trim-calib"] {
+    for krate in [
+        "trim-geom",
+        "trim-register",
+        "trim-cell",
+        "trim-plan",
+        "trim-calib",
+    ] {
         let all = reach(&deps, krate);
         for banned in ["tokio", "pyo3", "clap"] {
             assert!(!all.contains(banned), "{banned} reaches {krate}");

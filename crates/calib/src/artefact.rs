@@ -12,9 +12,9 @@ use std::path::Path;
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};
 use rand_xoshiro::Xoshiro256PlusPlus;
+use trim_cell::cell_model::{ScannerPose, TableModel};
+use trim_cell::kinematics::KinematicsKind;
 use trim_geom::{Point3, PointCloud, Vector3};
-use trim_plan::cell::{ScannerPose, TableModel};
-use trim_plan::kinematics::KinematicsKind;
 
 use crate::cell::SphereObservation;
 use crate::error::CalibError;

@@ -12,16 +12,17 @@
 //! Translating t, p and both axis points together changes no residual: the spheres cannot say
 //! where the tool point is. The tool mark can: a mark made at the field centre at pose 1 lies
 //! at the tool point J_1, and the scanner saw it at m, so `R·m + t = 0` (3 residuals, weighted
-//! as a 2 µm RMS measurement). Levenberg–Marquardt from the nominal cell; the parameters' standard
-//! deviations are `σ̂²·(JᵀJ)⁻¹`.
+//! as a 2 µm RMS measurement). Levenberg–Marquardt ([`crate::least_squares`]) from the nominal
+//! cell; the parameters' standard deviations are `σ̂²·(JᵀJ)⁻¹`.
 
-use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Unit};
+use nalgebra::{DVector, Matrix3, Rotation3, Unit};
 use serde::Serialize;
+use trim_cell::cell_model::{AxisLine, ScannerPose, TableModel};
+use trim_cell::kinematics::KinematicsKind;
 use trim_geom::{Point3, UnitVector3, Vector3};
-use trim_plan::cell::{AxisLine, ScannerPose, TableModel};
-use trim_plan::kinematics::KinematicsKind;
 
 use crate::error::CalibError;
+use crate::least_squares;
 
 /// Fewest poses `calibrate cell` takes.
 pub const MIN_POSES: usize = 8;
@@ -29,8 +30,6 @@ pub const MIN_POSES: usize = 8;
 pub const TOOL_MARK_SIGMA_MM: f64 = 0.002 / 1.732_050_807_568_877_2;
 /// A floor on the sphere centres' σ (mm), so a fit that claims nanometres does not dominate.
 pub const CENTRE_SIGMA_FLOOR_MM: f64 = 0.0005;
-/// Levenberg–Marquardt iterations.
-const MAX_ITERATIONS: usize = 100;
 /// Fewest distinct positions an axis needs to be determined.
 const MIN_DISTINCT_ANGLES: usize = 3;
 
@@ -85,7 +84,7 @@ pub struct CellReport {
     pub scanner_translation_sd_um: f64,
     /// The fit's σ̂ relative to the stated measurement σ (≈ 1 when the model fits).
     pub sigma_ratio: f64,
-    /// Iterations.
+    /// Iterations ([`least_squares::Solution::iterations`]).
     pub iterations: usize,
 }
 
@@ -213,63 +212,12 @@ pub fn calibrate_cell(
     let p0 = nominal.machine_from_table(o0.tilt_deg, o0.c_deg).inverse() * seen0;
     x.fixed_rows_mut::<3>(14).copy_from(&p0.coords);
 
-    let jacobian = |x: &DVector<f64>, r0: &DVector<f64>| -> DMatrix<f64> {
-        let mut j = DMatrix::zeros(r0.len(), x.len());
-        for k in 0..x.len() {
-            let h = 1e-7 * (1.0 + x[k].abs());
-            let mut xp = x.clone();
-            xp[k] += h;
-            let mut xm = x.clone();
-            xm[k] -= h;
-            let d = (model.residuals(&xp, observations, tool_mark_mm)
-                - model.residuals(&xm, observations, tool_mark_mm))
-                / (2.0 * h);
-            j.set_column(k, &d);
-        }
-        j
-    };
-    let mut r = model.residuals(&x, observations, tool_mark_mm);
-    let mut cost = r.norm_squared();
-    let mut mu = 1e-3;
-    let mut iterations = 0;
-    for it in 0..MAX_ITERATIONS {
-        iterations = it + 1;
-        let j = jacobian(&x, &r);
-        let jtj = j.transpose() * &j;
-        let g = j.transpose() * &r;
-        let mut improved = false;
-        let mut converged = false;
-        for _ in 0..20 {
-            let mut a = jtj.clone();
-            for k in 0..a.nrows() {
-                a[(k, k)] += mu * jtj[(k, k)].max(1e-12);
-            }
-            let Some(ch) = a.cholesky() else {
-                mu *= 10.0;
-                continue;
-            };
-            let step = ch.solve(&(-&g));
-            let xn = &x + &step;
-            let rn = model.residuals(&xn, observations, tool_mark_mm);
-            let cn = rn.norm_squared();
-            if cn < cost {
-                converged = step.amax() < 1e-12 || (cost - cn) < 1e-14 * cost.max(1.0);
-                x = xn;
-                r = rn;
-                cost = cn;
-                mu = (mu / 3.0).max(1e-12);
-                improved = true;
-                break;
-            }
-            mu *= 10.0;
-        }
-        if !improved || converged || g.amax() < 1e-10 {
-            break;
-        }
-    }
+    let residuals = |x: &DVector<f64>| model.residuals(x, observations, tool_mark_mm);
+    let solution = least_squares::minimize(x, &residuals);
+    let (x, r, cost) = (solution.x, solution.residuals, solution.cost);
 
     // Observability: the normal matrix at the solution.
-    let j = jacobian(&x, &r);
+    let j = least_squares::jacobian(&x, &residuals);
     let jtj = j.transpose() * &j;
     let eig = jtj.clone().symmetric_eigen();
     let max_eig = eig.eigenvalues.amax();
@@ -336,7 +284,7 @@ pub fn calibrate_cell(
             .to_degrees(),
         scanner_translation_sd_um: (cov[(11, 11)] + cov[(12, 12)] + cov[(13, 13)]).sqrt() * 1e3,
         sigma_ratio: sigma2.sqrt(),
-        iterations,
+        iterations: solution.iterations,
     };
     Ok(CellCalibration {
         table,

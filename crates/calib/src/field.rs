@@ -20,7 +20,7 @@
 //!   (`calibration.lens.pivot_to_focal_plane_mm` or the focal length).
 //! - The fitted D is sampled onto a 65 × 65 grid as a [`FieldCorrection`] (field.json), which
 //!   the planner inverts per point (Newton) and which converts to a controller's
-//!   [`trim_plan::lens::CorrectionTable`].
+//!   [`trim_cell::lens::CorrectionTable`].
 
 use std::io::Write;
 use std::path::Path;
@@ -30,7 +30,7 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};
-use trim_plan::lens::{FieldCorrection, LensDistortion, height_scale};
+use trim_cell::lens::{FieldCorrection, LensDistortion, height_scale};
 
 use crate::error::CalibError;
 

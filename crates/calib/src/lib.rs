@@ -6,12 +6,15 @@
 //!   squares problem.
 //! - [`field`]: `trimctl calibrate field`: the galvo field correction from a marked grid.
 //! - [`timing`]: `trimctl calibrate timing`: the move model and the list terms from recorded runs.
+//! - [`least_squares`]: the one nonlinear least-squares solver (MINPACK's Levenberg–Marquardt)
+//!   both fits use.
 //! - [`error`]: the error type, [`CalibError`].
 
 pub mod artefact;
 pub mod cell;
 pub mod error;
 pub mod field;
+pub mod least_squares;
 pub mod sphere;
 pub mod timing;
 

@@ -1,12 +1,12 @@
 //! The cycle-time model fitted from recorded runs (`trimctl calibrate timing`; DESIGN.md
 //! "Estimates learned from runs").
 //!
-//! - *Moves* ([`fit_moves`]): the coordinated move of [`trim_plan::kinematics::coordinated_move_s`]
+//! - *Moves* ([`fit_moves`]): the coordinated move of [`trim_cell::kinematics::coordinated_move_s`]
 //!   (LinuxCNC's G0: the slowest axis limits the path speed and acceleration, trapezoidal
 //!   profile) plus a settle time, over the recorded moves (from/to axis values, measured move
 //!   command → in position). Parameters: linear and rotary speed and acceleration (log scale,
 //!   so they stay positive) and the settle time; Levenberg–Marquardt with a central-difference
-//!   Jacobian. A parameter no sample moves (no rotary motion, say) keeps its start value and is
+//!   Jacobian ([`crate::least_squares`]). A parameter no sample moves (no rotary motion, say) keeps its start value and is
 //!   named in [`MoveFit::not_determined`]. Standard deviations: σ̂²(JᵀJ)⁻¹.
 //! - *Lists* ([`fit_lists`]): `measured − commanded model = c + p·mark_runs + v·vertices`, linear
 //!   least squares (the commanded delays are what the controller is sent and stay as they are;
@@ -15,11 +15,12 @@
 //! - *Per-layer overhead*: the median of the measured overheads.
 
 use nalgebra::{DMatrix, DVector};
-use trim_plan::GalvoSettings;
-use trim_plan::kinematics::{AxisPose, MachineSettings, MoveModel, move_time_s};
-use trim_plan::timing::{ListComposition, TimingSettings};
+use trim_cell::GalvoSettings;
+use trim_cell::galvo_timing::{ListComposition, TimingSettings};
+use trim_cell::kinematics::{AxisPose, MachineSettings, MoveModel, move_time_s};
 
 use crate::CalibError;
+use crate::least_squares;
 
 /// Fewer recorded moves than this are refused.
 pub const MIN_MOVES: usize = 6;
@@ -27,8 +28,6 @@ pub const MIN_MOVES: usize = 6;
 pub const MIN_LISTS: usize = 3;
 /// Start factors of the speeds and of the accelerations (each pair of them is one start).
 const START_FACTORS: [f64; 3] = [0.6, 1.0, 1.7];
-/// Levenberg–Marquardt iterations at most.
-const MAX_ITERATIONS: usize = 200;
 /// A parameter whose Jacobian column is below this fraction of the largest is not determined.
 const DETERMINED_FRACTION: f64 = 1e-6;
 /// A list term is kept when the normalised design matrix's smallest singular value is above
@@ -72,7 +71,7 @@ pub struct MoveFit {
     pub rms_before_s: f64,
     /// RMS of estimate − measured with the fit (s).
     pub rms_after_s: f64,
-    /// Levenberg–Marquardt iterations.
+    /// Levenberg–Marquardt iterations of the best start ([`least_squares::Solution::iterations`]).
     pub iterations: usize,
 }
 
@@ -151,7 +150,7 @@ pub fn fit_moves(start: &MachineSettings, samples: &[MoveSample]) -> Result<Move
     let residuals = |x: &[f64]| move_residuals(start, x, &samples);
     // Which parameters the moves determine, at the start (a parameter no move depends on,
     // anywhere near the start, has a zero column).
-    let j0 = jacobian(&x0, &all, samples.len(), &residuals);
+    let j0 = jacobian(&x0, &all, &residuals);
     let norms: Vec<f64> = (0..5).map(|k| j0.column(k).norm()).collect();
     let largest = norms.iter().copied().fold(0.0, f64::max);
     let free: Vec<usize> = (0..5)
@@ -208,7 +207,7 @@ pub fn fit_moves(start: &MachineSettings, samples: &[MoveSample]) -> Result<Move
     let mut sigma = [f64::NAN; 5];
     let dof = samples.len().saturating_sub(free.len()).max(1);
     let s2 = cost / dof as f64;
-    let j = jacobian(&x, &free, samples.len(), &residuals);
+    let j = jacobian(&x, &free, &residuals);
     if let Some(inv) = (j.transpose() * &j).try_inverse() {
         for (i, &k) in free.iter().enumerate() {
             let sd = (s2 * inv[(i, i)]).max(0.0).sqrt();
@@ -226,74 +225,39 @@ pub fn fit_moves(start: &MachineSettings, samples: &[MoveSample]) -> Result<Move
     })
 }
 
-/// Levenberg–Marquardt over the parameters `free` of `x` (a central-difference Jacobian);
-/// returns the parameters, the residuals, the cost (Σr²) and the iterations.
+/// Levenberg–Marquardt ([`least_squares::minimize`]) over the parameters `free` of `x`, the
+/// others held; returns the parameters, the residuals, the cost (Σr²) and the iterations.
 fn levenberg_marquardt(
-    mut x: Vec<f64>,
+    x: Vec<f64>,
     free: &[usize],
     residuals: &dyn Fn(&[f64]) -> DVector<f64>,
 ) -> (Vec<f64>, DVector<f64>, f64, usize) {
-    let mut r = residuals(&x);
-    let mut cost = r.norm_squared();
-    let mut mu = 1e-3;
-    let mut iterations = 0;
-    for it in 0..MAX_ITERATIONS {
-        iterations = it + 1;
-        let j = jacobian(&x, free, r.len(), residuals);
-        let jtj = j.transpose() * &j;
-        let g = j.transpose() * &r;
-        let mut improved = false;
-        let mut converged = false;
-        for _ in 0..30 {
-            let mut a = jtj.clone();
-            for k in 0..a.nrows() {
-                a[(k, k)] += mu * jtj[(k, k)].max(1e-12);
-            }
-            let Some(ch) = a.cholesky() else {
-                mu *= 10.0;
-                continue;
-            };
-            let step = ch.solve(&(-&g));
-            let mut xn = x.clone();
-            for (i, &k) in free.iter().enumerate() {
-                xn[k] += step[i];
-            }
-            let rn = residuals(&xn);
-            let cn = rn.norm_squared();
-            if cn.is_finite() && cn < cost {
-                converged = step.amax() < 1e-10 || (cost - cn) < 1e-12 * cost.max(1e-12);
-                x = xn;
-                r = rn;
-                cost = cn;
-                mu = (mu / 3.0).max(1e-12);
-                improved = true;
-                break;
-            }
-            mu *= 10.0;
-        }
-        if !improved || converged {
-            break;
-        }
-    }
-    (x, r, cost, iterations)
+    let on_free = |y: &DVector<f64>| residuals(&with_free(&x, free, y));
+    let y0 = DVector::from_iterator(free.len(), free.iter().map(|&k| x[k]));
+    let solution = least_squares::minimize(y0, &on_free);
+    (
+        with_free(&x, free, &solution.x),
+        solution.residuals,
+        solution.cost,
+        solution.iterations,
+    )
 }
 
-/// The Jacobian of `residuals` (n of them) over the parameters `free`, by central differences.
-fn jacobian(
-    x: &[f64],
-    free: &[usize],
-    n: usize,
-    residuals: &dyn Fn(&[f64]) -> DVector<f64>,
-) -> DMatrix<f64> {
-    let mut j = DMatrix::zeros(n, free.len());
+/// `x` with its parameters `free` set to `y`.
+fn with_free(x: &[f64], free: &[usize], y: &DVector<f64>) -> Vec<f64> {
+    let mut x = x.to_vec();
     for (i, &k) in free.iter().enumerate() {
-        let h = 1e-6 * (1.0 + x[k].abs());
-        let (mut xp, mut xm) = (x.to_vec(), x.to_vec());
-        xp[k] += h;
-        xm[k] -= h;
-        j.set_column(i, &((residuals(&xp) - residuals(&xm)) / (2.0 * h)));
+        x[k] = y[i];
     }
-    j
+    x
+}
+
+/// The Jacobian of `residuals` over the parameters `free` of `x`
+/// ([`least_squares::jacobian`]).
+fn jacobian(x: &[f64], free: &[usize], residuals: &dyn Fn(&[f64]) -> DVector<f64>) -> DMatrix<f64> {
+    let on_free = |y: &DVector<f64>| residuals(&with_free(x, free, y));
+    let y = DVector::from_iterator(free.len(), free.iter().map(|&k| x[k]));
+    least_squares::jacobian(&y, &on_free)
 }
 
 /// One recorded galvo list.

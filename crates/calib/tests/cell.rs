@@ -7,9 +7,9 @@ use trim_calib::artefact::{ArtefactTruth, default_poses, observe, synth_artefact
 use trim_calib::cell::{
     calibrate_cell, direction_error_deg, line_offset_mm, rotation_about, rotation_error_deg,
 };
+use trim_cell::cell_model::{AxisLine, ScannerPose, TableModel};
+use trim_cell::kinematics::{KinematicsKind, MachineSettings};
 use trim_geom::{Point3, UnitVector3, Vector3};
-use trim_plan::cell::{AxisLine, ScannerPose, TableModel};
-use trim_plan::kinematics::{KinematicsKind, MachineSettings};
 
 const DIAMETER_MM: f64 = 25.4;
 

@@ -5,7 +5,7 @@
 //! L within 1 %. Also: a ripple no polynomial holds, the Newton inverse, the 65 × 65 table.
 
 use trim_calib::field::{FieldFitSettings, Mark, MarkGrid, fit_field, synth_marks};
-use trim_plan::lens::{CorrectionTable, FieldCorrection, LensDistortion, LensModel, height_scale};
+use trim_cell::lens::{CorrectionTable, FieldCorrection, LensDistortion, LensModel, height_scale};
 
 const HALF_FIELD_MM: f64 = 50.0;
 const NOISE_UM: f64 = 2.0;

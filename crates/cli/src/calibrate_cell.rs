@@ -7,9 +7,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use trim_calib::artefact::{CalPose, fit_observations};
 use trim_calib::cell::calibrate_cell;
+use trim_cell::cell_model::{Calibration, TableModel};
+use trim_cell::kinematics::{KinematicsKind, MachineSettings};
 use trim_geom::Point3;
-use trim_plan::cell::{Calibration, TableModel};
-use trim_plan::kinematics::{KinematicsKind, MachineSettings};
 
 use crate::config::JobConfig;
 use crate::progress::stage;
@@ -198,7 +198,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             p.tilt_deg, p.c_deg
         );
     }
-    let line = |name: &str, l: &trim_plan::cell::AxisLine| {
+    let line = |name: &str, l: &trim_cell::cell_model::AxisLine| {
         println!(
             "{name} line: point ({:.4}, {:.4}, {:.4}) mm, direction ({:.7}, {:.7}, {:.7})",
             l.point_mm.x, l.point_mm.y, l.point_mm.z, l.direction.x, l.direction.y, l.direction.z

@@ -1,6 +1,6 @@
 //! `trimctl calibrate field --marks marks.csv --out field.json`: the galvo field correction
 //! (`trim_calib::field`), optionally as the controller's 65 × 65 table
-//! (`trim_plan::lens::CorrectionTable`, docs/protocols/correction-table.md) and as an SVG of the
+//! (`trim_cell::lens::CorrectionTable`, docs/protocols/correction-table.md) and as an SVG of the
 //! residual vectors.
 
 use std::fmt::Write as _;
@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use trim_calib::field::{FieldFitReport, FieldFitSettings, Mark, fit_field, read_marks};
-use trim_plan::lens::{CorrectionTable, FieldCorrection, height_scale};
+use trim_cell::lens::{CorrectionTable, FieldCorrection, height_scale};
 
 /// Arguments of `trimctl calibrate field`.
 #[derive(clap::Args, Debug)]
@@ -23,7 +23,7 @@ pub struct Args {
     pub out: PathBuf,
     /// The lens's focal length (mm): the nominal L (the "before" model, L when no row is off
     /// the focal plane) and the centre of L's search.
-    #[arg(long, default_value_t = trim_plan::Beam::default().focal_length_mm)]
+    #[arg(long, default_value_t = trim_cell::Beam::default().focal_length_mm)]
     pub focal_length_mm: f64,
     /// Also write the controller's 65 × 65 correction table: the BJJCZ/EzCad `.cor` integer
     /// layout when the name ends in `.cor`, a plain text table otherwise.

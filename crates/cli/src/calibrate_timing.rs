@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 use trim_calib::timing::{ListSample, MOVE_PARAMETERS, MoveSample, fit_lists, fit_moves, median_s};
-use trim_plan::kinematics::{AxisPose, MachineSettings, MoveModel};
-use trim_plan::timing::TimingSettings;
+use trim_cell::galvo_timing::TimingSettings;
+use trim_cell::kinematics::{AxisPose, MachineSettings, MoveModel};
 
 use crate::timing_record::{self, TimingRecord};
 

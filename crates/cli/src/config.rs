@@ -9,14 +9,15 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 use toml::Value;
-use trim_io::twin::TruthSettings;
-use trim_plan::cell::{Calibration, ScanPose};
+use trim_cell::cell_model::{Calibration, ScanPose};
+use trim_cell::kinematics::MachineSettings;
+use trim_cell::truth::TruthSettings;
+use trim_cell::{Beam, GalvoSettings, TimingSettings};
+use trim_plan::ZoningSettings;
 use trim_plan::field::LensSettings;
 use trim_plan::hatch::HatchSettings;
-use trim_plan::kinematics::MachineSettings;
 use trim_plan::layer::LayerSettings;
 use trim_plan::planner::PlanSettings;
-use trim_plan::{Beam, GalvoSettings, TimingSettings, ZoningSettings};
 use trim_register::regional::RegisterSettings;
 
 /// A whole job: part files, registration, planning (incidence limit, beam, zoning, layers, lens
@@ -400,7 +401,7 @@ impl JobConfig {
             .validate()
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         let settings = self.plan_settings();
-        let chain = trim_plan::cell::ScanChain {
+        let chain = trim_cell::cell_model::ScanChain {
             table: settings.table(),
             scanner: self.calibration.scanner(),
             pose: self.part.scan_pose,

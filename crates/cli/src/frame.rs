@@ -15,16 +15,17 @@ use std::time::Duration;
 use anyhow::{Context, bail};
 use tokio::sync::mpsc::UnboundedReceiver;
 use tokio_util::sync::CancellationToken;
-use trim_io::cell::{Cell, SimCell, Timeouts};
+use trim_cell::{Job, LayerKey};
+use trim_io::cell::{Cell, Timeouts};
 use trim_io::executor::{StopCause, ZoneDecision, ZoneGate};
 use trim_io::frame::{FrameSettings, Framed, frame_layer, rearm};
 use trim_io::galvo::outline::OutlineKind;
 use trim_io::tap::Tap;
-use trim_plan::{Job, LayerKey};
 
 use crate::config::JobConfig;
 use crate::exit::{Exit, Failure};
 use crate::run::{CellOverrides, DEFAULT_SIM_TIME_SCALE, files};
+use crate::simulated::SimCell;
 
 /// How long `run --frame` waits for an answer before it quits the run (s): the pointer is not
 /// left tracing unattended.
@@ -272,11 +273,11 @@ async fn frame_all(
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
     if let Some(r) = &sim_report
-        && !r.violations.is_empty()
+        && !r.violations().is_empty()
     {
         bail!(
             "safety monitor found interlock violations: {:?}",
-            r.violations
+            r.violations()
         );
     }
     Ok(())
@@ -313,10 +314,11 @@ fn framed_line(f: &Framed, job: &Job) -> String {
 }
 
 /// What the simulated cell saw while framing.
+#[cfg(feature = "sim")]
 #[derive(Debug, serde::Serialize)]
 struct SimReport {
     /// Every traced vector (bits), with the pointer, gate and emission during it.
-    traces: Vec<trim_io::galvo::TraceRecord>,
+    traces: Vec<trim_sim::galvo::TraceRecord>,
     /// Traced vectors with the pointer off.
     traced_without_pointer: usize,
     /// Vectors marked (with or without light): framing marks none.
@@ -333,7 +335,12 @@ struct SimReport {
     violations: Vec<String>,
 }
 
+#[cfg(feature = "sim")]
 impl SimReport {
+    fn violations(&self) -> &[String] {
+        &self.violations
+    }
+
     fn line(&self) -> String {
         format!(
             "simulator: {} vectors traced ({} without the pointer), pointer on {} times and off at the end: {}, gate opened {} times, emission on {} times, {} vectors marked, {} safety violations",
@@ -349,8 +356,9 @@ impl SimReport {
     }
 }
 
+#[cfg(feature = "sim")]
 fn sim_report(sim: &SimCell) -> SimReport {
-    use trim_io::safety::CellEvent;
+    use trim_sim::safety::CellEvent;
     let events = sim.monitor.events();
     let count = |e: CellEvent| events.iter().filter(|(_, x)| *x == e).count();
     let traces = sim.galvo.traces();
@@ -369,6 +377,27 @@ fn sim_report(sim: &SimCell) -> SimReport {
             .map(|v| v.what)
             .collect(),
     }
+}
+
+/// Nothing simulated to report in a build without the simulators.
+#[cfg(not(feature = "sim"))]
+#[derive(Debug, serde::Serialize)]
+enum SimReport {}
+
+#[cfg(not(feature = "sim"))]
+impl SimReport {
+    fn violations(&self) -> &[String] {
+        match *self {}
+    }
+
+    fn line(&self) -> String {
+        match *self {}
+    }
+}
+
+#[cfg(not(feature = "sim"))]
+fn sim_report(sim: &SimCell) -> SimReport {
+    match *sim {}
 }
 
 /// Lines typed on stdin, read by a thread of their own (stdin cannot be read asynchronously);

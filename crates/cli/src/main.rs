@@ -18,7 +18,9 @@ mod progress;
 mod register;
 mod report_cmd;
 mod run;
+#[cfg(feature = "sim")]
 mod sim;
+mod simulated;
 mod stop_signal;
 mod summary;
 mod synth;
@@ -52,6 +54,7 @@ enum Command {
     /// Write a synthetic ceramic-core-like test case.
     Synth(synth::Args),
     /// Start device simulators as servers.
+    #[cfg(feature = "sim")]
     Sim(sim::Args),
     /// Show the job.toml configuration.
     Config(config_cmd::Args),
@@ -78,6 +81,7 @@ fn main() -> ExitCode {
         Command::Beam(a) => beam::run(a),
         Command::Info(a) => info::run(a),
         Command::Synth(a) => synth::run(a),
+        #[cfg(feature = "sim")]
         Command::Sim(a) => sim::run(a),
         Command::Config(a) => config_cmd::run(a),
         Command::Calibrate(a) => calibrate::run(a),

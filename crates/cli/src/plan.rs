@@ -119,7 +119,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use trim_plan::job::Job;
+    use trim_cell::job::Job;
 
     fn write_core(dir: &std::path::Path) -> PathBuf {
         let csv = dir.join("core.csv");

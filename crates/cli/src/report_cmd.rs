@@ -5,8 +5,8 @@
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
-use trim_plan::kinematics::{AxisPose, move_time_s};
-use trim_plan::timing::list_time_s;
+use trim_cell::galvo_timing::list_time_s;
+use trim_cell::kinematics::{AxisPose, move_time_s};
 
 use crate::calibrate_timing::TimingFile;
 use crate::timing_record::{self, TimingRecord};

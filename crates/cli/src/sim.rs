@@ -6,11 +6,12 @@
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 
 use anyhow::{Context, bail};
-use trim_io::cnc::sim::{CncSim, CncSimConfig};
-use trim_io::fault::{Fault, FaultSwitch};
-use trim_io::galvo::{GalvoSim, GalvoSimConfig};
-use trim_io::laser::{LaserSim, Profile};
-use trim_io::safety::SafetyMonitor;
+use trim_io::laser::Profile;
+use trim_sim::cnc::{CncSim, CncSimConfig};
+use trim_sim::fault::{Fault, FaultSwitch};
+use trim_sim::galvo::{GalvoSim, GalvoSimConfig};
+use trim_sim::laser::LaserSim;
+use trim_sim::safety::SafetyMonitor;
 
 /// The default galvo port (docs/protocols/galvo.md §1).
 const DEFAULT_GALVO_PORT: u16 = 5020;

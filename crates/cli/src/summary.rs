@@ -4,9 +4,9 @@
 
 use std::fmt::Write as _;
 
+use trim_cell::Job;
 use trim_io::executor::{ExecError, RunSummary};
 use trim_io::journal::CutLayer;
-use trim_plan::Job;
 use trim_plan::planner::PlanOutput;
 use trim_register::regional::{ContourQuality, QualityReport};
 

@@ -166,7 +166,7 @@ struct TwinJob<'a> {
 
 #[derive(serde::Serialize)]
 struct TwinSim<'a> {
-    truth: &'a trim_io::twin::TruthSettings,
+    truth: &'a trim_cell::truth::TruthSettings,
 }
 
 /// A link of the chain from the scanner to the spot.
@@ -244,7 +244,7 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
     )?;
     // The field marks: a 21 × 21 grid over the field on coupons at 0 and ±2 mm, measured
     // (2 µm noise) relative to the field-centre mark, which the tool mark ties to the machine.
-    let centred = trim_plan::lens::LensDistortion {
+    let centred = trim_cell::lens::LensDistortion {
         offset_mm: [0.0, 0.0],
         ..truth.head
     };
@@ -267,14 +267,15 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
     // poses by the true scanner on the true table; the tool mark at command 0 lands where the
     // true head puts it.
     let plan = defaults.plan_settings();
-    let nominal = trim_plan::cell::TableModel::nominal(&plan.machine);
-    let true_cell = trim_io::twin::TrueCell::new(&truth, &plan);
+    let nominal = trim_cell::cell_model::TableModel::nominal(&plan.machine);
+    // The true cell's lines and scanner (as the digital twin resolves them).
+    let true_cell = truth.as_calibration();
     let sphere = trim_geom::Point3::from(SPHERE_TABLE_MM);
     let poses = trim_calib::artefact::default_poses(&nominal, &sphere);
     let artefacts = trim_calib::artefact::synth_artefacts(
         &trim_calib::artefact::ArtefactTruth {
-            table: true_cell.table,
-            scanner: true_cell.scanner,
+            table: true_cell.table(&plan.machine),
+            scanner: true_cell.scanner(),
             sphere_table_mm: sphere,
             diameter_mm: SPHERE_DIAMETER_MM,
             tool_offset_mm: truth.head.offset_mm,

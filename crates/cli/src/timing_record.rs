@@ -7,11 +7,11 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
+use trim_cell::galvo_timing::{ListComposition, TimingSettings, list_time_s};
+use trim_cell::job::Pose;
+use trim_cell::kinematics::{AxisPose, MachineSettings, move_time_s};
+use trim_cell::{GalvoSettings, Job};
 use trim_io::executor::RunSummary;
-use trim_plan::job::Pose;
-use trim_plan::kinematics::{AxisPose, MachineSettings, move_time_s};
-use trim_plan::timing::{ListComposition, TimingSettings, list_time_s};
-use trim_plan::{GalvoSettings, Job};
 
 /// The record's file name in a run folder.
 pub const FILE: &str = "timing.json";

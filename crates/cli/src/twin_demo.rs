@@ -5,10 +5,11 @@
 use nalgebra::{Rotation3, Unit};
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
+use trim_cell::cell_model::TableModel;
+use trim_cell::kinematics::MachineSettings;
+use trim_cell::lens::LensDistortion;
+use trim_cell::truth::TruthSettings;
 use trim_geom::Vector3;
-use trim_io::twin::{LensDistortion, TruthSettings};
-use trim_plan::cell::TableModel;
-use trim_plan::kinematics::MachineSettings;
 
 /// How far the demo's true cell is from the nominal one (each error is drawn in `[½, 1] ×`
 /// its magnitude, in a random direction).
@@ -128,7 +129,7 @@ pub fn demo_truth(
         trapezoid_per_mm: trapezoid,
     };
     let (a_point, a_dir, b_point, b_dir) = match machine.kinematics {
-        trim_plan::KinematicsKind::XyzbcTrt => (None, None, Some(tp), Some(td)),
+        trim_cell::KinematicsKind::XyzbcTrt => (None, None, Some(tp), Some(td)),
         _ => (Some(tp), Some(td), None, None),
     };
     TruthSettings {

@@ -6,7 +6,7 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 use trim_calib::field::{MarkGrid, synth_marks, write_marks};
-use trim_plan::lens::{CorrectionTable, FieldCorrection, LensDistortion, LensModel};
+use trim_cell::lens::{CorrectionTable, FieldCorrection, LensDistortion, LensModel};
 
 fn trimctl(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_trimctl"))

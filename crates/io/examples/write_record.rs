@@ -7,15 +7,16 @@
 use std::collections::BTreeMap;
 
 use tokio_util::sync::CancellationToken;
-use trim_io::cell::{Cell, SimCell, SimOptions, Timeouts};
+use trim_cell::job::{
+    Frame, GalvoSettings, Job, JobSettings, Layer, Polyline, Pose, TimeEstimate, ValidationReport,
+    Zone,
+};
+use trim_io::cell::{Cell, Timeouts};
 use trim_io::executor::Executor;
 use trim_io::laser::Profile;
 use trim_io::record::{Recorder, device_tap};
 use trim_io::tap::now_ns;
-use trim_plan::job::{
-    Frame, GalvoSettings, Job, JobSettings, Layer, Polyline, Pose, TimeEstimate, ValidationReport,
-    Zone,
-};
+use trim_sim::{SimCell, SimOptions};
 
 /// Points in each synthetic cloud.
 const CLOUD_POINTS: usize = 500;

@@ -14,14 +14,14 @@ use std::future::Future;
 use std::time::{Duration, Instant};
 
 use tokio_util::sync::CancellationToken;
-use trim_plan::job::{Job, Layer, LayerKey};
+use trim_cell::job::{Job, Layer, LayerKey};
 
 use crate::cell::{Cell, Timeouts};
 use crate::executor::{Executor, StopCause};
 use crate::galvo::GalvoClient;
 use crate::galvo::outline::{Outline, OutlineKind, frame_list, frame_tag, layer_outline};
 use crate::galvo::protocol::StatusBlock;
-use crate::galvo::timing::list_time_s;
+use crate::galvo::timing::ListClock;
 use crate::tap::Device;
 
 /// How often the galvo is polled while a frame is traced (ms).
@@ -127,7 +127,7 @@ pub async fn frame_layer<T>(
     let outline = layer_outline(layer, &job.settings.galvo, settings.outline)
         .map_err(|e| job_error(format!("zone {} layer {}: {e}", key.zone, key.layer)))?;
     let commands = frame_list(&outline, &job.settings.galvo);
-    let pass_s = list_time_s(&commands);
+    let pass_s = ListClock::list_s(&commands);
     let result = trace(
         cell, layer, key, settings, &commands, passes, pass_s, hold, cancel,
     )

@@ -19,7 +19,7 @@ use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
-use trim_plan::job::{Job, LayerKey};
+use trim_cell::job::{Job, LayerKey};
 
 /// One journal line.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -467,7 +467,7 @@ impl Journal {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use trim_plan::job::{GalvoSettings, JobSettings, TimeEstimate, ValidationReport};
+    use trim_cell::job::{GalvoSettings, JobSettings, TimeEstimate, ValidationReport};
 
     fn job() -> Job {
         Job {

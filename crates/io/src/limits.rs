@@ -2,8 +2,8 @@
 //! anything moves: `run` (the executor) and `frame` refuse a job with a pose outside them,
 //! whatever validation said or however the job file was edited.
 
-use trim_plan::job::{Job, LayerKey, Pose};
-use trim_plan::kinematics::{AxisPose, MachineSettings, limit_violation};
+use trim_cell::job::{Job, LayerKey, Pose};
+use trim_cell::kinematics::{AxisPose, MachineSettings, limit_violation};
 
 use crate::cnc::AXES;
 

@@ -33,7 +33,7 @@ use foxglove::{
 };
 use schemars::JsonSchema;
 use serde::Serialize;
-use trim_plan::job::{Job, LayerKey};
+use trim_cell::job::{Job, LayerKey};
 
 use crate::live::{LiveServer, StaticScene};
 use crate::tap::{Device, DeviceIo, Tap};
@@ -687,8 +687,8 @@ pub fn declare_run_channels(context: &Arc<Context>) -> Result<(), RecordError> {
 fn layer_entity(
     t_ns: u64,
     job: &Job,
-    zone: &trim_plan::job::Zone,
-    layer: &trim_plan::job::Layer,
+    zone: &trim_cell::job::Zone,
+    layer: &trim_cell::job::Layer,
     state: &str,
     rgba: [f64; 4],
 ) -> SceneEntity {

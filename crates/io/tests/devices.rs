@@ -6,18 +6,20 @@ use std::time::{Duration, Instant};
 use futures::{SinkExt, StreamExt};
 use tokio::net::TcpStream;
 use tokio_util::codec::Framed;
+use trim_cell::job::Pose;
 use trim_io::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
-use trim_io::cnc::sim::{CncSim, CncSimConfig};
 use trim_io::cnc::{Cnc, CncFault, EnableSteps};
-use trim_io::fault::{Fault, FaultKind, FaultSwitch, Trigger};
 use trim_io::galvo::protocol::{
     ControllerState, Frame, FrameCodec, ListCommand, REPLY_BIT, Request, StatusCode, split_reply,
 };
-use trim_io::galvo::{GalvoClient, GalvoClientConfig, GalvoError, GalvoSim, GalvoSimConfig, Lit};
-use trim_io::laser::{LaserClient, LaserError, LaserFault, LaserSim, Profile};
-use trim_io::safety::{CellEvent, SafetyMonitor};
+use trim_io::galvo::{GalvoClient, GalvoClientConfig, GalvoError};
+use trim_io::laser::{LaserClient, LaserError, LaserFault, Profile};
 use trim_io::tap::Tap;
-use trim_plan::job::Pose;
+use trim_sim::cnc::{CncSim, CncSimConfig};
+use trim_sim::fault::{Fault, FaultKind, FaultSwitch, Trigger};
+use trim_sim::galvo::{GalvoSim, GalvoSimConfig, Lit};
+use trim_sim::laser::LaserSim;
+use trim_sim::safety::{CellEvent, SafetyMonitor};
 
 const LO: ([u8; 4], u16) = ([127, 0, 0, 1], 0);
 /// Liveness bound for things that happen within a few ms on an idle machine.

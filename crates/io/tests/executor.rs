@@ -10,13 +10,13 @@ use common::{
     assert_marked_exactly_once, connect, demo_job, sim_cell, sim_cell_scaled, test_timeouts,
 };
 use tokio_util::sync::CancellationToken;
-use trim_io::cell::SimCell;
+use trim_cell::job::{Job, LayerKey};
 use trim_io::executor::{ExecError, ExecOptions, Executor, OffPort, Phase, Progress, RunSummary};
-use trim_io::fault::{Fault, FaultKind, Trigger};
 use trim_io::journal;
 use trim_io::record::{Recorder, device_tap};
 use trim_io::tap::{Device, Tap};
-use trim_plan::job::{Job, LayerKey};
+use trim_sim::SimCell;
+use trim_sim::fault::{Fault, FaultKind, Trigger};
 
 /// The laser must be off (light path closed) within this of the fault's injection. The slowest
 /// cases: a galvo that hangs mid-list (its own heartbeat watchdog, 400 ms, closes the gate) and a
@@ -271,8 +271,8 @@ fn light_on_at(sim: &SimCell, at: Instant) -> bool {
             break;
         }
         match e {
-            trim_io::safety::CellEvent::Emission(on) => emission = on,
-            trim_io::safety::CellEvent::Gate(on) => gate = on,
+            trim_sim::safety::CellEvent::Emission(on) => emission = on,
+            trim_sim::safety::CellEvent::Gate(on) => gate = on,
             _ => {}
         }
     }
@@ -344,7 +344,7 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
     let mut job = demo_job(2);
     job.zones[1].layers[0].polylines.insert(
         0,
-        trim_plan::job::Polyline::from_points(
+        trim_cell::job::Polyline::from_points(
             99,
             (0..=10)
                 .map(|i| {
@@ -491,7 +491,7 @@ async fn the_monitor_catches_emission_during_motion_in_the_simulated_cell() {
         .unwrap()
         .unwrap();
     cell.laser.emission(true).await.unwrap().unwrap();
-    let mut pose = trim_plan::job::Pose::default();
+    let mut pose = trim_cell::job::Pose::default();
     pose.0.insert("x".into(), 20.0);
     cell.cnc.start_move(&pose).await.unwrap().unwrap();
     cell.cnc
@@ -512,7 +512,7 @@ async fn a_planned_job_runs_and_the_simulated_galvo_time_matches_the_planners_es
         .expect("plan");
     let layers = job.layers().count();
     // Fast clocks: the galvo as fast as it can, the CNC 100× faster than real.
-    let mut o = trim_io::cell::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
+    let mut o = trim_sim::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
     o.galvo_time_scale = 0.0;
     o.cnc_time_scale = 0.01;
     let sim = SimCell::start(o).await.unwrap();
@@ -800,7 +800,7 @@ async fn a_job_with_an_unreachable_zone_is_refused_before_anything_moves_or_emit
         !sim.monitor
             .events()
             .iter()
-            .any(|(_, e)| matches!(e, trim_io::safety::CellEvent::Emission(true))),
+            .any(|(_, e)| matches!(e, trim_sim::safety::CellEvent::Emission(true))),
         "emission switched on before refusing"
     );
 }
@@ -811,7 +811,7 @@ async fn a_job_with_an_unreachable_zone_is_refused_before_anything_moves_or_emit
 /// would be sent to the CNC.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_pose_outside_the_machine_limits_is_refused_before_anything_moves() {
-    let machine = trim_plan::kinematics::MachineSettings::default();
+    let machine = trim_cell::kinematics::MachineSettings::default();
     // The untouched job passes the check.
     trim_io::limits::check_poses(&demo_job(2), &machine, None).expect("demo poses inside");
     for (axis, value, names) in [
@@ -850,7 +850,7 @@ async fn a_pose_outside_the_machine_limits_is_refused_before_anything_moves() {
             !sim.monitor
                 .events()
                 .iter()
-                .any(|(_, e)| matches!(e, trim_io::safety::CellEvent::Emission(true))),
+                .any(|(_, e)| matches!(e, trim_sim::safety::CellEvent::Emission(true))),
             "{axis}: emission switched on before refusing"
         );
     }
@@ -1066,7 +1066,7 @@ async fn a_panic_on_the_executor_with_the_emission_on_switches_the_laser_off() {
         sim.monitor
             .events()
             .iter()
-            .any(|(_, e)| *e == trim_io::safety::CellEvent::Emission(true)),
+            .any(|(_, e)| *e == trim_sim::safety::CellEvent::Emission(true)),
         "the panic came before the emission was on"
     );
     // The simulator reads the pty every 10 ms.
@@ -1285,7 +1285,7 @@ async fn the_cnc_leaving_the_layers_pose_or_its_enabled_state_mid_layer_takes_th
             let at = Instant::now();
             match intrusion {
                 "move" => {
-                    let mut p = trim_plan::job::Pose::default();
+                    let mut p = trim_cell::job::Pose::default();
                     p.0.insert("x".into(), 30.0);
                     other.start_move(&p).await.unwrap().unwrap();
                 }

@@ -12,18 +12,20 @@ use common::{
 };
 use futures::future::BoxFuture;
 use tokio_util::sync::CancellationToken;
-use trim_io::cell::{Cell, SimCell};
+use trim_cell::job::{Job, LayerKey};
+use trim_io::cell::Cell;
 use trim_io::executor::{
     ExecError, ExecOptions, Executor, Phase, StopCause, ZoneDecision, ZoneGate,
 };
-use trim_io::fault::{Fault, FaultKind, FaultSwitch, Trigger};
 use trim_io::frame::{FrameSettings, frame_layer, rearm};
 use trim_io::galvo::outline::OutlineKind;
 use trim_io::galvo::protocol::{ControllerState, ListCommand, StatusCode};
-use trim_io::galvo::{GalvoClient, GalvoClientConfig, GalvoSim, GalvoSimConfig, TraceRecord};
-use trim_io::safety::{CellEvent, SafetyMonitor};
+use trim_io::galvo::{GalvoClient, GalvoClientConfig};
 use trim_io::tap::Tap;
-use trim_plan::job::{Job, LayerKey};
+use trim_sim::SimCell;
+use trim_sim::fault::{Fault, FaultKind, FaultSwitch, Trigger};
+use trim_sim::galvo::{GalvoSim, GalvoSimConfig, TraceRecord};
+use trim_sim::safety::{CellEvent, SafetyMonitor};
 
 /// Liveness bound for things that happen within a few ms on an idle machine.
 const GENEROUS: Duration = Duration::from_secs(5);
@@ -309,7 +311,7 @@ async fn framing_a_layer_traces_its_hull_at_its_pose_with_the_light_path_shut() 
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_galvo_fault_while_framing_leaves_the_pointer_off_and_the_gate_shut() {
-    let mut o = trim_io::cell::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
+    let mut o = trim_sim::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
     o.cnc_time_scale = 0.1;
     o.faults.galvo = vec![Fault {
         kind: FaultKind::DropLink,

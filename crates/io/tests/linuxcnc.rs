@@ -17,15 +17,15 @@ use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use tokio_util::sync::CancellationToken;
+use trim_cell::kinematics::{
+    AxisPose, KinematicsKind, MachineSettings, forward, inverse, joints_of,
+};
 use trim_geom::{Point3, UnitVector3, Vector3};
 use trim_io::cell::{Cell, Timeouts};
 use trim_io::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
 use trim_io::cnc::{Cnc, CncFault, EnableSteps};
 use trim_io::executor::{ExecError, ExecOptions, Executor, Phase, Progress, StopCause};
 use trim_io::tap::{Device, Tap};
-use trim_plan::kinematics::{
-    AxisPose, KinematicsKind, MachineSettings, forward, inverse, joints_of,
-};
 
 /// How often the intrusion test polls the CNC while a layer marks.
 const CNC_POLL: Duration = Duration::from_millis(20);
@@ -52,7 +52,7 @@ fn planned_poses(m: &MachineSettings) -> Vec<(Point3, UnitVector3, AxisPose)> {
         .map(|(p, d)| {
             let dir = UnitVector3::new_normalize(*d);
             let candidates = inverse(m, p, &dir, previous.rotary_deg);
-            let pose = trim_plan::kinematics::choose_pose(m, &candidates, &previous)
+            let pose = trim_cell::kinematics::choose_pose(m, &candidates, &previous)
                 .unwrap_or_else(|e| panic!("no pose for {p:?} {d:?}: {e}"));
             previous = pose;
             (*p, dir, pose)
@@ -148,7 +148,7 @@ async fn real_linuxcnc_takes_planned_poses_and_runs_a_whole_job() {
     }
 
     // A move beyond the limits is refused with LinuxCNC's own messages.
-    let mut too_far = trim_plan::job::Pose::default();
+    let mut too_far = trim_cell::job::Pose::default();
     too_far.0.insert("x".into(), 500.0);
     cnc.start_move(&too_far)
         .await
@@ -166,7 +166,7 @@ async fn real_linuxcnc_takes_planned_poses_and_runs_a_whole_job() {
 
     // A stop while `set wait done` is pending (as on a cancel mid-move): linuxcncrsh reads a
     // session's lines one by one, so the abort goes out on a fresh session, and motion stops short.
-    let mut long = trim_plan::job::Pose::default();
+    let mut long = trim_cell::job::Pose::default();
     for (k, v) in [
         ("x", -150.0),
         ("y", 0.0),

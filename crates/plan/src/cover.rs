@@ -58,8 +58,8 @@ use trim_geom::{Path, Point3, UnitVector3, Vector3};
 
 use crate::error::PlanError;
 use crate::field::Lens;
-use crate::frame::paper_frame;
 use crate::piece::{Piece, angle_rad, pieces_of};
+use trim_cell::frame::paper_frame;
 
 /// The longest atom (mm). Longer contours are cut into equal atoms no longer than this.
 pub const ATOM_MAX_LENGTH_MM: f64 = 10.0;

@@ -1,22 +1,18 @@
 //! The error type of trim-plan: every variant says what was wrong and where (contour id, zone,
-//! settings key).
+//! settings key). Settings the cell owns are checked by trim-cell ([`CellError`]).
 
+use trim_cell::CellError;
 use trim_geom::ContourId;
 
 /// Everything that can make planning refuse.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum PlanError {
-    /// A settings value is out of range. `key` is the dotted settings key (`beam.power_w`).
-    #[error("setting {key} = {value}: {message}")]
-    InvalidSetting {
-        /// The dotted key, as in job.toml.
-        key: &'static str,
-        /// The value given, as text.
-        value: String,
-        /// What is accepted.
-        message: String,
-    },
+    /// A setting is out of range (trim-cell's checks of the cell, beam, galvo and machine, and
+    /// the planner's own through [`PlanError::setting`]), or the beam is outside the laser's
+    /// limits.
+    #[error(transparent)]
+    Cell(#[from] CellError),
     /// A contour has a point or feature vector that is NaN or infinite.
     #[error("contour {contour}: {what} {index} is not finite")]
     NonFinite {
@@ -79,19 +75,6 @@ pub enum PlanError {
         /// The fixed k.
         k: usize,
     },
-    /// The beam's operating point is outside the laser source's limits (the `[limits]` table
-    /// of its laser profile): one entry per limit broken.
-    #[error(
-        "the operating point is outside the limits of laser profile {profile:?}: {}",
-        crate::beam::describe_violations(violations)
-    )]
-    OutsideLaserLimits {
-        /// The laser profile's name.
-        profile: String,
-        /// Every limit the operating point breaks, in the order power, repetition rate, pulse
-        /// energy.
-        violations: Vec<crate::beam::LimitViolation>,
-    },
     /// k-means failed inside linfa.
     #[error("k-means with k = {k} failed: {message}")]
     KMeans {
@@ -118,59 +101,6 @@ pub(crate) fn check_cancel() -> Result<(), PlanError> {
 impl PlanError {
     /// An out-of-range setting.
     pub fn setting(key: &'static str, value: impl ToString, message: impl Into<String>) -> Self {
-        PlanError::InvalidSetting {
-            key,
-            value: value.to_string(),
-            message: message.into(),
-        }
-    }
-}
-
-/// Checks that `value` is finite and strictly positive.
-pub(crate) fn require_positive(key: &'static str, value: f64) -> Result<(), PlanError> {
-    if value.is_finite() && value > 0.0 {
-        Ok(())
-    } else {
-        Err(PlanError::setting(
-            key,
-            value,
-            "must be a finite number > 0",
-        ))
-    }
-}
-
-/// Checks that `value` is finite and within `[lo, hi]`.
-pub(crate) fn require_range(
-    key: &'static str,
-    value: f64,
-    lo: f64,
-    hi: f64,
-) -> Result<(), PlanError> {
-    if value.is_finite() && (lo..=hi).contains(&value) {
-        Ok(())
-    } else {
-        Err(PlanError::setting(
-            key,
-            value,
-            format!("must be within [{lo}, {hi}]"),
-        ))
-    }
-}
-
-/// Checks that `value` is finite and within the open-closed interval `(lo, hi]`.
-pub(crate) fn require_open_closed(
-    key: &'static str,
-    value: f64,
-    lo: f64,
-    hi: f64,
-) -> Result<(), PlanError> {
-    if value.is_finite() && value > lo && value <= hi {
-        Ok(())
-    } else {
-        Err(PlanError::setting(
-            key,
-            value,
-            format!("must be within ({lo}, {hi}]"),
-        ))
+        PlanError::Cell(CellError::setting(key, value, message))
     }
 }

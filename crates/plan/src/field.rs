@@ -6,7 +6,7 @@
 //! when, with its origin on the optical axis:
 //! - every point lies within the field's inscribed circle, radius min(width, height)/2 — a
 //!   circle because the in-plane rotation of the field about the zone axis is fixed later by
-//!   the machine pose (see [`crate::kinematics`]), and a circle fits every rotation;
+//!   the machine pose (see [`trim_cell::kinematics`]), and a circle fits every rotation;
 //! - every point's incidence, the angle between its feature vector and the ray that reaches
 //!   it, is within the limit. For an f-theta lens that is not telecentric the ray leans away
 //!   from the axis by atan(r/f) at a distance r from the field centre (a pinhole model of the
@@ -20,9 +20,10 @@
 use serde::{Deserialize, Serialize};
 use trim_geom::{Point3, UnitVector3, Vector3};
 
-use crate::error::{PlanError, require_range};
-use crate::frame::paper_frame;
+use crate::error::PlanError;
 use crate::piece::{Piece, angle_rad};
+use trim_cell::error::require_range;
+use trim_cell::frame::paper_frame;
 
 /// Pieces shorter than this (mm) are not cut further by sectioning.
 pub const MIN_SPLIT_LENGTH_MM: f64 = 0.05;

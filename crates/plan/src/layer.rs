@@ -21,9 +21,10 @@
 use serde::{Deserialize, Serialize};
 use trim_geom::{ContourId, Point3, Vector3};
 
-use crate::error::{PlanError, require_open_closed};
-use crate::job::Frame;
+use crate::error::PlanError;
 use crate::piece::Piece;
+use trim_cell::error::require_open_closed;
+use trim_cell::job::Frame;
 
 /// A subsegment shorter than this (as a fraction of its segment) is dropped when cutting.
 pub const MIN_SUBSEGMENT_FRACTION: f64 = 1e-12;

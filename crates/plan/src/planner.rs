@@ -8,7 +8,7 @@
 //! (4) layers by paper Eq. 14 ([`crate::layer`]);
 //! (5) zone order (nearest neighbour + 2-opt on machine move time, [`crate::order`]) and machine
 //! poses, the tilt branch chosen per zone within the axis limits with the least rotary travel
-//! ([`crate::kinematics`]); (6) the zone frame is the galvo head's frame at that pose (its Z is
+//! ([`trim_cell::kinematics`]); (6) the zone frame is the galvo head's frame at that pose (its Z is
 //! the zone axis; X/Y are where the galvo's x/y point), and the galvo polylines are the points'
 //! (x, y) in it relative to the layer's focus point; (7) validation and the time estimate.
 //!
@@ -30,23 +30,24 @@
 use serde::{Deserialize, Serialize};
 use trim_geom::{ContourId, Path, Point3, UnitVector3, Vector3};
 
-use crate::beam::Beam;
-use crate::cell::{Calibration, TableModel};
-use crate::error::{PlanError, require_open_closed};
+use crate::error::PlanError;
 use crate::field::{Lens, LensSettings, Section, sections};
-use crate::job::{
+use crate::layer::{LayerSettings, ZoneLayers, layer_pieces, project};
+use crate::piece::{Piece, angle_rad, pieces_of};
+use crate::zoning::{ZoneGroup, Zoning, ZoningMethod, ZoningSettings, make_group, zone_pieces};
+use trim_cell::beam::Beam;
+use trim_cell::cell_model::{Calibration, TableModel};
+use trim_cell::error::require_open_closed;
+use trim_cell::galvo_timing::{ListComposition, TimingSettings};
+use trim_cell::job::{
     FieldCorrectionRecord, GalvoSettings, JOB_VERSION, Job, JobSettings, Layer, LensRecord,
     Polyline, TimeEstimate, ValidationReport, Zone, galvo_to_workpiece,
 };
-use crate::kinematics::{
+use trim_cell::kinematics::{
     AxisPose, MachineSettings, choose_pose, forward_on, head_frame_on, inverse_on, limit_violation,
     move_time_s,
 };
-use crate::layer::{LayerSettings, ZoneLayers, layer_pieces, project};
-use crate::lens::{FieldCorrection, LensModel};
-use crate::piece::{Piece, angle_rad, pieces_of};
-use crate::timing::{ListComposition, TimingSettings};
-use crate::zoning::{ZoneGroup, Zoning, ZoningMethod, ZoningSettings, make_group, zone_pieces};
+use trim_cell::lens::{FieldCorrection, LensModel};
 
 /// The round-trip tolerance (mm): 1 µm.
 pub const ROUND_TRIP_TOLERANCE_MM: f64 = 1e-3;
@@ -144,7 +145,7 @@ impl PlanSettings {
                 })?;
                 Some((
                     field,
-                    crate::lens::checksum(&bytes),
+                    trim_cell::lens::checksum(&bytes),
                     file.display().to_string(),
                 ))
             }
@@ -471,7 +472,11 @@ fn finish_plan(
                     height_mm: heights,
                 });
             }
-            let (marking_s, jumping_s) = settings.galvo.polylines_time_s(&polylines);
+            let list = ListComposition::of(&polylines);
+            let (marking_s, jumping_s) = (
+                list.marking_s(&settings.galvo),
+                list.jumping_s(&settings.galvo),
+            );
             let motion_s = move_time_s(machine, &previous, pose);
             estimate.marking_s += marking_s;
             estimate.jumping_s += jumping_s;
@@ -479,7 +484,7 @@ fn finish_plan(
             if motion_s > 0.0 {
                 estimate.settle_s += machine.settle_s;
             }
-            let overhead_s = settings.timing.extra_s(&ListComposition::of(&polylines));
+            let overhead_s = settings.timing.extra_s(&list);
             estimate.overhead_s += overhead_s;
             zone_s += marking_s + jumping_s + motion_s + overhead_s;
             previous = *pose;
@@ -623,8 +628,8 @@ fn unlimited_poses(
             let pose = inverse_on(machine, table, f, axis, prev.rotary_deg)
                 .into_iter()
                 .min_by(|a, b| {
-                    crate::kinematics::rotary_travel_deg(a, &prev)
-                        .total_cmp(&crate::kinematics::rotary_travel_deg(b, &prev))
+                    trim_cell::kinematics::rotary_travel_deg(a, &prev)
+                        .total_cmp(&trim_cell::kinematics::rotary_travel_deg(b, &prev))
                 })
                 .unwrap_or(prev);
             prev = pose;
@@ -674,7 +679,7 @@ fn zone_poses(
         match failed {
             Some(why) => reasons.push(why),
             None => {
-                let travel = crate::kinematics::rotary_travel_deg(previous, &poses[0]);
+                let travel = trim_cell::kinematics::rotary_travel_deg(previous, &poses[0]);
                 if best.as_ref().is_none_or(|(t, _)| travel < *t - 1e-12) {
                     best = Some((travel, poses));
                 }
@@ -918,7 +923,7 @@ mod tests {
         }
         // Zone frames are right-handed with Z the zone axis; layers top down.
         for z in &out.job.zones {
-            assert!(crate::frame::orthonormality_error(&z.frame) < 1e-12);
+            assert!(trim_cell::frame::orthonormality_error(&z.frame) < 1e-12);
             for w in z.layers.windows(2) {
                 let d = Point3::from(w[0].focus_point) - Point3::from(w[1].focus_point);
                 assert!(

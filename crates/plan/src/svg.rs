@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 
 use trim_geom::Point3;
 
-use crate::job::{Job, galvo_to_workpiece};
+use trim_cell::job::{Job, galvo_to_workpiece};
 
 /// The size of each part view (px).
 pub const VIEW_PX: f64 = 420.0;

@@ -437,7 +437,7 @@ fn split_group(pieces: &[Piece], g: &ZoneGroup) -> Option<(ZoneGroup, ZoneGroup)
 /// bounding box of its points in the plane across its axis (mm).
 #[must_use]
 pub fn in_plane_radius_mm(pieces: &[Piece], group: &ZoneGroup) -> f64 {
-    let frame = crate::frame::paper_frame(&group.axis);
+    let frame = trim_cell::frame::paper_frame(&group.axis);
     let (x, y) = (frame.x_axis(), frame.y_axis());
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
     for p in group.pieces.iter().flat_map(|&i| pieces[i].points.iter()) {

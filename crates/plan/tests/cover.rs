@@ -268,7 +268,7 @@ fn cover_groups_what_no_reachable_pose_covers_and_marks_it() {
 /// always validates, its lower bound holds, and it never needs more poses than k-means.
 #[test]
 fn cover_validates_and_never_needs_more_poses_than_kmeans() {
-    use trim_plan::kinematics::KinematicsKind;
+    use trim_cell::kinematics::KinematicsKind;
     let (mut kmeans_total, mut cover_total) = (0, 0);
     for seed in 1..=3u64 {
         for n in [20usize, 60] {

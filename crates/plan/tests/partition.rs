@@ -9,9 +9,9 @@
 
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
+use trim_cell::job::{Job, galvo_to_workpiece};
 use trim_geom::{Contour, Path, Point3, Vector3};
 use trim_plan::hatch::{HatchSettings, hatch};
-use trim_plan::job::{Job, galvo_to_workpiece};
 use trim_plan::planner::{PlanSettings, plan_with_report};
 use trim_plan::zoning::{ZoningMethod, ZoningSettings};
 use trim_synth::testing::synthetic_core_path;

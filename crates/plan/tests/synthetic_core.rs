@@ -1,10 +1,10 @@
 //! Done-when checks of issue 3 on the synthetic ceramic-core path (60 contours, like the paper's
 //! Fig. 10), through the path CSV contract, for every kinematics and pose mode.
 
+use trim_cell::kinematics::{KinematicsKind, MachineSettings, PoseMode};
 use trim_geom::formats::{encode_path, read_path_from_bytes};
 use trim_geom::{Contour, Path, Point3, Vector3};
 use trim_plan::field::LensSettings;
-use trim_plan::kinematics::{KinematicsKind, MachineSettings, PoseMode};
 use trim_plan::planner::{PlanSettings, ROUND_TRIP_TOLERANCE_MM, plan_with_report};
 use trim_synth::testing::synthetic_core_path;
 

@@ -5,10 +5,11 @@
 use numpy::PyArray2;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use trim_cell::{Beam, CellError, LaserLimits};
 use trim_geom::PointCloud;
+use trim_plan::PlanError;
 use trim_plan::hatch::{HatchError, HatchSettings, hatch};
 use trim_plan::planner::{PlanSettings, plan_with_report};
-use trim_plan::{Beam, LaserLimits, PlanError};
 use trim_register::regional::{RegisterSettings, register};
 use trim_synth::{SynthParams, generate};
 
@@ -30,8 +31,8 @@ fn settings_from_json<T: serde::de::DeserializeOwned>(what: &str, json: &str) ->
 /// Maps a planning error: bad settings to `ValueError`, the rest to `PlanningError`.
 fn plan_error(e: PlanError) -> PyErr {
     match e {
-        PlanError::InvalidSetting { .. } => value_error("settings", e),
-        PlanError::OutsideLaserLimits { .. } => value_error("laser_limits", e),
+        PlanError::Cell(CellError::InvalidSetting { .. }) => value_error("settings", e),
+        PlanError::Cell(CellError::OutsideLaserLimits { .. }) => value_error("laser_limits", e),
         other => PlanningError::new_err(other.to_string()),
     }
 }
@@ -134,7 +135,7 @@ fn check_laser_limits(beam: &Beam, limits_json: Option<&str>) -> PyResult<()> {
         .validate()
         .map_err(|e| value_error("laser_limits", e))?;
     beam.check_limits(&limits, "laser_limits")
-        .map_err(plan_error)
+        .map_err(|e| plan_error(e.into()))
 }
 
 /// The beam figures (the keys of `trimctl beam`) as JSON. `beam_json`: the `[beam]` keys;
@@ -144,7 +145,7 @@ fn check_laser_limits(beam: &Beam, limits_json: Option<&str>) -> PyResult<()> {
 #[pyo3(signature = (beam_json, limits_json = None))]
 pub fn beam_report(beam_json: &str, limits_json: Option<&str>) -> PyResult<String> {
     let beam: Beam = settings_from_json("beam", beam_json)?;
-    beam.validate().map_err(plan_error)?;
+    beam.validate().map_err(|e| plan_error(e.into()))?;
     check_laser_limits(&beam, limits_json)?;
     serde_json::to_string(&beam.report()).map_err(|e| value_error("beam", e))
 }

@@ -3,19 +3,18 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 use tokio_util::sync::CancellationToken;
+use trim_cell::Job;
 use trim_geom::Path as TrimPath;
 use trim_geom::formats;
-use trim_io::cell::{Cell, CellAddresses, SimCell, SimOptions, Timeouts};
+use trim_io::cell::{Cell, CellAddresses, Timeouts};
 use trim_io::executor::{ExecOptions, Executor, Progress};
 use trim_io::journal::CutLayer;
 use trim_io::laser::Profile;
 use trim_io::live::LiveServer;
 use trim_io::record::{SharedRecorder, device_tap};
 use trim_io::tap::Tap;
-use trim_io::twin::{TrueCell, TruePart, Twin};
-use trim_plan::Job;
 use trim_register::regional::Registration;
 
 use super::inputs::Inputs;
@@ -23,11 +22,11 @@ use super::record::{
     ProgressRecord, finish_recorder, open_recorder, record_calibration, record_inputs,
     record_spot_error,
 };
-use super::report::SpotReport;
 use super::{Args, Executed, files};
 use crate::config::{JobConfig, SIM};
 use crate::exit::{Exit, Failure};
 use crate::progress::JobProgress;
+use crate::simulated::{self, SimCell, Twin};
 
 /// Connects the cell (starting simulators where the config says "sim"), then runs or resumes,
 /// recording (and with `live`, serving) the run.
@@ -42,16 +41,7 @@ pub(super) fn execute(
     live: Option<&LiveServer>,
 ) -> anyhow::Result<Executed> {
     // The twin lands the galvo simulator's vectors on the true part ([sim.truth]).
-    let (twin, line_ids) = match truth_line(config, run_dir)? {
-        Some(line) if config.cell.galvo == SIM => (
-            Some(Twin::new(
-                TrueCell::new(&config.sim.truth, &config.plan_settings()),
-                TruePart::new(&line),
-            )),
-            line.contours().iter().map(trim_geom::Contour::id).collect(),
-        ),
-        _ => (None, std::collections::HashSet::new()),
-    };
+    let (twin, line_ids) = simulated::twin(config, truth_line(config, run_dir)?);
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -130,10 +120,8 @@ pub(super) fn execute(
             );
             crate::timing_record::write(run_dir, &record, resuming)?;
         }
-        let spots = twin
-            .as_ref()
-            .map(|t| SpotReport::new(&t.spots(), &run_dir.join(files::JOURNAL), job, &line_ids))
-            .filter(|r| r.overall.spots > 0);
+        let spots =
+            simulated::spot_report(twin.as_ref(), &run_dir.join(files::JOURNAL), job, &line_ids);
         if let Some(rec) = recorder {
             if let Some(report) = &spots {
                 record_spot_error(&rec, report)?;
@@ -141,10 +129,7 @@ pub(super) fn execute(
             finish_recorder(rec)?;
         }
         if let Some(sim) = &sim {
-            let violations = sim.monitor.violations();
-            if !violations.is_empty() {
-                bail!("safety monitor found interlock violations: {violations:?}");
-            }
+            simulated::check_interlocks(sim)?;
         }
         Ok((result, spots))
     })
@@ -163,15 +148,7 @@ pub(crate) async fn start_simulators(
         .iter()
         .any(|v| v.as_str() == SIM);
     let sim = if any_sim {
-        let mut options = SimOptions::new(profile.clone());
-        options.galvo_time_scale = time_scale;
-        options.cnc_time_scale = time_scale;
-        options.twin = twin;
-        Some(
-            SimCell::start(options)
-                .await
-                .context("starting the simulated cell")?,
-        )
+        Some(simulated::start(&profile, time_scale, twin).await?)
     } else {
         None
     };
@@ -198,7 +175,7 @@ fn cell_addresses(
     sim: Option<&SimCell>,
     profile: Profile,
 ) -> anyhow::Result<CellAddresses> {
-    let sim_addresses = sim.map(SimCell::addresses);
+    let sim_addresses = sim.map(simulated::addresses);
     let pick = |value: &str, key: &str| -> anyhow::Result<Option<std::net::SocketAddr>> {
         if value == SIM {
             Ok(None)
@@ -281,7 +258,7 @@ async fn draw_progress(
         .sum();
     let layers_total = job.layers().count() as u64;
     let mut bars = JobProgress::new(job.zones.len() as u64, layers_total, vectors_total);
-    let vectors_of = |key: trim_plan::LayerKey| -> u64 {
+    let vectors_of = |key: trim_cell::LayerKey| -> u64 {
         job.layers()
             .find(|(k, _, _)| *k == key)
             .map_or(0, |(_, _, l)| {

@@ -7,7 +7,6 @@ use anyhow::{Context, bail};
 use trim_geom::formats;
 use trim_geom::math::Similarity3;
 use trim_geom::{Path as TrimPath, PointCloud};
-use trim_io::twin::TrueCell;
 use trim_synth::{SynthParams, generate};
 
 use super::{Args, files};
@@ -62,11 +61,8 @@ pub(super) fn load_inputs(
             .with_context(|| format!("cannot create {}", dir.display()))?;
         // The synthetic part lives in the true work-piece frame; the scanner sees it through
         // the true cell ([sim.truth]) at the scan pose.
-        let truth_cell = TrueCell::new(&config.sim.truth, &config.plan_settings());
-        let scanner_from_workpiece = Similarity3::from_isometry(
-            truth_cell.scanner_from_workpiece(&config.part.scan_pose),
-            1.0,
-        );
+        let scanner_from_workpiece =
+            Similarity3::from_isometry(crate::simulated::true_scanner_from_workpiece(config)?, 1.0);
         let scan_in_scanner = case
             .scan
             .transformed(&scanner_from_workpiece)

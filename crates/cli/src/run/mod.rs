@@ -13,12 +13,12 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use serde::Serialize;
+use trim_cell::Job;
 use trim_geom::Path as TrimPath;
 use trim_geom::formats;
 use trim_io::executor::{ExecError, RunSummary, StopCause};
 use trim_io::journal::CutLayer;
 use trim_io::live::{DEFAULT_LIVE_ADDR, LiveAddr, LiveServer};
-use trim_plan::Job;
 use trim_plan::planner::{PlanOutput, plan_with_report};
 use trim_register::regional::{Registration, register};
 
@@ -30,7 +30,8 @@ use crate::summary;
 use cell::execute;
 pub(crate) use cell::{connect, start_simulators};
 use inputs::load_inputs;
-use report::{SpotReport, append_resume_report, shutdown_of, shutdown_sentence, write_report};
+pub(crate) use report::SpotReport;
+use report::{append_resume_report, shutdown_of, shutdown_sentence, write_report};
 
 mod cell;
 mod inputs;

@@ -7,12 +7,12 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use trim_cell::{Job, LayerKey};
 use trim_geom::{Path as TrimPath, PointCloud};
 use trim_io::executor::Progress;
 use trim_io::live::LiveServer;
 use trim_io::record::{ProgressMessage, Recorder, SharedRecorder, topic};
 use trim_io::tap::now_ns;
-use trim_plan::{Job, LayerKey};
 use trim_register::regional::Registration;
 
 use super::files;

@@ -5,12 +5,14 @@ use std::path::Path;
 
 use anyhow::Context;
 use serde::Serialize;
+use trim_cell::Job;
 use trim_io::executor::{ExecError, RunSummary, ShutdownReport, ShutdownStep};
+#[cfg(feature = "sim")]
 use trim_io::journal::Entry;
-use trim_io::twin::{Spot, SpotStats};
-use trim_plan::Job;
 use trim_plan::planner::PlanOutput;
 use trim_register::regional::Registration;
+#[cfg(feature = "sim")]
+use trim_sim::twin::{Spot, SpotStats};
 
 use super::{Timings, files};
 use crate::config::JobConfig;
@@ -18,6 +20,7 @@ use crate::summary;
 
 /// The twin's spot errors of a run: overall and per zone (µm), over the spots of contours on
 /// the true trimming line (hatch tracks have no line to be measured against).
+#[cfg(feature = "sim")]
 #[derive(Debug, Clone, Serialize)]
 pub struct SpotReport {
     /// Over every landed spot of a trimming-line contour.
@@ -28,11 +31,12 @@ pub struct SpotReport {
     pub excluded_spots: usize,
 }
 
+#[cfg(feature = "sim")]
 impl SpotReport {
     /// Finds each spot's layer through the journal's list tags and its contour through the
     /// layer's vectors (each polyline of n points is n − 1 vectors; a resumed list starts at the
     /// journaled `first_vector`), then keeps the spots of `line_ids`' contours.
-    pub(super) fn new(
+    pub(crate) fn new(
         spots: &[Spot],
         journal: &Path,
         job: &Job,
@@ -130,6 +134,22 @@ impl SpotReport {
             ));
         }
         out
+    }
+}
+
+/// No spot error without the digital twin: a build without the simulators has none.
+#[cfg(not(feature = "sim"))]
+#[derive(Debug, Clone, Serialize)]
+pub enum SpotReport {}
+
+#[cfg(not(feature = "sim"))]
+impl SpotReport {
+    pub(super) fn line(&self) -> String {
+        match *self {}
+    }
+
+    fn markdown(&self) -> String {
+        match *self {}
     }
 }
 

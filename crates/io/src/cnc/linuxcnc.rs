@@ -14,7 +14,7 @@ use bytes::BytesMut;
 use futures::future::BoxFuture;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
-use trim_plan::job::Pose;
+use trim_cell::job::Pose;
 
 use super::{
     AXES, Cnc, CncError, CncFault, CncResult, EnableSteps, IN_POSITION_TOLERANCE, MachineState,

@@ -1,13 +1,12 @@
 //! The five-axis CNC behind the [`Cnc`] trait, so other controls can be added: a LinuxCNC
-//! `linuxcncrsh` client ([`linuxcnc::LinuxCnc`]) and a simulator of that protocol ([`sim`]).
+//! `linuxcncrsh` client ([`linuxcnc::LinuxCnc`]); a simulator of that protocol is trim-sim's.
 
 pub mod linuxcnc;
-pub mod sim;
 
 use std::time::Duration;
 
 use futures::future::BoxFuture;
-use trim_plan::job::Pose;
+use trim_cell::job::Pose;
 
 /// The axes the CNC takes, in G-code order (lower case, as in [`Pose`]).
 pub const AXES: [&str; 6] = ["x", "y", "z", "a", "b", "c"];

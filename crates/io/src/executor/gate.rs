@@ -9,7 +9,7 @@
 
 use futures::future::BoxFuture;
 use tokio_util::sync::CancellationToken;
-use trim_plan::job::{Job, LayerKey};
+use trim_cell::job::{Job, LayerKey};
 
 use super::shutdown::{At, LayerStep};
 use super::{Executor, Phase, StopCause};

@@ -6,7 +6,7 @@
 
 use std::time::{Duration, Instant};
 
-use trim_plan::job::{Layer, LayerKey};
+use trim_cell::job::{Layer, LayerKey};
 
 use super::shutdown::{At, LayerFault, LayerStep};
 use super::{
@@ -14,7 +14,7 @@ use super::{
 };
 use crate::galvo::list::layer_list;
 use crate::galvo::protocol::{ControllerState, ListCommand, StatusBlock};
-use crate::galvo::timing::list_time_s;
+use crate::galvo::timing::ListClock;
 use crate::journal::{Entry, Journal, JournalError};
 use crate::tap::Device;
 
@@ -233,7 +233,7 @@ impl Executor {
                 message: format!("{}: {e}", work.key),
             })
             .at(Phase::LoadList, false)?;
-        let modelled_s = list_time_s(&commands);
+        let modelled_s = ListClock::list_s(&commands);
         let tag = journal.next_tag();
         journal
             .append_within(
@@ -428,7 +428,7 @@ impl Executor {
     /// The CNC, while a list runs: still at the layer's pose (within
     /// [`crate::cnc::HOLD_TOLERANCE`]), out of E-stop and on. Anything else (a jog or an MDI
     /// from another session, an E-stop, an abort that left it elsewhere) is a CNC fault.
-    async fn check_cnc_holds(&mut self, pose: &trim_plan::job::Pose) -> Result<(), StopCause> {
+    async fn check_cnc_holds(&mut self, pose: &trim_cell::job::Pose) -> Result<(), StopCause> {
         let t = self.options.timeouts;
         let w = Self::guard(
             &self.cancel,

@@ -33,12 +33,12 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::mpsc::UnboundedSender;
 use tokio_util::sync::CancellationToken;
-use trim_plan::job::{Job, LayerKey};
+use trim_cell::galvo_timing::ListComposition;
+use trim_cell::job::{Job, LayerKey};
 
 use crate::cell::{Cell, Timeouts};
 use crate::galvo::list::{layer_list, vector_count};
 use crate::galvo::protocol::StatusBlock;
-use crate::galvo::timing::polylines_time_s;
 use crate::journal::{CutLayer, Journal, JournalError, JournalSink, JournalState};
 pub use crate::laser::client::{OffAttempt, OffPort};
 use crate::record::{LogLevel, SharedRecorder};
@@ -416,7 +416,7 @@ pub struct ExecOptions {
     pub enable: crate::cnc::EnableSteps,
     /// The machine (`[machine]`): every layer's pose is checked against its axis limits before
     /// anything moves ([`crate::limits`]). `None`: only the CNC's own limits guard the moves.
-    pub machine: Option<trim_plan::kinematics::MachineSettings>,
+    pub machine: Option<trim_cell::kinematics::MachineSettings>,
 }
 
 impl Default for ExecOptions {
@@ -842,9 +842,8 @@ impl Executor {
             if let Some(timing) = timing {
                 summary.vectors_marked += u64::from(work.vectors - work.first);
                 if work.first == 0 {
-                    let settings = self.job.settings.galvo;
-                    let (m, j) = polylines_time_s(&work.layer.polylines, &settings);
-                    summary.galvo_estimate_s += m + j;
+                    summary.galvo_estimate_s += ListComposition::of(&work.layer.polylines)
+                        .commanded_s(&self.job.settings.galvo);
                 }
                 summary.layers.push(timing);
                 list_buf ^= 1;

@@ -1,7 +1,7 @@
 //! Where a resumed run starts: the cut layer's progress from the galvo or the journal, or the
 //! operator's choice when neither can tell. Decided before anything is switched on.
 
-use trim_plan::job::LayerKey;
+use trim_cell::job::LayerKey;
 
 use super::{CutLayerOutcome, ExecError, Executor};
 use crate::galvo::protocol::NO_LIST;

@@ -7,7 +7,7 @@
 
 use std::time::Instant;
 
-use trim_plan::job::LayerKey;
+use trim_cell::job::LayerKey;
 
 use super::layer::LayerWork;
 use super::{ExecError, Executor, Phase, ShutdownReport, Step, StopCause, Stopped};

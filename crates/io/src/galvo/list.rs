@@ -4,7 +4,7 @@
 //! polylines in order. A list that starts at vector k jumps to the start of vector k and marks
 //! from there, so a resumed layer never marks a vector twice.
 
-use trim_plan::job::{GalvoSettings, Layer};
+use trim_cell::job::{GalvoSettings, Layer};
 
 use super::protocol::ListCommand;
 
@@ -135,7 +135,7 @@ pub fn layer_list(
 
 #[cfg(test)]
 mod tests {
-    use trim_plan::job::{Polyline, Pose};
+    use trim_cell::job::{Polyline, Pose};
 
     use super::*;
 

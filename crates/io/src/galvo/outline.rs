@@ -4,7 +4,7 @@
 //! triangulation, exact predicates), not a hand-written one.
 
 use spade::{DelaunayTriangulation, Point2, Triangulation};
-use trim_plan::job::{GalvoSettings, Layer};
+use trim_cell::job::{GalvoSettings, Layer};
 
 use super::list::{OutOfField, mm_to_bits};
 use super::protocol::ListCommand;
@@ -243,7 +243,7 @@ pub fn frame_list(outline: &Outline, settings: &GalvoSettings) -> Vec<ListComman
 
 #[cfg(test)]
 mod tests {
-    use trim_plan::job::{Polyline, Pose};
+    use trim_cell::job::{Polyline, Pose};
 
     use super::*;
 

@@ -1,8 +1,7 @@
-//! The galvo timing model of docs/protocols/galvo.md §6, twice: over list commands in bits (what
-//! the simulator's clock runs on) and over a layer's polylines in millimetres (the estimate the
-//! executor and the tests compare the simulated time with).
-
-use trim_plan::job::{GalvoSettings, Polyline};
+//! The galvo timing model of docs/protocols/galvo.md §6 over list commands in bits: what the
+//! simulator's clock runs on, and the modelled time of a list the executor sends. The same model
+//! over a layer's polylines in millimetres (the estimate) is trim-cell's
+//! [`trim_cell::galvo_timing::ListComposition`].
 
 use super::protocol::ListCommand;
 
@@ -131,31 +130,25 @@ impl ListClock {
     }
 }
 
-/// The modelled time of a whole list (seconds).
-#[must_use]
-pub fn list_time_s(commands: &[ListCommand]) -> f64 {
-    let mut clock = ListClock::new();
-    let mut ns = 0.0;
-    for c in commands {
-        let s = clock.step(c);
-        ns += s.run_end_ns + s.ns;
+impl ListClock {
+    /// The modelled time of a whole list (seconds), from the field centre with default speeds.
+    #[must_use]
+    pub fn list_s(commands: &[ListCommand]) -> f64 {
+        let mut clock = ListClock::new();
+        let mut ns = 0.0;
+        for c in commands {
+            let s = clock.step(c);
+            ns += s.run_end_ns + s.ns;
+        }
+        (ns + clock.finish()) * 1e-9
     }
-    (ns + clock.finish()) * 1e-9
-}
-
-/// The time estimate of marking polylines from the field centre, in millimetres and seconds,
-/// with the same model (each polyline: a jump to its start, then one mark run). Returns
-/// `(marking_s, jumping_s)`; delays count where they occur (jump delay with jumps, the rest with
-/// marking).
-#[must_use]
-pub fn polylines_time_s(polylines: &[Polyline], settings: &GalvoSettings) -> (f64, f64) {
-    // One model for the planner and the controller: the Job's own (trim_plan::job).
-    settings.polylines_time_s(polylines)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use trim_cell::galvo_timing::ListComposition;
+    use trim_cell::job::{GalvoSettings, Polyline};
 
     #[test]
     fn a_square_takes_what_the_model_says() {
@@ -188,7 +181,7 @@ mod tests {
             }, // 1 mm: 0.01 ms + 10 ms
         ];
         let expected_s = 5e-3 + 0.2e-3 + 0.1e-3 + 10e-3 + 0.01e-3 + 10e-3 + 0.05e-3 + 0.03e-3;
-        assert!((list_time_s(&cmds) - expected_s).abs() < 1e-12);
+        assert!((ListClock::list_s(&cmds) - expected_s).abs() < 1e-12);
         let settings = GalvoSettings {
             field_mm: [100.0, 100.0],
             bits_per_mm: 10_000.0,
@@ -201,7 +194,8 @@ mod tests {
             polygon_delay_us: 10.0,
         };
         let pl = Polyline::from_points(1, vec![[3.0, 4.0], [4.0, 4.0], [4.0, 5.0]]);
-        let (m, j) = polylines_time_s(&[pl], &settings);
+        let list = ListComposition::of(&[pl]);
+        let (m, j) = (list.marking_s(&settings), list.jumping_s(&settings));
         assert!(
             (m + j - expected_s).abs() < 1e-12,
             "{m} + {j} vs {expected_s}"

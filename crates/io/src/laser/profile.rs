@@ -5,7 +5,7 @@
 use std::collections::BTreeMap;
 
 use serde::Deserialize;
-use trim_plan::{Beam, LaserLimits, PlanError};
+use trim_cell::{Beam, CellError, LaserLimits};
 
 /// The Coherent-Monaco-like profile's text.
 pub const MONACO_TOML: &str = include_str!("../../profiles/monaco.toml");
@@ -214,8 +214,8 @@ impl Profile {
     }
 
     /// Refuses `beam`'s operating point when it is outside this source's [`LaserLimits`]
-    /// ([`PlanError::OutsideLaserLimits`], naming the profile and every limit broken).
-    pub fn check_operating_point(&self, beam: &Beam) -> Result<(), PlanError> {
+    /// ([`CellError::OutsideLaserLimits`], naming the profile and every limit broken).
+    pub fn check_operating_point(&self, beam: &Beam) -> Result<(), CellError> {
         beam.check_limits(&self.limits, &self.name)
     }
 

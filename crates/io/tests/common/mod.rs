@@ -1,17 +1,19 @@
-//! Shared helpers of the trim-io integration tests: a hand-made job and the simulated cell.
+//! Shared helpers of the trim-io integration tests (and of trim-sim's twin test, which includes
+//! this file by path): a hand-made job and the simulated cell.
 
 use std::collections::BTreeMap;
 use std::time::Duration;
 
-use trim_io::cell::{Cell, SimCell, SimOptions, Timeouts};
-use trim_io::galvo::list::vectors_bits;
-use trim_io::galvo::{Lit, MarkRecord};
-use trim_io::laser::Profile;
-use trim_io::tap::Tap;
-use trim_plan::job::{
+use trim_cell::job::{
     Frame, GalvoSettings, Job, JobSettings, Layer, Polyline, Pose, TimeEstimate, ValidationReport,
     Zone,
 };
+use trim_io::cell::{Cell, Timeouts};
+use trim_io::galvo::list::vectors_bits;
+use trim_io::laser::Profile;
+use trim_io::tap::Tap;
+use trim_sim::galvo::{Lit, MarkRecord};
+use trim_sim::{SimCell, SimOptions};
 
 /// Timeouts for tests: short device timeouts so faults resolve fast, still far above the
 /// in-process simulators' reply times (under 10 ms even on a loaded machine), and a heartbeat

@@ -22,7 +22,7 @@ use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 use trim_geom::{Point3, UnitVector3, Vector3};
 
-use crate::error::PlanError;
+use crate::error::CellError;
 use crate::kinematics::{KinematicsKind, MachineSettings};
 
 /// Below this |sin| of the angle between the beam direction and the rotary (C) line, C is free
@@ -249,7 +249,7 @@ impl Calibration {
     /// Refuses unusable values, naming the key: non-finite numbers, zero directions, directions
     /// more than [`MAX_AXIS_DEVIATION_DEG`] from nominal, lines of the wrong axis for the
     /// kinematics, a scanner rotation that is not a rotation, L ≤ 0.
-    pub fn validate(&self, kind: KinematicsKind) -> Result<(), PlanError> {
+    pub fn validate(&self, kind: KinematicsKind) -> Result<(), CellError> {
         let lines: [(&'static str, Option<[f64; 3]>, Vector3, bool); 6] = [
             (
                 "calibration.a_axis_direction",
@@ -292,11 +292,11 @@ impl Calibration {
             let Some(v) = value else { continue };
             let v = Vector3::from(v);
             if !v.iter().all(|x| x.is_finite()) {
-                return Err(PlanError::setting(key, format!("{v:?}"), "must be finite"));
+                return Err(CellError::setting(key, format!("{v:?}"), "must be finite"));
             }
             if is_direction {
                 if v.norm() < 1e-9 {
-                    return Err(PlanError::setting(
+                    return Err(CellError::setting(
                         key,
                         format!("{:?}", v.as_slice()),
                         "must not be zero",
@@ -309,7 +309,7 @@ impl Calibration {
                     .acos()
                     .to_degrees();
                 if angle > MAX_AXIS_DEVIATION_DEG {
-                    return Err(PlanError::setting(
+                    return Err(CellError::setting(
                         key,
                         format!("{:?}", v.as_slice()),
                         format!(
@@ -333,7 +333,7 @@ impl Calibration {
                 || self.b_axis_direction.is_some()
                 || self.c_axis_direction.is_some()
             {
-                return Err(PlanError::setting(
+                return Err(CellError::setting(
                     "calibration",
                     "axis lines",
                     "a three-axis (xyz) machine has no rotary axes to calibrate",
@@ -346,7 +346,7 @@ impl Calibration {
                 (self.a_axis_point_mm, self.a_axis_direction)
             };
             if p.is_some() || d.is_some() {
-                return Err(PlanError::setting(
+                return Err(CellError::setting(
                     if wrong == "b" {
                         "calibration.b_axis_point_mm"
                     } else {
@@ -363,7 +363,7 @@ impl Calibration {
         if let Some(r) = self.scanner_rotation {
             let m = Matrix3::from_row_slice(&r.concat());
             if !m.iter().all(|x| x.is_finite()) {
-                return Err(PlanError::setting(
+                return Err(CellError::setting(
                     "calibration.scanner_rotation",
                     format!("{r:?}"),
                     "must be finite",
@@ -371,7 +371,7 @@ impl Calibration {
             }
             let err = (m.transpose() * m - Matrix3::identity()).amax();
             if err > ROTATION_TOLERANCE || m.determinant() < 0.0 {
-                return Err(PlanError::setting(
+                return Err(CellError::setting(
                     "calibration.scanner_rotation",
                     format!("{r:?}"),
                     format!("must be a rotation (orthonormal rows, det +1); |RᵀR − I| = {err:.2e}"),
@@ -381,7 +381,7 @@ impl Calibration {
         if let Some(t) = self.scanner_translation_mm
             && !t.iter().all(|x| x.is_finite())
         {
-            return Err(PlanError::setting(
+            return Err(CellError::setting(
                 "calibration.scanner_translation_mm",
                 format!("{t:?}"),
                 "must be finite",
@@ -390,7 +390,7 @@ impl Calibration {
         if let Some(l) = self.lens.pivot_to_focal_plane_mm
             && !(l.is_finite() && l > 0.0)
         {
-            return Err(PlanError::setting(
+            return Err(CellError::setting(
                 "calibration.lens.pivot_to_focal_plane_mm",
                 l,
                 "must be a finite number > 0",
@@ -508,14 +508,14 @@ pub struct ScanPose {
 impl ScanPose {
     /// Refuses a NaN or infinite position or angle, naming its job.toml key
     /// (`part.scan_pose.xyz_mm`): a non-finite pose would carry every scan point to NaN.
-    pub fn validate(&self) -> Result<(), PlanError> {
+    pub fn validate(&self) -> Result<(), CellError> {
         for (key, v) in [
             ("part.scan_pose.xyz_mm", self.xyz_mm.to_vec()),
             ("part.scan_pose.tilt_deg", vec![self.tilt_deg]),
             ("part.scan_pose.c_deg", vec![self.c_deg]),
         ] {
             if !v.iter().all(|x| x.is_finite()) {
-                return Err(PlanError::setting(key, format!("{v:?}"), "must be finite"));
+                return Err(CellError::setting(key, format!("{v:?}"), "must be finite"));
             }
         }
         Ok(())

@@ -14,87 +14,21 @@
 //! comes from a pivot at height L above `J + D(0)`, so at height h (toward the lens) it is at
 //! `D(0) + (L − h)/L·(D(c) − D(0))`. A telecentric lens sends every beam along +Z.
 
-use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use trim_geom::crop::point_segment_distance;
 
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
+use trim_cell::cell_model::{ScanPose, ScannerPose, TableModel};
+use trim_cell::kinematics::{AxisPose, KinematicsKind, MachineSettings, joints_of};
+use trim_cell::lens::LensDistortion;
+use trim_cell::truth::TruthSettings;
 use trim_geom::kdtree::KdTree;
 use trim_geom::{Path, Point3, UnitVector3, Vector3};
-use trim_plan::cell::{Calibration, ScanPose, ScannerPose, TableModel};
-use trim_plan::kinematics::{AxisPose, KinematicsKind, MachineSettings, joints_of};
-pub use trim_plan::lens::LensDistortion;
 use trim_plan::planner::PlanSettings;
 
 /// Neighbouring path vertices searched for the nearest segment of the trimming line.
 const NEAREST_VERTICES: usize = 8;
-
-/// job.toml `[sim.truth]`: the true cell. A missing key is the nominal value (lines of
-/// `[machine]`, identity scanner, a perfect head, L = the focal length).
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields, default)]
-pub struct TruthSettings {
-    /// The true A line's point, machine frame, mm.
-    pub a_axis_point_mm: Option<[f64; 3]>,
-    /// The true A line's direction.
-    pub a_axis_direction: Option<[f64; 3]>,
-    /// The true B line's point (xyzbc-trt), mm.
-    pub b_axis_point_mm: Option<[f64; 3]>,
-    /// The true B line's direction (xyzbc-trt).
-    pub b_axis_direction: Option<[f64; 3]>,
-    /// The true C line's point, mm.
-    pub c_axis_point_mm: Option<[f64; 3]>,
-    /// The true C line's direction.
-    pub c_axis_direction: Option<[f64; 3]>,
-    /// The scanner's true rotation on the head (3×3, rows).
-    pub scanner_rotation: Option<[[f64; 3]; 3]>,
-    /// The scanner's true translation on the head, mm.
-    pub scanner_translation_mm: Option<[f64; 3]>,
-    /// The lens's true pivot height L, mm (unset: beam.focal_length_mm).
-    pub pivot_to_focal_plane_mm: Option<f64>,
-    /// The true trimming line (path CSV, work-piece frame) the spot error is measured against; the
-    /// built-in demo part brings its own.
-    pub path: Option<PathBuf>,
-    /// The galvo head's true field: where a command c lands on the focal plane, offset +
-    /// rotation·(c·(1 + barrel·|c|²) + trapezoid terms).
-    pub head: LensDistortion,
-}
-
-impl TruthSettings {
-    /// The axis lines and scanner pose as a [`Calibration`] (the same keys, the true values).
-    #[must_use]
-    pub fn as_calibration(&self) -> Calibration {
-        Calibration {
-            a_axis_point_mm: self.a_axis_point_mm,
-            a_axis_direction: self.a_axis_direction,
-            b_axis_point_mm: self.b_axis_point_mm,
-            b_axis_direction: self.b_axis_direction,
-            c_axis_point_mm: self.c_axis_point_mm,
-            c_axis_direction: self.c_axis_direction,
-            scanner_rotation: self.scanner_rotation,
-            scanner_translation_mm: self.scanner_translation_mm,
-            ..Calibration::default()
-        }
-    }
-
-    /// Refuses unusable values, naming the key (`sim.truth.…`).
-    pub fn validate(&self, kind: KinematicsKind) -> Result<(), String> {
-        self.as_calibration()
-            .validate(kind)
-            .map_err(|e| e.to_string().replacen("calibration.", "sim.truth.", 1))?;
-        if let Some(l) = self.pivot_to_focal_plane_mm
-            && !(l.is_finite() && l > 0.0)
-        {
-            return Err(format!(
-                "sim.truth.pivot_to_focal_plane_mm: must be a finite number > 0, got {l}"
-            ));
-        }
-        self.head
-            .validate()
-            .map_err(|reason| format!("sim.truth.head: {reason}"))
-    }
-}
 
 /// The true cell, resolved against the plan settings the controller is configured with.
 #[derive(Debug, Clone, PartialEq)]
@@ -149,9 +83,9 @@ impl TrueCell {
         };
         let mut m = self.machine;
         m.pose_mode = if tcp {
-            trim_plan::PoseMode::Tcp
+            trim_cell::PoseMode::Tcp
         } else {
-            trim_plan::PoseMode::Joints
+            trim_cell::PoseMode::Joints
         };
         (joints_of(&m, &pose), tilt, position[5])
     }
@@ -186,7 +120,7 @@ impl TrueCell {
     /// `scanner_from_workpiece` at a scan pose: how the true scanner sees work-piece points.
     #[must_use]
     pub fn scanner_from_workpiece(&self, pose: &ScanPose) -> Isometry3<f64> {
-        trim_plan::cell::ScanChain {
+        trim_cell::cell_model::ScanChain {
             table: self.table,
             scanner: self.scanner,
             pose: *pose,

@@ -15,13 +15,13 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::task::JoinHandle;
 use tokio_util::codec::Framed;
 
-use super::protocol::{
+use crate::fault::{FaultKind, FaultSwitch};
+use crate::safety::{CellEvent, SafetyMonitor};
+use trim_io::galvo::protocol::{
     ControllerState, Frame, FrameBlock, FrameCodec, FrameError, ListCommand, NO_LIST,
     REPLY_CACHE_LEN, Request, StatusBlock, StatusCode, decode_frame, reply_frame, type_name,
 };
-use super::timing::ListClock;
-use crate::fault::{FaultKind, FaultSwitch};
-use crate::safety::{CellEvent, SafetyMonitor};
+use trim_io::galvo::timing::ListClock;
 
 /// How often the watchdog looks at the link (ms).
 const WATCHDOG_TICK_MS: u64 = 5;
@@ -451,7 +451,7 @@ async fn serve(stream: TcpStream, shared: Arc<Shared>) {
                     let req = Frame {
                         crc: false,
                         sequence,
-                        frame_type: frame_type & !super::protocol::REPLY_BIT,
+                        frame_type: frame_type & !trim_io::galvo::protocol::REPLY_BIT,
                         payload: Vec::new(),
                     };
                     let _ = framed
@@ -501,7 +501,7 @@ async fn serve(stream: TcpStream, shared: Arc<Shared>) {
         };
         let garble = std::mem::take(&mut shared.ctl().garble_next);
         let sent = if garble {
-            let mut bytes = super::protocol::encode_frame(&reply);
+            let mut bytes = trim_io::galvo::protocol::encode_frame(&reply);
             bytes[0] ^= 0x5A;
             let last = bytes.len() - 1;
             bytes[last] ^= 0xFF;
@@ -540,7 +540,7 @@ fn execute_request(shared: &Arc<Shared>, req: Request) -> Result<Vec<u8>, (Statu
             c.heartbeat_timeout_ms = heartbeat_timeout_ms;
             c.session = true;
             c.last_rx = Instant::now();
-            let mut out = vec![super::protocol::PROTOCOL_VERSION];
+            let mut out = vec![trim_io::galvo::protocol::PROTOCOL_VERSION];
             out.extend_from_slice(&shared.config.list_capacity.to_le_bytes());
             Ok(out)
         }

@@ -7,18 +7,20 @@
 )]
 
 #[expect(dead_code, reason = "shared helpers; this test uses two of them")]
+#[path = "../../io/tests/common/mod.rs"]
 mod common;
 
 use std::sync::Arc;
 
 use tokio_util::sync::CancellationToken;
-use trim_io::cell::SimCell;
+use trim_cell::kinematics::{KinematicsKind, MachineSettings};
+use trim_cell::truth::TruthSettings;
 use trim_io::executor::Executor;
 use trim_io::tap::Tap;
-use trim_io::twin::{SpotStats, TrueCell, TruePart, TruthSettings, Twin};
 use trim_plan::field::LensSettings;
-use trim_plan::kinematics::{KinematicsKind, MachineSettings};
 use trim_plan::planner::{PlanSettings, plan};
+use trim_sim::SimCell;
+use trim_sim::twin::{SpotStats, TrueCell, TruePart, Twin};
 
 use common::{connect, test_timeouts};
 
@@ -48,7 +50,7 @@ async fn spots(settings: &PlanSettings, truth: &TruthSettings) -> SpotStats {
     let job = plan(&path, settings).unwrap();
     assert!(job.validation.passed, "{:?}", job.validation.violations);
     let twin = Twin::new(TrueCell::new(truth, settings), TruePart::new(&path));
-    let mut o = trim_io::cell::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
+    let mut o = trim_sim::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
     o.galvo_time_scale = 0.0;
     o.cnc_time_scale = 0.002;
     o.twin = Some(Arc::clone(&twin));
@@ -117,7 +119,7 @@ async fn a_planner_that_knows_the_true_axes_lands_on_the_line_for_both_kinematic
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_planner_that_knows_the_head_field_and_pivot_lands_on_the_line() {
-    use trim_plan::lens::{FieldCorrection, LensDistortion};
+    use trim_cell::lens::{FieldCorrection, LensDistortion};
     let truth = TruthSettings {
         head: LensDistortion {
             offset_mm: [0.0, 0.0],

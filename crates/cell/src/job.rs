@@ -235,8 +235,9 @@ impl Default for GalvoSettings {
 }
 
 impl GalvoSettings {
-    /// Refuses out-of-range values, naming the key (`galvo.field_mm`).
-    pub fn validate(&self) -> Result<(), crate::PlanError> {
+    /// Refuses out-of-range values, naming the key (`galvo.field_mm`). The time model of these
+    /// speeds and delays is [`crate::galvo_timing::ListComposition`].
+    pub fn validate(&self) -> Result<(), crate::CellError> {
         use crate::error::require_positive;
         require_positive("galvo.field_mm", self.field_mm[0])?;
         require_positive("galvo.field_mm", self.field_mm[1])?;
@@ -252,7 +253,7 @@ impl GalvoSettings {
         ];
         for (key, v) in delays {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(crate::PlanError::setting(
+                return Err(crate::CellError::setting(
                     key,
                     v,
                     "must be a finite number ≥ 0",
@@ -260,36 +261,6 @@ impl GalvoSettings {
             }
         }
         Ok(())
-    }
-
-    /// The time (s) to mark polylines from the field centre, as `(marking_s, jumping_s)`: each
-    /// polyline is a jump to its start (jump speed + jump delay) and one mark run (length at
-    /// mark speed + laser-on delay + a polygon delay per inner vertex + laser-off and mark
-    /// delays). The same model as the galvo simulator (docs/protocols/galvo.md §6).
-    #[must_use]
-    pub fn polylines_time_s(&self, polylines: &[Polyline]) -> (f64, f64) {
-        const S_PER_US: f64 = 1e-6;
-        let mut pos = [0.0_f64, 0.0_f64];
-        let (mut marking_s, mut jumping_s) = (0.0, 0.0);
-        for pl in polylines {
-            let sent = pl.galvo_commands();
-            let (Some(first), Some(last)) = (sent.first(), sent.last()) else {
-                continue;
-            };
-            let jump_mm = (first[0] - pos[0]).hypot(first[1] - pos[1]);
-            jumping_s += jump_mm / self.jump_speed_mm_per_s + self.jump_delay_us * S_PER_US;
-            let segments = sent.len().saturating_sub(1);
-            if segments > 0 {
-                marking_s += path_length_mm(sent) / self.mark_speed_mm_per_s
-                    + (self.laser_on_delay_us
-                        + (segments - 1) as f64 * self.polygon_delay_us
-                        + self.laser_off_delay_us
-                        + self.mark_delay_us)
-                        * S_PER_US;
-            }
-            pos = *last;
-        }
-        (marking_s, jumping_s)
     }
 }
 

@@ -1,6 +1,10 @@
-//! The cycle-time model beyond the machine's moves (DESIGN.md "Estimates learned from runs"):
-//! what a layer's galvo list takes ([`ListComposition`], [`list_time_s`]) and the terms a real
-//! cell adds to the commanded speeds and delays (job.toml `[timing]`, [`TimingSettings`]).
+//! The galvo's time model and the cycle-time terms beyond the machine's moves (DESIGN.md
+//! "Estimates learned from runs"): what a layer's galvo list takes ([`ListComposition`], its
+//! [`ListComposition::marking_s`] and [`ListComposition::jumping_s`], [`list_time_s`]) and the
+//! terms a real cell adds to the commanded speeds and delays (job.toml `[timing]`,
+//! [`TimingSettings`]). This is the one model of docs/protocols/galvo.md §6 in millimetres: the
+//! planner's estimate, the executor's and `trimctl report`'s all use it; trim-io's `ListClock`
+//! runs the same model over list commands in bits (the simulator's clock).
 //!
 //! A layer's estimate is `move (+ settle) + list + layer overhead`: the move by
 //! [`crate::kinematics::move_time_s`] (job.toml `[machine]`), the list by the galvo's own model of
@@ -10,7 +14,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::PlanError;
+use crate::error::CellError;
 use crate::job::{GalvoSettings, Polyline};
 
 /// Seconds per microsecond.
@@ -35,7 +39,7 @@ pub struct TimingSettings {
 
 impl TimingSettings {
     /// Refuses non-finite values and a negative per-layer overhead, naming the key.
-    pub fn validate(&self) -> Result<(), PlanError> {
+    pub fn validate(&self) -> Result<(), CellError> {
         for (key, v, non_negative) in [
             ("timing.layer_overhead_s", self.layer_overhead_s, true),
             ("timing.list_overhead_s", self.list_overhead_s, false),
@@ -47,7 +51,7 @@ impl TimingSettings {
             ("timing.vertex_overhead_s", self.vertex_overhead_s, false),
         ] {
             if !v.is_finite() || (non_negative && v < 0.0) {
-                return Err(PlanError::setting(
+                return Err(CellError::setting(
                     key,
                     v,
                     if non_negative {
@@ -72,8 +76,9 @@ impl TimingSettings {
 }
 
 /// What a layer's list time depends on: the galvo commands of its polylines (mm, after the
-/// lens model), marked from the field centre, each polyline a jump to its start and one mark
-/// run (as [`GalvoSettings::polylines_time_s`]).
+/// lens model), marked from the field centre, each polyline a jump to its start (jump speed +
+/// jump delay) and one mark run (length at mark speed + laser-on delay + a polygon delay per
+/// inner vertex + laser-off and mark delays).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct ListComposition {
     /// Polylines (each with at least one point): one jump each.
@@ -118,17 +123,31 @@ impl ListComposition {
         c
     }
 
-    /// The commanded model's time of the list (s): lengths at the commanded speeds plus the
-    /// commanded delays, as [`GalvoSettings::polylines_time_s`] (marking + jumping).
+    /// The commanded model's marking time of the list (s): the marked length at the mark speed
+    /// plus each mark run's laser-on, laser-off and mark delays and each inner vertex's polygon
+    /// delay.
     #[must_use]
-    pub fn commanded_s(&self, galvo: &GalvoSettings) -> f64 {
-        self.jump_mm / galvo.jump_speed_mm_per_s
-            + self.mark_mm / galvo.mark_speed_mm_per_s
-            + (self.jumps as f64 * galvo.jump_delay_us
-                + self.mark_runs as f64
-                    * (galvo.laser_on_delay_us + galvo.laser_off_delay_us + galvo.mark_delay_us)
+    pub fn marking_s(&self, galvo: &GalvoSettings) -> f64 {
+        self.mark_mm / galvo.mark_speed_mm_per_s
+            + (self.mark_runs as f64
+                * (galvo.laser_on_delay_us + galvo.laser_off_delay_us + galvo.mark_delay_us)
                 + self.vertices as f64 * galvo.polygon_delay_us)
                 * S_PER_US
+    }
+
+    /// The commanded model's jumping time of the list (s): the jump length at the jump speed
+    /// plus a jump delay per jump.
+    #[must_use]
+    pub fn jumping_s(&self, galvo: &GalvoSettings) -> f64 {
+        self.jump_mm / galvo.jump_speed_mm_per_s
+            + self.jumps as f64 * galvo.jump_delay_us * S_PER_US
+    }
+
+    /// The commanded model's time of the list (s): lengths at the commanded speeds plus the
+    /// commanded delays ([`ListComposition::marking_s`] + [`ListComposition::jumping_s`]).
+    #[must_use]
+    pub fn commanded_s(&self, galvo: &GalvoSettings) -> f64 {
+        self.marking_s(galvo) + self.jumping_s(galvo)
     }
 }
 
@@ -147,7 +166,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn composition_reproduces_the_galvo_model() {
+    fn composition_gives_the_galvo_model() {
         let galvo = GalvoSettings::default();
         let polylines = [
             Polyline::from_points(1, vec![[3.0, 4.0], [4.0, 4.0], [4.0, 5.0]]),
@@ -158,7 +177,12 @@ mod tests {
         assert_eq!((c.jumps, c.mark_runs, c.vectors, c.vertices), (3, 2, 3, 1));
         assert!((c.mark_mm - 4.0).abs() < 1e-12);
         assert!((c.jump_mm - (5.0 + 50.0_f64.sqrt() + 1.0)).abs() < 1e-12);
-        let (marking_s, jumping_s) = galvo.polylines_time_s(&polylines);
+        // Default galvo: jump 3000 mm/s, 200 µs; mark 500 mm/s; on, off, mark delays 100 µs
+        // each; polygon 20 µs.
+        let jumping_s = (5.0 + 50.0_f64.sqrt() + 1.0) / 3000.0 + 3.0 * 200e-6;
+        let marking_s = 4.0 / 500.0 + (2.0 * 300.0 + 20.0) * 1e-6;
+        assert!((c.jumping_s(&galvo) - jumping_s).abs() < 1e-15);
+        assert!((c.marking_s(&galvo) - marking_s).abs() < 1e-15);
         assert!((c.commanded_s(&galvo) - (marking_s + jumping_s)).abs() < 1e-15);
         let timing = TimingSettings {
             layer_overhead_s: 1.0,

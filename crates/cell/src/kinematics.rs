@@ -39,8 +39,8 @@
 use serde::{Deserialize, Serialize};
 use trim_geom::{Point3, UnitVector3, Vector3};
 
-use crate::cell::TableModel;
-use crate::error::{PlanError, require_positive};
+use crate::cell_model::TableModel;
+use crate::error::{CellError, require_positive};
 use crate::frame::frame_from_axes;
 use crate::job::{Frame, Pose};
 
@@ -203,7 +203,7 @@ impl Default for MachineSettings {
 
 impl MachineSettings {
     /// Refuses out-of-range values, naming the key.
-    pub fn validate(&self) -> Result<(), PlanError> {
+    pub fn validate(&self) -> Result<(), CellError> {
         let limits: [(&'static str, [f64; 2]); 6] = [
             ("machine.x_limits_mm", self.x_limits_mm),
             ("machine.y_limits_mm", self.y_limits_mm),
@@ -214,7 +214,7 @@ impl MachineSettings {
         ];
         for (key, [lo, hi]) in limits {
             if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
-                return Err(PlanError::setting(
+                return Err(CellError::setting(
                     key,
                     format!("[{lo}, {hi}]"),
                     "must be [min, max] with finite min ≤ max",
@@ -235,11 +235,11 @@ impl MachineSettings {
         ];
         for (key, v) in finite {
             if !v.is_finite() {
-                return Err(PlanError::setting(key, v, "must be finite"));
+                return Err(CellError::setting(key, v, "must be finite"));
             }
         }
         if self.settle_s < 0.0 {
-            return Err(PlanError::setting(
+            return Err(CellError::setting(
                 "machine.settle_s",
                 self.settle_s,
                 "must be ≥ 0",

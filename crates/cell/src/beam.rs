@@ -10,7 +10,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{PlanError, require_open_closed, require_positive, require_range};
+use crate::error::{CellError, require_open_closed, require_positive, require_range};
 
 /// Step of the scan for [`Beam::max_incidence_for_line_width_rad`] (radians, 0.01°).
 pub const INCIDENCE_SCAN_STEP_RAD: f64 = 0.01 * std::f64::consts::PI / 180.0;
@@ -86,12 +86,12 @@ pub struct BeamReport {
 
 impl Beam {
     /// Refuses out-of-range values, naming the key (`beam.power_w`).
-    pub fn validate(&self) -> Result<(), PlanError> {
+    pub fn validate(&self) -> Result<(), CellError> {
         require_positive("beam.power_w", self.power_w)?;
         require_positive("beam.repetition_rate_hz", self.repetition_rate_hz)?;
         require_positive("beam.wavelength_nm", self.wavelength_nm)?;
         if !(self.m_squared.is_finite() && self.m_squared >= 1.0) {
-            return Err(PlanError::setting(
+            return Err(CellError::setting(
                 "beam.m_squared",
                 self.m_squared,
                 "must be ≥ 1 (a Gaussian beam has M² = 1)",
@@ -103,14 +103,14 @@ impl Beam {
             && self.fluence_tolerance > 0.0
             && self.fluence_tolerance < 1.0)
         {
-            return Err(PlanError::setting(
+            return Err(CellError::setting(
                 "beam.fluence_tolerance",
                 self.fluence_tolerance,
                 "must be within (0, 1)",
             ));
         }
         if !(self.fluence_threshold_ratio.is_finite() && self.fluence_threshold_ratio > 1.0) {
-            return Err(PlanError::setting(
+            return Err(CellError::setting(
                 "beam.fluence_threshold_ratio",
                 self.fluence_threshold_ratio,
                 "must be > 1 (below threshold nothing is ablated)",
@@ -118,7 +118,7 @@ impl Beam {
         }
         require_range("beam.incidence_deg", self.incidence_deg, 0.0, 89.0)?;
         if self.fluence_threshold_ratio * self.incidence_deg.to_radians().cos() <= 1.0 {
-            return Err(PlanError::setting(
+            return Err(CellError::setting(
                 "beam.incidence_deg",
                 self.incidence_deg,
                 "at this incidence F0·cos θ is below the ablation threshold",
@@ -310,13 +310,13 @@ pub fn describe_violations(violations: &[LimitViolation]) -> String {
 impl LaserLimits {
     /// Refuses a limit that is not a finite number > 0, or a repetition-rate range whose
     /// minimum is above its maximum, naming the key (`limits.rep_rate_khz_min`).
-    pub fn validate(&self) -> Result<(), PlanError> {
+    pub fn validate(&self) -> Result<(), CellError> {
         require_positive("limits.pulse_energy_uj_max", self.pulse_energy_uj_max)?;
         require_positive("limits.average_power_w_max", self.average_power_w_max)?;
         require_positive("limits.rep_rate_khz_min", self.rep_rate_khz_min)?;
         require_positive("limits.rep_rate_khz_max", self.rep_rate_khz_max)?;
         if self.rep_rate_khz_min > self.rep_rate_khz_max {
-            return Err(PlanError::setting(
+            return Err(CellError::setting(
                 "limits.rep_rate_khz_min",
                 self.rep_rate_khz_min,
                 format!(
@@ -385,14 +385,14 @@ impl LaserLimits {
 
 impl Beam {
     /// Refuses an operating point outside `limits`, the limits of the laser profile `profile`
-    /// ([`PlanError::OutsideLaserLimits`], naming every limit broken). Validate the beam and
+    /// ([`CellError::OutsideLaserLimits`], naming every limit broken). Validate the beam and
     /// the limits first.
-    pub fn check_limits(&self, limits: &LaserLimits, profile: &str) -> Result<(), PlanError> {
+    pub fn check_limits(&self, limits: &LaserLimits, profile: &str) -> Result<(), CellError> {
         let violations = limits.violations(self);
         if violations.is_empty() {
             Ok(())
         } else {
-            Err(PlanError::OutsideLaserLimits {
+            Err(CellError::OutsideLaserLimits {
                 profile: profile.to_owned(),
                 violations,
             })

@@ -13,9 +13,9 @@ use nix::fcntl::{FcntlArg, OFlag, fcntl};
 use nix::poll::{PollFd, PollFlags, poll};
 use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 
-use super::profile::{Profile, QueryKind, capture, fill, format_value, ops};
 use crate::fault::{FaultKind, FaultSwitch};
 use crate::safety::{CellEvent, SafetyMonitor};
+use trim_io::laser::profile::{Profile, QueryKind, capture, fill, format_value, ops};
 
 /// The bytes the simulator sends for a garbled reply (before the terminator).
 pub const GARBLE_BYTES: &[u8] = b"\x15#?~\x7f";
@@ -303,7 +303,7 @@ fn answer(shared: &Shared, line: &str) -> String {
         let Some(arg) = capture(&ex.send, line) else {
             continue;
         };
-        let value = if ex.send.contains(super::profile::VALUE) {
+        let value = if ex.send.contains(trim_io::laser::profile::VALUE) {
             match arg.trim().parse::<f64>() {
                 Ok(v) if v.is_finite() => Some(v),
                 _ => return err("bad value"),
@@ -366,10 +366,10 @@ fn answer(shared: &Shared, line: &str) -> String {
                 let mut word = 0_u64;
                 for b in &p.status_bits {
                     let set = match b.meaning {
-                        super::profile::BitMeaning::Emission => s.emission,
-                        super::profile::BitMeaning::Key => s.key_on,
-                        super::profile::BitMeaning::Fault => s.faults.contains(&b.bit),
-                        super::profile::BitMeaning::Info => false,
+                        trim_io::laser::profile::BitMeaning::Emission => s.emission,
+                        trim_io::laser::profile::BitMeaning::Key => s.key_on,
+                        trim_io::laser::profile::BitMeaning::Fault => s.faults.contains(&b.bit),
+                        trim_io::laser::profile::BitMeaning::Info => false,
                     };
                     if set && b.bit < 64 {
                         word |= 1 << b.bit;
