@@ -10,7 +10,10 @@
 //! - `icp_10_iterations`: a point-to-plane run held to exactly 10 iterations (convergence
 //!   disabled): the first cold, the other nine warm-started from the previous correspondences.
 //! - `umeyama`: the closed-form scaled fit of the moved source onto the source.
-//! - `full/500k`: the whole regional registration of a 500k-point synthetic core scan.
+//! - `full/500k`: the whole regional registration of a 500k-point synthetic core scan, at the
+//!   size a CAM export and a fine CAD give (issue 21's outside cases): a path of 0.05 mm spacing
+//!   (~18k rows) and 200k CAD points sampled from a mesh of 0.35 mm steps (~122k triangles).
+//!   File reading is not timed here; `benches/peers/run` times the whole CLI on the same case.
 //!
 //! `cargo bench -p trimctl-benches --bench register -- --warm-up-time 1 --measurement-time 5`
 #![expect(
@@ -115,6 +118,11 @@ fn bench_ops(c: &mut Criterion) {
     group.finish();
 }
 
+/// `full/500k`'s path spacing, mm: ~18k path rows, as a CAM export at 0.05 mm.
+const FULL_PATH_SPACING_MM: f64 = 0.05;
+/// `full/500k`'s CAD mesh step, mm: ~122k triangles.
+const FULL_MESH_STEP_MM: f64 = 0.35;
+
 fn bench_full(c: &mut Criterion) {
     let case = generate(&SynthParams {
         seed: SEED,
@@ -123,9 +131,17 @@ fn bench_full(c: &mut Criterion) {
         scale_range: 0.02,
         scan_points: 500_000,
         cad_points: 200_000,
+        path_spacing_mm: FULL_PATH_SPACING_MM,
+        mesh_step_mm: FULL_MESH_STEP_MM,
         ..SynthParams::default()
     })
     .expect("synthetic case");
+    eprintln!(
+        "register/full/500k: {} path rows, {} CAD triangles, {} scan points",
+        case.path.points().count(),
+        case.cad_triangles.len(),
+        case.scan.len()
+    );
     let settings = RegisterSettings {
         scanner_viewpoint_mm: Some(case.scanner_in_scan.coords.into()),
         ..RegisterSettings::default()

@@ -10,6 +10,7 @@ use parry3d_f64::query::PointQuery;
 use parry3d_f64::shape::TriMesh;
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
+use std::sync::OnceLock;
 
 use crate::cloud::{Aabb, PointCloud};
 use crate::error::{GeomError, Result};
@@ -25,8 +26,11 @@ pub const DEGENERATE_TRIANGLE_REL_AREA: f64 = 1e-12;
 pub struct Mesh {
     vertices: Vec<Point3>,
     triangles: Vec<[u32; 3]>,
-    /// The non-degenerate triangles, for queries.
-    surface: TriMesh,
+    /// The non-degenerate triangles.
+    surface_indices: Vec<[u32; 3]>,
+    /// Their parry mesh, for queries: built on the first query (its BVH is most of the cost of
+    /// loading a CAD that is only sampled, as registration does).
+    surface: OnceLock<TriMesh>,
     /// For each triangle of `surface`, its index in `triangles`.
     surface_to_triangle: Vec<u32>,
     /// Cumulative areas of the `surface` triangles (mm²), for sampling.
@@ -134,13 +138,12 @@ impl Mesh {
                 "the total area overflows: coordinates are too large",
             ));
         }
-        let surface = TriMesh::new(vertices.clone(), surface_indices).map_err(|e| {
-            GeomError::invalid("triangles", format!("parry refused the mesh: {e:?}"))
-        })?;
+        // parry refuses only an empty index list (checked above): building it later cannot fail.
         Ok(Mesh {
             vertices,
             triangles,
-            surface,
+            surface_indices,
+            surface: OnceLock::new(),
             surface_to_triangle,
             cumulative_area_mm2,
             surface_normals,
@@ -168,7 +171,10 @@ impl Mesh {
     /// The parry mesh of the non-degenerate triangles (for queries this type does not wrap).
     #[must_use]
     pub fn trimesh(&self) -> &TriMesh {
-        &self.surface
+        self.surface.get_or_init(|| {
+            TriMesh::new(self.vertices.clone(), self.surface_indices.clone())
+                .expect("a mesh holds at least one non-degenerate triangle (checked in Mesh::new)")
+        })
     }
 
     /// The bounding box of all vertices, millimetres.
@@ -201,8 +207,8 @@ impl Mesh {
     pub fn sample_area_weighted(&self, n: usize, seed: u64) -> PointCloud {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
         let total_mm2 = self.area();
-        let surface_vertices = self.surface.vertices();
-        let surface_indices = self.surface.indices();
+        let surface_vertices = &self.vertices;
+        let surface_indices = &self.surface_indices;
         let mut points = Vec::with_capacity(n);
         let mut normals = Vec::with_capacity(n);
         for _ in 0..n {
@@ -240,7 +246,7 @@ impl Mesh {
                 Vector3::new(f64::NAN, f64::NAN, f64::NAN),
             );
         }
-        let (projection, feature) = self.surface.project_local_point_and_get_feature(p);
+        let (projection, feature) = self.trimesh().project_local_point_and_get_feature(p);
         let normal = match feature {
             parry3d_f64::shape::FeatureId::Face(s) => self
                 .surface_to_triangle
@@ -258,9 +264,9 @@ impl Mesh {
 
     fn nearest_triangle_normal(&self, on_surface: &Point3) -> Vector3 {
         let mut best = (f64::INFINITY, Vector3::z());
-        for t in 0..self.surface.num_triangles() {
+        for t in 0..self.trimesh().num_triangles() {
             // t < num_triangles, which fits in u32.
-            let tri = self.surface.triangle(t as u32);
+            let tri = self.trimesh().triangle(t as u32);
             let d = tri.distance_to_local_point(on_surface, false);
             if d < best.0
                 && let Some(n) = tri.normal()

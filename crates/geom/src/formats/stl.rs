@@ -10,7 +10,7 @@
 //! Vertices shared by facets (equal coordinates, bit for bit) are merged into one. Facet normals
 //! in the file are ignored: [`Mesh`] derives them from the vertex order.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 use std::io::Cursor;
 use std::path::Path as FsPath;
 
@@ -27,7 +27,7 @@ const FACET_BYTES: usize = 50;
 #[derive(Default)]
 struct Builder {
     vertices: Vec<Point3>,
-    index_of: HashMap<[u64; 3], u32>,
+    index_of: FxHashMap<[u64; 3], u32>,
     triangles: Vec<[u32; 3]>,
 }
 
@@ -128,7 +128,7 @@ fn parse_binary(bytes: &[u8], name: &FsPath) -> Result<Mesh> {
         .map_err(|e| GeomError::parse(name, Location::Header, format!("stl_io: {e}")))?;
     let mut builder = Builder {
         vertices: Vec::with_capacity(count / 2 + 3),
-        index_of: HashMap::with_capacity(count / 2 + 3),
+        index_of: FxHashMap::with_capacity_and_hasher(count / 2 + 3, Default::default()),
         triangles: Vec::with_capacity(count),
     };
     for (index, facet) in reader.enumerate() {
