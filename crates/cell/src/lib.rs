@@ -10,6 +10,7 @@
 //! - [`kinematics`]: machine poses (LinuxCNC xyzac-trt, xyzbc-trt, fixed head).
 //! - [`galvo_timing`]: the galvo's time model (list composition, `[timing]` terms): what a
 //!   layer's list takes.
+//! - [`process`]: job.toml `[process]`, the ablation figures (depth per pass, kerf width).
 //! - [`job`]: the Job model, the planner's output and the executor's input.
 //! - [`truth`]: job.toml `[sim.truth]`, the true cell the digital twin carries.
 //! - [`error`]: the error type, [`CellError`].
@@ -22,6 +23,7 @@ pub mod galvo_timing;
 pub mod job;
 pub mod kinematics;
 pub mod lens;
+pub mod process;
 pub mod truth;
 
 pub use beam::{Beam, BeamReport, LaserLimits};
@@ -29,3 +31,4 @@ pub use error::CellError;
 pub use galvo_timing::{ListComposition, TimingSettings};
 pub use job::{Frame, GalvoSettings, Job, JobSettings, Layer, LayerKey, Polyline, Pose, Zone};
 pub use kinematics::{AxisPose, KinematicsKind, MachineSettings, MoveModel, PoseMode};
+pub use process::ProcessSettings;

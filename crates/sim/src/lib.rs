@@ -10,8 +10,11 @@
 //!   interlock invariants checked on every change.
 //! - [`twin`]: the digital twin: a true cell in the simulators, and the spot error on the true
 //!   part.
+//! - [`ablation`]: what the twin's landed lines remove from the true part: burr webs cut or
+//!   left standing, gouges.
 //! - [`sim_cell`]: [`sim_cell::SimCell`], the three simulators started in-process.
 
+pub mod ablation;
 pub mod cnc;
 pub mod fault;
 pub mod galvo;

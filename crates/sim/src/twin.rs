@@ -14,6 +14,7 @@
 //! comes from a pivot at height L above `J + D(0)`, so at height h (toward the lens) it is at
 //! `D(0) + (L − h)/L·(D(c) − D(0))`. A telecentric lens sends every beam along +Z.
 
+use crate::ablation::LandedCut;
 use std::sync::{Arc, Mutex};
 use trim_geom::crop::point_segment_distance;
 
@@ -224,6 +225,7 @@ pub struct Twin {
     part: TruePart,
     pose: Mutex<Option<PoseSource>>,
     spots: Mutex<Vec<Spot>>,
+    cuts: Mutex<Vec<LandedCut>>,
 }
 
 impl std::fmt::Debug for Twin {
@@ -243,6 +245,7 @@ impl Twin {
             part,
             pose: Mutex::new(None),
             spots: Mutex::new(Vec::new()),
+            cuts: Mutex::new(Vec::new()),
         })
     }
 
@@ -288,10 +291,29 @@ impl Twin {
                 });
             }
         }
+        if let [from, to] = out.as_slice() {
+            self.cuts
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .push(LandedCut {
+                    from: Point3::from(from.landed_mm),
+                    to: Point3::from(to.landed_mm),
+                });
+        }
         self.spots
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
             .extend(out);
+    }
+
+    /// Every mark vector landed so far, as the segment it drew on the true part (a vector
+    /// marked again is there again), for [`crate::ablation::ablate`].
+    #[must_use]
+    pub fn cuts(&self) -> Vec<LandedCut> {
+        self.cuts
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
     }
 
     /// Every spot landed so far.

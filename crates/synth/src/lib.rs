@@ -19,11 +19,12 @@
 //! under the same map (feature vectors as normals, `J⁻ᵀn`).
 //!
 //! Modules: [`part`] (geometry, design map, deformation), [`mesh`] (the triangle mesh),
-//! [`scanner`] (the fixed views and what they see), [`burr`] (flash on the edges), [`case`] (parameters, the generator, files) and
+//! [`scanner`] (the fixed views and what they see), [`burr`] (flash on the edges), [`edges`] (the true edges, what a trim leaves, the after-scan), [`case`] (parameters, the generator, files) and
 //! [`testing`] (a planning-sized synthetic path for tests and benches).
 
 pub mod burr;
 pub mod case;
+pub mod edges;
 pub mod mesh;
 pub mod part;
 pub mod scanner;
@@ -31,6 +32,7 @@ pub mod testing;
 
 pub use burr::Burr;
 pub use case::{CaseInfo, SynthCase, SynthParams, generate};
+pub use edges::{EdgeTruth, stubs};
 pub use part::{
     CAMBER_MM, Cutout, DESIGN_TWIST_DEG, Deformation, LENGTH_MM, THICKNESS_MM, WIDTH_MM, cutouts,
     demo_hatch_boundary, design_point,
