@@ -101,8 +101,7 @@ impl ListComposition {
     pub fn of(polylines: &[Polyline]) -> ListComposition {
         let mut c = ListComposition::default();
         let mut pos = [0.0_f64, 0.0_f64];
-        for pl in polylines {
-            let sent = pl.galvo_commands();
+        for sent in polylines.iter().flat_map(Polyline::passes_commands) {
             let (Some(first), Some(last)) = (sent.first(), sent.last()) else {
                 continue;
             };

@@ -132,6 +132,22 @@ pub struct Polyline {
     /// height term.
     #[serde(default)]
     pub heights_mm: Vec<f64>,
+    /// How many times the galvo marks it (each pass ablates [`crate::ProcessSettings`]'s depth
+    /// per pass): 1 unless a measured burr needs more (absent from the JSON when 1).
+    #[serde(default = "one_pass", skip_serializing_if = "is_one_pass")]
+    pub passes: u32,
+}
+
+fn one_pass() -> u32 {
+    1
+}
+
+#[expect(
+    clippy::trivially_copy_pass_by_ref,
+    reason = "serde's skip_serializing_if passes a reference"
+)]
+fn is_one_pass(passes: &u32) -> bool {
+    *passes == 1
 }
 
 impl Polyline {
@@ -144,7 +160,14 @@ impl Polyline {
             heights_mm: vec![0.0; points.len()],
             commands: points.clone(),
             points,
+            passes: 1,
         }
+    }
+
+    /// The galvo commands of every pass, in marking order: [`Polyline::galvo_commands`]
+    /// `passes` times (each pass jumps to the start and marks along).
+    pub fn passes_commands(&self) -> impl Iterator<Item = &[[f64; 2]]> {
+        std::iter::repeat_n(self.galvo_commands(), self.passes as usize)
     }
 
     /// What the galvo is sent: `commands`, or `points` for a job planned without them.
@@ -372,7 +395,20 @@ impl Job {
                 expected: JOB_VERSION,
             });
         }
-        Ok(serde_json::from_value(value)?)
+        let job: Job = serde_json::from_value(value)?;
+        for (key, _, layer) in job.layers() {
+            for (i, p) in layer.polylines.iter().enumerate() {
+                if !(1..=crate::process::MAX_PASSES).contains(&p.passes) {
+                    return Err(JobFormatError::Passes {
+                        key,
+                        polyline: i,
+                        contour: p.contour,
+                        passes: p.passes,
+                    });
+                }
+            }
+        }
+        Ok(job)
     }
 
     /// The job as pretty JSON.
@@ -402,4 +438,38 @@ pub enum JobFormatError {
         /// The version this code reads.
         expected: u32,
     },
+    /// A polyline asks for a pass count outside `1..=MAX_PASSES`.
+    #[error(
+        "{key} polyline {polyline} (contour {contour}): passes = {passes}, must be 1 to {}",
+        crate::process::MAX_PASSES
+    )]
+    Passes {
+        /// The layer.
+        key: LayerKey,
+        /// The polyline's index in the layer.
+        polyline: usize,
+        /// Its contour.
+        contour: ContourId,
+        /// The pass count found.
+        passes: u32,
+    },
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_pass_is_left_out_of_the_json_and_more_round_trip() {
+        let mut p = Polyline::from_points(4, vec![[0.0, 0.0], [1.0, 0.0]]);
+        let once = serde_json::to_value(&p).unwrap();
+        assert!(once.get("passes").is_none(), "{once}");
+        let back: Polyline = serde_json::from_value(once).unwrap();
+        assert_eq!(back.passes, 1);
+        p.passes = 3;
+        let thrice = serde_json::to_value(&p).unwrap();
+        assert_eq!(thrice["passes"], 3);
+        assert_eq!(serde_json::from_value::<Polyline>(thrice).unwrap(), p);
+        assert_eq!(p.passes_commands().count(), 3);
+    }
 }

@@ -1437,3 +1437,65 @@ async fn a_hung_record_flush_takes_the_way_down_at_its_timeout() {
     drop(recorder);
     assert!(t.elapsed() < Duration::from_millis(trim_io::record::FLUSH_TIMEOUT_MS * 2));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_polyline_of_several_passes_is_marked_that_often_and_a_resume_mid_pass_remarks_nothing() {
+    let sim = sim_cell_scaled("monaco", MATRIX_GALVO_TIME_SCALE).await;
+    let mut job = demo_job(1);
+    // Zone 1's zig-zag (3 vectors) three times: 9 vectors, then the corner's 2.
+    job.zones[1].layers[0].polylines[0].passes = 3;
+    let target = LayerKey { zone: 1, layer: 0 };
+    assert_eq!(
+        trim_io::galvo::list::vector_count(&job.zones[1].layers[0]),
+        11
+    );
+    // The job file carries the count and reads back; a count of 0 is refused, naming it.
+    assert_eq!(Job::from_json(&job.to_json().unwrap()).unwrap(), job);
+    let mut zero = job.clone();
+    zero.zones[1].layers[0].polylines[0].passes = 0;
+    let e = Job::from_json(&zero.to_json().unwrap())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("zone 1 layer 0 polyline 0 (contour 2): passes = 0"),
+        "{e}"
+    );
+
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.journal");
+    let cancel = CancellationToken::new();
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    let c2 = cancel.clone();
+    let watcher = tokio::spawn(async move {
+        while let Some(p) = rx.recv().await {
+            // Within the second pass.
+            if let Progress::Vectors { key, done, .. } = p
+                && key == target
+                && done >= 4
+            {
+                c2.cancel();
+                return;
+            }
+        }
+        panic!("never reached the second pass");
+    });
+    let cell = connect(&sim, Tap::none()).await;
+    let err = Executor::new(job.clone(), cell, &path, None)
+        .with_options(options())
+        .run(cancel, Some(tx))
+        .await
+        .expect_err("cancelled");
+    watcher.await.unwrap();
+    let ExecError::Stopped(s) = err else {
+        panic!("{err}")
+    };
+    let done = s.vectors_done.expect("how far the layer got");
+    assert!((4..11).contains(&done), "{done}");
+    let summary = resume(&sim, &job, &path).await;
+    assert_eq!(summary.resumed_from, Some((target, done)));
+    // Every planned vector (each pass's) marked exactly as often as planned: the zig-zag's
+    // three vectors three times each, nothing a fourth time.
+    let partial = assert_marked_exactly_once(&job, &sim.galvo.marks());
+    assert!(partial <= 1, "{partial} partly marked vectors");
+    assert!(sim.monitor.violations().is_empty());
+}

@@ -465,6 +465,7 @@ fn finish_plan(
                     points,
                     commands,
                     heights_mm: heights.clone(),
+                    passes: 1,
                 });
                 layer_traces.push(Trace {
                     source: lp.source.clone(),

@@ -10,6 +10,7 @@ use trim_geom::Path as TrimPath;
 use trim_geom::formats;
 use trim_io::cell::{Cell, CellAddresses, Timeouts};
 use trim_io::executor::{ExecOptions, Executor, Progress};
+use trim_io::galvo::list::vector_count;
 use trim_io::journal::CutLayer;
 use trim_io::laser::Profile;
 use trim_io::live::LiveServer;
@@ -249,24 +250,14 @@ async fn draw_progress(
     let mut record = recorder.map(|r| ProgressRecord::new(r, &job));
     let vectors_total: u64 = job
         .layers()
-        .map(|(_, _, l)| {
-            l.polylines
-                .iter()
-                .map(|p| p.points.len().saturating_sub(1) as u64)
-                .sum::<u64>()
-        })
+        .map(|(_, _, l)| u64::from(vector_count(l)))
         .sum();
     let layers_total = job.layers().count() as u64;
     let mut bars = JobProgress::new(job.zones.len() as u64, layers_total, vectors_total);
     let vectors_of = |key: trim_cell::LayerKey| -> u64 {
         job.layers()
             .find(|(k, _, _)| *k == key)
-            .map_or(0, |(_, _, l)| {
-                l.polylines
-                    .iter()
-                    .map(|p| p.points.len().saturating_sub(1) as u64)
-                    .sum()
-            })
+            .map_or(0, |(_, _, l)| u64::from(vector_count(l)))
     };
     let zone_index = |zone: usize| job.zones.iter().position(|z| z.id == zone).unwrap_or(0) as u64;
     let mut current_zone = None;

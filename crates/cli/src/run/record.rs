@@ -138,14 +138,7 @@ impl ProgressRecord {
     pub(super) fn new(rec: SharedRecorder, job: &Job) -> ProgressRecord {
         let vectors_of: HashMap<LayerKey, u64> = job
             .layers()
-            .map(|(key, _, l)| {
-                let n = l
-                    .polylines
-                    .iter()
-                    .map(|p| p.points.len().saturating_sub(1) as u64)
-                    .sum();
-                (key, n)
-            })
+            .map(|(key, _, l)| (key, u64::from(trim_io::galvo::list::vector_count(l))))
             .collect();
         let msg = ProgressMessage {
             layers_total: vectors_of.len() as u64,

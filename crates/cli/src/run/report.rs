@@ -34,8 +34,8 @@ pub struct SpotReport {
 #[cfg(feature = "sim")]
 impl SpotReport {
     /// Finds each spot's layer through the journal's list tags and its contour through the
-    /// layer's vectors (each polyline of n points is n − 1 vectors; a resumed list starts at the
-    /// journaled `first_vector`), then keeps the spots of `line_ids`' contours.
+    /// layer's vectors (each polyline of n points is n − 1 vectors per pass; a resumed list
+    /// starts at the journaled `first_vector`), then keeps the spots of `line_ids`' contours.
     pub(crate) fn new(
         spots: &[Spot],
         journal: &Path,
@@ -61,15 +61,9 @@ impl SpotReport {
         let contour_of = |s: &Spot| -> Option<(usize, i64)> {
             let (key, first) = list_of_tag.get(&s.tag)?;
             let layer = layers.get(key)?;
-            let mut v = u64::from(*first) + u64::from(s.vector);
-            for p in &layer.polylines {
-                let n = p.points.len().saturating_sub(1) as u64;
-                if v < n {
-                    return Some((key.zone, p.contour));
-                }
-                v -= n;
-            }
-            None
+            let v = u64::from(*first) + u64::from(s.vector);
+            let i = trim_io::galvo::list::polyline_of_vector(layer, v)?;
+            Some((key.zone, layer.polylines[i].contour))
         };
         let mut per: std::collections::BTreeMap<usize, Vec<f64>> = Default::default();
         let mut all = Vec::with_capacity(spots.len());

@@ -1,7 +1,8 @@
 //! A layer's polylines (galvo millimetres) as a galvo list (bits), from any vector on.
 //!
-//! A **vector** is one segment of a polyline; a layer's vectors are numbered from 0 over its
-//! polylines in order. A list that starts at vector k jumps to the start of vector k and marks
+//! A **vector** is one segment of a polyline in one of its passes; a layer's vectors are
+//! numbered from 0 over its polylines in order, a polyline's passes one after the other (a
+//! polyline of 3 segments marked twice is 6 vectors). A list that starts at vector k jumps to the start of vector k and marks
 //! from there, so a resumed layer never marks a vector twice.
 
 use trim_cell::job::{GalvoSettings, Layer};
@@ -49,9 +50,24 @@ pub fn vector_count(layer: &Layer) -> u32 {
     let n: usize = layer
         .polylines
         .iter()
-        .map(|p| p.galvo_commands().len().saturating_sub(1))
+        .map(|p| p.galvo_commands().len().saturating_sub(1) * p.passes as usize)
         .sum();
     u32::try_from(n).unwrap_or(u32::MAX)
+}
+
+/// The index of the polyline that vector `vector` of a layer belongs to (whichever of its
+/// passes); `None` past the layer's last vector.
+#[must_use]
+pub fn polyline_of_vector(layer: &Layer, vector: u64) -> Option<usize> {
+    let mut v = vector;
+    for (i, p) in layer.polylines.iter().enumerate() {
+        let n = (p.galvo_commands().len().saturating_sub(1) * p.passes as usize) as u64;
+        if v < n {
+            return Some(i);
+        }
+        v -= n;
+    }
+    None
 }
 
 /// The layer's vectors in bits, `(from, to)`, in order.
@@ -62,7 +78,9 @@ pub fn vectors_bits(
     let mut out = Vec::new();
     for (pi, pl) in layer.polylines.iter().enumerate() {
         let pts = bits_of(pi, pl.galvo_commands(), settings)?;
-        out.extend(pts.windows(2).map(|w| (w[0], w[1])));
+        for _ in 0..pl.passes {
+            out.extend(pts.windows(2).map(|w| (w[0], w[1])));
+        }
     }
     Ok(out)
 }
@@ -86,7 +104,7 @@ fn bits_of(
 }
 
 /// The list commands for a layer from vector `first_vector` on: speeds and delays, then per
-/// polyline a jump to its (first remaining) start and marks along it.
+/// polyline and pass a jump to its (first remaining) start and marks along it.
 pub fn layer_list(
     layer: &Layer,
     settings: &GalvoSettings,
@@ -112,22 +130,24 @@ pub fn layer_list(
     let mut index = 0_u32;
     for (pi, pl) in layer.polylines.iter().enumerate() {
         let pts = bits_of(pi, pl.galvo_commands(), settings)?;
-        let mut jumped = false;
-        for w in pts.windows(2) {
-            if index >= first_vector {
-                if !jumped {
-                    out.push(ListCommand::Jump {
-                        x: w[0][0],
-                        y: w[0][1],
+        for _ in 0..pl.passes {
+            let mut jumped = false;
+            for w in pts.windows(2) {
+                if index >= first_vector {
+                    if !jumped {
+                        out.push(ListCommand::Jump {
+                            x: w[0][0],
+                            y: w[0][1],
+                        });
+                        jumped = true;
+                    }
+                    out.push(ListCommand::Mark {
+                        x: w[1][0],
+                        y: w[1][1],
                     });
-                    jumped = true;
                 }
-                out.push(ListCommand::Mark {
-                    x: w[1][0],
-                    y: w[1][1],
-                });
+                index += 1;
             }
-            index += 1;
         }
     }
     Ok(out)
@@ -193,6 +213,66 @@ mod tests {
             vectors_bits(&l, &s).unwrap()[2],
             ([-20_000, -20_000], [-20_000, -30_000])
         );
+    }
+
+    #[test]
+    fn a_polyline_of_several_passes_is_marked_that_many_times_and_resumes_within_a_pass() {
+        let s = GalvoSettings::default();
+        let mut l = layer();
+        l.polylines[0].passes = 3;
+        // 2 vectors × 3 passes, then 1.
+        assert_eq!(vector_count(&l), 7);
+        let jumps_and_marks = |cmds: &[ListCommand]| {
+            cmds.iter()
+                .filter(|c| matches!(c, ListCommand::Jump { .. } | ListCommand::Mark { .. }))
+                .copied()
+                .collect::<Vec<_>>()
+        };
+        let pass = [
+            ListCommand::Jump { x: 0, y: 0 },
+            ListCommand::Mark { x: 10_000, y: 0 },
+            ListCommand::Mark {
+                x: 10_000,
+                y: 10_000,
+            },
+        ];
+        let full = jumps_and_marks(&layer_list(&l, &s, 0).unwrap());
+        assert_eq!(full[..3], pass);
+        assert_eq!(full[3..6], pass);
+        assert_eq!(full[6..9], pass);
+        assert_eq!(full.len(), 11);
+        // Stopped after the second pass's first vector: the rest of that pass, the third pass
+        // and the next polyline; nothing marked twice.
+        let resumed = jumps_and_marks(&layer_list(&l, &s, 3).unwrap());
+        assert_eq!(
+            resumed[..2],
+            [
+                ListCommand::Jump { x: 10_000, y: 0 },
+                ListCommand::Mark {
+                    x: 10_000,
+                    y: 10_000
+                }
+            ]
+        );
+        assert_eq!(resumed[2..5], pass);
+        assert_eq!(resumed.len(), 7);
+        assert_eq!(vectors_bits(&l, &s).unwrap().len(), 7);
+        assert_eq!(
+            (0..8)
+                .map(|v| polyline_of_vector(&l, v))
+                .collect::<Vec<_>>(),
+            [0, 0, 0, 0, 0, 0, 1]
+                .map(Some)
+                .into_iter()
+                .chain([None])
+                .collect::<Vec<_>>()
+        );
+        // The time model counts every pass.
+        let once = trim_cell::ListComposition::of(&layer().polylines);
+        let thrice = trim_cell::ListComposition::of(&l.polylines);
+        assert_eq!(thrice.vectors, once.vectors + 4);
+        assert_eq!(thrice.jumps, once.jumps + 2);
+        assert!((thrice.mark_mm - (once.mark_mm + 4.0)).abs() < 1e-12);
     }
 
     #[test]
