@@ -6,7 +6,10 @@
 //! the direction out of the material at each point (in the face, across the edge) and the burr
 //! web standing there (its reach off the edge and its thickness; zero where the edge is clean).
 //! A landed mark vector is a segment on the part ([`LandedCut`]); every time the list is marked
-//! its segments land again, so a line marked `p` times is `p` cuts.
+//! its segments land again, so a line marked `p` times is `p` cuts. A cut belongs to an edge
+//! point when it runs along the edge (within 45°), on the face (within 0.3 mm) and no deeper
+//! than 0.5 mm behind the edge: a cut across the edge near a corner trims the neighbouring edge,
+//! one further in is another feature's.
 //!
 //! The model, at each edge point, along the line out of the material:
 //! - a cut crossing that line at offset `d` (positive out of the material) removes
@@ -27,6 +30,15 @@ const SEARCH_MARGIN_MM: f64 = 1.0;
 
 /// How far off the face (mm, along its normal) a landed cut still counts as on it.
 const ON_FACE_MM: f64 = 0.3;
+
+/// How far behind an edge (mm, into the material) a cut along it still counts as that edge's:
+/// a trimming line lands within tenths of a millimetre of its edge or not near it at all; a
+/// cut deeper in is another feature's.
+const BEHIND_EDGE_MM: f64 = 0.5;
+
+/// A cut counts at an edge point when it runs along the edge within this angle (a cut across
+/// the edge near a corner trims the neighbouring edge, not this one), degrees.
+const ALONG_EDGE_DEG: f64 = 45.0;
 
 /// One trimming edge of the true part.
 #[derive(Debug, Clone, PartialEq)]
@@ -93,6 +105,9 @@ fn crossing(
     b: &Point3,
 ) -> Option<f64> {
     let (sa, sb) = ((a - e).dot(t), (b - e).dot(t));
+    if (sb - sa).abs() < (b - a).norm() * ALONG_EDGE_DEG.to_radians().cos() {
+        return None;
+    }
     // Half-open, so a line through a vector's joint crosses once: the start counts, the end
     // does not.
     if !((sa <= 0.0 && sb > 0.0) || (sa >= 0.0 && sb < 0.0)) {
@@ -101,7 +116,8 @@ fn crossing(
     let lambda = sa / (sa - sb);
     let p = a + (b - a) * lambda;
     let q = p - e;
-    (q.dot(n).abs() <= ON_FACE_MM).then(|| q.dot(m))
+    let d = q.dot(m);
+    (q.dot(n).abs() <= ON_FACE_MM && d >= -BEHIND_EDGE_MM).then_some(d)
 }
 
 /// The stub left of a web `height` tall and `thickness` thick by kerfs centred at `offsets`
