@@ -25,7 +25,9 @@ pub mod settings;
 pub mod verdict;
 
 pub use error::{InspectError, Result};
-pub use measure::{ContourInspection, ExcessBin, Inspection, inspect, signed_distances};
+pub use measure::{
+    ContourInspection, ExcessBin, Inspection, SignedMesh, inspect, signed_distances,
+};
 pub use placement::Placement;
 pub use settings::InspectSettings;
 pub use verdict::{Verdict, decide, uncertainty_um};

@@ -4,8 +4,8 @@
 //!    over the registered path, densified, and the openings' grids carried by the fit).
 //! 2. *Map* them into the CAD frame through the fit ([`Placement::cad_from_scan_point`]).
 //! 3. *Distance*: each mapped point within `band_mm` of a contour gets its signed distance to
-//!    the CAD mesh (parry's closest point; the sign of `(p − q)·n`, positive outside the
-//!    material; on an edge the two faces agree for a convex edge, which every contour's rim is).
+//!    the CAD mesh (parry's closest point, inside or outside by the pseudo-normal there:
+//!    [`SignedMesh`]; positive outside the material).
 //! 4. *Noise* σ: given, or 1.4826 × the median absolute deviation of the distances within
 //!    0.1 mm of the surface.
 //! 5. *Bins* of `bin_length_mm` along each contour. A bin has *excess* when at least
@@ -19,6 +19,8 @@
 
 use std::time::Instant;
 
+use parry3d_f64::query::PointQueryWithLocation;
+use parry3d_f64::shape::{TriMesh, TriMeshFlags};
 use rayon::prelude::*;
 use trim_geom::mesh::Mesh;
 use trim_geom::{ContourId, KdTree, Path, Point3};
@@ -112,23 +114,46 @@ struct Sample {
     distance_mm: f64,
 }
 
-/// Signed distances (mm, positive outside the material) of CAD-frame points to `mesh`.
-#[must_use]
-pub fn signed_distances(mesh: &Mesh, points_cad: &[Point3]) -> Vec<f64> {
-    // Build the query structure once, before the threads race for it.
-    let _ = mesh.trimesh();
-    points_cad
-        .par_iter()
-        .with_min_len(1024)
-        .map(|p| signed_distance(mesh, p))
-        .collect()
+/// The CAD surface for signed distances: parry's mesh with pseudo-normals (the angle-weighted
+/// normals of edges and vertices), so a point whose nearest surface point is an edge or a
+/// vertex is inside or outside by that point's pseudo-normal, not by one of the faces there
+/// (a point below the top face's plane but out past a hole's rim is outside).
+pub struct SignedMesh {
+    trimesh: TriMesh,
 }
 
-fn signed_distance(mesh: &Mesh, p: &Point3) -> f64 {
-    let (q, n) = mesh.closest_point(p);
-    let d = p - q;
-    let sign = if d.dot(&n) < 0.0 { -1.0 } else { 1.0 };
-    sign * d.norm()
+impl SignedMesh {
+    /// The oriented mesh of `mesh` (closed, consistently oriented, outward normals).
+    pub fn new(mesh: &Mesh) -> Result<SignedMesh> {
+        let trimesh = TriMesh::with_flags(
+            mesh.vertices().to_vec(),
+            mesh.triangles().to_vec(),
+            TriMeshFlags::ORIENTED | TriMeshFlags::MERGE_DUPLICATE_VERTICES,
+        )
+        .map_err(|e| InspectError::Contour {
+            contour: 0,
+            message: format!("the CAD mesh cannot be oriented for signed distances: {e:?}"),
+        })?;
+        Ok(SignedMesh { trimesh })
+    }
+
+    /// The signed distance of a CAD-frame point, mm, positive outside the material.
+    #[must_use]
+    pub fn distance(&self, p: &Point3) -> f64 {
+        let (proj, _) = self.trimesh.project_local_point_and_get_location(p, false);
+        let d = (p - proj.point).norm();
+        if proj.is_inside { -d } else { d }
+    }
+}
+
+/// Signed distances (mm, positive outside the material) of CAD-frame points to `mesh`.
+pub fn signed_distances(mesh: &Mesh, points_cad: &[Point3]) -> Result<Vec<f64>> {
+    let signed = SignedMesh::new(mesh)?;
+    Ok(points_cad
+        .par_iter()
+        .with_min_len(1024)
+        .map(|p| signed.distance(p))
+        .collect())
 }
 
 fn check_points(what: &str, points: &[Point3]) -> Result<()> {
@@ -224,7 +249,7 @@ pub fn inspect(
     lap("crop + map", &mut t);
 
     // 3. Distances of the points in a contour's band.
-    let _ = mesh.trimesh();
+    let signed = SignedMesh::new(mesh)?;
     let samples: Vec<Sample> = mapped
         .par_iter()
         .with_min_len(1024)
@@ -234,7 +259,7 @@ pub fn inspect(
                 contour: u32::try_from(l.contour).unwrap_or(u32::MAX),
                 point: *p,
                 arc_mm: l.arc_mm,
-                distance_mm: signed_distance(mesh, p),
+                distance_mm: signed.distance(p),
             })
         })
         .collect();
@@ -298,7 +323,8 @@ pub fn inspect(
             let excess_bins = bins(&mut above);
             let gouge_bins = bins(&mut below);
             let top = |b: &[ExcessBin]| b.iter().map(|x| x.height_um).fold(0.0, f64::max);
-            let span = |b: &[ExcessBin]| b.iter().map(|x| x.end_mm - x.start_mm).sum::<f64>();
+            // Summed from +0 (an empty f64 sum is −0).
+            let span = |b: &[ExcessBin]| b.iter().fold(0.0, |acc, x| acc + (x.end_mm - x.start_mm));
             let covered = counts
                 .iter()
                 .filter(|&&c| c >= settings.min_bin_points)
