@@ -97,6 +97,7 @@ fn workspace_crates_point_one_way() {
     let ours = [
         "trim-geom",
         "trim-register",
+        "trim-inspect",
         "trim-cell",
         "trim-plan",
         "trim-calib",
@@ -108,6 +109,8 @@ fn workspace_crates_point_one_way() {
     let allowed: BTreeMap<&str, &[&str]> = BTreeMap::from([
         ("trim-geom", &[][..]),
         ("trim-register", &["trim-geom"][..]),
+        // Inspection measures through the registration's fit, never the planner or the devices.
+        ("trim-inspect", &["trim-geom", "trim-register"][..]),
         ("trim-cell", &["trim-geom"][..]),
         ("trim-plan", &["trim-geom", "trim-cell"][..]),
         ("trim-calib", &["trim-geom", "trim-cell"][..]),
@@ -122,6 +125,7 @@ fn workspace_crates_point_one_way() {
             &[
                 "trim-geom",
                 "trim-register",
+                "trim-inspect",
                 "trim-cell",
                 "trim-plan",
                 "trim-calib",
@@ -185,6 +189,7 @@ fn runtime_frameworks_stay_out_of_the_algorithm_crates() {
     for krate in [
         "trim-geom",
         "trim-register",
+        "trim-inspect",
         "trim-cell",
         "trim-plan",
         "trim-calib",

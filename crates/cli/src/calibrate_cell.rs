@@ -40,7 +40,9 @@ pub struct Args {
 }
 
 /// Reads poses.csv: the poses, the scan file names, and the kinematics its header implies.
-fn read_poses(path: &Path) -> anyhow::Result<(Vec<String>, Vec<CalPose>, KinematicsKind)> {
+pub(crate) fn read_poses(
+    path: &Path,
+) -> anyhow::Result<(Vec<String>, Vec<CalPose>, KinematicsKind)> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     let mut lines = text

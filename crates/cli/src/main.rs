@@ -9,10 +9,12 @@ mod calibrate_field;
 mod calibrate_timing;
 mod config;
 mod config_cmd;
+mod deviation_map;
 mod exit;
 mod frame;
 mod hatch;
 mod info;
+mod inspect;
 mod plan;
 mod progress;
 mod register;
@@ -64,6 +66,8 @@ enum Command {
     Hatch(hatch::Args),
     /// Trace each zone's outline with the galvo's pointer (red light), the laser gate shut.
     Frame(frame::Args),
+    /// Inspect a trimmed part: scan fitted to the CAD, every contour measured and judged.
+    Inspect(inspect::Args),
     /// Compare a recorded run's time estimate with its actual time, per layer, move and list.
     Report(report_cmd::Args),
 }
@@ -88,6 +92,7 @@ fn main() -> ExitCode {
         Command::Hatch(a) => hatch::run(a),
         Command::Frame(a) => frame::run(a),
         Command::Report(a) => report_cmd::run(a),
+        Command::Inspect(a) => inspect::run(a),
     };
     exit::code_for(result)
 }

@@ -176,7 +176,7 @@ fn datum_positioning(
 }
 
 /// Points from a text file: `x y z` or `x,y,z` per line; `#` starts a comment.
-fn read_points_text(path: &std::path::Path) -> anyhow::Result<Vec<Point3>> {
+pub(crate) fn read_points_text(path: &std::path::Path) -> anyhow::Result<Vec<Point3>> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     let mut points = Vec::new();

@@ -78,6 +78,16 @@ pub struct Args {
     /// Burr stretch length range along a contour, mm.
     #[arg(long = "burr-length", value_delimiter = ',', num_args = 1, value_name = "MIN,MAX", default_values_t = SynthParams::default().burr_length_mm)]
     pub burr_length_mm: Vec<f64>,
+    /// Share of the holes and slots blocked by a film flush with the top face (0–1); recorded
+    /// in case.json (`blockages`: contour, covered share, thickness, free edge).
+    #[arg(long = "blockages", default_value_t = SynthParams::default().blockage_fraction)]
+    pub blockage_fraction: f64,
+    /// Blockage film thickness range, mm.
+    #[arg(long = "blockage-thickness", value_delimiter = ',', num_args = 1, value_name = "MIN,MAX", default_values_t = SynthParams::default().blockage_thickness_mm)]
+    pub blockage_thickness_mm: Vec<f64>,
+    /// Range of the share of a blocked opening's area the film covers (0.05–1).
+    #[arg(long = "blockage-share", value_delimiter = ',', num_args = 1, value_name = "MIN,MAX", default_values_t = SynthParams::default().blockage_share)]
+    pub blockage_share: Vec<f64>,
     /// The template path's point spacing along its contours, mm (0.05–0.25; 0.05 gives ≈ 20k rows).
     #[arg(long = "path-spacing", default_value_t = SynthParams::default().path_spacing_mm)]
     pub path_spacing_mm: f64,
@@ -140,12 +150,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         burr_height_mm: range("burr-height", &args.burr_height_mm)?,
         burr_thickness_mm: range("burr-thickness", &args.burr_thickness_mm)?,
         burr_length_mm: range("burr-length", &args.burr_length_mm)?,
+        blockage_fraction: args.blockage_fraction,
+        blockage_thickness_mm: range("blockage-thickness", &args.blockage_thickness_mm)?,
+        blockage_share: range("blockage-share", &args.blockage_share)?,
     };
     let case = generate(&params).context("generating the synthetic case")?;
     case.write_case(&args.out)
         .with_context(|| format!("writing {}", args.out.display()))?;
     println!(
-        "{}: {} contours ({} path points), {} scan points from {} view(s), {} CAD points, {} CAD triangles, {} burrs",
+        "{}: {} contours ({} path points), {} scan points from {} view(s), {} CAD points, {} CAD triangles, {} burrs, {} blockages",
         args.out.display(),
         case.path.len(),
         case.path.points().count(),
@@ -153,7 +166,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         case.views.len(),
         case.cad_points.len(),
         case.cad_triangles.len(),
-        case.burrs.len()
+        case.burrs.len(),
+        case.blockages.len()
     );
     Ok(())
 }

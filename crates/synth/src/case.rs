@@ -8,6 +8,7 @@ use rand_distr::{Distribution, UnitSphere};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use trim_geom::{GeomError, Path, Point3, PointCloud, Result, Similarity3, Vector3};
 
+use crate::blockage::{Blockage, BlockageRanges, BlockageSampler, draw_blockages};
 use crate::burr::{Burr, BurrRanges, BurrSampler, draw_burrs};
 use crate::mesh::{DEFAULT_MESH_STEP_MM, domain_mesh};
 use crate::part::{
@@ -21,6 +22,7 @@ use crate::scanner::{ScanView, fixed_views, scan_part};
 const PRESSING_STREAM: u64 = 0x7072_6573_7369_6e67;
 const VIEWS_STREAM: u64 = 0x7669_6577_7300_0000;
 const BURRS_STREAM: u64 = 0x6275_7272_7300_0000;
+const BLOCKAGES_STREAM: u64 = 0x626c_6f63_6b00_0000;
 
 /// The random stream `tag` of `seed`.
 fn stream(seed: u64, tag: u64) -> Xoshiro256PlusPlus {
@@ -82,6 +84,37 @@ pub struct SynthParams {
     pub burr_thickness_mm: [f64; 2],
     /// Burr stretch length range along the contour, mm.
     pub burr_length_mm: [f64; 2],
+    /// The share of the openings (holes and slots) carrying a blockage (a film over part of the
+    /// opening; see `blockage`), 0–1. Left out of case.json when 0.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub blockage_fraction: f64,
+    /// Blockage film thickness range, mm. Left out of case.json at its default.
+    #[serde(skip_serializing_if = "is_default_blockage_thickness")]
+    pub blockage_thickness_mm: [f64; 2],
+    /// Range of the share of an opening's area a blockage covers. Left out of case.json at its
+    /// default.
+    #[serde(skip_serializing_if = "is_default_blockage_share")]
+    pub blockage_share: [f64; 2],
+}
+
+/// Blockage film thickness range by default, mm (issue 23: 50–200 µm).
+pub const DEFAULT_BLOCKAGE_THICKNESS_MM: [f64; 2] = [0.05, 0.2];
+
+/// Range of the covered share of a blocked opening by default.
+pub const DEFAULT_BLOCKAGE_SHARE: [f64; 2] = [0.3, 1.0];
+
+// The parameters added after case.json's format settled are written only when set, so a case
+// generated without them writes the file it always did.
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
+fn is_default_blockage_thickness(v: &[f64; 2]) -> bool {
+    *v == DEFAULT_BLOCKAGE_THICKNESS_MM
+}
+
+fn is_default_blockage_share(v: &[f64; 2]) -> bool {
+    *v == DEFAULT_BLOCKAGE_SHARE
 }
 
 impl Default for SynthParams {
@@ -109,6 +142,9 @@ impl Default for SynthParams {
             burr_height_mm: [0.1, 0.5],
             burr_thickness_mm: [0.02, 0.1],
             burr_length_mm: [2.0, 15.0],
+            blockage_fraction: 0.0,
+            blockage_thickness_mm: DEFAULT_BLOCKAGE_THICKNESS_MM,
+            blockage_share: DEFAULT_BLOCKAGE_SHARE,
         }
     }
 }
@@ -241,6 +277,21 @@ impl SynthParams {
             "burr_length_mm",
             range(self.burr_length_mm, 0.5, 50.0),
             "must be [min, max] with 0.5 ≤ min ≤ max ≤ 50 mm",
+        )?;
+        check(
+            "blockage_fraction",
+            (0.0..=1.0).contains(&self.blockage_fraction),
+            "must be in [0, 1]",
+        )?;
+        check(
+            "blockage_thickness_mm",
+            range(self.blockage_thickness_mm, 0.005, 1.0),
+            "must be [min, max] with 0.005 ≤ min ≤ max ≤ 1 mm",
+        )?;
+        check(
+            "blockage_share",
+            range(self.blockage_share, 0.05, 1.0),
+            "must be [min, max] with 0.05 ≤ min ≤ max ≤ 1",
         )
     }
 }
@@ -276,6 +327,8 @@ pub struct SynthCase {
     pub views: Vec<ScanView>,
     /// The burrs on the scanned part (ground truth; none on the CAD or the template path).
     pub burrs: Vec<Burr>,
+    /// The blockages on the scanned part (ground truth; none on the CAD).
+    pub blockages: Vec<Blockage>,
 }
 
 impl SynthCase {
@@ -317,6 +370,7 @@ impl SynthCase {
             deformation: self.deformation,
             views: self.views.clone(),
             burrs: self.burrs.clone(),
+            blockages: self.blockages.clone(),
         };
         let text = serde_json::to_string_pretty(&meta)
             .map_err(|e| GeomError::invalid("case.json", e.to_string()))?;
@@ -350,6 +404,9 @@ pub struct CaseInfo {
     /// The burrs (contour id, stretch, height, thickness; absent in cases written before them).
     #[serde(default)]
     pub burrs: Vec<Burr>,
+    /// The blockages (contour id, covered share, thickness, free edge; absent when none).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub blockages: Vec<Blockage>,
 }
 
 /// Generates a case (deterministic in `params.seed`).
@@ -420,11 +477,23 @@ pub fn generate(params: &SynthParams) -> Result<SynthCase> {
         params.path_spacing_mm,
         &mut stream(params.seed, BURRS_STREAM),
     );
+    let blockages = draw_blockages(
+        &BlockageRanges {
+            fraction: params.blockage_fraction,
+            thickness_mm: params.blockage_thickness_mm,
+            covered_share: params.blockage_share,
+        },
+        &cutouts,
+        &mut stream(params.seed, BLOCKAGES_STREAM),
+    );
     let scan = scan_part(
         params,
         &mut rng,
         &sampler,
-        &BurrSampler::new(&edges, &burrs),
+        (
+            &BurrSampler::new(&edges, &burrs),
+            &BlockageSampler::new(&cutouts, &blockages),
+        ),
         &mesh,
         &scan_from_domain,
         &views,
@@ -452,6 +521,7 @@ pub fn generate(params: &SynthParams) -> Result<SynthCase> {
             .map_or(Point3::origin(), |v| v.scanner_in_scan_mm),
         views,
         burrs,
+        blockages,
     })
 }
 

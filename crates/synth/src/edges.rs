@@ -10,6 +10,7 @@ use rand::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use trim_geom::{Point3, PointCloud, Result, Vector3};
 
+use crate::blockage::{Blockage, BlockageSampler};
 use crate::burr::{Burr, BurrSampler};
 use crate::case::SynthCase;
 use crate::mesh::domain_mesh;
@@ -71,18 +72,22 @@ impl SynthCase {
     }
 
     /// A fresh scan (noise, outliers and dropouts drawn from `seed`) of the same part, at the
-    /// same pose and under the same views, carrying `burrs` instead of the case's.
-    pub fn rescan(&self, burrs: &[Burr], seed: u64) -> Result<PointCloud> {
+    /// same pose and under the same views, carrying `burrs` and `blockages` instead of the
+    /// case's.
+    pub fn rescan(&self, burrs: &[Burr], blockages: &[Blockage], seed: u64) -> Result<PointCloud> {
         let cutouts = cutouts();
         let edges = contour_edges(&cutouts);
         let mesh = domain_mesh(&cutouts, self.params.mesh_step_mm)?;
-        let sampler = SurfaceSampler::new(cutouts);
+        let sampler = SurfaceSampler::new(cutouts.clone());
         let scan_from_domain = |d: &Point3| self.scan_from_cad_point(&design_point(d.x, d.y, d.z));
         scan_part(
             &self.params,
             &mut Xoshiro256PlusPlus::seed_from_u64(seed),
             &sampler,
-            &BurrSampler::new(&edges, burrs),
+            (
+                &BurrSampler::new(&edges, burrs),
+                &BlockageSampler::new(&cutouts, blockages),
+            ),
             &mesh,
             &scan_from_domain,
             &self.views,
@@ -202,8 +207,8 @@ mod tests {
             half.iter()
                 .all(|b| (b.height_mm - 0.05).abs() < 1e-12 || b.height_mm < 0.05)
         );
-        let clean = c.rescan(&[], 9).unwrap();
-        let stubbed = c.rescan(&half, 9).unwrap();
+        let clean = c.rescan(&[], &[], 9).unwrap();
+        let stubbed = c.rescan(&half, &[], 9).unwrap();
         // The scan's size, less what the dropout patches take.
         for scan in [&clean, &stubbed] {
             assert!(scan.len() > c.params.scan_points * 9 / 10, "{}", scan.len());

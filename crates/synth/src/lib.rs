@@ -19,9 +19,12 @@
 //! under the same map (feature vectors as normals, `J⁻ᵀn`).
 //!
 //! Modules: [`part`] (geometry, design map, deformation), [`mesh`] (the triangle mesh),
-//! [`scanner`] (the fixed views and what they see), [`burr`] (flash on the edges), [`edges`] (the true edges, what a trim leaves, the after-scan), [`case`] (parameters, the generator, files) and
+//! [`scanner`] (the fixed views and what they see), [`burr`] (flash on the edges), [`blockage`]
+//! (films over holes and slots), [`edges`] (the true edges, what a trim leaves, the
+//! after-scan), [`case`] (parameters, the generator, files) and
 //! [`testing`] (a planning-sized synthetic path for tests and benches).
 
+pub mod blockage;
 pub mod burr;
 pub mod case;
 pub mod edges;
@@ -30,6 +33,7 @@ pub mod part;
 pub mod scanner;
 pub mod testing;
 
+pub use blockage::Blockage;
 pub use burr::Burr;
 pub use case::{CaseInfo, SynthCase, SynthParams, generate};
 pub use edges::{EdgeTruth, stubs};

@@ -8,6 +8,7 @@ use rand_distr::{Distribution, Normal};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use trim_geom::{GeomError, Point3, PointCloud, Result, Similarity3, Vector3};
 
+use crate::blockage::BlockageSampler;
 use crate::burr::BurrSampler;
 use crate::case::SynthParams;
 use crate::mesh::DomainMesh;
@@ -108,7 +109,7 @@ pub(crate) fn scan_part(
     params: &SynthParams,
     rng: &mut Xoshiro256PlusPlus,
     sampler: &SurfaceSampler,
-    burrs: &BurrSampler,
+    (burrs, films): (&BurrSampler, &BlockageSampler),
     mesh: &DomainMesh,
     scan_from_domain: &dyn Fn(&Point3) -> Point3,
     views: &[ScanView],
@@ -130,19 +131,21 @@ pub(crate) fn scan_part(
                 .is_none()
         })
     };
-    let (part_area, burr_area) = (sampler.area(), burrs.area());
+    let (part_area, burr_area, film_area) = (sampler.area(), burrs.area(), films.area());
 
     let mut visible = Vec::with_capacity(params.scan_points);
     let max_attempts = params.scan_points.saturating_mul(20);
     let mut attempts = 0usize;
     while visible.len() < params.scan_points && attempts < max_attempts {
         attempts += 1;
-        // No extra draw without burrs: such cases are what they were.
-        let on_burr = burr_area > 0.0 && rng.random_range(0.0..part_area + burr_area) < burr_area;
-        let s = if on_burr {
-            burrs.sample(rng)
-        } else {
-            sampler.sample(rng)
+        // No extra draw without burrs or films, and the same draw with burrs alone: such cases
+        // are what they were.
+        let defect_area = burr_area + film_area;
+        let pick = (defect_area > 0.0).then(|| rng.random_range(0.0..part_area + defect_area));
+        let s = match pick {
+            Some(x) if x < burr_area => burrs.sample(rng),
+            Some(x) if x < defect_area => films.sample(rng),
+            _ => sampler.sample(rng),
         };
         let p = scan_from_domain(&s.point);
         let n = mapped_normal(&scan_from_domain, &s.point, &s.normal);

@@ -576,3 +576,110 @@ fn edges_locate_their_own_points() {
         }
     }
 }
+
+#[test]
+fn blockage_points_lie_on_their_films_and_the_truth_says_how_much_is_covered() {
+    let params = SynthParams {
+        noise_mm: 0.0,
+        outlier_fraction: 0.0,
+        dropouts: 0,
+        blockage_fraction: 0.25,
+        scanner_views: 2,
+        scan_points: 60_000,
+        ..undeformed(12)
+    };
+    let case = generate(&params).unwrap();
+    let all = cutouts();
+    assert_eq!(
+        case.blockages.len(),
+        (0.25 * all.len() as f64).round() as usize
+    );
+    let top = THICKNESS_MM / 2.0;
+    let tol = 1e-6;
+    let mut on_film = vec![0usize; case.blockages.len()];
+    for p in case.scan.points() {
+        let d = domain_of(&case, p);
+        let in_part = d.x.abs() <= WIDTH_MM / 2.0 + tol
+            && d.y.abs() <= LENGTH_MM / 2.0 + tol
+            && all
+                .iter()
+                .all(|k| k.distance_to_axis(d.x, d.y) >= k.radius_mm - tol);
+        if in_part {
+            continue;
+        }
+        let hit = case.blockages.iter().position(|b| {
+            let c = &all[usize::try_from(b.contour - 1).unwrap()];
+            let proj = (d.x - c.u_mm) * b.direction[0] + (d.y - c.v_mm) * b.direction[1];
+            c.distance_to_axis(d.x, d.y) <= c.radius_mm + tol
+                && proj <= b.offset_mm + 1e-6
+                && d.z <= top + tol
+                && d.z >= top - b.thickness_mm - tol
+        });
+        match hit {
+            Some(i) => on_film[i] += 1,
+            None => panic!("scan point {p} (domain {d}) is off the part and off every film"),
+        }
+    }
+    for (b, n) in case.blockages.iter().zip(&on_film) {
+        assert!(*n > 10, "few scan points on {b:?}: {n}");
+        assert!((0.3..=1.0).contains(&b.covered_share), "{b:?}");
+        assert!((0.05..=0.2).contains(&b.thickness_mm), "{b:?}");
+        // The covered share is the film's area over the opening's, checked on a finer grid.
+        let c = &all[usize::try_from(b.contour - 1).unwrap()];
+        let (mut inside, mut covered) = (0usize, 0usize);
+        let (hu, hv) = (c.radius_mm, c.radius_mm + c.half_length_mm);
+        for i in 0..300 {
+            for j in 0..300 {
+                let u = c.u_mm - hu + 2.0 * hu * (f64::from(i) + 0.25) / 300.0;
+                let v = c.v_mm - hv + 2.0 * hv * (f64::from(j) + 0.25) / 300.0;
+                if c.contains(u, v) {
+                    inside += 1;
+                    covered += usize::from(b.covers(c, u, v));
+                }
+            }
+        }
+        let share = covered as f64 / inside as f64;
+        assert!((share - b.covered_share).abs() < 0.01, "{share} {b:?}");
+    }
+    // The truth reads back from case.json; without blockages the key is not written at all.
+    let dir = tempfile::tempdir().unwrap();
+    case.write_case(dir.path()).unwrap();
+    let text = std::fs::read_to_string(dir.path().join("case.json")).unwrap();
+    let info: CaseInfo = serde_json::from_str(&text).unwrap();
+    assert_eq!(info.blockages, case.blockages);
+    assert_eq!(info.params, case.params);
+    let clean = generate(&small(12)).unwrap();
+    clean.write_case(dir.path()).unwrap();
+    let text = std::fs::read_to_string(dir.path().join("case.json")).unwrap();
+    assert!(!text.contains("blockage"), "{text}");
+}
+
+#[test]
+fn blockage_parameters_are_validated_by_name() {
+    for (params, key) in [
+        (
+            SynthParams {
+                blockage_fraction: -0.1,
+                ..small(1)
+            },
+            "blockage_fraction",
+        ),
+        (
+            SynthParams {
+                blockage_thickness_mm: [0.2, 0.05],
+                ..small(1)
+            },
+            "blockage_thickness_mm",
+        ),
+        (
+            SynthParams {
+                blockage_share: [0.0, 1.0],
+                ..small(1)
+            },
+            "blockage_share",
+        ),
+    ] {
+        let e = params.validate().unwrap_err().to_string();
+        assert!(e.contains(key), "{e}");
+    }
+}

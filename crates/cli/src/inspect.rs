@@ -1,0 +1,411 @@
+//! `trimctl inspect --cad CAD --path PATH.csv --scan SCAN [--scan SCAN ...] [--poses poses.csv]
+//! [--config job.toml] [--tolerance-um T] --out DIR`: the part scanned after trimming, fitted to
+//! its CAD, every contour measured and judged (`trim_inspect`; DESIGN.md "Inspection").
+//!
+//! Writes `DIR/inspection.json`, `DIR/inspection.csv`, `DIR/deviation.png` and
+//! `DIR/report.html`. Exit 1 when a contour fails (or on bad input), else 0; undecided contours
+//! are listed but do not fail the command.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use trim_cell::cell_model::{ScanChain, ScanPose};
+use trim_geom::formats::{Geometry, read_geometry, read_path, read_points};
+use trim_geom::{Point3, PointCloud, Similarity3, Vector3};
+use trim_inspect::{InspectSettings, Inspection, Placement, Verdict, inspect, signed_distances};
+use trim_register::datum::datum_fit;
+use trim_register::regional::{RegisterSettings, register};
+use trim_register::sampling::View;
+
+use crate::cad::CAD_SAMPLE_SEED;
+use crate::config::JobConfig;
+use crate::deviation_map::{DrawnContour, verdict_colour, write_map};
+use crate::exit::{Exit, Failure};
+use crate::progress::stage;
+
+/// The deviation map shows at most this many scan points (every k-th beyond).
+const MAP_POINTS: usize = 300_000;
+
+/// The map's colour scale spans ± this many tolerances.
+const MAP_SCALE_TOLERANCES: f64 = 3.0;
+
+/// Arguments of `trimctl inspect`.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The CAD mesh (STL or PLY mesh), CAD frame, mm: distances are measured to its surface.
+    #[arg(long)]
+    pub cad: PathBuf,
+    /// The template path CSV, CAD frame: the contours to judge.
+    #[arg(long)]
+    pub path: PathBuf,
+    /// A scan of the trimmed part (PLY/PCD/XYZ). Several, with --poses, merge into one cloud.
+    #[arg(long, required = true)]
+    pub scan: Vec<PathBuf>,
+    /// The machine pose of each scan: CSV `scan,x,y,z,a,c` (or `b`) as `calibrate cell` reads,
+    /// `scan` the scan's file name. Each scan goes into the work-piece frame through the job's
+    /// `[calibration]` at its pose.
+    #[arg(long)]
+    pub poses: Option<PathBuf>,
+    /// A job.toml: its `[register]` fits the scan, `[part.scan_from_cad]` is the fixture's
+    /// nominal pose, `[calibration]` and `[machine]` carry the scans into the work-piece frame
+    /// (one scan without --poses: at `[part.scan_pose]`, as `trimctl register` does).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// The tolerance on excess and gouge, µm (default 30).
+    #[arg(long)]
+    pub tolerance_um: Option<f64>,
+    /// Scan points within this distance of a contour are measured for it, mm (default 0.5).
+    #[arg(long)]
+    pub band_mm: Option<f64>,
+    /// The scan noise (standard deviation), µm; default: estimated from the scan.
+    #[arg(long)]
+    pub noise_um: Option<f64>,
+    /// The scanner position in the work-piece frame, mm, `x,y,z` (overrides the config).
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    pub viewpoint: Option<Vec<f64>>,
+    /// Fit by the six-point datum fit (thesis §3.5.2) instead of the registration: a text file
+    /// of datum points, CAD frame (`x y z` per line). The fit is rigid; each contour's bound is
+    /// twice the worst datum residual.
+    #[arg(long, value_name = "FILE")]
+    pub datums: Option<PathBuf>,
+    /// The output folder (created).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Runs the command.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let t0 = Instant::now();
+    let config = args.config.as_deref().map(JobConfig::load).transpose()?;
+    let mut reg_settings = config
+        .as_ref()
+        .map_or_else(RegisterSettings::default, |c| c.register.clone());
+    if let Some(v) = &args.viewpoint {
+        anyhow::ensure!(
+            v.len() == 3,
+            "--viewpoint: expected x,y,z, got {} numbers",
+            v.len()
+        );
+        reg_settings.scanner_viewpoint_mm = Some([v[0], v[1], v[2]]);
+    }
+    reg_settings
+        .validate()
+        .map_err(|e| anyhow::anyhow!("register.{e}"))?;
+    let mut settings = InspectSettings::default();
+    if let Some(t) = args.tolerance_um {
+        settings.tolerance_um = t;
+    }
+    if let Some(b) = args.band_mm {
+        settings.band_mm = b;
+    }
+    settings.noise_um = args.noise_um;
+    settings.validate().map_err(|e| anyhow::anyhow!("{e}"))?;
+    let initial = match &config {
+        Some(c) => c.part.scan_from_cad.scan_from_cad("part.scan_from_cad")?,
+        None => Similarity3::identity(),
+    };
+
+    let spinner = stage("reading the CAD, the path and the scans");
+    let mesh = match read_geometry(&args.cad)
+        .with_context(|| format!("reading {}", args.cad.display()))?
+    {
+        Geometry::Mesh(m) => m,
+        _ => bail!(
+            "{}: --cad must be a mesh (STL or PLY faces): inspection measures distances to the CAD's surface",
+            args.cad.display()
+        ),
+    };
+    let cad_points = mesh.sample_area_weighted(reg_settings.cad_sample_points, CAD_SAMPLE_SEED);
+    let path = read_path(&args.path).with_context(|| format!("reading {}", args.path.display()))?;
+    let scan = merged_scan(&args, config.as_ref())?;
+    drop(spinner);
+
+    let spinner = stage("fitting the scan to the CAD");
+    let placement = match &args.datums {
+        Some(file) => {
+            let datums = crate::register::read_points_text(file)?;
+            let view = match reg_settings.scanner_viewpoint_mm {
+                Some(v) => View::From(Point3::from(v)),
+                None => View::Along(Vector3::from(reg_settings.view_direction)),
+            };
+            let fit = datum_fit(
+                &cad_points,
+                &scan,
+                &datums,
+                &initial,
+                view,
+                &reg_settings.coarse,
+            )?;
+            let worst_um = fit.residuals_mm.iter().copied().fold(0.0, f64::max) * 1e3;
+            Placement::rigid(fit.scan_from_cad, 2.0 * worst_um)
+        }
+        None => Placement::from_registration(&register(
+            &cad_points,
+            &scan,
+            &path,
+            &initial,
+            &reg_settings,
+        )?),
+    };
+    drop(spinner);
+
+    let spinner = stage("measuring the contours");
+    let result = inspect(&mesh, &path, scan.points(), &placement, &settings)?;
+    drop(spinner);
+
+    let spinner = stage("drawing the deviation map");
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let stride = scan.len().div_ceil(MAP_POINTS).max(1);
+    let cad_from_scan = placement.scan_from_cad.inverse();
+    let shown: Vec<Point3> = scan
+        .points()
+        .iter()
+        .step_by(stride)
+        .map(|q| placement.cad_from_scan_point(&cad_from_scan, q, settings.inverse_iterations))
+        .collect();
+    let distances = signed_distances(&mesh, &shown)?;
+    let drawn: Vec<DrawnContour<'_>> = path
+        .contours()
+        .iter()
+        .zip(&result.contours)
+        .map(|(c, r)| DrawnContour {
+            points: c.points(),
+            verdict: r.verdict,
+        })
+        .collect();
+    write_map(
+        &args.out.join("deviation.png"),
+        &shown,
+        &distances,
+        &drawn,
+        MAP_SCALE_TOLERANCES * settings.tolerance_um,
+    )?;
+    drop(spinner);
+    write_outputs(&args.out, &result)?;
+
+    let count = |v: Verdict| result.contours.iter().filter(|c| c.verdict == v).count();
+    let (pass, fail, undecided) = (
+        count(Verdict::Pass),
+        count(Verdict::Fail),
+        count(Verdict::Undecided),
+    );
+    for c in result
+        .contours
+        .iter()
+        .filter(|c| c.verdict != Verdict::Pass)
+    {
+        println!(
+            "contour {:>5}  {:<9}  {}",
+            c.id,
+            c.verdict.as_str(),
+            c.reason
+        );
+    }
+    println!(
+        "{} contours: {pass} pass, {fail} fail, {undecided} undecided (tolerance {} µm, noise {:.1} µm, {} points measured, {:.2} s); wrote {}",
+        result.contours.len(),
+        result.tolerance_um,
+        result.noise_um,
+        result.points_measured,
+        t0.elapsed().as_secs_f64(),
+        args.out.display()
+    );
+    if fail > 0 {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "{fail} contour(s) fail inspection (see {})",
+                args.out.join("report.html").display()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The scans as one cloud in the work-piece frame.
+fn merged_scan(args: &Args, config: Option<&JobConfig>) -> anyhow::Result<PointCloud> {
+    let read = |p: &PathBuf| read_points(p).with_context(|| format!("reading {}", p.display()));
+    let Some(poses_file) = &args.poses else {
+        if args.scan.len() > 1 {
+            bail!(
+                "{} scans without --poses: several scans merge only through their machine poses (poses.csv)",
+                args.scan.len()
+            );
+        }
+        let scan = read(&args.scan[0])?;
+        return match config {
+            Some(c) => c.scan_to_workpiece(&scan),
+            None => Ok(scan),
+        };
+    };
+    let (names, poses, kind) = crate::calibrate_cell::read_poses(poses_file)?;
+    let defaults = JobConfig::default();
+    let job = config.unwrap_or(&defaults);
+    if job.machine.kinematics != kind {
+        bail!(
+            "{}: the header names a {} cell, the job's [machine] is {}",
+            poses_file.display(),
+            kind.name(),
+            job.machine.kinematics.name()
+        );
+    }
+    let plan = job.plan_settings();
+    let mut points = Vec::new();
+    for file in &args.scan {
+        let name = file
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let Some(k) = names.iter().position(|n| *n == name) else {
+            bail!(
+                "{}: no pose for scan {name} in {}",
+                file.display(),
+                poses_file.display()
+            );
+        };
+        let chain = ScanChain {
+            table: plan.table(),
+            scanner: job.calibration.scanner(),
+            pose: ScanPose {
+                xyz_mm: poses[k].xyz_mm,
+                tilt_deg: poses[k].tilt_deg,
+                c_deg: poses[k].c_deg,
+            },
+            workpiece_origin_mm: plan.machine.workpiece_origin_mm.into(),
+        };
+        let scan = read(file)?
+            .transformed(&Similarity3::from_isometry(
+                chain.workpiece_from_scanner(),
+                1.0,
+            ))
+            .with_context(|| format!("{} through [calibration] at its pose", file.display()))?;
+        points.extend_from_slice(scan.points());
+    }
+    Ok(PointCloud::new(points)?)
+}
+
+/// The contour fields of inspection.json and inspection.csv, in order.
+const FIELDS: [&str; 9] = [
+    "id",
+    "verdict",
+    "excess_height_um",
+    "excess_length_mm",
+    "gouge_depth_um",
+    "blocked_fraction",
+    "uncertainty_um",
+    "coverage",
+    "reason",
+];
+
+fn write_outputs(dir: &Path, result: &Inspection) -> anyhow::Result<()> {
+    let round = |v: f64, digits: i32| {
+        let f = 10f64.powi(digits);
+        (v * f).round() / f
+    };
+    let contours: Vec<serde_json::Value> = result
+        .contours
+        .iter()
+        .map(|c| {
+            serde_json::json!({
+                "id": c.id,
+                "verdict": c.verdict.as_str(),
+                "excess_height_um": round(c.excess_height_um, 2),
+                "excess_length_mm": round(c.excess_length_mm, 3),
+                "gouge_depth_um": round(c.gouge_depth_um, 2),
+                "blocked_fraction": c.blocked_fraction.map(|b| round(b, 4)),
+                "uncertainty_um": round(c.uncertainty_um, 2),
+                "coverage": round(c.coverage, 4),
+                "reason": c.reason,
+            })
+        })
+        .collect();
+    let json = serde_json::json!({
+        "tolerance_um": result.tolerance_um,
+        "noise_um": round(result.noise_um, 2),
+        "contours": contours,
+    });
+    let file = dir.join("inspection.json");
+    std::fs::write(&file, serde_json::to_string_pretty(&json)?)
+        .with_context(|| format!("cannot write {}", file.display()))?;
+
+    let mut csv = FIELDS.join(",");
+    csv.push('\n');
+    for c in &contours {
+        let row: Vec<String> = FIELDS
+            .iter()
+            .map(|k| match &c[k] {
+                serde_json::Value::Null => String::new(),
+                serde_json::Value::String(s) => format!("\"{}\"", s.replace('"', "\"\"")),
+                v => v.to_string(),
+            })
+            .collect();
+        csv.push_str(&row.join(","));
+        csv.push('\n');
+    }
+    let file = dir.join("inspection.csv");
+    std::fs::write(&file, csv).with_context(|| format!("cannot write {}", file.display()))?;
+
+    let file = dir.join("report.html");
+    std::fs::write(&file, report_html(result, &contours))
+        .with_context(|| format!("cannot write {}", file.display()))?;
+    Ok(())
+}
+
+fn escape(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+/// A self-contained page: the map (deviation.png beside it) and the table.
+fn report_html(result: &Inspection, contours: &[serde_json::Value]) -> String {
+    let count = |v: Verdict| result.contours.iter().filter(|c| c.verdict == v).count();
+    let mut html = String::new();
+    let _ = write!(
+        html,
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>trimctl inspection</title>\n\
+         <style>body{{font-family:sans-serif;margin:1.5em}}table{{border-collapse:collapse}}\
+         td,th{{border:1px solid #bbb;padding:2px 8px;text-align:right}}td.reason{{text-align:left}}\
+         img{{max-width:100%;border:1px solid #888}}</style></head><body>\n\
+         <h1>Inspection</h1>\n<p>Tolerance {} µm, scan noise {:.1} µm: {} pass, {} fail, {} undecided \
+         (ISO 14253-1: pass when deviation + U ≤ tolerance, fail when deviation − U &gt; tolerance).</p>\n\
+         <figure><img id=\"deviation\" src=\"deviation.png\" alt=\"scan-to-CAD deviation map\">\
+         <figcaption>Scan-to-CAD signed distance, top view (red outside the material, blue inside, \
+         ±{:.0} µm); contours green pass, red fail, orange undecided.</figcaption></figure>\n\
+         <table id=\"contours\"><thead><tr>",
+        result.tolerance_um,
+        result.noise_um,
+        count(Verdict::Pass),
+        count(Verdict::Fail),
+        count(Verdict::Undecided),
+        MAP_SCALE_TOLERANCES * result.tolerance_um
+    );
+    for f in FIELDS {
+        let _ = write!(html, "<th>{f}</th>");
+    }
+    html.push_str("</tr></thead><tbody>\n");
+    for (c, r) in contours.iter().zip(&result.contours) {
+        let [red, green, blue] = verdict_colour(r.verdict);
+        html.push_str("<tr>");
+        for f in FIELDS {
+            let text = match &c[f] {
+                serde_json::Value::Null => "—".to_string(),
+                serde_json::Value::String(s) => s.clone(),
+                v => v.to_string(),
+            };
+            let style = match f {
+                "verdict" => format!(" style=\"color:rgb({red},{green},{blue});font-weight:bold\""),
+                "reason" => " class=\"reason\"".to_string(),
+                _ => String::new(),
+            };
+            let _ = write!(html, "<td{style}>{}</td>", escape(&text));
+        }
+        html.push_str("</tr>\n");
+    }
+    html.push_str("</tbody></table>\n</body></html>\n");
+    html
+}

@@ -1,0 +1,329 @@
+//! `trimctl inspect`: the four outputs with their exact keys on a synthetic core with burrs and
+//! blockages, the same verdicts from two scans merged through their machine poses, and the
+//! report opened in headless Chromium (the table and the picture render).
+
+#![expect(
+    clippy::unwrap_used,
+    reason = "test code: a failure should stop loudly"
+)]
+
+use std::path::Path;
+use std::process::Command;
+
+use trim_cell::cell_model::{ScanChain, ScanPose, ScannerPose, TableModel};
+use trim_cell::kinematics::MachineSettings;
+use trim_geom::formats::{PlyEncoding, read_points, write_ply};
+use trim_geom::{PointCloud, Similarity3};
+
+const TRIMCTL: &str = env!("CARGO_BIN_EXE_trimctl");
+
+/// The contour keys of inspection.json, exactly, and the CSV's header.
+const KEYS: [&str; 9] = [
+    "id",
+    "verdict",
+    "excess_height_um",
+    "excess_length_mm",
+    "gouge_depth_um",
+    "blocked_fraction",
+    "uncertainty_um",
+    "coverage",
+    "reason",
+];
+
+fn synth(case: &Path) {
+    let out = Command::new(TRIMCTL)
+        .args([
+            "synth",
+            "--seed",
+            "21",
+            "--burrs",
+            "0.3",
+            "--burr-height",
+            "0.05,0.6",
+            "--blockages",
+            "0.15",
+            "--dropouts",
+            "0",
+            "--scan-points",
+            "300000",
+            "--out",
+        ])
+        .arg(case)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+fn viewpoint(case: &Path) -> String {
+    let info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(case.join("case.json")).unwrap()).unwrap();
+    let v = info["scanner_in_scan_mm"].as_array().unwrap();
+    v.iter()
+        .map(|x| x.as_f64().unwrap().to_string())
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
+fn inspect(case: &Path, scans: &[&Path], poses: Option<&Path>, out: &Path) -> std::process::Output {
+    let mut cmd = Command::new(TRIMCTL);
+    cmd.arg("inspect")
+        .arg("--cad")
+        .arg(case.join("cad.stl"))
+        .arg("--path")
+        .arg(case.join("path.csv"))
+        .arg(format!("--viewpoint={}", viewpoint(case)));
+    for s in scans {
+        cmd.arg("--scan").arg(s);
+    }
+    if let Some(p) = poses {
+        cmd.arg("--poses").arg(p);
+    }
+    cmd.arg("--out").arg(out).output().unwrap()
+}
+
+fn verdicts(out: &Path) -> Vec<(i64, String)> {
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("inspection.json")).unwrap())
+            .unwrap();
+    json["contours"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            (
+                c["id"].as_i64().unwrap(),
+                c["verdict"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn inspect_writes_the_four_outputs_and_fails_the_burred_contours() {
+    let tmp = tempfile::tempdir().unwrap();
+    let case = tmp.path().join("case");
+    synth(&case);
+    let out = tmp.path().join("out");
+    let run = inspect(&case, &[&case.join("scan.ply")], None, &out);
+    // Burrs fail: exit 1, naming the report.
+    assert_eq!(
+        run.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(String::from_utf8_lossy(&run.stderr).contains("fail inspection"));
+
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("inspection.json")).unwrap())
+            .unwrap();
+    assert_eq!(json["tolerance_um"].as_f64(), Some(30.0));
+    let contours = json["contours"].as_array().unwrap();
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(case.join("case.json")).unwrap()).unwrap();
+    assert_eq!(contours.len(), 52);
+    for c in contours {
+        let keys: Vec<&str> = c.as_object().unwrap().keys().map(String::as_str).collect();
+        let mut want = KEYS.to_vec();
+        want.sort_unstable();
+        let mut got = keys.clone();
+        got.sort_unstable();
+        assert_eq!(got, want, "{c}");
+        assert!(["pass", "fail", "undecided"].contains(&c["verdict"].as_str().unwrap()));
+        // Holes and slots (ids 1–46) rim an opening, the outer strips (47–52) do not.
+        let id = c["id"].as_i64().unwrap();
+        assert_eq!(c["blocked_fraction"].is_null(), id > 46, "{c}");
+    }
+    // Every burr 0.1 mm or taller and every blockage fails its contour.
+    let by_id = |id: i64| {
+        contours
+            .iter()
+            .find(|c| c["id"].as_i64() == Some(id))
+            .unwrap()
+    };
+    for b in truth["burrs"].as_array().unwrap() {
+        if b["height_mm"].as_f64().unwrap() >= 0.1 {
+            let c = by_id(b["contour"].as_i64().unwrap());
+            assert_eq!(c["verdict"], "fail", "{b} → {c}");
+        }
+    }
+    let blockages = truth["blockages"].as_array().unwrap();
+    assert!(!blockages.is_empty());
+    for b in blockages {
+        let c = by_id(b["contour"].as_i64().unwrap());
+        assert_eq!(c["verdict"], "fail", "{b} → {c}");
+        let share = c["blocked_fraction"].as_f64().unwrap();
+        assert!(share >= 0.2, "{b} → {c}");
+    }
+
+    // The CSV: the same fields, a row per contour.
+    let csv = std::fs::read_to_string(out.join("inspection.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(lines.next().unwrap(), KEYS.join(","));
+    assert_eq!(lines.count(), 52);
+
+    // The picture: a PNG.
+    let png = std::fs::read(out.join("deviation.png")).unwrap();
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(html.contains("src=\"deviation.png\"") && html.contains("<table id=\"contours\""));
+
+    browser_renders_the_report(&out);
+
+    // Two scans taken at two machine poses, merged through the nominal cell: the same
+    // verdicts as the one scan they came from.
+    let scan = read_points(&case.join("scan.ply")).unwrap();
+    let machine = MachineSettings::default();
+    let chain = |pose: ScanPose| ScanChain {
+        table: TableModel::nominal(&machine),
+        scanner: ScannerPose::identity(),
+        pose,
+        workpiece_origin_mm: machine.workpiece_origin_mm.into(),
+    };
+    let poses = [
+        ScanPose {
+            xyz_mm: [5.0, -3.0, 20.0],
+            tilt_deg: 0.0,
+            c_deg: 0.0,
+        },
+        ScanPose {
+            xyz_mm: [-12.0, 8.0, 35.0],
+            tilt_deg: -10.0,
+            c_deg: 40.0,
+        },
+    ];
+    let mut csv = String::from("scan,x,y,z,a,c\n");
+    let mut files = Vec::new();
+    for (k, pose) in poses.iter().enumerate() {
+        let scanner_from_workpiece =
+            Similarity3::from_isometry(chain(*pose).workpiece_from_scanner().inverse(), 1.0);
+        let half: Vec<_> = scan
+            .points()
+            .iter()
+            .skip(k)
+            .step_by(2)
+            .map(|p| scanner_from_workpiece * p)
+            .collect();
+        let name = format!("view{k}.ply");
+        let file = tmp.path().join(&name);
+        write_ply(
+            &file,
+            &PointCloud::new(half).unwrap(),
+            PlyEncoding::BinaryLittleEndian,
+        )
+        .unwrap();
+        csv.push_str(&format!(
+            "{name},{},{},{},{},{}\n",
+            pose.xyz_mm[0], pose.xyz_mm[1], pose.xyz_mm[2], pose.tilt_deg, pose.c_deg
+        ));
+        files.push(file);
+    }
+    let poses_file = tmp.path().join("poses.csv");
+    std::fs::write(&poses_file, csv).unwrap();
+    let merged_out = tmp.path().join("merged");
+    let refs: Vec<&Path> = files.iter().map(std::path::PathBuf::as_path).collect();
+    let run = inspect(&case, &refs, Some(&poses_file), &merged_out);
+    assert_eq!(
+        run.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let (a, b) = (verdicts(&out), verdicts(&merged_out));
+    let same = a.iter().zip(&b).filter(|(x, y)| x == y).count();
+    assert!(same + 1 >= a.len(), "{a:?}\n{b:?}");
+
+    // Two scans without poses are refused.
+    let run = inspect(&case, &refs, None, &tmp.path().join("refused"));
+    assert_eq!(run.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&run.stderr).contains("--poses"));
+}
+
+/// Headless Chromium loads report.html, then the DOM after load shows the table's rows and the
+/// image decoded (naturalWidth > 0), and a screenshot is not blank where the picture is.
+fn browser_renders_the_report(out: &Path) {
+    let Some(chromium) = ["chromium", "chromium-browser", "google-chrome"]
+        .into_iter()
+        .find(|b| {
+            Command::new(b)
+                .arg("--version")
+                .output()
+                .is_ok_and(|o| o.status.success())
+        })
+    else {
+        panic!("no headless Chromium: scripts/install-deps installs the Debian package `chromium`");
+    };
+    // A probe page: the report in a frame, and a script that writes what rendered.
+    let probe = out.join("probe.html");
+    std::fs::write(
+        &probe,
+        "<!DOCTYPE html><html><body><iframe id=\"f\" src=\"report.html\" width=\"1400\" height=\"900\"></iframe>\
+         <pre id=\"result\">waiting</pre><script>\
+         document.getElementById('f').addEventListener('load', function () {\
+           var d = this.contentDocument; var img = d.getElementById('deviation');\
+           var check = function () { if (!img.complete) { setTimeout(check, 50); return; }\
+             document.getElementById('result').textContent = 'rows=' + d.querySelectorAll('#contours tbody tr').length\
+               + ' natural=' + img.naturalWidth + 'x' + img.naturalHeight + ' shown=' + img.clientWidth; };\
+           check(); });</script></body></html>",
+    )
+    .unwrap();
+    let profile = tempfile::tempdir().unwrap();
+    let common = |cmd: &mut Command| {
+        cmd.args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--allow-file-access-from-files",
+            "--virtual-time-budget=5000",
+        ])
+        .arg(format!("--user-data-dir={}", profile.path().display()));
+    };
+    let mut dump = Command::new(chromium);
+    common(&mut dump);
+    let dom = dump
+        .arg("--dump-dom")
+        .arg(format!("file://{}", probe.display()))
+        .output()
+        .unwrap();
+    let dom = String::from_utf8_lossy(&dom.stdout);
+    assert!(dom.contains("rows=52 natural=1200x800"), "{dom}");
+    assert!(!dom.contains("shown=0"), "{dom}");
+
+    let shot = out.join("screenshot.png");
+    let mut cmd = Command::new(chromium);
+    common(&mut cmd);
+    let status = cmd
+        .arg(format!("--screenshot={}", shot.display()))
+        .arg("--window-size=1400,1200")
+        .arg(format!("file://{}", out.join("report.html").display()))
+        .output()
+        .unwrap();
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
+    // The picture sits under the heading: its region holds colour (the map's red and blue,
+    // the contours' green), not just the page's white.
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&shot).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    let channels = info.line_size / info.width as usize;
+    let coloured = (150..700usize)
+        .flat_map(|y| (50..1000usize).map(move |x| (x, y)))
+        .filter(|&(x, y)| {
+            let i = y * info.line_size + x * channels;
+            let (r, g, b) = (buf[i], buf[i + 1], buf[i + 2]);
+            r.max(g).max(b) - r.min(g).min(b) > 60
+        })
+        .count();
+    assert!(
+        coloured > 2000,
+        "the picture's region is blank: {coloured} coloured pixels"
+    );
+}

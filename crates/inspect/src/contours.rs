@@ -1,0 +1,210 @@
+//! Where a point lies relative to the path's contours, CAD frame: the nearest contour, the arc
+//! length of its foot on it and its distance from it.
+
+use trim_geom::{Contour, ContourId, KdTree, Path, Point3, UnitVector3};
+
+use crate::error::{InspectError, Result};
+
+/// A closed contour's last point lies within this of its first, mm.
+pub const CLOSED_WITHIN_MM: f64 = 0.01;
+
+/// One contour's geometry, CAD frame.
+#[derive(Debug, Clone)]
+pub struct ContourGeometry {
+    /// The contour's id.
+    pub id: ContourId,
+    /// Its points, mm.
+    pub points: Vec<Point3>,
+    /// The arc length at each point from the first, mm.
+    pub arc_mm: Vec<f64>,
+    /// Whether it is closed (last point on the first).
+    pub closed: bool,
+    /// The mean feature vector (the face's normal where the contour follows a face's edge).
+    pub feature: UnitVector3,
+}
+
+impl ContourGeometry {
+    /// The geometry of `contour`; refuses a non-finite point naming it.
+    pub fn new(contour: &Contour) -> Result<ContourGeometry> {
+        let points = contour.points().to_vec();
+        if let Some(i) = points
+            .iter()
+            .position(|p| !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()))
+        {
+            return Err(InspectError::NonFinite {
+                what: format!("path contour {}", contour.id()),
+                index: i,
+                value: format!("{:?}", points[i]),
+            });
+        }
+        if points.len() < 2 {
+            return Err(InspectError::Contour {
+                contour: contour.id(),
+                message: format!("needs at least 2 points, got {}", points.len()),
+            });
+        }
+        let mut arc_mm = Vec::with_capacity(points.len());
+        let mut acc = 0.0;
+        arc_mm.push(0.0);
+        for w in points.windows(2) {
+            acc += (w[1] - w[0]).norm();
+            arc_mm.push(acc);
+        }
+        if acc <= 0.0 {
+            return Err(InspectError::Contour {
+                contour: contour.id(),
+                message: "has zero length".into(),
+            });
+        }
+        let closed =
+            points.len() > 2 && (points[points.len() - 1] - points[0]).norm() <= CLOSED_WITHIN_MM;
+        Ok(ContourGeometry {
+            id: contour.id(),
+            points,
+            arc_mm,
+            closed,
+            feature: contour.feature(),
+        })
+    }
+
+    /// Its length, mm.
+    #[must_use]
+    pub fn length_mm(&self) -> f64 {
+        self.arc_mm.last().copied().unwrap_or(0.0)
+    }
+
+    /// The foot of `p` on segment `k` (points `k`, `k + 1`): arc length and distance, mm.
+    fn foot_on(&self, k: usize, p: &Point3) -> (f64, f64) {
+        let (a, b) = (self.points[k], self.points[k + 1]);
+        let ab = b - a;
+        let len2 = ab.norm_squared();
+        let t = if len2 > 0.0 {
+            ((p - a).dot(&ab) / len2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let foot = a + ab * t;
+        (self.arc_mm[k] + t * len2.sqrt(), (p - foot).norm())
+    }
+}
+
+/// Where a point lies: its contour (index into the path), the arc length of its foot on it and
+/// its distance from it, mm.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Location {
+    /// Index of the contour in the path.
+    pub contour: usize,
+    /// Arc length of the foot from the contour's first point, mm.
+    pub arc_mm: f64,
+    /// Distance from the contour (its nearest segment), mm.
+    pub distance_mm: f64,
+}
+
+/// The path's contours with a kd-tree over their points.
+#[derive(Debug)]
+pub struct PathIndex {
+    /// The contours, in path order.
+    pub contours: Vec<ContourGeometry>,
+    tree: KdTree,
+    owner: Vec<(u32, u32)>,
+}
+
+impl PathIndex {
+    /// The index of `path` (CAD frame). The tree holds the contours' points and, along
+    /// segments longer than `TREE_STEP_MM`, points between them, so a point's nearest tree
+    /// point lies on its nearest segment or on a neighbour of it.
+    pub fn new(path: &Path) -> Result<PathIndex> {
+        let contours = path
+            .contours()
+            .iter()
+            .map(ContourGeometry::new)
+            .collect::<Result<Vec<_>>>()?;
+        let mut all = Vec::new();
+        let mut owner = Vec::new();
+        for (c, g) in contours.iter().enumerate() {
+            let c = u32::try_from(c).unwrap_or(u32::MAX);
+            for (k, w) in g.points.windows(2).enumerate() {
+                let k = u32::try_from(k).unwrap_or(u32::MAX);
+                let steps = ((w[1] - w[0]).norm() / TREE_STEP_MM).ceil().max(1.0) as usize;
+                for j in 0..steps {
+                    all.push(w[0] + (w[1] - w[0]) * (j as f64 / steps as f64));
+                    owner.push((c, k));
+                }
+            }
+        }
+        Ok(PathIndex {
+            contours,
+            tree: KdTree::build(&all),
+            owner,
+        })
+    }
+
+    /// The nearest contour within `within_mm` of `p` (the contour of its nearest tree point;
+    /// the foot on that point's segment and the segments either side), or none.
+    #[must_use]
+    pub fn locate(&self, p: &Point3, within_mm: f64) -> Option<Location> {
+        let n = self.tree.nearest(p)?;
+        if n.distance_sq.sqrt() > within_mm + TREE_STEP_MM {
+            return None;
+        }
+        let (c, k) = self.owner[n.index];
+        let (c, k) = (c as usize, k as usize);
+        let g = &self.contours[c];
+        let segments = g.points.len() - 1;
+        let mut best = (f64::NAN, f64::INFINITY);
+        for s in [k.wrapping_sub(1), k, k + 1] {
+            if s < segments {
+                let f = g.foot_on(s, p);
+                if f.1 < best.1 {
+                    best = f;
+                }
+            }
+        }
+        (best.1 <= within_mm).then_some(Location {
+            contour: c,
+            arc_mm: best.0,
+            distance_mm: best.1,
+        })
+    }
+}
+
+/// The largest spacing of the path index's tree points along a segment, mm.
+pub const TREE_STEP_MM: f64 = 0.1;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use trim_geom::Vector3;
+
+    #[test]
+    fn a_point_is_located_on_the_nearest_segment() {
+        let square = Contour::new(
+            7,
+            vec![
+                Point3::new(0.0, 0.0, 0.0),
+                Point3::new(10.0, 0.0, 0.0),
+                Point3::new(10.0, 10.0, 0.0),
+                Point3::new(0.0, 10.0, 0.0),
+                Point3::new(0.0, 0.0, 0.0),
+            ],
+            Vector3::z(),
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let path = Path::new(vec![square]).unwrap_or_else(|e| panic!("{e}"));
+        let index = PathIndex::new(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert!(index.contours[0].closed);
+        assert!((index.contours[0].length_mm() - 40.0).abs() < 1e-12);
+        let l = index
+            .locate(&Point3::new(10.3, 4.0, 0.0), 0.5)
+            .unwrap_or_else(|| panic!("not located"));
+        assert_eq!(l.contour, 0);
+        assert!((l.arc_mm - 14.0).abs() < 1e-12, "{l:?}");
+        assert!((l.distance_mm - 0.3).abs() < 1e-12, "{l:?}");
+        assert!(index.locate(&Point3::new(5.0, 5.0, 0.0), 0.5).is_none());
+        // Mid-way along a long segment.
+        let l = index
+            .locate(&Point3::new(5.0, 0.2, 0.1), 0.5)
+            .unwrap_or_else(|| panic!("not located"));
+        assert!((l.arc_mm - 5.0).abs() < 1e-12, "{l:?}");
+    }
+}
