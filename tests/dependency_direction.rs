@@ -103,11 +103,14 @@ fn workspace_crates_point_one_way() {
         "trim-calib",
         "trim-io",
         "trim-sim",
+        "trim-synth",
         "trimctl",
         "trimctl-py",
     ];
     let allowed: BTreeMap<&str, &[&str]> = BTreeMap::from([
         ("trim-geom", &[][..]),
+        // The synthetic part is geometry only.
+        ("trim-synth", &["trim-geom"][..]),
         ("trim-register", &["trim-geom"][..]),
         // Inspection measures through the registration's fit, never the planner or the devices.
         ("trim-inspect", &["trim-geom", "trim-register"][..]),
@@ -115,10 +118,17 @@ fn workspace_crates_point_one_way() {
         ("trim-plan", &["trim-geom", "trim-cell"][..]),
         ("trim-calib", &["trim-geom", "trim-cell"][..]),
         ("trim-io", &["trim-geom", "trim-cell"][..]),
-        // The digital twin resolves the true cell against the PlanSettings.
+        // The digital twin resolves the true cell against the PlanSettings and carries the
+        // synthetic part through a run.
         (
             "trim-sim",
-            &["trim-geom", "trim-cell", "trim-plan", "trim-io"][..],
+            &[
+                "trim-geom",
+                "trim-cell",
+                "trim-plan",
+                "trim-io",
+                "trim-synth",
+            ][..],
         ),
         (
             "trimctl",
@@ -131,6 +141,7 @@ fn workspace_crates_point_one_way() {
                 "trim-calib",
                 "trim-io",
                 "trim-sim",
+                "trim-synth",
             ][..],
         ),
         (
@@ -141,6 +152,7 @@ fn workspace_crates_point_one_way() {
                 "trim-cell",
                 "trim-plan",
                 "trim-calib",
+                "trim-synth",
             ][..],
         ),
     ]);

@@ -12,6 +12,8 @@
 //!   part.
 //! - [`ablation`]: what the twin's landed lines remove from the true part: burr webs cut or
 //!   left standing, gouges.
+//! - [`twin_part`]: the twin's true part through a run: a synthetic core with burrs, trimmed by
+//!   each round's cuts and rescanned.
 //! - [`sim_cell`]: [`sim_cell::SimCell`], the three simulators started in-process.
 
 pub mod ablation;
@@ -22,5 +24,6 @@ pub mod laser;
 pub mod safety;
 pub mod sim_cell;
 pub mod twin;
+pub mod twin_part;
 
 pub use sim_cell::{SimCell, SimError, SimFaults, SimOptions};

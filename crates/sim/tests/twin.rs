@@ -160,7 +160,7 @@ async fn a_planner_that_knows_the_head_field_and_pivot_lands_on_the_line() {
 /// the passes its thickest web needs): the largest residual web and gouge over all contours, µm.
 async fn trim_outcome(settings: &PlanSettings, truth: &TruthSettings) -> (f64, f64) {
     use trim_cell::ProcessSettings;
-    use trim_sim::ablation::{TrueEdge, ablate};
+    use trim_sim::twin_part::TwinPart;
     let case = trim_synth::generate(&trim_synth::SynthParams {
         seed: 11,
         scan_points: 1_000,
@@ -171,19 +171,10 @@ async fn trim_outcome(settings: &PlanSettings, truth: &TruthSettings) -> (f64, f
     })
     .unwrap();
     let process = ProcessSettings::default();
-    let edges: Vec<TrueEdge> = case
-        .edge_truth()
-        .into_iter()
-        .zip(case.truth.contours())
-        .map(|(e, c)| TrueEdge {
-            contour: e.contour,
-            points: c.points().to_vec(),
-            outward: e.outward,
-            burr_height_mm: e.burr_height_mm,
-            burr_thickness_mm: e.burr_thickness_mm,
-        })
-        .collect();
-    let mut job = plan(&case.truth, settings).unwrap();
+    let truth_path = case.truth.clone();
+    let mut part = TwinPart::new(case, trim_geom::Similarity3::identity());
+    let edges = part.edges().unwrap();
+    let mut job = plan(&truth_path, settings).unwrap();
     assert!(job.validation.passed, "{:?}", job.validation.violations);
     for z in &mut job.zones {
         for l in &mut z.layers {
@@ -194,7 +185,7 @@ async fn trim_outcome(settings: &PlanSettings, truth: &TruthSettings) -> (f64, f
             }
         }
     }
-    let twin = Twin::new(TrueCell::new(truth, settings), TruePart::new(&case.truth));
+    let twin = Twin::new(TrueCell::new(truth, settings), TruePart::new(&truth_path));
     let mut o = trim_sim::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
     o.galvo_time_scale = 0.0;
     o.cnc_time_scale = 0.002;
@@ -215,13 +206,9 @@ async fn trim_outcome(settings: &PlanSettings, truth: &TruthSettings) -> (f64, f
     .await
     .unwrap_or_else(|e| panic!("{e}"));
     let kerf = process.kerf_width_mm(&settings.beam);
-    let outcome = ablate(&edges, &twin.cuts(), &process, kerf);
-    let (mut residual, mut gouge) = (0.0_f64, 0.0_f64);
-    for e in &edges {
-        let (r, g) = outcome.contour_max(e.contour).unwrap();
-        residual = residual.max(r);
-        gouge = gouge.max(g);
-    }
+    let after = part.trim(&twin.cuts(), &process, kerf).unwrap();
+    let residual = after.iter().map(|c| c.residual_um).fold(0.0, f64::max) / 1e3;
+    let gouge = after.iter().map(|c| c.gouge_um).fold(0.0, f64::max) / 1e3;
     eprintln!(
         "kerf {:.1} µm: residual web max {:.1} µm, gouge max {:.1} µm over {} contours",
         kerf * 1e3,

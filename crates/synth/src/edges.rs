@@ -40,6 +40,13 @@ impl SynthCase {
     /// The true part's edges, one per contour of [`SynthCase::truth`] and in its order.
     #[must_use]
     pub fn edge_truth(&self) -> Vec<EdgeTruth> {
+        self.edge_truth_with(&self.burrs)
+    }
+
+    /// The true part's edges carrying `burrs` (what a trim left, [`stubs`]) instead of the
+    /// case's.
+    #[must_use]
+    pub fn edge_truth_with(&self, burrs: &[Burr]) -> Vec<EdgeTruth> {
         let top = THICKNESS_MM / 2.0;
         let map = |u: f64, v: f64| self.scan_from_cad_point(&design_point(u, v, top));
         (1..)
@@ -55,7 +62,7 @@ impl SynthCase {
                     })
                     .collect();
                 let (mut height, mut thickness) = (vec![0.0; n + 1], vec![0.0; n + 1]);
-                for b in self.burrs.iter().filter(|b| b.contour == id) {
+                for b in burrs.iter().filter(|b| b.contour == id) {
                     for k in b.first_point..=b.last_point.min(n) {
                         height[k] = f64::max(height[k], b.height_mm);
                         thickness[k] = f64::max(thickness[k], b.thickness_mm);
