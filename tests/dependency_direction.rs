@@ -149,6 +149,7 @@ fn workspace_crates_point_one_way() {
             &[
                 "trim-geom",
                 "trim-register",
+                "trim-inspect",
                 "trim-cell",
                 "trim-plan",
                 "trim-calib",

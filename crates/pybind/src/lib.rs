@@ -8,6 +8,7 @@ mod arrays;
 mod cloud;
 mod errors;
 mod gil;
+mod inspect;
 mod path;
 mod register;
 mod workflow;
@@ -34,5 +35,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(workflow::beam_report, m)?)?;
     m.add_function(wrap_pyfunction!(workflow::plan_path, m)?)?;
     m.add_function(wrap_pyfunction!(workflow::hatch_surface, m)?)?;
+    m.add_class::<inspect::PyInspection>()?;
+    m.add_class::<inspect::PyContourInspection>()?;
+    m.add_function(wrap_pyfunction!(inspect::inspect, m)?)?;
     Ok(())
 }

@@ -7,8 +7,10 @@ argument shape, dtype or a non-finite value raises :class:`ValueError` naming th
 """
 
 from ._native import (
+    ContourInspection,
     FileFormatError,
     IcpResult,
+    Inspection,
     InternalError,
     Path,
     PlanningError,
@@ -17,6 +19,7 @@ from ._native import (
     __version__,
     estimate_normals,
     icp,
+    inspect,
     read_path,
     read_points,
     umeyama,
@@ -41,8 +44,10 @@ from ._workflow import (
 
 __all__ = [
     "Beam",
+    "ContourInspection",
     "ContourQuality",
     "DemoCase",
+    "Inspection",
     "Layer",
     "Plan",
     "Registration",
@@ -61,6 +66,7 @@ __all__ = [
     "__version__",
     "estimate_normals",
     "icp",
+    "inspect",
     "read_path",
     "read_points",
     "umeyama",

@@ -50,6 +50,40 @@ def icp(
 ) -> IcpResult: ...
 def umeyama(a: Array, b: Array, *, scale: bool = True) -> Tuple[Array, float, float]: ...
 
+class ContourInspection:
+    id: int
+    verdict: str
+    excess_height_um: float
+    excess_length_mm: float
+    gouge_depth_um: float
+    blocked_fraction: Optional[float]
+    uncertainty_um: float
+    coverage: float
+    reason: str
+    bound_um: float
+
+class Inspection:
+    tolerance_um: float
+    noise_um: float
+    contours: List[ContourInspection]
+    points_measured: int
+    def ids(self, verdict: str) -> List[int]: ...
+
+def inspect(
+    cad_vertices: Array,
+    cad_triangles: Array,
+    cad_points: Array,
+    cad_normals: Array,
+    path: "Path",
+    scan: Array,
+    *,
+    init: Optional[Array] = None,
+    viewpoint_mm: Optional[Tuple[float, float, float]] = None,
+    tolerance_um: float = 30.0,
+    band_mm: float = 0.5,
+    noise_um: Optional[float] = None,
+) -> Inspection: ...
+
 PathLike = Union[str, os.PathLike]
 
 class Path:
