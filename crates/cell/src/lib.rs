@@ -22,6 +22,7 @@ pub mod galvo_timing;
 pub mod job;
 pub mod kinematics;
 pub mod lens;
+pub mod plan_settings;
 pub mod truth;
 
 pub use beam::{Beam, BeamReport, LaserLimits};

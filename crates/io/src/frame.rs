@@ -124,9 +124,9 @@ pub async fn frame_layer<T>(
     cancel: &CancellationToken,
 ) -> Result<(Framed, Option<T>), StopCause> {
     let layer = find_layer(job, key)?;
-    let outline = layer_outline(layer, &job.settings.galvo, settings.outline)
+    let outline = layer_outline(layer, &job.settings.plan.galvo, settings.outline)
         .map_err(|e| job_error(format!("zone {} layer {}: {e}", key.zone, key.layer)))?;
-    let commands = frame_list(&outline, &job.settings.galvo);
+    let commands = frame_list(&outline, &job.settings.plan.galvo);
     let pass_s = ListClock::list_s(&commands);
     let result = trace(
         cell, layer, key, settings, &commands, passes, pass_s, hold, cancel,

@@ -31,23 +31,22 @@ use serde::{Deserialize, Serialize};
 use trim_geom::{ContourId, Path, Point3, UnitVector3, Vector3};
 
 use crate::error::PlanError;
-use crate::field::{Lens, LensSettings, Section, sections};
-use crate::layer::{LayerSettings, ZoneLayers, layer_pieces, project};
+use crate::field::{Lens, Section, sections};
+use crate::layer::{ZoneLayers, layer_pieces, project};
 use crate::piece::{Piece, angle_rad, pieces_of};
-use crate::zoning::{ZoneGroup, Zoning, ZoningMethod, ZoningSettings, make_group, zone_pieces};
-use trim_cell::beam::Beam;
-use trim_cell::cell_model::{Calibration, TableModel};
-use trim_cell::error::require_open_closed;
-use trim_cell::galvo_timing::{ListComposition, TimingSettings};
+use crate::zoning::{ZoneGroup, Zoning, ZoningMethod, make_group, zone_pieces};
+use trim_cell::cell_model::TableModel;
+use trim_cell::galvo_timing::ListComposition;
 use trim_cell::job::{
-    FieldCorrectionRecord, GalvoSettings, JOB_VERSION, Job, JobSettings, Layer, LensRecord,
-    Polyline, TimeEstimate, ValidationReport, Zone, galvo_to_workpiece,
+    JOB_VERSION, Job, JobSettings, Layer, LensRecord, Polyline, TimeEstimate, ValidationReport,
+    Zone, galvo_to_workpiece,
 };
 use trim_cell::kinematics::{
     AxisPose, MachineSettings, choose_pose, forward_on, head_frame_on, inverse_on, limit_violation,
     move_time_s,
 };
-use trim_cell::lens::{FieldCorrection, LensModel};
+use trim_cell::lens::LensModel;
+pub use trim_cell::plan_settings::PlanSettings;
 
 /// The round-trip tolerance (mm): 1 µm.
 pub const ROUND_TRIP_TOLERANCE_MM: f64 = 1e-3;
@@ -64,133 +63,11 @@ pub const POSE_TOLERANCE: f64 = 1e-6;
 /// At most this many violation lines are listed; the rest are counted.
 pub const MAX_VIOLATION_LINES: usize = 200;
 
-/// Every planning option (job.toml: top-level `max_incidence_deg` and the `[beam]`,
-/// `[zoning]`, `[layers]`, `[field]`, `[machine]`, `[galvo]` and `[calibration]` tables).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct PlanSettings {
-    /// The incidence limit (degrees): the largest angle between a contour's feature vector and
-    /// the beam that reaches it, lens ray angle included.
-    pub max_incidence_deg: f64,
-    /// Beam optics.
-    pub beam: Beam,
-    /// Zoning.
-    pub zoning: ZoningSettings,
-    /// Layering.
-    pub layers: LayerSettings,
-    /// Lens and field sectioning.
-    pub field: LensSettings,
-    /// Machine kinematics, limits and speeds.
-    pub machine: MachineSettings,
-    /// Galvo field, speeds and delays.
-    pub galvo: GalvoSettings,
-    /// The cell as calibrated: rotary axis lines, scanner pose, field correction, lens pivot.
-    pub calibration: Calibration,
-    /// What the cell adds to the commanded time model (fitted by `trimctl calibrate timing`).
-    pub timing: TimingSettings,
-}
-
-impl Default for PlanSettings {
-    fn default() -> Self {
-        PlanSettings {
-            max_incidence_deg: 5.0,
-            beam: Beam::default(),
-            zoning: ZoningSettings::default(),
-            layers: LayerSettings::default(),
-            field: LensSettings::default(),
-            machine: MachineSettings::default(),
-            galvo: GalvoSettings::default(),
-            calibration: Calibration::default(),
-            timing: TimingSettings::default(),
-        }
-    }
-}
-
-impl PlanSettings {
-    /// Refuses out-of-range values, naming the key.
-    pub fn validate(&self) -> Result<(), PlanError> {
-        require_open_closed("max_incidence_deg", self.max_incidence_deg, 0.0, 45.0)?;
-        self.beam.validate()?;
-        self.zoning.validate()?;
-        self.timing.validate()?;
-        self.layers.validate()?;
-        self.field.validate(self.max_incidence_deg)?;
-        self.machine.validate()?;
-        self.galvo.validate()?;
-        self.calibration.validate(self.machine.kinematics)?;
-        Ok(())
-    }
-
-    /// The lens model the galvo commands are computed with: the height term with L from
-    /// `calibration.lens.pivot_to_focal_plane_mm`, else the field correction file's, else the
-    /// focal length; and the field correction when `calibration.field_correction` names one.
-    /// Also what the Job records of it (file and checksum).
-    pub fn lens_model(&self) -> Result<(LensModel, LensRecord), PlanError> {
-        let field = match &self.calibration.field_correction {
-            None => None,
-            Some(file) => {
-                let bytes = std::fs::read(file).map_err(|e| {
-                    PlanError::setting(
-                        "calibration.field_correction",
-                        file.display(),
-                        format!("cannot read it: {e}"),
-                    )
-                })?;
-                let field = FieldCorrection::read(file).map_err(|e| {
-                    PlanError::setting(
-                        "calibration.field_correction",
-                        file.display(),
-                        e.to_string(),
-                    )
-                })?;
-                Some((
-                    field,
-                    trim_cell::lens::checksum(&bytes),
-                    file.display().to_string(),
-                ))
-            }
-        };
-        let pivot = self
-            .calibration
-            .lens
-            .pivot_to_focal_plane_mm
-            .or_else(|| {
-                field
-                    .as_ref()
-                    .and_then(|(f, _, _)| f.pivot_to_focal_plane_mm)
-            })
-            .unwrap_or(self.beam.focal_length_mm);
-        let record = LensRecord {
-            telecentric: self.field.telecentric,
-            pivot_to_focal_plane_mm: (!self.field.telecentric).then_some(pivot),
-            field_correction: field
-                .as_ref()
-                .map(|(_, checksum, file)| FieldCorrectionRecord {
-                    file: file.clone(),
-                    checksum: checksum.clone(),
-                }),
-        };
-        Ok((
-            LensModel {
-                telecentric: self.field.telecentric,
-                pivot_to_focal_plane_mm: pivot,
-                field: field.map(|(f, _, _)| f),
-            },
-            record,
-        ))
-    }
-
-    /// The rotary table as calibrated (nominal lines where `[calibration]` gives none).
-    #[must_use]
-    pub fn table(&self) -> TableModel {
-        self.calibration.table(&self.machine)
-    }
-
-    fn lens(&self) -> Lens {
-        Lens {
-            telecentric: self.field.telecentric,
-            focal_length_mm: self.beam.focal_length_mm,
-        }
+/// The lens the incidence check sees: the settings' telecentricity and focal length.
+fn lens_of(settings: &PlanSettings) -> Lens {
+    Lens {
+        telecentric: settings.field.telecentric,
+        focal_length_mm: settings.beam.focal_length_mm,
     }
 }
 
@@ -266,7 +143,7 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
     let zoning_limit_rad = settings.field.zoning_limit_rad(limit_rad);
     let focus_half_length_mm = settings.beam.focus_half_length_mm();
     let step_mm = settings.layers.step_for(focus_half_length_mm)?;
-    let lens = settings.lens();
+    let lens = lens_of(settings);
     let (lens_model, lens_record) = settings.lens_model()?;
     let field_radius_mm = 0.5 * settings.galvo.field_mm[0].min(settings.galvo.field_mm[1]);
 
@@ -392,7 +269,7 @@ fn finish_plan(
 ) -> Result<PlanOutput, PlanError> {
     let focus_half_length_mm = settings.beam.focus_half_length_mm();
     let step_mm = settings.layers.step_for(focus_half_length_mm)?;
-    let lens = settings.lens();
+    let lens = lens_of(settings);
     // (5) order and poses.
     let machine = &settings.machine;
     let rotary = settings.table();
@@ -553,11 +430,8 @@ fn finish_plan(
         focus_half_length_mm,
         zones,
         settings: JobSettings {
-            max_incidence_deg: settings.max_incidence_deg,
-            kinematics: machine.kinematics.name().to_owned(),
-            galvo: settings.galvo,
+            plan: settings.clone(),
             lens: lens_record,
-            extra: serde_json::to_value(settings).unwrap_or(serde_json::Value::Null),
         },
         validation: ValidationReport::default(),
         estimate,
@@ -742,7 +616,7 @@ fn validate(
         0.5 * settings.galvo.field_mm[0],
         0.5 * settings.galvo.field_mm[1],
     ];
-    let lens = settings.lens();
+    let lens = lens_of(settings);
     let rotary = settings.table();
     let mut coverage: std::collections::BTreeMap<ContourId, Vec<(f64, f64)>> = Default::default();
     for (zone, zone_traces) in job.zones.iter().zip(traces) {
@@ -896,6 +770,8 @@ fn validate(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::field::LensSettings;
+    use crate::zoning::ZoningSettings;
     use trim_synth::testing::synthetic_core_path;
 
     #[test]

@@ -246,7 +246,7 @@ fn apply_overrides(config: &mut JobConfig, args: &Args) -> anyhow::Result<()> {
     args.cell.apply(config);
     if let Some(file) = &args.timing {
         crate::calibrate_timing::TimingFile::load(file)?
-            .apply(&mut config.machine, &mut config.timing);
+            .apply(&mut config.plan.machine, &mut config.plan.timing);
     }
     config
         .validate()
@@ -286,7 +286,7 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     let run_dir = new_run_dir(&config, args)?;
     // The run keeps its own copy of the field correction it used (the Job records its
     // checksum), so the folder alone can be resumed and audited.
-    if let Some(src) = config.calibration.field_correction.clone() {
+    if let Some(src) = config.plan.calibration.field_correction.clone() {
         let copy = run_dir.join(files::FIELD);
         std::fs::copy(&src, &copy).with_context(|| {
             format!(
@@ -294,12 +294,12 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
                 src.display()
             )
         })?;
-        config.calibration.field_correction = Some(copy);
+        config.plan.calibration.field_correction = Some(copy);
     }
     // The effective job file names the copy relative to itself.
     let mut effective = config.clone();
-    if effective.calibration.field_correction.is_some() {
-        effective.calibration.field_correction = Some(PathBuf::from(files::FIELD));
+    if effective.plan.calibration.field_correction.is_some() {
+        effective.plan.calibration.field_correction = Some(PathBuf::from(files::FIELD));
     }
     std::fs::write(
         run_dir.join(files::JOB),
@@ -398,7 +398,7 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     };
     let t = Instant::now();
     let spinner = stage("planning zones and layers");
-    let plan = plan_with_report(&to_plan, &config.plan_settings()).context("planning")?;
+    let plan = plan_with_report(&to_plan, &config.plan).context("planning")?;
     drop(spinner);
     timings.plan_s = t.elapsed().as_secs_f64();
     write_plan(&run_dir, &plan)?;

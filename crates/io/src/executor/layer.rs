@@ -228,7 +228,7 @@ impl Executor {
     /// `EXECUTE` journals the cut at `first` (a preloaded list is not a marked layer).
     async fn begin_list(&self, journal: &mut Journal, work: &LayerWork) -> LayerStep<BegunList> {
         self.phase(work, Phase::LoadList);
-        let commands = layer_list(&work.layer, &self.job.settings.galvo, work.first)
+        let commands = layer_list(&work.layer, &self.job.settings.plan.galvo, work.first)
             .map_err(|e| StopCause::Job {
                 message: format!("{}: {e}", work.key),
             })

@@ -550,7 +550,7 @@ impl Executor {
                 .map_err(|e| ExecError::Job(e.to_string()))?;
         }
         for (key, _, layer) in self.job.layers() {
-            layer_list(layer, &self.job.settings.galvo, 0)
+            layer_list(layer, &self.job.settings.plan.galvo, 0)
                 .map_err(|e| ExecError::Job(format!("{key}: {e}")))?;
         }
         Ok(())
@@ -843,7 +843,7 @@ impl Executor {
                 summary.vectors_marked += u64::from(work.vectors - work.first);
                 if work.first == 0 {
                     summary.galvo_estimate_s += ListComposition::of(&work.layer.polylines)
-                        .commanded_s(&self.job.settings.galvo);
+                        .commanded_s(&self.job.settings.plan.galvo);
                 }
                 summary.layers.push(timing);
                 list_buf ^= 1;
