@@ -15,7 +15,7 @@
 //! as a 2 µm RMS measurement). Levenberg–Marquardt ([`crate::least_squares`]) from the nominal
 //! cell; the parameters' standard deviations are `σ̂²·(JᵀJ)⁻¹`.
 
-use nalgebra::{DVector, Matrix3, Rotation3, Unit};
+use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Unit};
 use serde::Serialize;
 use trim_cell::cell_model::{AxisLine, ScannerPose, TableModel};
 use trim_cell::kinematics::KinematicsKind;
@@ -173,7 +173,47 @@ pub fn calibrate_cell(
     observations: &[SphereObservation],
     tool_mark_mm: &Point3,
 ) -> Result<CellCalibration, CalibError> {
-    if nominal.kind == KinematicsKind::Xyz {
+    check_poses(nominal.kind, observations)?;
+    let model = Model {
+        kind: nominal.kind,
+        tilt0: nominal.tilt,
+        rot0: nominal.rotary,
+        r0: Matrix3::identity(),
+    };
+    let x0 = start(nominal, observations, tool_mark_mm);
+    let residuals = |x: &DVector<f64>| model.residuals(x, observations, tool_mark_mm);
+    let solution = least_squares::minimize(x0, &residuals);
+    let (x, r, cost) = (solution.x, solution.residuals, solution.cost);
+
+    // Observability: the normal matrix at the solution.
+    let j = least_squares::jacobian(&x, &residuals);
+    let jtj = j.transpose() * &j;
+    check_observable(&jtj, nominal.kind)?;
+    let dof = (r.len() as f64 - 17.0).max(1.0);
+    let sigma2 = cost / dof;
+    let cov = jtj
+        .try_inverse()
+        .ok_or_else(|| CalibError::Degenerate("singular normal equations".into()))?
+        * sigma2;
+    let (table, scanner, p) = model.unpack(&x);
+    let report = cell_report(observations, &r, &cov, sigma2, solution.iterations);
+    Ok(CellCalibration {
+        table,
+        scanner,
+        sphere_table_mm: p,
+        report,
+    })
+}
+
+/// The tilt axis's name, upper case ("A" or "B").
+fn tilt_name(kind: KinematicsKind) -> String {
+    kind.tilt_axis().unwrap_or("a").to_uppercase()
+}
+
+/// Refuses poses that cannot determine the cell: a three-axis cell, too few poses, too few
+/// distinct tilt or C positions.
+fn check_poses(kind: KinematicsKind, observations: &[SphereObservation]) -> Result<(), CalibError> {
+    if kind == KinematicsKind::Xyz {
         return Err(CalibError::Invalid {
             key: "kinematics".into(),
             message: "a three-axis (xyz) cell has no rotary axes to calibrate".into(),
@@ -186,7 +226,7 @@ pub fn calibrate_cell(
             got: observations.len(),
         });
     }
-    let tilt_name = nominal.kind.tilt_axis().unwrap_or("a").to_uppercase();
+    let tilt_name = tilt_name(kind);
     if distinct(observations.iter().map(|o| o.tilt_deg)) < MIN_DISTINCT_ANGLES {
         return Err(CalibError::Degenerate(format!(
             "the poses hold fewer than {MIN_DISTINCT_ANGLES} distinct {tilt_name} positions: the {tilt_name} line is not determined (scan at several {tilt_name} angles)"
@@ -197,13 +237,16 @@ pub fn calibrate_cell(
             "the poses hold fewer than {MIN_DISTINCT_ANGLES} distinct C positions: the C line is not determined (scan at several C angles)"
         )));
     }
-    let model = Model {
-        kind: nominal.kind,
-        tilt0: nominal.tilt,
-        rot0: nominal.rotary,
-        r0: Matrix3::identity(),
-    };
-    // Start: identity scanner, t from the tool mark, p from the first pose.
+    Ok(())
+}
+
+/// The start: nominal lines, identity scanner, t from the tool mark, the sphere from the first
+/// pose.
+fn start(
+    nominal: &TableModel,
+    observations: &[SphereObservation],
+    tool_mark_mm: &Point3,
+) -> DVector<f64> {
     let mut x = DVector::zeros(17);
     let t0 = -tool_mark_mm.coords;
     x.fixed_rows_mut::<3>(11).copy_from(&t0);
@@ -211,65 +254,70 @@ pub fn calibrate_cell(
     let seen0 = Point3::from(Vector3::from(o0.xyz_mm) + o0.centre_mm.coords + t0);
     let p0 = nominal.machine_from_table(o0.tilt_deg, o0.c_deg).inverse() * seen0;
     x.fixed_rows_mut::<3>(14).copy_from(&p0.coords);
+    x
+}
 
-    let residuals = |x: &DVector<f64>| model.residuals(x, observations, tool_mark_mm);
-    let solution = least_squares::minimize(x, &residuals);
-    let (x, r, cost) = (solution.x, solution.residuals, solution.cost);
+/// What each of the 17 unknowns is, for the degeneracy message.
+const UNKNOWN_NAMES: [&str; 17] = [
+    "tilt direction",
+    "tilt direction",
+    "tilt point",
+    "tilt point",
+    "C direction",
+    "C direction",
+    "C point",
+    "C point",
+    "scanner rotation",
+    "scanner rotation",
+    "scanner rotation",
+    "scanner translation",
+    "scanner translation",
+    "scanner translation",
+    "sphere position",
+    "sphere position",
+    "sphere position",
+];
 
-    // Observability: the normal matrix at the solution.
-    let j = least_squares::jacobian(&x, &residuals);
-    let jtj = j.transpose() * &j;
+/// Refuses a solution the poses do not determine: a near-zero eigenvalue of the normal matrix
+/// `jtj`, naming the unknowns its eigenvector moves.
+fn check_observable(jtj: &DMatrix<f64>, kind: KinematicsKind) -> Result<(), CalibError> {
     let eig = jtj.clone().symmetric_eigen();
     let max_eig = eig.eigenvalues.amax();
-    let names = [
-        "tilt direction",
-        "tilt direction",
-        "tilt point",
-        "tilt point",
-        "C direction",
-        "C direction",
-        "C point",
-        "C point",
-        "scanner rotation",
-        "scanner rotation",
-        "scanner rotation",
-        "scanner translation",
-        "scanner translation",
-        "scanner translation",
-        "sphere position",
-        "sphere position",
-        "sphere position",
-    ];
     for (k, &e) in eig.eigenvalues.iter().enumerate() {
         if e < 1e-12 * max_eig {
             let v = eig.eigenvectors.column(k);
 
             let mut parts: Vec<&str> = (0..17)
                 .filter(|&i| v[i].abs() > 0.3)
-                .map(|i| names[i])
+                .map(|i| UNKNOWN_NAMES[i])
                 .collect();
             parts.dedup();
             return Err(CalibError::Degenerate(format!(
                 "the poses do not determine: {} (add poses that move those axes further)",
-                parts.join(", ").replace("tilt", &tilt_name)
+                parts.join(", ").replace("tilt", &tilt_name(kind))
             )));
         }
     }
-    let dof = (r.len() as f64 - 17.0).max(1.0);
-    let sigma2 = cost / dof;
-    let cov = jtj
-        .try_inverse()
-        .ok_or_else(|| CalibError::Degenerate("singular normal equations".into()))?
-        * sigma2;
+    Ok(())
+}
+
+/// The fit's report: residuals per pose (µm) and the standard deviations from the covariance
+/// `cov` (already scaled by `sigma2`).
+fn cell_report(
+    observations: &[SphereObservation],
+    r: &DVector<f64>,
+    cov: &DMatrix<f64>,
+    sigma2: f64,
+    iterations: usize,
+) -> CellReport {
     let sd = |a: usize, b: usize| (cov[(a, a)] + cov[(b, b)]).sqrt();
-    let (table, scanner, p) = model.unpack(&x);
     let pose_residual_um: Vec<f64> = (0..observations.len())
         .map(|i| r.fixed_rows::<3>(3 * i).norm() * observations[i].sigma_mm * 1e3)
         .collect();
     let rms_um = (pose_residual_um.iter().map(|v| v * v).sum::<f64>()
         / pose_residual_um.len() as f64)
         .sqrt();
-    let report = CellReport {
+    CellReport {
         tool_mark_residual_um: r.fixed_rows::<3>(3 * observations.len()).norm()
             * TOOL_MARK_SIGMA_MM
             * 1e3,
@@ -284,14 +332,8 @@ pub fn calibrate_cell(
             .to_degrees(),
         scanner_translation_sd_um: (cov[(11, 11)] + cov[(12, 12)] + cov[(13, 13)]).sqrt() * 1e3,
         sigma_ratio: sigma2.sqrt(),
-        iterations: solution.iterations,
-    };
-    Ok(CellCalibration {
-        table,
-        scanner,
-        sphere_table_mm: p,
-        report,
-    })
+        iterations,
+    }
 }
 
 /// The angle between two directions (degrees).

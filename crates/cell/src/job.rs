@@ -10,6 +10,8 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 use trim_geom::{ContourId, Point3, Vector3};
 
+use crate::plan_settings::PlanSettings;
+
 /// The Job format version this code writes and reads.
 pub const JOB_VERSION: u32 = 1;
 
@@ -290,18 +292,14 @@ impl GalvoSettings {
 /// The settings a job was planned with (whatever the planner needs to reproduce it).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct JobSettings {
-    /// The incidence limit (degrees).
-    pub max_incidence_deg: f64,
-    /// The kinematics name ("xyzac-trt", "xyzbc-trt", "xyz").
-    pub kinematics: String,
-    /// Galvo motion and timing.
-    pub galvo: GalvoSettings,
+    /// The planning settings, one key per job.toml table (`max_incidence_deg`, `beam`,
+    /// `zoning`, `layers`, `field`, `machine` with its `kinematics`, `galvo`, `timing`,
+    /// `calibration`).
+    #[serde(flatten)]
+    pub plan: PlanSettings,
     /// The lens model the commands were computed with.
     #[serde(default)]
     pub lens: LensRecord,
-    /// The planner's other settings (beam, zoning, machine limits), as it wrote them.
-    #[serde(default)]
-    pub extra: serde_json::Value,
 }
 
 /// What validation checked and found.

@@ -23,6 +23,7 @@ pub mod galvo_timing;
 pub mod job;
 pub mod kinematics;
 pub mod lens;
+pub mod plan_settings;
 pub mod process;
 pub mod truth;
 

@@ -31,7 +31,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     // Loading (or validating the defaults) checked [beam] and its operating point against
     // cell.laser_profile's limits.
-    let beam = config.beam;
+    let beam = config.plan.beam;
     let profile = Profile::builtin(&config.cell.laser_profile)
         .map_err(|e| anyhow::anyhow!("cell.laser_profile: {e}"))?;
     let report = beam.report();

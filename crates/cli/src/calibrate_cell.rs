@@ -119,7 +119,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let tool_mark = Point3::new(args.tool_mark[0], args.tool_mark[1], args.tool_mark[2]);
     let (names, poses, kind) = read_poses(&args.poses)?;
     let machine = match &args.job {
-        Some(j) => JobConfig::load(j)?.machine,
+        Some(j) => JobConfig::load(j)?.plan.machine,
         None => MachineSettings::default(),
     };
     if machine.kinematics != kind {

@@ -9,50 +9,25 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 use toml::Value;
-use trim_cell::cell_model::{Calibration, ScanPose};
-use trim_cell::kinematics::MachineSettings;
+use trim_cell::cell_model::ScanPose;
 use trim_cell::truth::TruthSettings;
-use trim_cell::{Beam, GalvoSettings, TimingSettings};
-use trim_plan::ZoningSettings;
-use trim_plan::field::LensSettings;
 use trim_plan::hatch::HatchSettings;
-use trim_plan::layer::LayerSettings;
 use trim_plan::planner::PlanSettings;
 use trim_register::regional::RegisterSettings;
 
 /// A whole job: part files, registration, planning (incidence limit, beam, zoning, layers, lens
 /// field, machine, galvo), the cell and the output folder. Each table is one section of job.toml.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields, default)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(default)]
 pub struct JobConfig {
     /// The part's files, relative to this file. Leave all three out for the built-in demo part.
     pub part: PartConfig,
     /// Registration of the CAM path onto the scan (docs/DESIGN.md "Registration").
     pub register: RegisterSettings,
-    /// Incidence limit: the largest angle between a contour's feature vector and the beam, lens ray
-    /// angle included.
-    pub max_incidence_deg: f64,
-    /// Laser and lens (paper §2.1-2.2); the defaults are the paper's cell. The operating point
-    /// (power_w, repetition_rate_hz) must be within the limits of cell.laser_profile.
-    pub beam: Beam,
-    /// k-means zoning under the incidence limit (paper §2.4).
-    pub zoning: ZoningSettings,
-    /// Layers along each zone axis (paper Eq. 14).
-    pub layers: LayerSettings,
-    /// The lens and the galvo field.
-    pub field: LensSettings,
-    /// Machine kinematics, travel limits and speeds (LinuxCNC names).
-    pub machine: MachineSettings,
-    /// Galvo field, calibration, speeds and delays.
-    pub galvo: GalvoSettings,
-    /// What the cell adds to the commanded cycle-time model, learned from recorded runs by
-    /// `trimctl calibrate timing` (which also writes the [machine] move keys). 0: the commanded
-    /// speeds and delays alone.
-    pub timing: TimingSettings,
-    /// The cell as measured by `trimctl calibrate cell` / `calibrate field` (docs/DESIGN.md "Frames
-    /// and the calibration chain"). A missing key is the nominal value of [machine] (axis lines),
-    /// the identity (scanner) or none (field correction).
-    pub calibration: Calibration,
+    /// The planning tables: top-level `max_incidence_deg` and `[beam]`, `[zoning]`, `[layers]`,
+    /// `[field]`, `[machine]`, `[galvo]`, `[timing]`, `[calibration]`, as the planner takes them.
+    #[serde(flatten)]
+    pub plan: PlanSettings,
     /// Where the devices are: "sim" starts the built-in simulator for that device.
     pub cell: CellConfig,
     /// The built-in simulators used where [cell] says "sim".
@@ -117,29 +92,6 @@ impl<'de> Deserialize<'de> for HatchRegion {
             .try_into()
             .map_err(|e: toml::de::Error| D::Error::custom(e.message().trim()))?;
         Ok(HatchRegion { boundary, settings })
-    }
-}
-
-impl Default for JobConfig {
-    fn default() -> Self {
-        let plan = PlanSettings::default();
-        JobConfig {
-            part: PartConfig::default(),
-            register: RegisterSettings::default(),
-            max_incidence_deg: plan.max_incidence_deg,
-            beam: plan.beam,
-            zoning: plan.zoning,
-            layers: plan.layers,
-            field: plan.field,
-            machine: plan.machine,
-            galvo: plan.galvo,
-            timing: plan.timing,
-            calibration: plan.calibration,
-            cell: CellConfig::default(),
-            sim: SimConfig::default(),
-            output: OutputConfig::default(),
-            hatch: Vec::new(),
-        }
     }
 }
 
@@ -274,7 +226,7 @@ impl JobConfig {
         ]
         .into_iter()
         .chain([
-            &mut config.calibration.field_correction,
+            &mut config.plan.calibration.field_correction,
             &mut config.sim.truth.path,
         ])
         .flatten()
@@ -292,43 +244,45 @@ impl JobConfig {
     }
 
     /// Parses job TOML and checks every value's range.
+    ///
+    /// The planning tables are flattened into JobConfig, so serde neither refuses an unknown
+    /// top-level key nor keeps the key path and line of an error inside them: the unknown keys
+    /// are refused first, and the planning tables are read once on their own.
     pub fn parse(text: &str) -> anyhow::Result<JobConfig> {
-        // One line: where (line and key path), then toml's message.
-        let where_in = |e: &toml::de::Error| {
-            e.span()
-                .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1)
-        };
-        let de = toml::Deserializer::parse(text).map_err(|e| {
-            let message = e.message().trim().replace('\n', " ");
-            match where_in(&e) {
-                Some(l) => anyhow::anyhow!("line {l}: {message}"),
-                None => anyhow::anyhow!("{message}"),
-            }
-        })?;
-        let config: JobConfig = serde_path_to_error::deserialize(de).map_err(|e| {
-            let key = e.path().to_string();
-            let inner = e.inner();
-            let message = inner.message().trim().replace('\n', " ");
-            let key = if key == "." {
-                String::new()
-            } else {
-                format!("{key}: ")
-            };
-            match where_in(inner) {
-                Some(l) => anyhow::anyhow!("line {l}: {key}{message}"),
-                None => anyhow::anyhow!("{key}{message}"),
-            }
-        })?;
+        let doc = parse_document(text)?;
+        let known = table_keys(&JobConfig::default());
+        if let Some((key, _)) = doc
+            .get_ref()
+            .iter()
+            .find(|(key, _)| !known.iter().any(|k| k == key.get_ref()))
+        {
+            let expected: Vec<String> = known.iter().map(|k| format!("`{k}`")).collect();
+            bail!(
+                "line {}: {key}: unknown field `{key}`, expected one of {}",
+                line_of(text, key.span().start),
+                expected.join(", "),
+                key = key.get_ref(),
+            );
+        }
+        let plan_keys = table_keys(&PlanSettings::default());
+        let span = doc.span();
+        let plan_tables: toml::de::DeTable = doc
+            .into_inner()
+            .into_iter()
+            .filter(|(key, _)| plan_keys.iter().any(|k| k == key.get_ref()))
+            .collect();
+        deserialize::<PlanSettings>(text, toml::Spanned::new(span, plan_tables))?;
+        let config: JobConfig = deserialize(text, parse_document(text)?)?;
         config.validate()?;
         Ok(config)
     }
 
     /// Checks every value's range, naming the key at fault.
     pub fn validate(&self) -> anyhow::Result<()> {
-        self.plan_settings().validate()?;
+        self.plan.validate()?;
         self.sim
             .truth
-            .validate(self.machine.kinematics)
+            .validate(self.plan.machine.kinematics)
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         self.register
             .validate()
@@ -346,13 +300,15 @@ impl JobConfig {
         }
         let profile = trim_io::laser::Profile::builtin(&self.cell.laser_profile)
             .map_err(|e| anyhow::anyhow!("cell.laser_profile: {e}"))?;
-        profile.check_operating_point(&self.beam).map_err(|e| {
-            anyhow::anyhow!(
-                "[beam] with cell.laser_profile = {:?}: {e} (crates/io/profiles/{}.toml)",
-                self.cell.laser_profile,
-                profile.name
-            )
-        })?;
+        profile
+            .check_operating_point(&self.plan.beam)
+            .map_err(|e| {
+                anyhow::anyhow!(
+                    "[beam] with cell.laser_profile = {:?}: {e} (crates/io/profiles/{}.toml)",
+                    self.cell.laser_profile,
+                    profile.name
+                )
+            })?;
         for (i, h) in self.hatch.iter().enumerate() {
             h.settings
                 .validate()
@@ -373,21 +329,6 @@ impl JobConfig {
         Ok(())
     }
 
-    /// The planner's settings.
-    pub fn plan_settings(&self) -> PlanSettings {
-        PlanSettings {
-            max_incidence_deg: self.max_incidence_deg,
-            beam: self.beam,
-            zoning: self.zoning,
-            layers: self.layers,
-            field: self.field,
-            machine: self.machine,
-            galvo: self.galvo,
-            calibration: self.calibration.clone(),
-            timing: self.timing,
-        }
-    }
-
     /// The scan (scanner frame) in the work-piece frame: through the scanner's pose on the
     /// head, the machine pose of `[part.scan_pose]` and the rotary axes, all as `[calibration]`
     /// says. Refuses a non-finite pose by its key, and a chain that carries a point out of the
@@ -400,10 +341,10 @@ impl JobConfig {
             .scan_pose
             .validate()
             .map_err(|e| anyhow::anyhow!("{e}"))?;
-        let settings = self.plan_settings();
+        let settings = &self.plan;
         let chain = trim_cell::cell_model::ScanChain {
             table: settings.table(),
-            scanner: self.calibration.scanner(),
+            scanner: settings.calibration.scanner(),
             pose: self.part.scan_pose,
             workpiece_origin_mm: settings.machine.workpiece_origin_mm.into(),
         };
@@ -418,6 +359,53 @@ impl JobConfig {
     /// Whether the job runs the built-in demo part.
     pub fn is_demo(&self) -> bool {
         self.part.cad.is_none()
+    }
+}
+
+/// The 1-based line of byte `at` of `text`.
+fn line_of(text: &str, at: usize) -> usize {
+    text[..at.min(text.len())].matches('\n').count() + 1
+}
+
+/// Parses TOML, keeping every key's and value's place; a syntax error names its line.
+fn parse_document(text: &str) -> anyhow::Result<toml::Spanned<toml::de::DeTable<'_>>> {
+    toml::de::DeTable::parse(text).map_err(|e| {
+        let message = e.message().trim().replace('\n', " ");
+        match e.span() {
+            Some(s) => anyhow::anyhow!("line {}: {message}", line_of(text, s.start)),
+            None => anyhow::anyhow!("{message}"),
+        }
+    })
+}
+
+/// Deserializes a parsed job file (`text` its source) into `T`; an error reads on one line:
+/// where (line and key path), then serde's message.
+fn deserialize<T: serde::de::DeserializeOwned>(
+    text: &str,
+    doc: toml::Spanned<toml::de::DeTable<'_>>,
+) -> anyhow::Result<T> {
+    serde_path_to_error::deserialize(toml::Deserializer::from(doc)).map_err(|e| {
+        let key = e.path().to_string();
+        let inner = e.inner();
+        let message = inner.message().trim().replace('\n', " ");
+        let key = if key == "." {
+            String::new()
+        } else {
+            format!("{key}: ")
+        };
+        match inner.span() {
+            Some(s) => anyhow::anyhow!("line {}: {key}{message}", line_of(text, s.start)),
+            None => anyhow::anyhow!("{key}{message}"),
+        }
+    })
+}
+
+/// The top-level keys of a settings type, in order (none of these types has an unset `Option`
+/// at the top, which would not serialise).
+fn table_keys<T: Serialize>(settings: &T) -> Vec<String> {
+    match Value::try_from(settings) {
+        Ok(Value::Table(t)) => t.keys().cloned().collect(),
+        _ => Vec::new(),
     }
 }
 
@@ -798,6 +786,48 @@ mod tests {
             e.contains("part.scan_pose") && e.contains("not finite"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn the_planning_tables_are_plan_settings_and_keep_line_and_key_in_errors() {
+        // A job with a value in every planning table reads into PlanSettings as the planner's
+        // own parse does, and the effective file a run writes reads back the same.
+        let text = "max_incidence_deg = 4.0\n[beam]\npower_w = 40.0\n[zoning]\nmethod = \"kmeans\"\nk = 3\n\
+            [layers]\nstep_mm = 0.2\n[field]\ntelecentric = true\n[machine]\nkinematics = \"xyzbc-trt\"\n\
+            [galvo]\nfield_mm = [80.0, 80.0]\n[timing]\nlayer_overhead_s = 0.01\n\
+            [calibration.lens]\npivot_to_focal_plane_mm = 250.0\n[register]\nmode = \"global\"\n";
+        let c = JobConfig::parse(text).unwrap();
+        let alone: PlanSettings =
+            toml::from_str(&text[..text.find("[register]").unwrap()]).unwrap();
+        assert_eq!(c.plan, alone);
+        assert_ne!(c.plan, PlanSettings::default());
+        assert_eq!(JobConfig::parse(&toml::to_string(&c).unwrap()).unwrap(), c);
+        assert_eq!(
+            JobConfig::parse(&toml::to_string(&JobConfig::default()).unwrap()).unwrap(),
+            JobConfig::default()
+        );
+        // Errors inside a flattened table name their line and key path, as any other table's.
+        for (text, expected) in [
+            (
+                "\n[beam]\npowr_w = 10\n",
+                "line 3: beam.powr_w: unknown field `powr_w`",
+            ),
+            (
+                "[layers]\nstep_mm = \"a\"\n",
+                "line 2: layers.step_mm: invalid type",
+            ),
+            (
+                "max_incidence_deg = \"x\"\n",
+                "line 1: max_incidence_deg: invalid type",
+            ),
+            (
+                "[part]\n[bem]\n",
+                "line 2: bem: unknown field `bem`, expected one of `part`",
+            ),
+        ] {
+            let e = format!("{:#}", JobConfig::parse(text).unwrap_err());
+            assert!(e.starts_with(expected), "{text}: {e}");
+        }
     }
 
     #[test]

@@ -164,7 +164,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let keys = targets(&job, &args, &plan)?;
     // Every layer is checked before anything moves: its pose inside `[machine]`'s limits, ...
-    trim_io::limits::check_poses(&job, &config.machine, Some(&keys))
+    trim_io::limits::check_poses(&job, &config.plan.machine, Some(&keys))
         .map_err(|e| anyhow::anyhow!("{}: {e}; refusing to move there", plan.display()))?;
     for key in &keys {
         trim_io::frame::find_layer(&job, *key)
@@ -173,15 +173,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .layers()
             .find(|(k, _, _)| k == key)
             .with_context(|| format!("zone {} has no layer {}", key.zone, key.layer))?;
-        trim_io::galvo::outline::layer_outline(layer, &job.settings.galvo, args.outline.into())
-            .map_err(|e| {
-                anyhow::anyhow!(
-                    "{}: zone {} layer {}: {e}",
-                    plan.display(),
-                    key.zone,
-                    key.layer
-                )
-            })?;
+        trim_io::galvo::outline::layer_outline(
+            layer,
+            &job.settings.plan.galvo,
+            args.outline.into(),
+        )
+        .map_err(|e| {
+            anyhow::anyhow!(
+                "{}: zone {} layer {}: {e}",
+                plan.display(),
+                key.zone,
+                key.layer
+            )
+        })?;
     }
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
@@ -299,7 +303,7 @@ fn stop_failure(cause: StopCause) -> anyhow::Error {
 }
 
 fn framed_line(f: &Framed, job: &Job) -> String {
-    let [w, h] = f.outline.extent_mm(&job.settings.galvo);
+    let [w, h] = f.outline.extent_mm(&job.settings.plan.galvo);
     format!(
         "zone {} layer {}: {} of {} points, {} vertices, {w:.2} × {h:.2} mm; {} passes ({} vectors) in {:.2} s, gate shut",
         f.key.zone,

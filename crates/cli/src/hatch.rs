@@ -275,15 +275,7 @@ fn error_colour(relative: f64) -> String {
     format!("hsl({hue:.0},80%,40%)")
 }
 
-/// Hatch tracks take negative contour ids, so they never collide with a CAM path's: region `r`,
-/// track `t` is `−(1 + r·TRACKS_PER_REGION + t)`.
-pub const TRACKS_PER_REGION: i64 = 100_000;
-
-/// The contour id of track `track` of region `region`.
-#[must_use]
-pub fn track_id(region: usize, track: usize) -> i64 {
-    -(1 + region as i64 * TRACKS_PER_REGION + track as i64)
-}
+pub use trim_plan::hatch::track_ids::{TRACKS_PER_REGION, track_id};
 
 /// Refuses a path whose contour ids would collide with hatch tracks (negative ids).
 pub fn check_path_ids(path: &trim_geom::Path, what: &FsPath) -> anyhow::Result<()> {

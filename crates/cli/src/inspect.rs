@@ -244,15 +244,15 @@ fn merged_scan(args: &Args, config: Option<&JobConfig>) -> anyhow::Result<PointC
     let (names, poses, kind) = crate::calibrate_cell::read_poses(poses_file)?;
     let defaults = JobConfig::default();
     let job = config.unwrap_or(&defaults);
-    if job.machine.kinematics != kind {
+    if job.plan.machine.kinematics != kind {
         bail!(
             "{}: the header names a {} cell, the job's [machine] is {}",
             poses_file.display(),
             kind.name(),
-            job.machine.kinematics.name()
+            job.plan.machine.kinematics.name()
         );
     }
-    let plan = job.plan_settings();
+    let plan = &job.plan;
     let mut points = Vec::new();
     for file in &args.scan {
         let name = file
@@ -268,7 +268,7 @@ fn merged_scan(args: &Args, config: Option<&JobConfig>) -> anyhow::Result<PointC
         };
         let chain = ScanChain {
             table: plan.table(),
-            scanner: job.calibration.scanner(),
+            scanner: job.plan.calibration.scanner(),
             pose: ScanPose {
                 xyz_mm: poses[k].xyz_mm,
                 tilt_deg: poses[k].tilt_deg,

@@ -39,11 +39,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // A job file is checked whole on load, its [beam] against cell.laser_profile's limits
     // included; the defaults are checked the same way.
     let mut settings = match &args.config {
-        Some(path) => JobConfig::load(path)?.plan_settings(),
+        Some(path) => JobConfig::load(path)?.plan.clone(),
         None => {
             let config = JobConfig::default();
             config.validate().context("the default job")?;
-            config.plan_settings()
+            config.plan.clone()
         }
     };
     if let Some(file) = &args.timing {

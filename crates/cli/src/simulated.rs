@@ -93,7 +93,7 @@ pub(crate) fn twin(
     match line {
         Some(line) if config.cell.galvo == crate::config::SIM => (
             Some(Twin::new(
-                TrueCell::new(&config.sim.truth, &config.plan_settings()),
+                TrueCell::new(&config.sim.truth, &config.plan),
                 TruePart::new(&line),
             )),
             line.contours().iter().map(trim_geom::Contour::id).collect(),
@@ -136,7 +136,7 @@ pub(crate) fn spot_report(
 pub(crate) fn true_scanner_from_workpiece(
     config: &JobConfig,
 ) -> anyhow::Result<nalgebra::Isometry3<f64>> {
-    let truth_cell = trim_sim::twin::TrueCell::new(&config.sim.truth, &config.plan_settings());
+    let truth_cell = trim_sim::twin::TrueCell::new(&config.sim.truth, &config.plan);
     Ok(truth_cell.scanner_from_workpiece(&config.part.scan_pose))
 }
 

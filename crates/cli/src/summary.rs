@@ -186,7 +186,7 @@ pub fn zone_table(plan: &PlanOutput) -> String {
         let c = r.centre;
         let _ = writeln!(
             s,
-            "  {:>4}  {:>7}  ({:>8.3}, {:>8.3}, {:>8.3}, {:>6.3}, {:>6.3}, {:>6.3})  {:>9.3}  {:>10.3}  {:>6.3}  {:>6}  {:?}",
+            "  {:>4}  {:>7}  ({:>8.3}, {:>8.3}, {:>8.3}, {:>6.3}, {:>6.3}, {:>6.3})  {:>9.3}  {:>10.3}  {:>6.3}  {:>6}  {}",
             r.zone,
             r.cluster,
             c[0],
@@ -199,7 +199,7 @@ pub fn zone_table(plan: &PlanOutput) -> String {
             r.max_incidence_deg,
             r.max_incidence_with_lens_deg,
             r.layers,
-            r.contours
+            trim_plan::hatch::track_ids::describe_contours(&r.contours)
         );
     }
     let unreachable = &plan.job.validation.unreachable_zones;

@@ -233,8 +233,8 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
     }
     let truth = crate::twin_demo::demo_truth(
         args.seed,
-        &defaults.machine,
-        defaults.beam.focal_length_mm,
+        &defaults.plan.machine,
+        defaults.plan.beam.focal_length_mm,
         &magnitudes,
     );
     std::fs::create_dir_all(&args.out)
@@ -266,10 +266,11 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
         &centred,
         truth
             .pivot_to_focal_plane_mm
-            .unwrap_or(defaults.beam.focal_length_mm),
+            .unwrap_or(defaults.plan.beam.focal_length_mm),
         &trim_calib::field::MarkGrid {
             grid: FIELD_GRID,
-            half_field_mm: 0.5 * defaults.galvo.field_mm[0].min(defaults.galvo.field_mm[1]),
+            half_field_mm: 0.5
+                * defaults.plan.galvo.field_mm[0].min(defaults.plan.galvo.field_mm[1]),
             heights_mm: FIELD_HEIGHTS_MM.to_vec(),
             noise_um: MARK_NOISE_UM,
             offset_fraction: 0.0,
@@ -280,7 +281,7 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
     // The sphere scans: a Ø 25.4 mm sphere on a stem on the table, scanned at the default
     // poses by the true scanner on the true table; the tool mark at command 0 lands where the
     // true head puts it.
-    let plan = defaults.plan_settings();
+    let plan = defaults.plan.clone();
     let nominal = trim_cell::cell_model::TableModel::nominal(&plan.machine);
     // The true cell's lines and scanner (as the digital twin resolves them).
     let true_cell = truth.as_calibration();

@@ -166,11 +166,8 @@ fn plan_refuses_points_outside_the_profile_before_planning_and_plans_the_papers_
     let job: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&out_json).expect("the plan is written"))
             .expect("the plan is JSON");
-    assert_eq!(job["settings"]["extra"]["beam"]["power_w"], 53.59);
-    assert_eq!(
-        job["settings"]["extra"]["beam"]["repetition_rate_hz"],
-        250000.0
-    );
+    assert_eq!(job["settings"]["beam"]["power_w"], 53.59);
+    assert_eq!(job["settings"]["beam"]["repetition_rate_hz"], 250000.0);
 }
 
 #[test]

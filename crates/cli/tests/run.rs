@@ -105,6 +105,21 @@ fn demo_runs_to_the_end_and_leaves_a_complete_run_folder() {
     }
     // The run report gives every contour's predicted error bound, as registration.json does.
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    // The demo hatches one region: the zone table (printed and in the report) and the SVG name
+    // its tracks, not their internal negative ids.
+    let svg = std::fs::read_to_string(out.join("plan.svg")).unwrap();
+    for (what, text) in [
+        ("stdout", &*stdout),
+        ("report.md", &*report),
+        ("plan.svg", &*svg),
+    ] {
+        let lines: Vec<&str> = text
+            .lines()
+            .filter(|l| l.contains("hatch[0] track"))
+            .collect();
+        assert!(!lines.is_empty(), "{what}:\n{text}");
+        assert!(lines.iter().all(|l| !l.contains("[-")), "{what}:\n{text}");
+    }
     let quality: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("registration.json")).unwrap())
             .unwrap();

@@ -8,8 +8,7 @@ use std::collections::BTreeMap;
 
 use tokio_util::sync::CancellationToken;
 use trim_cell::job::{
-    Frame, GalvoSettings, Job, JobSettings, Layer, Polyline, Pose, TimeEstimate, ValidationReport,
-    Zone,
+    Frame, Job, JobSettings, Layer, Polyline, Pose, TimeEstimate, ValidationReport, Zone,
 };
 use trim_io::cell::{Cell, Timeouts};
 use trim_io::executor::Executor;
@@ -67,10 +66,7 @@ fn job() -> Job {
         zones,
         settings: JobSettings {
             lens: Default::default(),
-            max_incidence_deg: 5.0,
-            kinematics: "xyzac-trt".into(),
-            galvo: GalvoSettings::default(),
-            extra: serde_json::Value::Null,
+            plan: trim_cell::plan_settings::PlanSettings::default(),
         },
         validation: ValidationReport::default(),
         estimate: TimeEstimate::default(),

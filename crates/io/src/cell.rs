@@ -61,6 +61,24 @@ pub struct Timeouts {
     pub journal_write: Duration,
 }
 
+impl Timeouts {
+    /// A galvo request's timeout: every attempt's reply timeout plus slack.
+    #[must_use]
+    pub fn galvo_request(&self) -> Duration {
+        self.galvo_reply * (self.galvo_resends + 1) + Duration::from_millis(100)
+    }
+
+    /// Loading a list of `commands` commands: one galvo request per frame of
+    /// [`crate::galvo::client::COMMANDS_PER_FRAME`].
+    #[must_use]
+    pub fn galvo_load(&self, commands: usize) -> Duration {
+        let frames = u32::try_from(commands.div_ceil(crate::galvo::client::COMMANDS_PER_FRAME))
+            .unwrap_or(u32::MAX)
+            .max(1);
+        self.galvo_request() * frames
+    }
+}
+
 impl Default for Timeouts {
     fn default() -> Self {
         Timeouts {

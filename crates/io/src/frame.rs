@@ -17,7 +17,7 @@ use tokio_util::sync::CancellationToken;
 use trim_cell::job::{Job, Layer, LayerKey};
 
 use crate::cell::{Cell, Timeouts};
-use crate::executor::{Executor, StopCause};
+use crate::executor::{Executor, Preparation, StopCause, prepare_cell};
 use crate::galvo::GalvoClient;
 use crate::galvo::outline::{Outline, OutlineKind, frame_list, frame_tag, layer_outline};
 use crate::galvo::protocol::StatusBlock;
@@ -57,8 +57,7 @@ impl FrameSettings {
     }
 
     fn galvo_timeout(&self) -> Duration {
-        let t = &self.timeouts;
-        t.galvo_reply * (t.galvo_resends + 1) + Duration::from_millis(100)
+        self.timeouts.galvo_request()
     }
 }
 
@@ -124,9 +123,9 @@ pub async fn frame_layer<T>(
     cancel: &CancellationToken,
 ) -> Result<(Framed, Option<T>), StopCause> {
     let layer = find_layer(job, key)?;
-    let outline = layer_outline(layer, &job.settings.galvo, settings.outline)
+    let outline = layer_outline(layer, &job.settings.plan.galvo, settings.outline)
         .map_err(|e| job_error(format!("zone {} layer {}: {e}", key.zone, key.layer)))?;
-    let commands = frame_list(&outline, &job.settings.galvo);
+    let commands = frame_list(&outline, &job.settings.plan.galvo);
     let pass_s = ListClock::list_s(&commands);
     let result = trace(
         cell, layer, key, settings, &commands, passes, pass_s, hold, cancel,
@@ -151,7 +150,7 @@ pub async fn frame_layer<T>(
     }
 }
 
-/// The device steps of [`frame_layer`]; the caller takes the way down on failure.
+/// The device steps of [`frame_layer`], in order; the caller takes the way down on failure.
 #[expect(clippy::too_many_arguments)] // one layer's framing: its inputs, each used once
 async fn trace<T>(
     cell: &mut Cell,
@@ -164,77 +163,58 @@ async fn trace<T>(
     hold: impl Future<Output = T>,
     cancel: &CancellationToken,
 ) -> Result<(u32, u32, f64, Option<T>), StopCause> {
-    let (t, gt) = (settings.timeouts, settings.galvo_timeout());
-    // The light path shut first: emission off (acknowledged), the galvo's signals disabled.
+    // The light path shut first (emission off, acknowledged; the galvo's signals disabled), as
+    // a run prepares the cell.
+    let steps = Preparation {
+        laser_signals: false,
+        check_laser: false,
+        power_pct: None,
+        enable: settings.prepare.then_some(settings.enable),
+    };
+    prepare_cell(cell, &settings.timeouts, cancel, steps).await?;
+    move_to_pose(cell, layer, &settings.timeouts, cancel).await?;
+    load_frame(cell, key, settings, commands, cancel).await?;
+    let t_on = start_trace(cell, settings, passes, cancel).await?;
+    let held = follow_trace(cell, key, settings, passes, pass_s, t_on, hold, cancel).await?;
+    let traced_s = t_on.elapsed().as_secs_f64();
+    let (passes_done, vectors_traced) = end_trace(cell, settings, cancel).await?;
+    Ok((passes_done, vectors_traced, traced_s, held))
+}
+
+/// The CNC to the layer's pose, as the executor moves it, and in position.
+async fn move_to_pose(
+    cell: &mut Cell,
+    layer: &Layer,
+    t: &Timeouts,
+    cancel: &CancellationToken,
+) -> Result<(), StopCause> {
+    let moving = cell.cnc.start_move(&layer.pose);
+    Executor::guard(cancel, t.cnc_reply, Device::Cnc, "move", moving).await?;
+    let waiting = cell.cnc.wait_in_position(t.cnc_motion);
+    let wait_timeout = t.cnc_motion + Duration::from_secs(1);
     Executor::guard(
         cancel,
-        t.laser_reply,
-        Device::Laser,
-        "emission off",
-        cell.laser.emission(false),
-    )
-    .await?;
-    if settings.prepare {
-        Executor::guard(
-            cancel,
-            gt,
-            Device::Galvo,
-            "RESET_ERROR",
-            cell.galvo.reset_error(),
-        )
-        .await?;
-    }
-    Executor::guard(
-        cancel,
-        gt,
-        Device::Galvo,
-        "LASER_SIGNALS off",
-        cell.galvo.laser_signals(false),
-    )
-    .await?;
-    if settings.prepare {
-        Executor::guard(
-            cancel,
-            t.cnc_motion,
-            Device::Cnc,
-            "enable",
-            cell.cnc.enable(settings.enable),
-        )
-        .await?;
-    }
-    // The pose, as the executor moves to it.
-    Executor::guard(
-        cancel,
-        t.cnc_reply,
-        Device::Cnc,
-        "move",
-        cell.cnc.start_move(&layer.pose),
-    )
-    .await?;
-    Executor::guard(
-        cancel,
-        t.cnc_motion + Duration::from_secs(1),
+        wait_timeout,
         Device::Cnc,
         "wait in position",
-        cell.cnc.wait_in_position(t.cnc_motion),
+        waiting,
     )
     .await?;
-    let frames = u32::try_from(
-        commands
-            .len()
-            .div_ceil(crate::galvo::client::COMMANDS_PER_FRAME),
-    )
-    .unwrap_or(u32::MAX)
-    .max(1);
+    Ok(())
+}
+
+/// The frame list loaded, and the galvo's light path checked shut.
+async fn load_frame(
+    cell: &mut Cell,
+    key: LayerKey,
+    settings: &FrameSettings,
+    commands: &[crate::galvo::protocol::ListCommand],
+    cancel: &CancellationToken,
+) -> Result<(), StopCause> {
     let tag = frame_tag(key.zone, key.layer);
-    Executor::guard(
-        cancel,
-        gt * frames,
-        Device::Galvo,
-        "LOAD_LIST",
-        cell.galvo.load_list(settings.list, tag, commands),
-    )
-    .await?;
+    let loading = cell.galvo.load_list(settings.list, tag, commands);
+    let load_timeout = settings.timeouts.galvo_load(commands.len());
+    Executor::guard(cancel, load_timeout, Device::Galvo, "LOAD_LIST", loading).await?;
     let s = galvo_status(&cell.galvo, settings, cancel).await?;
     if s.gate_open || s.laser_signals {
         return Err(galvo_fault(format!(
@@ -242,25 +222,39 @@ async fn trace<T>(
             s.gate_open, s.laser_signals
         )));
     }
-    Executor::guard(
-        cancel,
-        gt,
-        Device::Galvo,
-        "POINTER on",
-        cell.galvo.pointer(true),
-    )
-    .await?;
-    let t_on = Instant::now();
-    Executor::guard(
-        cancel,
-        gt,
-        Device::Galvo,
-        "EXECUTE_FRAME",
-        cell.galvo.execute_frame(settings.list, passes),
-    )
-    .await?;
+    Ok(())
+}
 
-    // The trace: poll until the passes are done, or `hold` resolves after the first pass.
+/// The pointer on and the frame list run (`EXECUTE_FRAME`); returns when the pointer went on.
+async fn start_trace(
+    cell: &mut Cell,
+    settings: &FrameSettings,
+    passes: u32,
+    cancel: &CancellationToken,
+) -> Result<Instant, StopCause> {
+    let gt = settings.galvo_timeout();
+    let pointer = cell.galvo.pointer(true);
+    Executor::guard(cancel, gt, Device::Galvo, "POINTER on", pointer).await?;
+    let t_on = Instant::now();
+    let execute = cell.galvo.execute_frame(settings.list, passes);
+    Executor::guard(cancel, gt, Device::Galvo, "EXECUTE_FRAME", execute).await?;
+    Ok(t_on)
+}
+
+/// The trace: polls until the passes are done, or `hold` resolves after the first whole pass;
+/// returns `hold`'s output if it ended the trace.
+#[expect(clippy::too_many_arguments)] // the trace's inputs, each used once
+async fn follow_trace<T>(
+    cell: &mut Cell,
+    key: LayerKey,
+    settings: &FrameSettings,
+    passes: u32,
+    pass_s: f64,
+    t_on: Instant,
+    hold: impl Future<Output = T>,
+    cancel: &CancellationToken,
+) -> Result<Option<T>, StopCause> {
+    let (t, gt) = (settings.timeouts, settings.galvo_timeout());
     let deadline = (passes > 0).then(|| {
         t_on + Duration::from_secs_f64(pass_s * f64::from(passes) * t.list_time_factor)
             + t.list_time_margin
@@ -268,7 +262,6 @@ async fn trace<T>(
     let first_pass_deadline =
         t_on + Duration::from_secs_f64(pass_s * t.list_time_factor) + t.list_time_margin;
     let mut hold = std::pin::pin!(hold);
-    let mut held = None;
     loop {
         let s = galvo_status(&cell.galvo, settings, cancel).await?;
         if s.gate_open || s.marks_done > 0 {
@@ -277,18 +270,12 @@ async fn trace<T>(
                 s.gate_open, s.marks_done
             )));
         }
-        let f = Executor::guard(
-            cancel,
-            gt,
-            Device::Galvo,
-            "FRAME_STATUS",
-            cell.galvo.frame_status(),
-        )
-        .await?;
+        let status = cell.galvo.frame_status();
+        let f = Executor::guard(cancel, gt, Device::Galvo, "FRAME_STATUS", status).await?;
         let passes_seen = f.passes_done;
         if !f.framing {
             if passes > 0 && f.passes_done >= passes {
-                break;
+                return Ok(None);
             }
             return Err(galvo_fault(format!(
                 "the galvo ended the frame: {:?}, error code {}, {} passes traced",
@@ -316,36 +303,32 @@ async fn trace<T>(
         } else {
             tokio::select! {
                 () = cancel.cancelled() => return Err(StopCause::Cancelled),
-                h = &mut hold => { held = Some(h); break; }
+                h = &mut hold => return Ok(Some(h)),
                 () = poll => {}
             }
         }
     }
-    let traced_s = t_on.elapsed().as_secs_f64();
+}
+
+/// The trace stopped and the pointer off, checked; returns the passes and vectors traced.
+async fn end_trace(
+    cell: &mut Cell,
+    settings: &FrameSettings,
+    cancel: &CancellationToken,
+) -> Result<(u32, u32), StopCause> {
+    let gt = settings.galvo_timeout();
     Executor::guard(cancel, gt, Device::Galvo, "STOP", cell.galvo.stop()).await?;
-    Executor::guard(
-        cancel,
-        gt,
-        Device::Galvo,
-        "POINTER off",
-        cell.galvo.pointer(false),
-    )
-    .await?;
-    let f = Executor::guard(
-        cancel,
-        gt,
-        Device::Galvo,
-        "FRAME_STATUS",
-        cell.galvo.frame_status(),
-    )
-    .await?;
+    let pointer = cell.galvo.pointer(false);
+    Executor::guard(cancel, gt, Device::Galvo, "POINTER off", pointer).await?;
+    let status = cell.galvo.frame_status();
+    let f = Executor::guard(cancel, gt, Device::Galvo, "FRAME_STATUS", status).await?;
     if f.pointer || f.framing {
         return Err(galvo_fault(format!(
             "after framing the galvo reports pointer {} and framing {}",
             f.pointer, f.framing
         )));
     }
-    Ok((f.passes_done, f.vectors_traced, traced_s, held))
+    Ok((f.passes_done, f.vectors_traced))
 }
 
 async fn galvo_status(

@@ -467,7 +467,7 @@ impl Journal {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use trim_cell::job::{GalvoSettings, JobSettings, TimeEstimate, ValidationReport};
+    use trim_cell::job::{JobSettings, TimeEstimate, ValidationReport};
 
     fn job() -> Job {
         Job {
@@ -477,10 +477,7 @@ mod tests {
             zones: vec![],
             settings: JobSettings {
                 lens: Default::default(),
-                max_incidence_deg: 5.0,
-                kinematics: "xyzac-trt".into(),
-                galvo: GalvoSettings::default(),
-                extra: serde_json::Value::Null,
+                plan: trim_cell::plan_settings::PlanSettings::default(),
             },
             validation: ValidationReport::default(),
             estimate: TimeEstimate::default(),

@@ -17,69 +17,14 @@
 //! piece at half its length (the cut point ends one part and starts the other). A piece shorter
 //! than [`MIN_SPLIT_LENGTH_MM`] is not cut further; validation then reports what is left.
 
-use serde::{Deserialize, Serialize};
 use trim_geom::{Point3, UnitVector3, Vector3};
 
-use crate::error::PlanError;
 use crate::piece::{Piece, angle_rad};
-use trim_cell::error::require_range;
 use trim_cell::frame::paper_frame;
+pub use trim_cell::plan_settings::LensSettings;
 
 /// Pieces shorter than this (mm) are not cut further by sectioning.
 pub const MIN_SPLIT_LENGTH_MM: f64 = 0.05;
-
-/// Lens options (job.toml `[field]`). The field size itself is `GalvoSettings::field_mm`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields, default)]
-pub struct LensSettings {
-    /// A telecentric lens: the beam is parallel to the optical axis everywhere in the field.
-    pub telecentric: bool,
-    /// For a non-telecentric lens: the part of the incidence limit reserved for the lens ray angle
-    /// (degrees). Zoning keeps feature vectors within (limit − this) of the zone axis; sectioning
-    /// then keeps feature-to-ray angles within the full limit.
-    pub lens_ray_budget_deg: f64,
-}
-
-impl Default for LensSettings {
-    fn default() -> Self {
-        LensSettings {
-            telecentric: false,
-            lens_ray_budget_deg: 2.0,
-        }
-    }
-}
-
-impl LensSettings {
-    /// Refuses out-of-range values, naming the key. `limit_deg` is the incidence limit.
-    pub fn validate(&self, limit_deg: f64) -> Result<(), PlanError> {
-        if !self.telecentric {
-            require_range(
-                "field.lens_ray_budget_deg",
-                self.lens_ray_budget_deg,
-                0.0,
-                limit_deg,
-            )?;
-            if self.lens_ray_budget_deg >= limit_deg {
-                return Err(PlanError::setting(
-                    "field.lens_ray_budget_deg",
-                    self.lens_ray_budget_deg,
-                    format!("must be below the incidence limit {limit_deg}°"),
-                ));
-            }
-        }
-        Ok(())
-    }
-
-    /// The incidence budget left for zoning (radians).
-    #[must_use]
-    pub fn zoning_limit_rad(&self, limit_rad: f64) -> f64 {
-        if self.telecentric {
-            limit_rad
-        } else {
-            limit_rad - self.lens_ray_budget_deg.to_radians()
-        }
-    }
-}
 
 /// The lens seen by the incidence check.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -34,6 +34,7 @@ mod polygon;
 mod sample;
 mod slab;
 pub mod surface;
+pub mod track_ids;
 
 use std::fmt;
 use std::str::FromStr;

@@ -18,63 +18,14 @@
 //! plane, is returned beside it ([`project`]). The Job keeps only (x, y): see
 //! [`crate::planner`] for what the round trip guarantees.
 
-use serde::{Deserialize, Serialize};
 use trim_geom::{ContourId, Point3, Vector3};
 
-use crate::error::PlanError;
 use crate::piece::Piece;
-use trim_cell::error::require_open_closed;
 use trim_cell::job::Frame;
+pub use trim_cell::plan_settings::LayerSettings;
 
 /// A subsegment shorter than this (as a fraction of its segment) is dropped when cutting.
 pub const MIN_SUBSEGMENT_FRACTION: f64 = 1e-12;
-
-/// Layering options (job.toml `[layers]`).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields, default)]
-pub struct LayerSettings {
-    /// ΔH (mm); unset: derived from the beam, 2 · focus half length · `step_safety`.
-    pub step_mm: Option<f64>,
-    /// The fraction of the focus processing length a layer may use on each side.
-    pub step_safety: f64,
-}
-
-impl Default for LayerSettings {
-    fn default() -> Self {
-        LayerSettings {
-            step_mm: None,
-            step_safety: 0.75,
-        }
-    }
-}
-
-impl LayerSettings {
-    /// Refuses out-of-range values, naming the key.
-    pub fn validate(&self) -> Result<(), PlanError> {
-        require_open_closed("layers.step_safety", self.step_safety, 0.0, 1.0)?;
-        if let Some(step) = self.step_mm {
-            require_open_closed("layers.step_mm", step, 0.0, f64::MAX)?;
-        }
-        Ok(())
-    }
-
-    /// ΔH (mm) for a beam whose focus processing length is `focus_half_length_mm`; refuses a
-    /// configured ΔH with ΔH/2 beyond it.
-    pub fn step_for(&self, focus_half_length_mm: f64) -> Result<f64, PlanError> {
-        self.validate()?;
-        match self.step_mm {
-            None => Ok(2.0 * focus_half_length_mm * self.step_safety),
-            Some(step) if step / 2.0 <= focus_half_length_mm => Ok(step),
-            Some(step) => Err(PlanError::setting(
-                "layers.step_mm",
-                step,
-                format!(
-                    "ΔH/2 must not exceed the focus processing length {focus_half_length_mm:.4} mm"
-                ),
-            )),
-        }
-    }
-}
 
 /// N = floor((z_max − z_min)/ΔH) + 1, paper Eq. 14.
 #[must_use]

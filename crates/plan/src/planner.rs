@@ -31,23 +31,22 @@ use serde::{Deserialize, Serialize};
 use trim_geom::{ContourId, Path, Point3, UnitVector3, Vector3};
 
 use crate::error::PlanError;
-use crate::field::{Lens, LensSettings, Section, sections};
-use crate::layer::{LayerSettings, ZoneLayers, layer_pieces, project};
+use crate::field::{Lens, Section, sections};
+use crate::layer::{ZoneLayers, layer_pieces, project};
 use crate::piece::{Piece, angle_rad, pieces_of};
-use crate::zoning::{ZoneGroup, Zoning, ZoningMethod, ZoningSettings, make_group, zone_pieces};
-use trim_cell::beam::Beam;
-use trim_cell::cell_model::{Calibration, TableModel};
-use trim_cell::error::require_open_closed;
-use trim_cell::galvo_timing::{ListComposition, TimingSettings};
+use crate::zoning::{ZoneGroup, Zoning, ZoningMethod, make_group, zone_pieces};
+use trim_cell::cell_model::TableModel;
+use trim_cell::galvo_timing::ListComposition;
 use trim_cell::job::{
-    FieldCorrectionRecord, GalvoSettings, JOB_VERSION, Job, JobSettings, Layer, LensRecord,
-    Polyline, TimeEstimate, ValidationReport, Zone, galvo_to_workpiece,
+    JOB_VERSION, Job, JobSettings, Layer, LensRecord, Polyline, TimeEstimate, ValidationReport,
+    Zone, galvo_to_workpiece,
 };
 use trim_cell::kinematics::{
     AxisPose, MachineSettings, choose_pose, forward_on, head_frame_on, inverse_on, limit_violation,
     move_time_s,
 };
-use trim_cell::lens::{FieldCorrection, LensModel};
+use trim_cell::lens::LensModel;
+pub use trim_cell::plan_settings::PlanSettings;
 
 /// The round-trip tolerance (mm): 1 µm.
 pub const ROUND_TRIP_TOLERANCE_MM: f64 = 1e-3;
@@ -64,133 +63,11 @@ pub const POSE_TOLERANCE: f64 = 1e-6;
 /// At most this many violation lines are listed; the rest are counted.
 pub const MAX_VIOLATION_LINES: usize = 200;
 
-/// Every planning option (job.toml: top-level `max_incidence_deg` and the `[beam]`,
-/// `[zoning]`, `[layers]`, `[field]`, `[machine]`, `[galvo]` and `[calibration]` tables).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct PlanSettings {
-    /// The incidence limit (degrees): the largest angle between a contour's feature vector and
-    /// the beam that reaches it, lens ray angle included.
-    pub max_incidence_deg: f64,
-    /// Beam optics.
-    pub beam: Beam,
-    /// Zoning.
-    pub zoning: ZoningSettings,
-    /// Layering.
-    pub layers: LayerSettings,
-    /// Lens and field sectioning.
-    pub field: LensSettings,
-    /// Machine kinematics, limits and speeds.
-    pub machine: MachineSettings,
-    /// Galvo field, speeds and delays.
-    pub galvo: GalvoSettings,
-    /// The cell as calibrated: rotary axis lines, scanner pose, field correction, lens pivot.
-    pub calibration: Calibration,
-    /// What the cell adds to the commanded time model (fitted by `trimctl calibrate timing`).
-    pub timing: TimingSettings,
-}
-
-impl Default for PlanSettings {
-    fn default() -> Self {
-        PlanSettings {
-            max_incidence_deg: 5.0,
-            beam: Beam::default(),
-            zoning: ZoningSettings::default(),
-            layers: LayerSettings::default(),
-            field: LensSettings::default(),
-            machine: MachineSettings::default(),
-            galvo: GalvoSettings::default(),
-            calibration: Calibration::default(),
-            timing: TimingSettings::default(),
-        }
-    }
-}
-
-impl PlanSettings {
-    /// Refuses out-of-range values, naming the key.
-    pub fn validate(&self) -> Result<(), PlanError> {
-        require_open_closed("max_incidence_deg", self.max_incidence_deg, 0.0, 45.0)?;
-        self.beam.validate()?;
-        self.zoning.validate()?;
-        self.timing.validate()?;
-        self.layers.validate()?;
-        self.field.validate(self.max_incidence_deg)?;
-        self.machine.validate()?;
-        self.galvo.validate()?;
-        self.calibration.validate(self.machine.kinematics)?;
-        Ok(())
-    }
-
-    /// The lens model the galvo commands are computed with: the height term with L from
-    /// `calibration.lens.pivot_to_focal_plane_mm`, else the field correction file's, else the
-    /// focal length; and the field correction when `calibration.field_correction` names one.
-    /// Also what the Job records of it (file and checksum).
-    pub fn lens_model(&self) -> Result<(LensModel, LensRecord), PlanError> {
-        let field = match &self.calibration.field_correction {
-            None => None,
-            Some(file) => {
-                let bytes = std::fs::read(file).map_err(|e| {
-                    PlanError::setting(
-                        "calibration.field_correction",
-                        file.display(),
-                        format!("cannot read it: {e}"),
-                    )
-                })?;
-                let field = FieldCorrection::read(file).map_err(|e| {
-                    PlanError::setting(
-                        "calibration.field_correction",
-                        file.display(),
-                        e.to_string(),
-                    )
-                })?;
-                Some((
-                    field,
-                    trim_cell::lens::checksum(&bytes),
-                    file.display().to_string(),
-                ))
-            }
-        };
-        let pivot = self
-            .calibration
-            .lens
-            .pivot_to_focal_plane_mm
-            .or_else(|| {
-                field
-                    .as_ref()
-                    .and_then(|(f, _, _)| f.pivot_to_focal_plane_mm)
-            })
-            .unwrap_or(self.beam.focal_length_mm);
-        let record = LensRecord {
-            telecentric: self.field.telecentric,
-            pivot_to_focal_plane_mm: (!self.field.telecentric).then_some(pivot),
-            field_correction: field
-                .as_ref()
-                .map(|(_, checksum, file)| FieldCorrectionRecord {
-                    file: file.clone(),
-                    checksum: checksum.clone(),
-                }),
-        };
-        Ok((
-            LensModel {
-                telecentric: self.field.telecentric,
-                pivot_to_focal_plane_mm: pivot,
-                field: field.map(|(f, _, _)| f),
-            },
-            record,
-        ))
-    }
-
-    /// The rotary table as calibrated (nominal lines where `[calibration]` gives none).
-    #[must_use]
-    pub fn table(&self) -> TableModel {
-        self.calibration.table(&self.machine)
-    }
-
-    fn lens(&self) -> Lens {
-        Lens {
-            telecentric: self.field.telecentric,
-            focal_length_mm: self.beam.focal_length_mm,
-        }
+/// The lens the incidence check sees: the settings' telecentricity and focal length.
+fn lens_of(settings: &PlanSettings) -> Lens {
+    Lens {
+        telecentric: settings.field.telecentric,
+        focal_length_mm: settings.beam.focal_length_mm,
     }
 }
 
@@ -266,7 +143,7 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
     let zoning_limit_rad = settings.field.zoning_limit_rad(limit_rad);
     let focus_half_length_mm = settings.beam.focus_half_length_mm();
     let step_mm = settings.layers.step_for(focus_half_length_mm)?;
-    let lens = settings.lens();
+    let lens = lens_of(settings);
     let (lens_model, lens_record) = settings.lens_model()?;
     let field_radius_mm = 0.5 * settings.galvo.field_mm[0].min(settings.galvo.field_mm[1]);
 
@@ -380,7 +257,8 @@ pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutp
     )
 }
 
-/// Steps (5)–(7) of [`plan_with_report`] on the planned sections.
+/// Steps (5)–(7) of [`plan_with_report`] on the planned sections: the zone order, then each
+/// zone's poses, frame, layers and table row, the estimate's totals, and validation.
 fn finish_plan(
     path: &Path,
     settings: &PlanSettings,
@@ -392,34 +270,9 @@ fn finish_plan(
 ) -> Result<PlanOutput, PlanError> {
     let focus_half_length_mm = settings.beam.focus_half_length_mm();
     let step_mm = settings.layers.step_for(focus_half_length_mm)?;
-    let lens = settings.lens();
+    let (machine, rotary) = (&settings.machine, settings.table());
     // (5) order and poses.
-    let machine = &settings.machine;
-    let rotary = settings.table();
-    let focus_points = |p: &Planned| -> Vec<Point3> {
-        p.layers
-            .layers
-            .iter()
-            .map(|(_, h, _)| p.section.origin + p.axis.into_inner() * *h)
-            .collect()
-    };
-    let provisional: Vec<Vec<AxisPose>> = planned
-        .iter()
-        .map(|p| {
-            zone_poses(machine, &rotary, &focus_points(p), &p.axis, &AxisPose::HOME).unwrap_or_else(
-                |_| unlimited_poses(machine, &rotary, &focus_points(p), &p.axis, &AxisPose::HOME),
-            )
-        })
-        .collect();
-    let order = crate::order::order(
-        planned.len(),
-        |j| move_time_s(machine, &AxisPose::HOME, &provisional[j][0]),
-        |i, j| {
-            let last = provisional[i].last().unwrap_or(&AxisPose::HOME);
-            move_time_s(machine, last, &provisional[j][0])
-        },
-    );
-
+    let order = zone_order(&planned, machine, &rotary);
     let mut zones = Vec::with_capacity(planned.len());
     let mut traces: Vec<Vec<Vec<Trace>>> = Vec::with_capacity(planned.len());
     let mut table = Vec::with_capacity(planned.len());
@@ -429,7 +282,6 @@ fn finish_plan(
     for (zone_id, &idx) in order.iter().enumerate() {
         crate::error::check_cancel()?;
         let p = &planned[idx];
-        let contours = pieces_contours(&p.section);
         // An unreachable zone is planned all the same, with the nearest poses outside the
         // limits, so that the plan and its SVG show it; validation fails and `run` refuses it.
         let (poses, unreachable) =
@@ -440,105 +292,30 @@ fn finish_plan(
                     Some(unreachable_reason(p, machine, &reason)),
                 ),
             };
+        // (6) the zone frame is the galvo head's frame at the first pose.
         let frame = head_frame_on(&rotary, poses[0].tilt_deg, poses[0].rotary_deg);
-        let mut zone_s = 0.0;
-        let mut layers = Vec::with_capacity(poses.len());
-        let mut zone_traces = Vec::with_capacity(poses.len());
-        for (index, ((_, h, pieces_in_layer), pose)) in
-            p.layers.layers.iter().zip(&poses).enumerate()
-        {
-            let focus = p.section.origin + p.axis.into_inner() * *h;
-            let mut polylines = Vec::with_capacity(pieces_in_layer.len());
-            let mut layer_traces = Vec::with_capacity(pieces_in_layer.len());
-            for lp in pieces_in_layer {
-                let (points, heights): (Vec<[f64; 2]>, Vec<f64>) =
-                    lp.points.iter().map(|q| project(&frame, &focus, q)).unzip();
-                // What the galvo is sent: the height term and the field correction undone.
-                // A point no command reaches keeps its geometric value and fails validation.
-                let commands = points
-                    .iter()
-                    .zip(&heights)
-                    .map(|(p, h)| lens_model.command_for(*p, *h).unwrap_or(*p))
-                    .collect();
-                polylines.push(Polyline {
-                    contour: lp.contour,
-                    points,
-                    commands,
-                    heights_mm: heights.clone(),
-                    passes: 1,
-                });
-                layer_traces.push(Trace {
-                    source: lp.source.clone(),
-                    features: lp.features.clone(),
-                    height_mm: heights,
-                });
-            }
-            let list = ListComposition::of(&polylines);
-            let (marking_s, jumping_s) = (
-                list.marking_s(&settings.galvo),
-                list.jumping_s(&settings.galvo),
-            );
-            let motion_s = move_time_s(machine, &previous, pose);
-            estimate.marking_s += marking_s;
-            estimate.jumping_s += jumping_s;
-            estimate.motion_s += motion_s;
-            if motion_s > 0.0 {
-                estimate.settle_s += machine.settle_s;
-            }
-            let overhead_s = settings.timing.extra_s(&list);
-            estimate.overhead_s += overhead_s;
-            zone_s += marking_s + jumping_s + motion_s + overhead_s;
-            previous = *pose;
-            layers.push(Layer {
-                index,
-                focus_point: [focus.x, focus.y, focus.z],
-                pose: pose.to_job_pose(machine.kinematics),
-                polylines,
-            });
-            zone_traces.push(layer_traces);
-        }
+        let (layers, zone_traces, zone_s) = zone_layers(
+            p,
+            &frame,
+            &poses,
+            settings,
+            &lens_model,
+            &mut previous,
+            &mut estimate,
+        );
         estimate.per_zone_s.push(zone_s);
         let (max_incidence_rad, max_pairwise_rad) = section_angles(&p.section, &p.axis);
         let zone = Zone {
             id: zone_id,
             origin: [p.section.origin.x, p.section.origin.y, p.section.origin.z],
             frame,
-            contours: contours.clone(),
+            contours: pieces_contours(&p.section),
             max_incidence_deg: max_incidence_rad.to_degrees(),
             max_pairwise_deg: max_pairwise_rad.to_degrees(),
             layers,
             unreachable,
         };
-        let with_lens = zone_traces
-            .iter()
-            .zip(&zone.layers)
-            .flat_map(|(lt, layer)| lt.iter().zip(&layer.polylines))
-            .flat_map(|(t, pl)| t.features.iter().zip(&pl.points))
-            .map(|(f, xy)| {
-                angle_rad(
-                    f,
-                    &lens.ray(&frame.x_axis(), &frame.y_axis(), &frame.z_axis(), *xy),
-                )
-            })
-            .fold(0.0, f64::max);
-        let a = p.axis.into_inner();
-        table.push(ZoneRow {
-            zone: zone_id,
-            cluster: p.cluster,
-            centre: [
-                zone.origin[0],
-                zone.origin[1],
-                zone.origin[2],
-                a.x,
-                a.y,
-                a.z,
-            ],
-            max_pairwise_deg: zone.max_pairwise_deg,
-            max_incidence_deg: zone.max_incidence_deg,
-            max_incidence_with_lens_deg: with_lens.to_degrees(),
-            layers: zone.layers.len(),
-            contours,
-        });
+        table.push(zone_row(p, &zone, &zone_traces, &lens_of(settings)));
         zones.push(zone);
         traces.push(zone_traces);
     }
@@ -548,17 +325,15 @@ fn finish_plan(
         estimate.laser_on_fraction = estimate.marking_s / estimate.total_s;
     }
 
+    // (7) validation.
     let mut job = Job {
         version: JOB_VERSION,
         layer_step_mm: step_mm,
         focus_half_length_mm,
         zones,
         settings: JobSettings {
-            max_incidence_deg: settings.max_incidence_deg,
-            kinematics: machine.kinematics.name().to_owned(),
-            galvo: settings.galvo,
+            plan: settings.clone(),
             lens: lens_record,
-            extra: serde_json::to_value(settings).unwrap_or(serde_json::Value::Null),
         },
         validation: ValidationReport::default(),
         estimate,
@@ -575,6 +350,154 @@ fn finish_plan(
         table,
         cover,
     })
+}
+
+/// The focus points of a planned section's layers (work-piece frame, mm).
+fn focus_points(p: &Planned) -> Vec<Point3> {
+    p.layers
+        .layers
+        .iter()
+        .map(|(_, h, _)| p.section.origin + p.axis.into_inner() * *h)
+        .collect()
+}
+
+/// The zone order: nearest neighbour + 2-opt on the machine move time between provisional
+/// poses (from home; the nearest outside the limits where none is within them).
+fn zone_order(planned: &[Planned], machine: &MachineSettings, rotary: &TableModel) -> Vec<usize> {
+    let provisional: Vec<Vec<AxisPose>> = planned
+        .iter()
+        .map(|p| {
+            zone_poses(machine, rotary, &focus_points(p), &p.axis, &AxisPose::HOME).unwrap_or_else(
+                |_| unlimited_poses(machine, rotary, &focus_points(p), &p.axis, &AxisPose::HOME),
+            )
+        })
+        .collect();
+    crate::order::order(
+        planned.len(),
+        |j| move_time_s(machine, &AxisPose::HOME, &provisional[j][0]),
+        |i, j| {
+            let last = provisional[i].last().unwrap_or(&AxisPose::HOME);
+            move_time_s(machine, last, &provisional[j][0])
+        },
+    )
+}
+
+/// A zone's layers at their poses: each layer's galvo polylines in the zone `frame` and what
+/// validation needs of them; the estimate accumulated layer by layer from the `previous`
+/// pose (which it moves on). Returns the layers, their traces and the zone's time (s).
+fn zone_layers(
+    p: &Planned,
+    frame: &trim_cell::job::Frame,
+    poses: &[AxisPose],
+    settings: &PlanSettings,
+    lens_model: &LensModel,
+    previous: &mut AxisPose,
+    estimate: &mut TimeEstimate,
+) -> (Vec<Layer>, Vec<Vec<Trace>>, f64) {
+    let machine = &settings.machine;
+    let mut zone_s = 0.0;
+    let mut layers = Vec::with_capacity(poses.len());
+    let mut zone_traces = Vec::with_capacity(poses.len());
+    for (index, ((_, h, pieces_in_layer), pose)) in p.layers.layers.iter().zip(poses).enumerate() {
+        let focus = p.section.origin + p.axis.into_inner() * *h;
+        let (polylines, layer_traces) = layer_polylines(pieces_in_layer, frame, &focus, lens_model);
+        let list = ListComposition::of(&polylines);
+        let (marking_s, jumping_s) = (
+            list.marking_s(&settings.galvo),
+            list.jumping_s(&settings.galvo),
+        );
+        let motion_s = move_time_s(machine, previous, pose);
+        estimate.marking_s += marking_s;
+        estimate.jumping_s += jumping_s;
+        estimate.motion_s += motion_s;
+        if motion_s > 0.0 {
+            estimate.settle_s += machine.settle_s;
+        }
+        let overhead_s = settings.timing.extra_s(&list);
+        estimate.overhead_s += overhead_s;
+        zone_s += marking_s + jumping_s + motion_s + overhead_s;
+        *previous = *pose;
+        layers.push(Layer {
+            index,
+            focus_point: [focus.x, focus.y, focus.z],
+            pose: pose.to_job_pose(machine.kinematics),
+            polylines,
+        });
+        zone_traces.push(layer_traces);
+    }
+    (layers, zone_traces, zone_s)
+}
+
+/// One layer's pieces as galvo polylines (x, y in `frame` relative to `focus`, mm) with their
+/// commands through the lens model, and the trace of each for validation.
+fn layer_polylines(
+    pieces_in_layer: &[crate::layer::LayerPiece],
+    frame: &trim_cell::job::Frame,
+    focus: &Point3,
+    lens_model: &LensModel,
+) -> (Vec<Polyline>, Vec<Trace>) {
+    let mut polylines = Vec::with_capacity(pieces_in_layer.len());
+    let mut layer_traces = Vec::with_capacity(pieces_in_layer.len());
+    for lp in pieces_in_layer {
+        let (points, heights): (Vec<[f64; 2]>, Vec<f64>) =
+            lp.points.iter().map(|q| project(frame, focus, q)).unzip();
+        // What the galvo is sent: the height term and the field correction undone.
+        // A point no command reaches keeps its geometric value and fails validation.
+        let commands = points
+            .iter()
+            .zip(&heights)
+            .map(|(p, h)| lens_model.command_for(*p, *h).unwrap_or(*p))
+            .collect();
+        polylines.push(Polyline {
+            contour: lp.contour,
+            points,
+            commands,
+            heights_mm: heights.clone(),
+            passes: 1,
+        });
+        layer_traces.push(Trace {
+            source: lp.source.clone(),
+            features: lp.features.clone(),
+            height_mm: heights,
+        });
+    }
+    (polylines, layer_traces)
+}
+
+/// The zone table's row of a zone: centre and axis, angles (the largest incidence with the
+/// lens ray angle from its points), layers and contours.
+fn zone_row(p: &Planned, zone: &Zone, zone_traces: &[Vec<Trace>], lens: &Lens) -> ZoneRow {
+    let frame = &zone.frame;
+    let with_lens = zone_traces
+        .iter()
+        .zip(&zone.layers)
+        .flat_map(|(lt, layer)| lt.iter().zip(&layer.polylines))
+        .flat_map(|(t, pl)| t.features.iter().zip(&pl.points))
+        .map(|(f, xy)| {
+            angle_rad(
+                f,
+                &lens.ray(&frame.x_axis(), &frame.y_axis(), &frame.z_axis(), *xy),
+            )
+        })
+        .fold(0.0, f64::max);
+    let a = p.axis.into_inner();
+    ZoneRow {
+        zone: zone.id,
+        cluster: p.cluster,
+        centre: [
+            zone.origin[0],
+            zone.origin[1],
+            zone.origin[2],
+            a.x,
+            a.y,
+            a.z,
+        ],
+        max_pairwise_deg: zone.max_pairwise_deg,
+        max_incidence_deg: zone.max_incidence_deg,
+        max_incidence_with_lens_deg: with_lens.to_degrees(),
+        layers: zone.layers.len(),
+        contours: zone.contours.clone(),
+    }
 }
 
 /// A fixed-head machine: one zone with the machine's beam direction as its axis.
@@ -728,66 +651,40 @@ fn validate(
     settings: &PlanSettings,
     lens_model: &LensModel,
 ) -> ValidationReport {
-    let mut r = ValidationReport::default();
-    let mut lines: Vec<String> = Vec::new();
-    let mut more = 0usize;
-    let mut violation = |s: String| {
-        if lines.len() < MAX_VIOLATION_LINES {
-            lines.push(s);
-        } else {
-            more += 1;
-        }
+    let mut checks = Checks {
+        settings,
+        lens_model,
+        lens: lens_of(settings),
+        rotary: settings.table(),
+        limit_rad: settings.max_incidence_deg.to_radians(),
+        half_field: [
+            0.5 * settings.galvo.field_mm[0],
+            0.5 * settings.galvo.field_mm[1],
+        ],
+        focus_half_length_mm: job.focus_half_length_mm,
+        report: ValidationReport::default(),
+        lines: Vec::new(),
+        more: 0,
     };
-    let limit_rad = settings.max_incidence_deg.to_radians();
-    let half_field = [
-        0.5 * settings.galvo.field_mm[0],
-        0.5 * settings.galvo.field_mm[1],
-    ];
-    let lens = settings.lens();
-    let rotary = settings.table();
     let mut coverage: std::collections::BTreeMap<ContourId, Vec<(f64, f64)>> = Default::default();
     for (zone, zone_traces) in job.zones.iter().zip(traces) {
-        let (fx, fy, fz) = (
-            zone.frame.x_axis(),
-            zone.frame.y_axis(),
-            zone.frame.z_axis(),
-        );
         if let Some(why) = &zone.unreachable {
-            r.unreachable_zones.push(zone.id);
-            violation(format!(
+            checks.report.unreachable_zones.push(zone.id);
+            checks.violation(format!(
                 "zone {} (contours {:?}): unreachable: {why}",
                 zone.id, zone.contours
             ));
         }
         for (layer, layer_traces) in zone.layers.iter().zip(zone_traces) {
             let at = format!("zone {} layer {}", zone.id, layer.index);
-            match AxisPose::from_job_pose(&layer.pose, settings.machine.kinematics) {
-                None => violation(format!("{at}: pose lacks an axis: {:?}", layer.pose)),
-                Some(pose) => {
-                    // An unreachable zone's poses are outside the limits by construction.
-                    if let Some(why) = limit_violation(&settings.machine, &pose)
-                        .filter(|_| zone.unreachable.is_none())
-                    {
-                        violation(format!("{at}: pose outside the axis limits: {why}"));
-                    }
-                    let (tip, dir) = forward_on(&settings.machine, &rotary, &pose);
-                    let focus = Point3::from(layer.focus_point);
-                    if (tip - focus).norm() > POSE_TOLERANCE
-                        || angle_rad(&dir, &fz) > POSE_TOLERANCE
-                    {
-                        violation(format!(
-                            "{at}: the pose does not put the focus on the focus point along the zone axis"
-                        ));
-                    }
-                }
-            }
+            checks.pose(zone, layer, &at);
             for (pl, t) in layer.polylines.iter().zip(layer_traces) {
                 let Some(contour) = path.get(pl.contour) else {
-                    violation(format!("{at}: contour {} is not in the path", pl.contour));
+                    checks.violation(format!("{at}: contour {} is not in the path", pl.contour));
                     continue;
                 };
                 if pl.points.len() < 2 {
-                    violation(format!(
+                    checks.violation(format!(
                         "{at} contour {}: polyline has fewer than 2 points",
                         pl.contour
                     ));
@@ -796,107 +693,187 @@ fn validate(
                     .entry(pl.contour)
                     .or_default()
                     .push((t.source[0], *t.source.last().unwrap_or(&t.source[0])));
-                for (i, ((xy, h), f)) in pl
-                    .points
-                    .iter()
-                    .zip(&t.height_mm)
-                    .zip(&t.features)
-                    .enumerate()
-                {
-                    let here = || format!("{at} contour {} point {i}", pl.contour);
-                    r.max_focus_deviation_mm = r.max_focus_deviation_mm.max(h.abs());
-                    if h.abs() > job.focus_half_length_mm + CHECK_SLACK {
-                        violation(format!("{}: {h:.4} mm from the focal plane", here()));
-                    }
-                    let field_abs = xy[0].abs().max(xy[1].abs());
-                    r.max_field_abs_mm = r.max_field_abs_mm.max(field_abs);
-                    if xy[0].abs() > half_field[0] + CHECK_SLACK
-                        || xy[1].abs() > half_field[1] + CHECK_SLACK
-                    {
-                        violation(format!(
-                            "{}: ({:.3}, {:.3}) mm outside the field",
-                            here(),
-                            xy[0],
-                            xy[1]
-                        ));
-                    }
-                    let incidence = angle_rad(f, &lens.ray(&fx, &fy, &fz, *xy));
-                    r.max_incidence_deg = r.max_incidence_deg.max(incidence.to_degrees());
-                    if incidence > limit_rad + CHECK_SLACK {
-                        violation(format!(
-                            "{}: incidence {:.3}° over the limit",
-                            here(),
-                            incidence.to_degrees()
-                        ));
-                    }
-                    // The command, sent through the lens model, lands on the point.
-                    if let Some(c) = pl.commands.get(i) {
-                        let landed = lens_model.land(*c, *h);
-                        let err = (landed[0] - xy[0]).hypot(landed[1] - xy[1]);
-                        r.max_command_error_mm = r.max_command_error_mm.max(err);
-                        if err > ROUND_TRIP_TOLERANCE_MM {
-                            violation(format!(
-                                "{}: the galvo command lands {:.4} mm off the point (outside the field correction?)",
-                                here(),
-                                err
-                            ));
-                        }
-                        let c_abs = c[0].abs().max(c[1].abs());
-                        if c[0].abs() > half_field[0] + CHECK_SLACK
-                            || c[1].abs() > half_field[1] + CHECK_SLACK
-                        {
-                            violation(format!(
-                                "{}: command ({:.3}, {:.3}) mm outside the field",
-                                here(),
-                                c[0],
-                                c[1]
-                            ));
-                        }
-                        r.max_field_abs_mm = r.max_field_abs_mm.max(c_abs);
-                    } else {
-                        violation(format!("{}: no galvo command", here()));
-                    }
-                    let registered = point_on_contour(contour.points(), t.source[i]);
-                    let back = galvo_to_workpiece(zone, layer, *xy) + fz * *h;
-                    let err = (back - registered).norm();
-                    r.max_round_trip_error_mm = r.max_round_trip_error_mm.max(err);
-                    if err > ROUND_TRIP_TOLERANCE_MM {
-                        violation(format!("{}: round trip off by {err:.6} mm", here()));
-                    }
+                for i in 0..pl.points.len().min(t.height_mm.len()).min(t.features.len()) {
+                    checks.point(zone, layer, pl, t, i, contour.points(), &at);
                 }
             }
         }
     }
-    for c in path.contours() {
-        let last = (c.points().len() - 1) as f64;
-        let mut spans = coverage.remove(&c.id()).unwrap_or_default();
-        spans.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let mut reach = 0.0;
-        let mut ok = !spans.is_empty();
-        for (s, e) in &spans {
-            if (s - reach).abs() > COVERAGE_SLACK {
-                ok = false;
-            }
-            reach = *e;
+    checks.coverage(path, coverage);
+    checks.finish()
+}
+
+/// What validation checks against, and what it found so far.
+struct Checks<'a> {
+    settings: &'a PlanSettings,
+    lens_model: &'a LensModel,
+    lens: Lens,
+    rotary: TableModel,
+    limit_rad: f64,
+    half_field: [f64; 2],
+    focus_half_length_mm: f64,
+    report: ValidationReport,
+    lines: Vec<String>,
+    more: usize,
+}
+
+impl Checks<'_> {
+    /// One violation line; past [`MAX_VIOLATION_LINES`], counted only.
+    fn violation(&mut self, s: String) {
+        if self.lines.len() < MAX_VIOLATION_LINES {
+            self.lines.push(s);
+        } else {
+            self.more += 1;
         }
-        if !ok || (reach - last).abs() > COVERAGE_SLACK {
-            violation(format!(
-                "contour {}: not covered exactly once (gap or overlap along it)",
-                c.id()
+    }
+
+    /// The layer's pose: every axis given, within the limits (unless the zone is unreachable),
+    /// and putting the focus on the focus point along the zone axis.
+    fn pose(&mut self, zone: &Zone, layer: &Layer, at: &str) {
+        let machine = &self.settings.machine;
+        let Some(pose) = AxisPose::from_job_pose(&layer.pose, machine.kinematics) else {
+            self.violation(format!("{at}: pose lacks an axis: {:?}", layer.pose));
+            return;
+        };
+        // An unreachable zone's poses are outside the limits by construction.
+        if let Some(why) = limit_violation(machine, &pose).filter(|_| zone.unreachable.is_none()) {
+            self.violation(format!("{at}: pose outside the axis limits: {why}"));
+        }
+        let (tip, dir) = forward_on(machine, &self.rotary, &pose);
+        let focus = Point3::from(layer.focus_point);
+        if (tip - focus).norm() > POSE_TOLERANCE
+            || angle_rad(&dir, &zone.frame.z_axis()) > POSE_TOLERANCE
+        {
+            self.violation(format!(
+                "{at}: the pose does not put the focus on the focus point along the zone axis"
             ));
         }
     }
-    if more > 0 {
-        lines.push(format!("… and {more} more violations"));
+
+    /// Point `i` of a polyline: within the focus length, the field and the incidence limit; its
+    /// command landing on it; its round trip back onto the registered contour.
+    #[expect(clippy::too_many_arguments)] // one point in its zone, layer, polyline and contour
+    fn point(
+        &mut self,
+        zone: &Zone,
+        layer: &Layer,
+        pl: &Polyline,
+        t: &Trace,
+        i: usize,
+        contour: &[Point3],
+        at: &str,
+    ) {
+        let (xy, h, f) = (&pl.points[i], &t.height_mm[i], &t.features[i]);
+        let here = || format!("{at} contour {} point {i}", pl.contour);
+        let (fx, fy, fz) = (
+            zone.frame.x_axis(),
+            zone.frame.y_axis(),
+            zone.frame.z_axis(),
+        );
+        let half_field = self.half_field;
+        self.report.max_focus_deviation_mm = self.report.max_focus_deviation_mm.max(h.abs());
+        if h.abs() > self.focus_half_length_mm + CHECK_SLACK {
+            self.violation(format!("{}: {h:.4} mm from the focal plane", here()));
+        }
+        let field_abs = xy[0].abs().max(xy[1].abs());
+        self.report.max_field_abs_mm = self.report.max_field_abs_mm.max(field_abs);
+        if xy[0].abs() > half_field[0] + CHECK_SLACK || xy[1].abs() > half_field[1] + CHECK_SLACK {
+            self.violation(format!(
+                "{}: ({:.3}, {:.3}) mm outside the field",
+                here(),
+                xy[0],
+                xy[1]
+            ));
+        }
+        let incidence = angle_rad(f, &self.lens.ray(&fx, &fy, &fz, *xy));
+        self.report.max_incidence_deg = self.report.max_incidence_deg.max(incidence.to_degrees());
+        if incidence > self.limit_rad + CHECK_SLACK {
+            self.violation(format!(
+                "{}: incidence {:.3}° over the limit",
+                here(),
+                incidence.to_degrees()
+            ));
+        }
+        // The command, sent through the lens model, lands on the point.
+        if let Some(c) = pl.commands.get(i) {
+            let landed = self.lens_model.land(*c, *h);
+            let err = (landed[0] - xy[0]).hypot(landed[1] - xy[1]);
+            self.report.max_command_error_mm = self.report.max_command_error_mm.max(err);
+            if err > ROUND_TRIP_TOLERANCE_MM {
+                self.violation(format!(
+                    "{}: the galvo command lands {:.4} mm off the point (outside the field correction?)",
+                    here(),
+                    err
+                ));
+            }
+            let c_abs = c[0].abs().max(c[1].abs());
+            if c[0].abs() > half_field[0] + CHECK_SLACK || c[1].abs() > half_field[1] + CHECK_SLACK
+            {
+                self.violation(format!(
+                    "{}: command ({:.3}, {:.3}) mm outside the field",
+                    here(),
+                    c[0],
+                    c[1]
+                ));
+            }
+            self.report.max_field_abs_mm = self.report.max_field_abs_mm.max(c_abs);
+        } else {
+            self.violation(format!("{}: no galvo command", here()));
+        }
+        let registered = point_on_contour(contour, t.source[i]);
+        let back = galvo_to_workpiece(zone, layer, *xy) + fz * *h;
+        let err = (back - registered).norm();
+        self.report.max_round_trip_error_mm = self.report.max_round_trip_error_mm.max(err);
+        if err > ROUND_TRIP_TOLERANCE_MM {
+            self.violation(format!("{}: round trip off by {err:.6} mm", here()));
+        }
     }
-    r.passed = lines.is_empty();
-    r.violations = lines;
-    r
+
+    /// Every contour covered exactly once: its polylines' spans, ordered along it, start at
+    /// its first point, meet end to start and end at its last point.
+    fn coverage(
+        &mut self,
+        path: &Path,
+        mut coverage: std::collections::BTreeMap<ContourId, Vec<(f64, f64)>>,
+    ) {
+        for c in path.contours() {
+            let last = (c.points().len() - 1) as f64;
+            let mut spans = coverage.remove(&c.id()).unwrap_or_default();
+            spans.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let mut reach = 0.0;
+            let mut ok = !spans.is_empty();
+            for (s, e) in &spans {
+                if (s - reach).abs() > COVERAGE_SLACK {
+                    ok = false;
+                }
+                reach = *e;
+            }
+            if !ok || (reach - last).abs() > COVERAGE_SLACK {
+                self.violation(format!(
+                    "contour {}: not covered exactly once (gap or overlap along it)",
+                    c.id()
+                ));
+            }
+        }
+    }
+
+    /// The report, with its violation lines (and how many more there were).
+    fn finish(mut self) -> ValidationReport {
+        if self.more > 0 {
+            self.lines
+                .push(format!("… and {} more violations", self.more));
+        }
+        self.report.passed = self.lines.is_empty();
+        self.report.violations = self.lines;
+        self.report
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::field::LensSettings;
+    use crate::zoning::ZoningSettings;
     use trim_synth::testing::synthetic_core_path;
 
     #[test]

@@ -19,6 +19,29 @@ const MARGIN_PX: f64 = 14.0;
 /// The golden angle (degrees): consecutive zones get well separated hues.
 const HUE_STEP_DEG: f64 = 137.508;
 
+/// The font size of a panel's contour line (px) and the width of a character at it, about.
+const LEGEND_FONT_PX: f64 = 8.0;
+const LEGEND_CHAR_PX: f64 = 4.4;
+
+/// A zone panel's bottom line: its contours as an operator reads them (CAM ids, then hatch
+/// tracks as `hatch[0] tracks 1–70`), squeezed to the panel's width when longer.
+fn contour_legend(out: &mut String, x0: f64, y0: f64, contours: &[trim_geom::ContourId]) {
+    let text = crate::hatch::track_ids::describe_contours(contours);
+    let width = PANEL_PX - 8.0;
+    let squeeze = if text.chars().count() as f64 * LEGEND_CHAR_PX > width {
+        format!(r#" textLength="{width}" lengthAdjust="spacingAndGlyphs""#)
+    } else {
+        String::new()
+    };
+    let _ = writeln!(
+        out,
+        r#"<text x="{}" y="{}" font-size="{LEGEND_FONT_PX}"{squeeze}>{}</text>"#,
+        x0 + 4.0,
+        y0 + PANEL_PX - 4.0,
+        xml_escape(&text)
+    );
+}
+
 /// The colour of a zone (HSL, hue by golden angle).
 #[must_use]
 pub fn zone_colour(zone: usize) -> String {
@@ -169,6 +192,7 @@ pub fn job_svg(job: &Job) -> String {
             z.layers.len(),
             z.max_incidence_deg
         );
+        contour_legend(&mut out, x0, y0, &z.contours);
         if let Some(why) = &z.unreachable {
             let _ = writeln!(
                 out,
@@ -221,6 +245,20 @@ mod tests {
         assert!(svg.starts_with("<svg") && svg.ends_with("</svg>\n"));
         assert!(!svg.contains("NaN"));
         assert!(!svg.contains("UNREACHABLE"));
+        assert!(!svg.contains("hatch["));
+    }
+
+    #[test]
+    fn the_legend_names_hatch_tracks_not_their_ids() {
+        use crate::hatch::track_ids::track_id;
+        let mut job = plan(&synthetic_core_path(10, 3), &PlanSettings::default()).unwrap();
+        job.zones[0].contours = (0..70).map(|t| track_id(0, t)).chain([2, 41]).collect();
+        let svg = job_svg(&job);
+        assert!(
+            svg.contains(">[2, 41] hatch[0] tracks 1–70</text>"),
+            "{svg}"
+        );
+        assert!(!svg.contains("[-"));
     }
 
     #[test]

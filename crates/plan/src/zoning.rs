@@ -33,156 +33,19 @@ use linfa_clustering::{KMeans, KMeansInit};
 use ndarray::Array2;
 use rand_xoshiro_06::Xoshiro256Plus;
 use rand_xoshiro_06::rand_core::SeedableRng;
-use serde::{Deserialize, Serialize};
 use trim_geom::{ContourId, Point3, UnitVector3, Vector3};
 
 use crate::error::PlanError;
 use crate::piece::{Piece, angle_rad};
+pub use trim_cell::plan_settings::{
+    DEFAULT_MAX_AUTO_K, DEFAULT_POSITION_WEIGHT, ZoningMethod, ZoningSettings,
+};
 
 /// Steps of the minimax-axis iteration (its error shrinks like 1/√steps of the cone angle).
 pub const AXIS_ITERATIONS: usize = 64;
 
-/// The default weight of the extent-scaled positions. Scaled positions span about 1 while
-/// feature vectors a few degrees apart differ by about 0.09 (5°): at weight 1 the positions
-/// swamp the directions and k-means clusters by position (the paper's Fig. 11(b) effect), so
-/// the automatic k grows large before the incidence limit holds. At 0.1 both count.
-pub const DEFAULT_POSITION_WEIGHT: f64 = 0.1;
-
-/// The default largest k of the automatic search. Beyond it, splitting the violating zones
-/// along their direction spread (and merging) is faster and gives fewer zones than more
-/// k-means clusters: on the synthetic 60-contour core (f-theta lens) 21 zones from a cap of
-/// 16 against 34 from the smallest feasible k (93); on 2,000 contours 68 zones in a fraction
-/// of the time.
-pub const DEFAULT_MAX_AUTO_K: usize = 16;
-
 /// k-means stops when the centroids move less than this (sample units).
 pub const KMEANS_TOLERANCE: f64 = 1e-9;
-
-/// How contours are grouped into zones (job.toml `zoning.method`).
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
-)]
-#[serde(try_from = "String", into = "String")]
-pub enum ZoningMethod {
-    /// The paper's k-means zoning under (limit − lens budget), then field sections.
-    Kmeans,
-    /// Pose selection as covering with the real lens ray ([`crate::cover`]): the default, it
-    /// plans the demo part into 18 poses against k-means' 50.
-    #[default]
-    Cover,
-}
-
-impl ZoningMethod {
-    /// The job.toml name.
-    #[must_use]
-    pub fn name(self) -> &'static str {
-        match self {
-            ZoningMethod::Kmeans => "kmeans",
-            ZoningMethod::Cover => "cover",
-        }
-    }
-}
-
-impl std::str::FromStr for ZoningMethod {
-    type Err = PlanError;
-
-    fn from_str(s: &str) -> Result<Self, PlanError> {
-        match s {
-            "kmeans" => Ok(ZoningMethod::Kmeans),
-            "cover" => Ok(ZoningMethod::Cover),
-            other => Err(PlanError::setting(
-                "zoning.method",
-                format!("{other:?}"),
-                "must be \"kmeans\" or \"cover\"",
-            )),
-        }
-    }
-}
-
-impl TryFrom<String> for ZoningMethod {
-    type Error = PlanError;
-
-    fn try_from(s: String) -> Result<Self, PlanError> {
-        s.parse()
-    }
-}
-
-impl From<ZoningMethod> for String {
-    fn from(m: ZoningMethod) -> String {
-        m.name().to_owned()
-    }
-}
-
-/// Zoning options (job.toml `[zoning]`).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields, default)]
-pub struct ZoningSettings {
-    /// "cover" (the default): pose selection as covering (axis + field centre per pose,
-    /// incidence checked with the real lens ray), fewer poses; "kmeans": the paper's k-means
-    /// zoning under (limit − lens budget), then field sections.
-    pub method: ZoningMethod,
-    /// A fixed number of k-means zones (zoning by k-means whatever the method); unset: the
-    /// method decides (k-means: the smallest k that keeps the incidence limit).
-    pub k: Option<usize>,
-    /// The weight of the (extent-scaled) positions against the unit feature vectors.
-    pub position_weight: f64,
-    /// k-means runs with different k-means++ seeds; the lowest inertia wins.
-    pub restarts: usize,
-    /// The seed of the k-means random generator.
-    pub seed: u64,
-    /// The most Lloyd iterations per run.
-    pub max_iterations: u64,
-    /// The largest k the automatic search tries before splitting zones greedily.
-    pub max_auto_k: usize,
-    /// Merge zones after an automatic k-means while the union keeps the limits (see the module
-    /// docs). A fixed k is kept as given.
-    pub merge: bool,
-}
-
-impl Default for ZoningSettings {
-    fn default() -> Self {
-        ZoningSettings {
-            method: ZoningMethod::Cover,
-            k: None,
-            position_weight: DEFAULT_POSITION_WEIGHT,
-            restarts: 10,
-            seed: 0x7a0e_5eed,
-            max_iterations: 300,
-            max_auto_k: DEFAULT_MAX_AUTO_K,
-            merge: true,
-        }
-    }
-}
-
-impl ZoningSettings {
-    /// Refuses out-of-range values, naming the key.
-    pub fn validate(&self) -> Result<(), PlanError> {
-        if self.k == Some(0) {
-            return Err(PlanError::setting("zoning.k", 0, "must be ≥ 1 (or unset)"));
-        }
-        if !(self.position_weight.is_finite() && self.position_weight >= 0.0) {
-            return Err(PlanError::setting(
-                "zoning.position_weight",
-                self.position_weight,
-                "must be a finite number ≥ 0",
-            ));
-        }
-        if self.restarts == 0 {
-            return Err(PlanError::setting("zoning.restarts", 0, "must be ≥ 1"));
-        }
-        if self.max_iterations == 0 {
-            return Err(PlanError::setting(
-                "zoning.max_iterations",
-                0,
-                "must be ≥ 1",
-            ));
-        }
-        if self.max_auto_k == 0 {
-            return Err(PlanError::setting("zoning.max_auto_k", 0, "must be ≥ 1"));
-        }
-        Ok(())
-    }
-}
 
 /// One zone of the zoning result (before field sectioning).
 #[derive(Debug, Clone, PartialEq)]

@@ -163,7 +163,7 @@ pub fn plan_path(
     limits_json: Option<&str>,
 ) -> PyResult<(String, String, String)> {
     let settings: PlanSettings = settings_from_json("plan settings", settings_json)?;
-    settings.validate().map_err(plan_error)?;
+    settings.validate().map_err(|e| plan_error(e.into()))?;
     check_laser_limits(&settings.beam, limits_json)?;
     let out =
         run_detached(py, move || plan_with_report(&path.inner, &settings))?.map_err(plan_error)?;

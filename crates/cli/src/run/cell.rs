@@ -82,7 +82,7 @@ pub(super) fn execute(
         .with_options(ExecOptions {
             timeouts,
             cut_layer: args.cut_layer.map(CutLayer::from),
-            machine: Some(config.machine),
+            machine: Some(config.plan.machine),
             enable: args.cell.enable_steps(),
             ..ExecOptions::default()
         });
@@ -113,8 +113,8 @@ pub(super) fn execute(
             };
             let record = crate::timing_record::record(
                 job,
-                &config.machine,
-                &config.timing,
+                &config.plan.machine,
+                &config.plan.timing,
                 run,
                 start_pose,
                 &clocks,

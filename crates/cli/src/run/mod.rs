@@ -246,7 +246,7 @@ fn apply_overrides(config: &mut JobConfig, args: &Args) -> anyhow::Result<()> {
     args.cell.apply(config);
     if let Some(file) = &args.timing {
         crate::calibrate_timing::TimingFile::load(file)?
-            .apply(&mut config.machine, &mut config.timing);
+            .apply(&mut config.plan.machine, &mut config.plan.timing);
     }
     config
         .validate()
@@ -275,156 +275,23 @@ fn new_run_dir(config: &JobConfig, args: &Args) -> anyhow::Result<PathBuf> {
     Ok(dir)
 }
 
+/// A fresh run: the pipeline's steps in order. Each step writes its output into the run
+/// folder, prints its summary and times itself; a refusal returns before anything moves.
 fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     let mut timings = Timings::default();
     let t0 = Instant::now();
-    let mut config = match &args.job {
-        Some(p) => JobConfig::load(p)?,
-        None => JobConfig::default(),
-    };
-    apply_overrides(&mut config, args)?;
-    let run_dir = new_run_dir(&config, args)?;
-    // The run keeps its own copy of the field correction it used (the Job records its
-    // checksum), so the folder alone can be resumed and audited.
-    if let Some(src) = config.calibration.field_correction.clone() {
-        let copy = run_dir.join(files::FIELD);
-        std::fs::copy(&src, &copy).with_context(|| {
-            format!(
-                "calibration.field_correction: cannot copy {}",
-                src.display()
-            )
-        })?;
-        config.calibration.field_correction = Some(copy);
-    }
-    // The effective job file names the copy relative to itself.
-    let mut effective = config.clone();
-    if effective.calibration.field_correction.is_some() {
-        effective.calibration.field_correction = Some(PathBuf::from(files::FIELD));
-    }
-    std::fs::write(
-        run_dir.join(files::JOB),
-        toml::to_string(&effective).context("serialising the job file")?,
-    )?;
-    eprintln!("trimctl run: recording to {}", run_dir.display());
-
+    let (config, run_dir) = open_run(args)?;
     let spinner = stage("loading the part");
     let inputs = load_inputs(&config, args, &run_dir)?;
     drop(spinner);
     timings.load_s = t0.elapsed().as_secs_f64();
     println!("part: {}", inputs.description);
 
-    // Register.
-    let t = Instant::now();
-    let spinner = stage("registering the path onto the scan");
-    let registration = register(
-        &inputs.cad,
-        &inputs.scan,
-        &inputs.path,
-        &inputs.scan_from_cad_initial,
-        &config.register,
-    )
-    .context("registration")?;
-    drop(spinner);
-    timings.register_s = t.elapsed().as_secs_f64();
-    formats::write_path(&run_dir.join(files::REGISTERED), &registration.path)?;
-    std::fs::write(
-        run_dir.join(files::REGISTRATION),
-        serde_json::to_string_pretty(&registration.report)?,
-    )?;
-    print!("{}", summary::registration(&registration.report));
-
-    if let Some(reason) = &registration.report.global.refused {
-        return Err(Failure::with_exit(
-            Exit::Refused,
-            anyhow::anyhow!(
-                "registration refuses the part: {reason} (see {}); --skip-untrusted does not override this",
-                run_dir.join(files::REGISTRATION).display()
-            ),
-        ));
-    }
-    // Plan, without untrustworthy contours if asked.
-    let untrusted: Vec<i64> = registration
-        .report
-        .contours
-        .iter()
-        .filter(|c| !c.trustworthy)
-        .map(|c| c.id)
-        .collect();
-    let to_plan = if untrusted.is_empty() {
-        registration.path.clone()
-    } else if args.skip_untrusted {
-        eprintln!(
-            "trimctl run: planning without {} untrustworthy contour(s): {untrusted:?}",
-            untrusted.len()
-        );
-        let kept: Vec<_> = registration
-            .path
-            .contours()
-            .iter()
-            .filter(|c| !untrusted.contains(&c.id()))
-            .cloned()
-            .collect();
-        TrimPath::new(kept).context("no trustworthy contour left to plan")?
-    } else {
-        return Err(Failure::with_exit(
-            Exit::Refused,
-            anyhow::anyhow!(
-                "registration flags {} contour(s) untrustworthy: {untrusted:?} (see {}); refusing to start. Check the scan, or pass --skip-untrusted to trim the others",
-                untrusted.len(),
-                run_dir.join(files::REGISTRATION).display()
-            ),
-        ));
-    };
-    // Hatch tracks, on the registered scan, planned beside the contours.
-    let to_plan = if inputs.hatch.is_empty() {
-        to_plan
-    } else {
-        let t = Instant::now();
-        let spinner = stage("hatching regions on the registered scan");
-        let regions = crate::hatch::hatch_regions(
-            &inputs.hatch,
-            &inputs.scan,
-            &|p| registration.scan_from_cad_point(p),
-            &run_dir,
-        )?;
-        drop(spinner);
-        timings.hatch_s = t.elapsed().as_secs_f64();
-        let mut contours = to_plan.contours().to_vec();
-        for r in regions {
-            println!("{}", r.summary);
-            contours.extend(r.tracks);
-        }
-        TrimPath::new(contours)?
-    };
-    let t = Instant::now();
-    let spinner = stage("planning zones and layers");
-    let plan = plan_with_report(&to_plan, &config.plan_settings()).context("planning")?;
-    drop(spinner);
-    timings.plan_s = t.elapsed().as_secs_f64();
-    write_plan(&run_dir, &plan)?;
-    print!("{}", summary::plan(&plan));
-
-    if !plan.job.validation.passed {
-        let lines = plan.job.validation.violations.join("\n  ");
-        let unreachable = &plan.job.validation.unreachable_zones;
-        if !unreachable.is_empty() {
-            return Err(Failure::with_exit(
-                Exit::Refused,
-                anyhow::anyhow!(
-                    "zone(s) {unreachable:?} cannot be reached within the axis limits; refusing to start (--allow-invalid does not override this):\n  {lines}"
-                ),
-            ));
-        }
-        if !args.allow_invalid {
-            return Err(Failure::with_exit(
-                Exit::Refused,
-                anyhow::anyhow!(
-                    "the plan fails validation; refusing to start (pass --allow-invalid to override):\n  {lines}"
-                ),
-            ));
-        }
-        eprintln!("trimctl run: WARNING: starting a plan that fails validation:\n  {lines}");
-    }
+    let registration = register_part(&inputs, &config, &run_dir, &mut timings)?;
+    let trusted = trusted_contours(&registration, args, &run_dir)?;
+    let to_plan = with_hatch_tracks(trusted, &inputs, &registration, &run_dir, &mut timings)?;
+    let plan = plan_part(&to_plan, &config, &run_dir, &mut timings)?;
+    check_plan(&plan, args)?;
     if args.dry_run {
         write_report(
             &run_dir,
@@ -457,6 +324,191 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
         &timings,
         outcome,
     )
+}
+
+/// The job read (overrides applied) and the run folder made, with the run's own copy of the
+/// field correction it uses (the Job records its checksum), so the folder alone can be resumed
+/// and audited, and the effective job file naming that copy relative to itself.
+fn open_run(args: &Args) -> anyhow::Result<(JobConfig, PathBuf)> {
+    let mut config = match &args.job {
+        Some(p) => JobConfig::load(p)?,
+        None => JobConfig::default(),
+    };
+    apply_overrides(&mut config, args)?;
+    let run_dir = new_run_dir(&config, args)?;
+    if let Some(src) = config.plan.calibration.field_correction.clone() {
+        let copy = run_dir.join(files::FIELD);
+        std::fs::copy(&src, &copy).with_context(|| {
+            format!(
+                "calibration.field_correction: cannot copy {}",
+                src.display()
+            )
+        })?;
+        config.plan.calibration.field_correction = Some(copy);
+    }
+    let mut effective = config.clone();
+    if effective.plan.calibration.field_correction.is_some() {
+        effective.plan.calibration.field_correction = Some(PathBuf::from(files::FIELD));
+    }
+    std::fs::write(
+        run_dir.join(files::JOB),
+        toml::to_string(&effective).context("serialising the job file")?,
+    )?;
+    eprintln!("trimctl run: recording to {}", run_dir.display());
+    Ok((config, run_dir))
+}
+
+/// Registration of the path onto the scan, written and summarised; refuses a part the
+/// registration refuses as a whole.
+fn register_part(
+    inputs: &inputs::Inputs,
+    config: &JobConfig,
+    run_dir: &Path,
+    timings: &mut Timings,
+) -> anyhow::Result<Registration> {
+    let t = Instant::now();
+    let spinner = stage("registering the path onto the scan");
+    let registration = register(
+        &inputs.cad,
+        &inputs.scan,
+        &inputs.path,
+        &inputs.scan_from_cad_initial,
+        &config.register,
+    )
+    .context("registration")?;
+    drop(spinner);
+    timings.register_s = t.elapsed().as_secs_f64();
+    formats::write_path(&run_dir.join(files::REGISTERED), &registration.path)?;
+    std::fs::write(
+        run_dir.join(files::REGISTRATION),
+        serde_json::to_string_pretty(&registration.report)?,
+    )?;
+    print!("{}", summary::registration(&registration.report));
+    if let Some(reason) = &registration.report.global.refused {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "registration refuses the part: {reason} (see {}); --skip-untrusted does not override this",
+                run_dir.join(files::REGISTRATION).display()
+            ),
+        ));
+    }
+    Ok(registration)
+}
+
+/// The registered path to plan: whole when every contour is trustworthy, without the
+/// untrustworthy ones with `--skip-untrusted`, else refused.
+fn trusted_contours(
+    registration: &Registration,
+    args: &Args,
+    run_dir: &Path,
+) -> anyhow::Result<TrimPath> {
+    let untrusted: Vec<i64> = registration
+        .report
+        .contours
+        .iter()
+        .filter(|c| !c.trustworthy)
+        .map(|c| c.id)
+        .collect();
+    if untrusted.is_empty() {
+        return Ok(registration.path.clone());
+    }
+    if !args.skip_untrusted {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "registration flags {} contour(s) untrustworthy: {untrusted:?} (see {}); refusing to start. Check the scan, or pass --skip-untrusted to trim the others",
+                untrusted.len(),
+                run_dir.join(files::REGISTRATION).display()
+            ),
+        ));
+    }
+    eprintln!(
+        "trimctl run: planning without {} untrustworthy contour(s): {untrusted:?}",
+        untrusted.len()
+    );
+    let kept: Vec<_> = registration
+        .path
+        .contours()
+        .iter()
+        .filter(|c| !untrusted.contains(&c.id()))
+        .cloned()
+        .collect();
+    TrimPath::new(kept).context("no trustworthy contour left to plan")
+}
+
+/// The hatch regions' tracks, hatched on the registered scan, beside the contours.
+fn with_hatch_tracks(
+    to_plan: TrimPath,
+    inputs: &inputs::Inputs,
+    registration: &Registration,
+    run_dir: &Path,
+    timings: &mut Timings,
+) -> anyhow::Result<TrimPath> {
+    if inputs.hatch.is_empty() {
+        return Ok(to_plan);
+    }
+    let t = Instant::now();
+    let spinner = stage("hatching regions on the registered scan");
+    let regions = crate::hatch::hatch_regions(
+        &inputs.hatch,
+        &inputs.scan,
+        &|p| registration.scan_from_cad_point(p),
+        run_dir,
+    )?;
+    drop(spinner);
+    timings.hatch_s = t.elapsed().as_secs_f64();
+    let mut contours = to_plan.contours().to_vec();
+    for r in regions {
+        println!("{}", r.summary);
+        contours.extend(r.tracks);
+    }
+    Ok(TrimPath::new(contours)?)
+}
+
+/// Zones and layers planned, written and summarised.
+fn plan_part(
+    to_plan: &TrimPath,
+    config: &JobConfig,
+    run_dir: &Path,
+    timings: &mut Timings,
+) -> anyhow::Result<PlanOutput> {
+    let t = Instant::now();
+    let spinner = stage("planning zones and layers");
+    let plan = plan_with_report(to_plan, &config.plan).context("planning")?;
+    drop(spinner);
+    timings.plan_s = t.elapsed().as_secs_f64();
+    write_plan(run_dir, &plan)?;
+    print!("{}", summary::plan(&plan));
+    Ok(plan)
+}
+
+/// Refuses a plan that fails validation: always with an unreachable zone, otherwise unless
+/// `--allow-invalid` (then a warning).
+fn check_plan(plan: &PlanOutput, args: &Args) -> anyhow::Result<()> {
+    if plan.job.validation.passed {
+        return Ok(());
+    }
+    let lines = plan.job.validation.violations.join("\n  ");
+    let unreachable = &plan.job.validation.unreachable_zones;
+    if !unreachable.is_empty() {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "zone(s) {unreachable:?} cannot be reached within the axis limits; refusing to start (--allow-invalid does not override this):\n  {lines}"
+            ),
+        ));
+    }
+    if !args.allow_invalid {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "the plan fails validation; refusing to start (pass --allow-invalid to override):\n  {lines}"
+            ),
+        ));
+    }
+    eprintln!("trimctl run: WARNING: starting a plan that fails validation:\n  {lines}");
+    Ok(())
 }
 
 fn write_plan(run_dir: &Path, plan: &PlanOutput) -> anyhow::Result<()> {

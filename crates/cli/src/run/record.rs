@@ -103,7 +103,7 @@ pub(super) fn record_calibration(
             topic::CALIBRATION_SCHEMA,
             now_ns(),
             &serde_json::json!({
-                "calibration": config.calibration,
+                "calibration": config.plan.calibration,
                 "lens": job.settings.lens,
                 "scan_pose": config.part.scan_pose,
             }),

@@ -336,7 +336,7 @@ pub(super) fn write_report(
         "estimate": plan.job.estimate,
         "cycle_s": run.map(summary::cycle_split),
         "spot_error": spots,
-        "calibration": config.calibration,
+        "calibration": config.plan.calibration,
         "lens": plan.job.settings.lens,
     });
     std::fs::write(

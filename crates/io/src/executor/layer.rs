@@ -228,7 +228,7 @@ impl Executor {
     /// `EXECUTE` journals the cut at `first` (a preloaded list is not a marked layer).
     async fn begin_list(&self, journal: &mut Journal, work: &LayerWork) -> LayerStep<BegunList> {
         self.phase(work, Phase::LoadList);
-        let commands = layer_list(&work.layer, &self.job.settings.galvo, work.first)
+        let commands = layer_list(&work.layer, &self.job.settings.plan.galvo, work.first)
             .map_err(|e| StopCause::Job {
                 message: format!("{}: {e}", work.key),
             })
@@ -265,14 +265,7 @@ impl Executor {
         list_buf: u8,
     ) -> LayerStep<InPosition> {
         let (c, t) = (self.cancel.clone(), self.options.timeouts);
-        let frames = u32::try_from(
-            list.commands
-                .len()
-                .div_ceil(crate::galvo::client::COMMANDS_PER_FRAME),
-        )
-        .unwrap_or(u32::MAX)
-        .max(1);
-        let load_timeout = self.galvo_timeout() * frames;
+        let load_timeout = t.galvo_load(list.commands.len());
         let (galvo, cnc) = (&self.cell.galvo, &mut self.cell.cnc);
         let load = async {
             let t0 = Instant::now();

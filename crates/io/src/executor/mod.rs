@@ -550,7 +550,7 @@ impl Executor {
                 .map_err(|e| ExecError::Job(e.to_string()))?;
         }
         for (key, _, layer) in self.job.layers() {
-            layer_list(layer, &self.job.settings.galvo, 0)
+            layer_list(layer, &self.job.settings.plan.galvo, 0)
                 .map_err(|e| ExecError::Job(format!("{key}: {e}")))?;
         }
         Ok(())
@@ -656,8 +656,7 @@ impl Executor {
 
     /// A timeout for a galvo request: every attempt's reply timeout plus slack.
     fn galvo_timeout(&self) -> Duration {
-        let t = &self.options.timeouts;
-        t.galvo_reply * (t.galvo_resends + 1) + Duration::from_millis(100)
+        self.options.timeouts.galvo_request()
     }
 
     async fn galvo_status(&self) -> Step<StatusBlock> {
@@ -672,58 +671,13 @@ impl Executor {
     }
 
     async fn prepare(&mut self) -> Step<()> {
-        let (c, gt, lt) = (
-            self.cancel.clone(),
-            self.galvo_timeout(),
-            self.options.timeouts.laser_reply,
-        );
-        Self::guard(
-            &c,
-            lt,
-            Device::Laser,
-            "emission off",
-            self.cell.laser.emission(false),
-        )
-        .await?;
-        Self::guard(
-            &c,
-            gt,
-            Device::Galvo,
-            "RESET_ERROR",
-            self.cell.galvo.reset_error(),
-        )
-        .await?;
-        Self::guard(
-            &c,
-            gt,
-            Device::Galvo,
-            "LASER_SIGNALS on",
-            self.cell.galvo.laser_signals(true),
-        )
-        .await?;
-        let queries = self.cell.laser.profile().queries.len().max(1);
-        let lt_all = lt * u32::try_from(queries).unwrap_or(1);
-        Self::guard(&c, lt_all, Device::Laser, "status", self.cell.laser.check()).await?;
-        if let Some(p) = self.options.laser_power_pct {
-            Self::guard(
-                &c,
-                lt,
-                Device::Laser,
-                "set power",
-                self.cell.laser.set_power_pct(p),
-            )
-            .await?;
-        }
-        let enable_timeout = self.options.timeouts.cnc_motion;
-        Self::guard(
-            &c,
-            enable_timeout,
-            Device::Cnc,
-            "enable",
-            self.cell.cnc.enable(self.options.enable),
-        )
-        .await?;
-        Ok(())
+        let steps = Preparation {
+            laser_signals: true,
+            check_laser: true,
+            power_pct: self.options.laser_power_pct,
+            enable: Some(self.options.enable),
+        };
+        prepare_cell(&mut self.cell, &self.options.timeouts, &self.cancel, steps).await
     }
 
     /// The run: announced, the cut layer decided (before anything is switched on), then the
@@ -843,7 +797,7 @@ impl Executor {
                 summary.vectors_marked += u64::from(work.vectors - work.first);
                 if work.first == 0 {
                     summary.galvo_estimate_s += ListComposition::of(&work.layer.polylines)
-                        .commanded_s(&self.job.settings.galvo);
+                        .commanded_s(&self.job.settings.plan.galvo);
                 }
                 summary.layers.push(timing);
                 list_buf ^= 1;
@@ -903,4 +857,75 @@ struct RunPlan {
     cut_start: CutStart,
     /// The operator's choice for a cut layer of unknown progress, if one was made.
     cut_layer: Option<CutLayerOutcome>,
+}
+
+/// What [`prepare_cell`] does beyond shutting the light path.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Preparation {
+    /// The galvo's laser signals: on to mark; off to frame (its gate cannot open).
+    pub laser_signals: bool,
+    /// Check the laser's status (marking).
+    pub check_laser: bool,
+    /// Set the laser's power (%), if given.
+    pub power_pct: Option<f64>,
+    /// Reset the galvo's latched error and enable the CNC with these steps; `None` when the
+    /// cell was prepared already (a frame inside a run).
+    pub enable: Option<crate::cnc::EnableSteps>,
+}
+
+/// The cell made ready, in the one order a run and a frame share: emission off (acknowledged);
+/// the galvo's latched error reset; its laser signals on or off; the laser's status checked and
+/// its power set; the CNC enabled. Each step as [`Preparation`] asks, each under its timeout.
+pub(crate) async fn prepare_cell(
+    cell: &mut Cell,
+    timeouts: &Timeouts,
+    cancel: &CancellationToken,
+    steps: Preparation,
+) -> Step<()> {
+    let (gt, lt) = (timeouts.galvo_request(), timeouts.laser_reply);
+    Executor::guard(
+        cancel,
+        lt,
+        Device::Laser,
+        "emission off",
+        cell.laser.emission(false),
+    )
+    .await?;
+    if steps.enable.is_some() {
+        Executor::guard(
+            cancel,
+            gt,
+            Device::Galvo,
+            "RESET_ERROR",
+            cell.galvo.reset_error(),
+        )
+        .await?;
+    }
+    let signals = if steps.laser_signals {
+        "LASER_SIGNALS on"
+    } else {
+        "LASER_SIGNALS off"
+    };
+    let set_signals = cell.galvo.laser_signals(steps.laser_signals);
+    Executor::guard(cancel, gt, Device::Galvo, signals, set_signals).await?;
+    if steps.check_laser {
+        let queries = cell.laser.profile().queries.len().max(1);
+        let lt_all = lt * u32::try_from(queries).unwrap_or(1);
+        Executor::guard(cancel, lt_all, Device::Laser, "status", cell.laser.check()).await?;
+    }
+    if let Some(p) = steps.power_pct {
+        Executor::guard(
+            cancel,
+            lt,
+            Device::Laser,
+            "set power",
+            cell.laser.set_power_pct(p),
+        )
+        .await?;
+    }
+    if let Some(enable) = steps.enable {
+        let enabling = cell.cnc.enable(enable);
+        Executor::guard(cancel, timeouts.cnc_motion, Device::Cnc, "enable", enabling).await?;
+    }
+    Ok(())
 }

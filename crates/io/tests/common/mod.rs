@@ -96,14 +96,14 @@ pub fn demo_job(layers: usize) -> Job {
         zones,
         settings: JobSettings {
             lens: Default::default(),
-            max_incidence_deg: 5.0,
-            kinematics: "xyzac-trt".into(),
-            galvo: GalvoSettings {
-                mark_speed_mm_per_s: 400.0,
-                jump_speed_mm_per_s: 2000.0,
-                ..GalvoSettings::default()
+            plan: trim_cell::plan_settings::PlanSettings {
+                galvo: GalvoSettings {
+                    mark_speed_mm_per_s: 400.0,
+                    jump_speed_mm_per_s: 2000.0,
+                    ..GalvoSettings::default()
+                },
+                ..Default::default()
             },
-            extra: serde_json::Value::Null,
         },
         validation: ValidationReport::default(),
         estimate: TimeEstimate::default(),
@@ -113,7 +113,7 @@ pub fn demo_job(layers: usize) -> Job {
 /// Every planned vector of the job, in bits.
 pub fn planned_vectors(job: &Job) -> Vec<([i32; 2], [i32; 2])> {
     job.layers()
-        .flat_map(|(_, _, l)| vectors_bits(l, &job.settings.galvo).expect("in field"))
+        .flat_map(|(_, _, l)| vectors_bits(l, &job.settings.plan.galvo).expect("in field"))
         .collect()
 }
 
