@@ -26,6 +26,7 @@ use trim_geom::mesh::Mesh;
 use trim_geom::{ContourId, KdTree, Path, Point3};
 
 use crate::contours::PathIndex;
+use crate::crop::Crop;
 use crate::error::{InspectError, Result};
 use crate::opening::{Opening, covered_share, opening_of};
 use crate::placement::Placement;
@@ -109,7 +110,6 @@ pub struct Inspection {
 #[derive(Debug, Clone, Copy)]
 struct Sample {
     contour: u32,
-    point: Point3,
     arc_mm: f64,
     distance_mm: f64,
 }
@@ -200,12 +200,13 @@ pub fn inspect(
         .iter()
         .map(|g| placement.bound_for(g.id))
         .collect::<Result<Vec<_>>>()?;
+    lap("path", &mut t);
     let openings: Vec<Option<Opening>> = index
         .contours
         .par_iter()
         .map(|g| opening_of(g, mesh, settings))
         .collect();
-    lap("path + openings", &mut t);
+    lap("openings", &mut t);
 
     // 1. Crop in the scan frame around the registered contours and openings.
     let mut crop_points = Vec::new();
@@ -227,26 +228,27 @@ pub fn inspect(
         .par_iter()
         .map(|p| placement.scan_from_cad_point(p))
         .collect();
-    let crop_tree = KdTree::build(&crop_scan);
     let reach = settings
         .band_mm
         .max(settings.opening_support_mm.hypot(settings.opening_depth_mm))
         + CROP_STEP_MM
         + settings.opening_grid_mm;
-    let reach2 = reach * reach;
+    let crop = Crop::new(&crop_scan, reach);
     let cad_from_scan = placement.scan_from_cad.inverse();
-    // 2. Map into the CAD frame.
-    let mapped: Vec<Point3> = scan
+    let cropped: Vec<Point3> = scan
         .par_iter()
         .with_min_len(4096)
-        .filter_map(|q| {
-            let near = crop_tree.nearest(q)?;
-            (near.distance_sq <= reach2).then(|| {
-                placement.cad_from_scan_point(&cad_from_scan, q, settings.inverse_iterations)
-            })
-        })
+        .filter(|q| crop.contains(q))
+        .copied()
         .collect();
-    lap("crop + map", &mut t);
+    lap("crop", &mut t);
+    // 2. Map into the CAD frame.
+    let mapped: Vec<Point3> = cropped
+        .par_iter()
+        .with_min_len(1024)
+        .map(|q| placement.cad_from_scan_point(&cad_from_scan, q, settings.inverse_iterations))
+        .collect();
+    lap("map", &mut t);
 
     // 3. Distances of the points in a contour's band.
     let signed = SignedMesh::new(mesh)?;
@@ -257,7 +259,6 @@ pub fn inspect(
             let l = index.locate(p, settings.band_mm)?;
             Some(Sample {
                 contour: u32::try_from(l.contour).unwrap_or(u32::MAX),
-                point: *p,
                 arc_mm: l.arc_mm,
                 distance_mm: signed.distance(p),
             })
@@ -280,6 +281,7 @@ pub fn inspect(
         }
     }
     let tree = KdTree::build(&mapped);
+    lap("noise + tree", &mut t);
     let limits = Limits {
         tolerance_um: settings.tolerance_um,
         min_coverage: settings.min_coverage,
@@ -370,13 +372,10 @@ pub fn inspect(
     })
 }
 
-/// Points standing beyond the noise threshold on one side (`side` +1: outside the material,
-/// −1: inside), binned, each read as the median distance of its [`SMOOTH_NEIGHBOURS`] nearest
-/// such points within [`SMOOTH_RADIUS_MM`] (itself included). One point's distance carries the
-/// whole scan noise, and the top of many noisy readings is biased up by two to three σ; a web's
-/// free edge or a gouge's floor is a surface, so its neighbours read the same height and the
-/// median removes most of that bias. A point with fewer such neighbours than `min_points`
-/// (a stray outlier) keeps its own reading but cannot make a bin alone.
+/// The distances (`side` +1: outside the material, −1: inside, read positive) of the points
+/// standing beyond the noise threshold on that side, binned along the contour. Each point reads
+/// its own distance: a neighbourhood median was tried to take the noise off a web's top and read
+/// the tops 15–40 µm low (DESIGN.md "Inspection").
 fn beyond(
     samples: &[Sample],
     threshold_mm: f64,
@@ -384,38 +383,15 @@ fn beyond(
     n_bins: usize,
     bin_of: &dyn Fn(f64) -> usize,
 ) -> Vec<Vec<f64>> {
-    let picked: Vec<&Sample> = samples
-        .iter()
-        .filter(|s| side * s.distance_mm > threshold_mm)
-        .collect();
     let mut bins: Vec<Vec<f64>> = vec![Vec::new(); n_bins];
-    if picked.is_empty() {
-        return bins;
-    }
-    let points: Vec<Point3> = picked.iter().map(|s| s.point).collect();
-    let tree = KdTree::build(&points);
-    for s in &picked {
-        let mut near: Vec<f64> = tree
-            .knn(&s.point, SMOOTH_NEIGHBOURS)
-            .iter()
-            .filter(|n| n.distance_sq <= SMOOTH_RADIUS_MM * SMOOTH_RADIUS_MM)
-            .map(|n| side * picked[n.index].distance_mm)
-            .collect();
-        near.sort_by(f64::total_cmp);
-        let reading = near
-            .get(near.len() / 2)
-            .copied()
-            .unwrap_or(side * s.distance_mm);
-        bins[bin_of(s.arc_mm)].push(reading);
+    for s in samples {
+        let d = side * s.distance_mm;
+        if d > threshold_mm {
+            bins[bin_of(s.arc_mm)].push(d);
+        }
     }
     bins
 }
-
-/// Neighbours whose median is a point's reading.
-pub const SMOOTH_NEIGHBOURS: usize = 1;
-
-/// …within this distance, mm.
-pub const SMOOTH_RADIUS_MM: f64 = 0.15;
 
 /// 1.4826 × the median absolute deviation of the distances within [`NOISE_WINDOW_MM`] of the
 /// surface, µm (at least [`MIN_NOISE_UM`]).
