@@ -10,8 +10,9 @@
 //!    0.1 mm of the surface.
 //! 5. *Bins* of `bin_length_mm` along each contour. A bin has *excess* when at least
 //!    `min_points` points stand more than `noise_factor·σ` outside the material; its height is
-//!    the `min_points`-th largest distance there. *Gouge* alike inside. A bin is *covered* when
-//!    it holds `min_bin_points` points.
+//!    the web's free edge fitted to those readings and its neighbours' ([`crate::height`]).
+//!    *Gouge* alike inside, its depth the `min_points`-th largest reading. A bin is *covered*
+//!    when it holds `min_bin_points` points.
 //! 6. Per contour: `excess_height_um` the largest bin height (0 when no bin has excess),
 //!    `excess_length_mm` the length of the bins with excess, `gouge_depth_um` likewise,
 //!    `coverage` the share of covered bins, `blocked_fraction` ([`crate::opening`]), U and the
@@ -28,6 +29,7 @@ use trim_geom::{ContourId, KdTree, Path, Point3};
 use crate::contours::PathIndex;
 use crate::crop::Crop;
 use crate::error::{InspectError, Result};
+use crate::height::edge_height_mm;
 use crate::opening::{Opening, covered_share, opening_of};
 use crate::placement::Placement;
 use crate::settings::InspectSettings;
@@ -40,6 +42,12 @@ pub const NOISE_WINDOW_MM: f64 = 0.1;
 /// rounding error excess).
 pub const MIN_NOISE_UM: f64 = 0.5;
 
+/// A bin's excess height is fitted on its readings and those of this many bins either side.
+const POOL_BINS: usize = 1;
+
+/// …when their robust tops (the `min_points`-th largest reading) differ by at most this many σ.
+const POOL_SIMILAR_SIGMA: f64 = 4.0;
+
 /// Spacing of the crop's points along the registered contours, mm.
 const CROP_STEP_MM: f64 = 0.1;
 
@@ -50,7 +58,9 @@ pub struct ExcessBin {
     pub start_mm: f64,
     /// End along the contour, mm.
     pub end_mm: f64,
-    /// The bin's robust top: the `min_points`-th largest distance from the solid, µm.
+    /// The bin's height, µm: for excess the fitted free edge of the web ([`crate::height`],
+    /// on the bin's readings and those of its neighbours with a similar top); for gouge the
+    /// `min_points`-th largest depth.
     pub height_um: f64,
     /// Points clearly above the noise in the bin.
     pub points: usize,
@@ -306,24 +316,54 @@ pub fn inspect(
             let above = beyond(samples, threshold_mm, 1.0, n_bins, &bin_of);
             let below = beyond(samples, threshold_mm, -1.0, n_bins, &bin_of);
             let (mut above, mut below) = (above, below);
-            let bins = |lists: &mut [Vec<f64>]| -> Vec<ExcessBin> {
-                lists
-                    .iter_mut()
-                    .enumerate()
-                    .filter(|(_, l)| l.len() >= settings.min_points)
-                    .map(|(b, l)| {
-                        l.sort_by(|x, y| y.total_cmp(x));
-                        ExcessBin {
-                            start_mm: b as f64 * settings.bin_length_mm,
-                            end_mm: ((b + 1) as f64 * settings.bin_length_mm).min(length_mm),
-                            height_um: l[settings.min_points - 1] * 1e3,
-                            points: l.len(),
-                        }
-                    })
-                    .collect()
+            let pool = above.clone();
+            let bins =
+                |lists: &mut [Vec<f64>], height: &dyn Fn(usize, &[f64]) -> f64| -> Vec<ExcessBin> {
+                    lists
+                        .iter_mut()
+                        .enumerate()
+                        .filter(|(_, l)| l.len() >= settings.min_points)
+                        .map(|(b, l)| {
+                            l.sort_by(|x, y| y.total_cmp(x));
+                            ExcessBin {
+                                start_mm: b as f64 * settings.bin_length_mm,
+                                end_mm: ((b + 1) as f64 * settings.bin_length_mm).min(length_mm),
+                                height_um: height(b, l) * 1e3,
+                                points: l.len(),
+                            }
+                        })
+                        .collect()
+                };
+            // Excess: the web's free edge fitted (crate::height); gouge: the robust top.
+            // A neighbour's readings join only when its own robust top is within
+            // POOL_SIMILAR_SIGMA·σ of the bin's (the same web, not the next burr).
+            let rank_top = |l: &[f64]| {
+                let mut v = l.to_vec();
+                v.sort_by(|x, y| y.total_cmp(x));
+                v.get(settings.min_points - 1).copied()
             };
-            let excess_bins = bins(&mut above);
-            let gouge_bins = bins(&mut below);
+            let tops: Vec<Option<f64>> = pool.iter().map(|l| rank_top(l)).collect();
+            let edge = |b: usize, l: &[f64]| {
+                let own = tops[b];
+                let near: Vec<f64> = (b.saturating_sub(POOL_BINS)..(b + POOL_BINS + 1).min(n_bins))
+                    .filter(|&k| {
+                        k == b
+                            || matches!((own, tops[k]), (Some(o), Some(t))
+                                if (o - t).abs() <= POOL_SIMILAR_SIGMA * noise_um * 1e-3)
+                    })
+                    .flat_map(|k| pool[k].iter().copied())
+                    .collect();
+                edge_height_mm(
+                    &near,
+                    noise_um * 1e-3,
+                    threshold_mm,
+                    settings.band_mm,
+                    settings.min_points,
+                )
+                .unwrap_or(l[settings.min_points - 1])
+            };
+            let excess_bins = bins(&mut above, &edge);
+            let gouge_bins = bins(&mut below, &|_, l: &[f64]| l[settings.min_points - 1]);
             let top = |b: &[ExcessBin]| b.iter().map(|x| x.height_um).fold(0.0, f64::max);
             // Summed from +0 (an empty f64 sum is −0).
             let span = |b: &[ExcessBin]| b.iter().fold(0.0, |acc, x| acc + (x.end_mm - x.start_mm));
