@@ -13,7 +13,7 @@
 //! Only readings above a floor `L` (at or above the noise threshold) enter, so each component is
 //! truncated there: `S_u = 1 − σ(ψ(L/σ) − ψ((L − h)/σ))/h` with `ψ(z) = zΦ(z) + φ(z)` (the integral
 //! of Φ), `S_e = Φ((h − L)/σ)`. The height is the maximum-likelihood `h` (the free edge's share
-//! `a` profiled out on a grid):
+//! `a` profiled out by a golden-section search):
 //!
 //! `ℓ(h, a) = Σᵢ log((1 − ε)((1 − a)u(rᵢ) + a e(rᵢ)) / ((1 − a)S_u + a S_e) + ε/(C − L))`.
 //!
@@ -30,8 +30,8 @@ pub const OUTLIER_SHARE: f64 = 0.02;
 /// (they only say that the web is there; the truncated model stays exact).
 pub const FIT_WINDOW_SIGMA: f64 = 10.0;
 
-/// The free edge's share is profiled on this many steps of [0, 1].
-const EDGE_SHARE_STEPS: usize = 20;
+/// The free edge's share is profiled by this many golden-section steps on [0, 1] (to ±0.005).
+const EDGE_SHARE_STEPS: usize = 10;
 
 /// `erfc(x)`, fractional error below 1.2·10⁻⁷ everywhere (Numerical Recipes in C, 2nd ed.,
 /// §6.2, `erfcc`: Chebyshev fit).
@@ -99,20 +99,37 @@ pub fn edge_height_mm(
                 (side, edge)
             })
             .collect();
-        (0..=EDGE_SHARE_STEPS)
-            .map(|k| {
-                let a = k as f64 / EDGE_SHARE_STEPS as f64;
-                let s = (1.0 - a) * s_side + a * s_edge;
-                parts
-                    .iter()
-                    .map(|(side, edge)| {
-                        ((1.0 - OUTLIER_SHARE) * ((1.0 - a) * side + a * edge) / s + outlier).ln()
-                    })
-                    .sum::<f64>()
-            })
-            .fold(f64::NEG_INFINITY, f64::max)
+        let at = |a: f64| -> f64 {
+            let s = (1.0 - a) * s_side + a * s_edge;
+            parts
+                .iter()
+                .map(|(side, edge)| {
+                    ((1.0 - OUTLIER_SHARE) * ((1.0 - a) * side + a * edge) / s + outlier).ln()
+                })
+                .sum::<f64>()
+        };
+        // Golden-section search of the edge's share on [0, 1].
+        let (mut lo, mut hi) = (0.0_f64, 1.0_f64);
+        let ratio = 0.5 * (5f64.sqrt() - 1.0);
+        let (mut x1, mut x2) = (hi - ratio * (hi - lo), lo + ratio * (hi - lo));
+        let (mut f1, mut f2) = (at(x1), at(x2));
+        for _ in 0..EDGE_SHARE_STEPS {
+            if f1 < f2 {
+                lo = x1;
+                (x1, f1) = (x2, f2);
+                x2 = lo + ratio * (hi - lo);
+                f2 = at(x2);
+            } else {
+                hi = x2;
+                (x2, f2) = (x1, f1);
+                x1 = hi - ratio * (hi - lo);
+                f1 = at(x1);
+            }
+        }
+        f1.max(f2).max(at(0.0)).max(at(1.0))
     };
-    // Coarse steps of σ/2 from 4σ below the seed to 3σ past the top, then σ/20 around the best.
+    // Coarse steps of σ/2 from 4σ below the seed to 3σ past the top, then σ/20 within σ/2 of
+    // the best.
     let best_on = |lo: f64, hi: f64, step: f64| -> f64 {
         let n = ((hi - lo) / step).ceil().max(1.0) as usize;
         (0..=n)
@@ -129,7 +146,11 @@ pub fn edge_height_mm(
         top + 3.0 * sigma,
         0.5 * sigma,
     );
-    Some(best_on(coarse - sigma, coarse + sigma, 0.05 * sigma))
+    Some(best_on(
+        coarse - 0.5 * sigma,
+        coarse + 0.5 * sigma,
+        0.05 * sigma,
+    ))
 }
 
 #[cfg(test)]
