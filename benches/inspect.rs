@@ -18,8 +18,11 @@ use trim_inspect::{InspectSettings, Placement, inspect};
 use trim_register::{RegisterSettings, register};
 use trim_synth::{SynthParams, generate};
 
-/// Seed of the synthetic case.
-const SEED: u64 = 20_261_123;
+/// Seed of the synthetic case: trim-inspect's first detection test seed, where the registration
+/// fits (24 contours pass, 20 fail, 8 undecided). Seed 20 261 123 was tried first: its fit
+/// leaves every contour with ~490 µm of "excess" (bounds up to 125 µm), a workload no real
+/// inspection has.
+const SEED: u64 = 1;
 /// Scan points of the rescan.
 const SCAN_POINTS: usize = 500_000;
 
@@ -51,8 +54,13 @@ fn bench_inspect(c: &mut Criterion) {
     let settings = InspectSettings::default();
     let once =
         inspect(&mesh, &case.path, case.scan.points(), &placement, &settings).expect("inspected");
+    let fails = once
+        .contours
+        .iter()
+        .filter(|c| c.verdict == trim_inspect::Verdict::Fail)
+        .count();
     eprintln!(
-        "inspect/500k: {} scan points, {} contours, {} CAD triangles, {} measured, {} burrs, {} blockages; stages {:?}",
+        "inspect/500k: {} scan points, {} contours ({fails} fail), {} CAD triangles, {} measured, {} burrs, {} blockages; stages {:?}",
         case.scan.len(),
         once.contours.len(),
         case.cad_triangles.len(),
