@@ -11,13 +11,17 @@
 //!   per-contour bound, and the mapping of scan points into the CAD frame.
 //! - [`contours`]: where a point lies relative to the path's contours (nearest contour, arc
 //!   length, lateral distance).
+//! - [`crop`]: the scan points near the registered contours and openings.
+//! - [`height`]: a bin's excess height, the web's free edge fitted to its noisy readings.
 //! - [`measure`]: the per-contour measurement (excess, gouge, coverage) and [`inspect`].
 //! - [`opening`]: the share of a hole or slot still covered.
 //! - [`verdict`]: the uncertainty and the decision rule.
 //! - [`error`]: the error type, [`InspectError`].
 
 pub mod contours;
+pub mod crop;
 pub mod error;
+pub mod height;
 pub mod measure;
 pub mod opening;
 pub mod placement;

@@ -10,8 +10,9 @@
 //!    0.1 mm of the surface.
 //! 5. *Bins* of `bin_length_mm` along each contour. A bin has *excess* when at least
 //!    `min_points` points stand more than `noise_factor·σ` outside the material; its height is
-//!    the `min_points`-th largest distance there. *Gouge* alike inside. A bin is *covered* when
-//!    it holds `min_bin_points` points.
+//!    the web's free edge fitted to those readings and its neighbours' ([`crate::height`]).
+//!    *Gouge* alike inside, its depth the `min_points`-th largest reading. A bin is *covered*
+//!    when it holds `min_bin_points` points.
 //! 6. Per contour: `excess_height_um` the largest bin height (0 when no bin has excess),
 //!    `excess_length_mm` the length of the bins with excess, `gouge_depth_um` likewise,
 //!    `coverage` the share of covered bins, `blocked_fraction` ([`crate::opening`]), U and the
@@ -26,7 +27,9 @@ use trim_geom::mesh::Mesh;
 use trim_geom::{ContourId, KdTree, Path, Point3};
 
 use crate::contours::PathIndex;
+use crate::crop::Crop;
 use crate::error::{InspectError, Result};
+use crate::height::edge_height_mm;
 use crate::opening::{Opening, covered_share, opening_of};
 use crate::placement::Placement;
 use crate::settings::InspectSettings;
@@ -39,6 +42,12 @@ pub const NOISE_WINDOW_MM: f64 = 0.1;
 /// rounding error excess).
 pub const MIN_NOISE_UM: f64 = 0.5;
 
+/// A bin's excess height is fitted on its readings and those of this many bins either side.
+const POOL_BINS: usize = 1;
+
+/// …when their robust tops (the `min_points`-th largest reading) differ by at most this many σ.
+const POOL_SIMILAR_SIGMA: f64 = 4.0;
+
 /// Spacing of the crop's points along the registered contours, mm.
 const CROP_STEP_MM: f64 = 0.1;
 
@@ -49,7 +58,9 @@ pub struct ExcessBin {
     pub start_mm: f64,
     /// End along the contour, mm.
     pub end_mm: f64,
-    /// The bin's robust top: the `min_points`-th largest distance from the solid, µm.
+    /// The bin's height, µm: for excess the fitted free edge of the web ([`crate::height`],
+    /// on the bin's readings and those of its neighbours with a similar top); for gouge the
+    /// `min_points`-th largest depth.
     pub height_um: f64,
     /// Points clearly above the noise in the bin.
     pub points: usize,
@@ -109,7 +120,6 @@ pub struct Inspection {
 #[derive(Debug, Clone, Copy)]
 struct Sample {
     contour: u32,
-    point: Point3,
     arc_mm: f64,
     distance_mm: f64,
 }
@@ -200,12 +210,13 @@ pub fn inspect(
         .iter()
         .map(|g| placement.bound_for(g.id))
         .collect::<Result<Vec<_>>>()?;
+    lap("path", &mut t);
     let openings: Vec<Option<Opening>> = index
         .contours
         .par_iter()
         .map(|g| opening_of(g, mesh, settings))
         .collect();
-    lap("path + openings", &mut t);
+    lap("openings", &mut t);
 
     // 1. Crop in the scan frame around the registered contours and openings.
     let mut crop_points = Vec::new();
@@ -227,26 +238,27 @@ pub fn inspect(
         .par_iter()
         .map(|p| placement.scan_from_cad_point(p))
         .collect();
-    let crop_tree = KdTree::build(&crop_scan);
     let reach = settings
         .band_mm
         .max(settings.opening_support_mm.hypot(settings.opening_depth_mm))
         + CROP_STEP_MM
         + settings.opening_grid_mm;
-    let reach2 = reach * reach;
+    let crop = Crop::new(&crop_scan, reach);
     let cad_from_scan = placement.scan_from_cad.inverse();
-    // 2. Map into the CAD frame.
-    let mapped: Vec<Point3> = scan
+    let cropped: Vec<Point3> = scan
         .par_iter()
         .with_min_len(4096)
-        .filter_map(|q| {
-            let near = crop_tree.nearest(q)?;
-            (near.distance_sq <= reach2).then(|| {
-                placement.cad_from_scan_point(&cad_from_scan, q, settings.inverse_iterations)
-            })
-        })
+        .filter(|q| crop.contains(q))
+        .copied()
         .collect();
-    lap("crop + map", &mut t);
+    lap("crop", &mut t);
+    // 2. Map into the CAD frame.
+    let mapped: Vec<Point3> = cropped
+        .par_iter()
+        .with_min_len(1024)
+        .map(|q| placement.cad_from_scan_point(&cad_from_scan, q, settings.inverse_iterations))
+        .collect();
+    lap("map", &mut t);
 
     // 3. Distances of the points in a contour's band.
     let signed = SignedMesh::new(mesh)?;
@@ -257,7 +269,6 @@ pub fn inspect(
             let l = index.locate(p, settings.band_mm)?;
             Some(Sample {
                 contour: u32::try_from(l.contour).unwrap_or(u32::MAX),
-                point: *p,
                 arc_mm: l.arc_mm,
                 distance_mm: signed.distance(p),
             })
@@ -280,6 +291,7 @@ pub fn inspect(
         }
     }
     let tree = KdTree::build(&mapped);
+    lap("noise + tree", &mut t);
     let limits = Limits {
         tolerance_um: settings.tolerance_um,
         min_coverage: settings.min_coverage,
@@ -304,24 +316,54 @@ pub fn inspect(
             let above = beyond(samples, threshold_mm, 1.0, n_bins, &bin_of);
             let below = beyond(samples, threshold_mm, -1.0, n_bins, &bin_of);
             let (mut above, mut below) = (above, below);
-            let bins = |lists: &mut [Vec<f64>]| -> Vec<ExcessBin> {
-                lists
-                    .iter_mut()
-                    .enumerate()
-                    .filter(|(_, l)| l.len() >= settings.min_points)
-                    .map(|(b, l)| {
-                        l.sort_by(|x, y| y.total_cmp(x));
-                        ExcessBin {
-                            start_mm: b as f64 * settings.bin_length_mm,
-                            end_mm: ((b + 1) as f64 * settings.bin_length_mm).min(length_mm),
-                            height_um: l[settings.min_points - 1] * 1e3,
-                            points: l.len(),
-                        }
-                    })
-                    .collect()
+            let pool = above.clone();
+            let bins =
+                |lists: &mut [Vec<f64>], height: &dyn Fn(usize, &[f64]) -> f64| -> Vec<ExcessBin> {
+                    lists
+                        .iter_mut()
+                        .enumerate()
+                        .filter(|(_, l)| l.len() >= settings.min_points)
+                        .map(|(b, l)| {
+                            l.sort_by(|x, y| y.total_cmp(x));
+                            ExcessBin {
+                                start_mm: b as f64 * settings.bin_length_mm,
+                                end_mm: ((b + 1) as f64 * settings.bin_length_mm).min(length_mm),
+                                height_um: height(b, l) * 1e3,
+                                points: l.len(),
+                            }
+                        })
+                        .collect()
+                };
+            // Excess: the web's free edge fitted (crate::height); gouge: the robust top.
+            // A neighbour's readings join only when its own robust top is within
+            // POOL_SIMILAR_SIGMA·σ of the bin's (the same web, not the next burr).
+            let rank_top = |l: &[f64]| {
+                let mut v = l.to_vec();
+                v.sort_by(|x, y| y.total_cmp(x));
+                v.get(settings.min_points - 1).copied()
             };
-            let excess_bins = bins(&mut above);
-            let gouge_bins = bins(&mut below);
+            let tops: Vec<Option<f64>> = pool.iter().map(|l| rank_top(l)).collect();
+            let edge = |b: usize, l: &[f64]| {
+                let own = tops[b];
+                let near: Vec<f64> = (b.saturating_sub(POOL_BINS)..(b + POOL_BINS + 1).min(n_bins))
+                    .filter(|&k| {
+                        k == b
+                            || matches!((own, tops[k]), (Some(o), Some(t))
+                                if (o - t).abs() <= POOL_SIMILAR_SIGMA * noise_um * 1e-3)
+                    })
+                    .flat_map(|k| pool[k].iter().copied())
+                    .collect();
+                edge_height_mm(
+                    &near,
+                    noise_um * 1e-3,
+                    threshold_mm,
+                    settings.band_mm,
+                    settings.min_points,
+                )
+                .unwrap_or(l[settings.min_points - 1])
+            };
+            let excess_bins = bins(&mut above, &edge);
+            let gouge_bins = bins(&mut below, &|_, l: &[f64]| l[settings.min_points - 1]);
             let top = |b: &[ExcessBin]| b.iter().map(|x| x.height_um).fold(0.0, f64::max);
             // Summed from +0 (an empty f64 sum is −0).
             let span = |b: &[ExcessBin]| b.iter().fold(0.0, |acc, x| acc + (x.end_mm - x.start_mm));
@@ -370,13 +412,10 @@ pub fn inspect(
     })
 }
 
-/// Points standing beyond the noise threshold on one side (`side` +1: outside the material,
-/// −1: inside), binned, each read as the median distance of its [`SMOOTH_NEIGHBOURS`] nearest
-/// such points within [`SMOOTH_RADIUS_MM`] (itself included). One point's distance carries the
-/// whole scan noise, and the top of many noisy readings is biased up by two to three σ; a web's
-/// free edge or a gouge's floor is a surface, so its neighbours read the same height and the
-/// median removes most of that bias. A point with fewer such neighbours than `min_points`
-/// (a stray outlier) keeps its own reading but cannot make a bin alone.
+/// The distances (`side` +1: outside the material, −1: inside, read positive) of the points
+/// standing beyond the noise threshold on that side, binned along the contour. Each point reads
+/// its own distance: a neighbourhood median was tried to take the noise off a web's top and read
+/// the tops 15–40 µm low (DESIGN.md "Inspection").
 fn beyond(
     samples: &[Sample],
     threshold_mm: f64,
@@ -384,38 +423,15 @@ fn beyond(
     n_bins: usize,
     bin_of: &dyn Fn(f64) -> usize,
 ) -> Vec<Vec<f64>> {
-    let picked: Vec<&Sample> = samples
-        .iter()
-        .filter(|s| side * s.distance_mm > threshold_mm)
-        .collect();
     let mut bins: Vec<Vec<f64>> = vec![Vec::new(); n_bins];
-    if picked.is_empty() {
-        return bins;
-    }
-    let points: Vec<Point3> = picked.iter().map(|s| s.point).collect();
-    let tree = KdTree::build(&points);
-    for s in &picked {
-        let mut near: Vec<f64> = tree
-            .knn(&s.point, SMOOTH_NEIGHBOURS)
-            .iter()
-            .filter(|n| n.distance_sq <= SMOOTH_RADIUS_MM * SMOOTH_RADIUS_MM)
-            .map(|n| side * picked[n.index].distance_mm)
-            .collect();
-        near.sort_by(f64::total_cmp);
-        let reading = near
-            .get(near.len() / 2)
-            .copied()
-            .unwrap_or(side * s.distance_mm);
-        bins[bin_of(s.arc_mm)].push(reading);
+    for s in samples {
+        let d = side * s.distance_mm;
+        if d > threshold_mm {
+            bins[bin_of(s.arc_mm)].push(d);
+        }
     }
     bins
 }
-
-/// Neighbours whose median is a point's reading.
-pub const SMOOTH_NEIGHBOURS: usize = 1;
-
-/// …within this distance, mm.
-pub const SMOOTH_RADIUS_MM: f64 = 0.15;
 
 /// 1.4826 × the median absolute deviation of the distances within [`NOISE_WINDOW_MM`] of the
 /// surface, µm (at least [`MIN_NOISE_UM`]).

@@ -79,13 +79,14 @@ pub fn opening_of(g: &ContourGeometry, mesh: &Mesh, settings: &InspectSettings) 
         for j in 0..nb {
             let a = lo[0] + (i as f64 + 0.5) * step;
             let b = lo[1] + (j as f64 + 0.5) * step;
-            let Some((inside, rim_distance, height)) = place(&rim, a, b) else {
-                continue;
-            };
+            let (inside, rim_distance) = place(&rim, a, b);
             // Nodes near the rim are left out: a film there cannot be told from the wall's top.
             if !inside || rim_distance < settings.opening_rim_clearance_mm {
                 continue;
             }
+            let Some(height) = face_height(&rim, a, b) else {
+                continue;
+            };
             enclosed += 1;
             let node = centre + e1 * a + e2 * b + n * height;
             let ray = Ray::new(node + n * RAY_START_MM, -n);
@@ -103,14 +104,12 @@ pub fn opening_of(g: &ContourGeometry, mesh: &Mesh, settings: &InspectSettings) 
     })
 }
 
-/// Whether `(a, b)` is inside the rim polygon (even-odd), its distance from the rim, and the
-/// face's height there (interpolated from the rim's heights).
-fn place(rim: &[(f64, f64, f64)], a: f64, b: f64) -> Option<(bool, f64, f64)> {
+/// Whether `(a, b)` is inside the rim polygon (even-odd) and its distance from the rim.
+fn place(rim: &[(f64, f64, f64)], a: f64, b: f64) -> (bool, f64) {
     let mut inside = false;
     let mut best = f64::INFINITY;
-    let (mut wsum, mut hsum) = (0.0, 0.0);
     for w in rim.windows(2) {
-        let ((a0, b0, h0), (a1, b1, _)) = (w[0], w[1]);
+        let ((a0, b0, _), (a1, b1, _)) = (w[0], w[1]);
         if (b0 > b) != (b1 > b) && a < a0 + (b - b0) * (a1 - a0) / (b1 - b0) {
             inside = !inside;
         }
@@ -123,12 +122,23 @@ fn place(rim: &[(f64, f64, f64)], a: f64, b: f64) -> Option<(bool, f64, f64)> {
         };
         let d2 = (a0 + t * da - a).powi(2) + (b0 + t * db - b).powi(2);
         best = best.min(d2);
+    }
+    (inside, best.sqrt())
+}
+
+/// The face's height at `(a, b)`, interpolated from the rim's heights (weights `1/d⁴` to the
+/// rim's points but its last, as each segment's first), or none for an empty rim. Computed only
+/// for the nodes kept: it visits every rim point.
+fn face_height(rim: &[(f64, f64, f64)], a: f64, b: f64) -> Option<f64> {
+    let (mut wsum, mut hsum) = (0.0, 0.0);
+    for w in rim.windows(2) {
+        let (a0, b0, h0) = w[0];
         let v2 = (a0 - a).powi(2) + (b0 - b).powi(2);
         let w = 1.0 / (v2 * v2).max(1e-12);
         wsum += w;
         hsum += w * h0;
     }
-    (wsum > 0.0).then(|| (inside, best.sqrt(), hsum / wsum))
+    (wsum > 0.0).then(|| hsum / wsum)
 }
 
 /// The share of the opening's nodes with a scan point (CAD frame, in `tree` over `points`)

@@ -27,10 +27,13 @@ const TUNE_SEEDS: [u64; 4] = [201, 202, 203, 204];
 const MIN_RECALL: f64 = 0.98;
 const MAX_FALSE_ALARM_RATE: f64 = 0.02;
 const MAX_HEIGHT_ERROR_UM: f64 = 15.0;
-/// Not met yet: the 15 µm holds for the typical contour (the median error), and every
-/// contour stays within this (measured on the test seeds: worst 19.6 µm; see DESIGN.md
-/// "Inspection" for why the top of a noisy web reads a σ or two off).
-const WORST_HEIGHT_ERROR_UM: f64 = 25.0;
+/// Not met on every contour yet: the 15 µm holds for the median and for at least this
+/// share of the contours (measured on the test seeds: 31 of 33, 94 %; one more miss still
+/// passes)…
+const MIN_WITHIN_SHARE: f64 = 0.9;
+/// …and every contour stays within this (measured on the test seeds: worst 18.8 µm, plus 3 µm;
+/// see DESIGN.md "Inspection" for what is left).
+const WORST_HEIGHT_ERROR_UM: f64 = 22.0;
 /// Burrs at least this tall must be found, mm.
 const DETECTABLE_MM: f64 = 0.05;
 /// Burrs reaching within this of the band's edge are not compared for height, mm.
@@ -166,6 +169,10 @@ fn evaluate(seeds: &[u64]) -> Tally {
                     }
                     let err = c.excess_height_um - truth_um;
                     t.height_errors_um.push(err);
+                    eprintln!(
+                        "seed {seed} contour {}: height {:.1} µm, truth {truth_um:.1} µm, error {err:+.1} µm",
+                        c.id, c.excess_height_um
+                    );
                     if err.abs() > MAX_HEIGHT_ERROR_UM {
                         t.height_list.push(format!(
                             "seed {seed} contour {}: measured {:.1} µm, truth {truth_um:.1} µm",
@@ -239,6 +246,13 @@ fn burrs_and_blockages_are_found_and_measured_on_the_test_seeds() {
         abs[abs.len() / 2] <= MAX_HEIGHT_ERROR_UM,
         "median height error {} µm: {:#?}",
         abs[abs.len() / 2],
+        t.height_list
+    );
+    let within = abs.iter().filter(|e| **e <= MAX_HEIGHT_ERROR_UM).count();
+    assert!(
+        within as f64 >= MIN_WITHIN_SHARE * abs.len() as f64,
+        "{within} of {} heights within {MAX_HEIGHT_ERROR_UM} µm: {:#?}",
+        abs.len(),
         t.height_list
     );
     assert!(
