@@ -13,7 +13,8 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use trim_cell::cell_model::{ScanChain, ScanPose};
 use trim_geom::formats::{Geometry, read_geometry, read_path, read_points};
-use trim_geom::{Point3, PointCloud, Similarity3, Vector3};
+use trim_geom::mesh::Mesh;
+use trim_geom::{Path as TrimPath, Point3, PointCloud, Similarity3, Vector3};
 use trim_inspect::{InspectSettings, Inspection, Placement, Verdict, inspect, signed_distances};
 use trim_register::datum::datum_fit;
 use trim_register::regional::{RegisterSettings, register};
@@ -155,36 +156,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let result = inspect(&mesh, &path, scan.points(), &placement, &settings)?;
     drop(spinner);
 
-    let spinner = stage("drawing the deviation map");
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
-    let stride = scan.len().div_ceil(MAP_POINTS).max(1);
-    let cad_from_scan = placement.scan_from_cad.inverse();
-    let shown: Vec<Point3> = scan
-        .points()
-        .iter()
-        .step_by(stride)
-        .map(|q| placement.cad_from_scan_point(&cad_from_scan, q, settings.inverse_iterations))
-        .collect();
-    let distances = signed_distances(&mesh, &shown)?;
-    let drawn: Vec<DrawnContour<'_>> = path
-        .contours()
-        .iter()
-        .zip(&result.contours)
-        .map(|(c, r)| DrawnContour {
-            points: c.points(),
-            verdict: r.verdict,
-        })
-        .collect();
-    write_map(
-        &args.out.join("deviation.png"),
-        &shown,
-        &distances,
-        &drawn,
-        MAP_SCALE_TOLERANCES * settings.tolerance_um,
+    write_inspection(
+        &args.out, &mesh, &path, &scan, &placement, &settings, &result,
     )?;
-    drop(spinner);
-    write_outputs(&args.out, &result)?;
 
     let count = |v: Verdict| result.contours.iter().filter(|c| c.verdict == v).count();
     let (pass, fail, undecided) = (
@@ -223,6 +197,48 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ));
     }
     Ok(())
+}
+
+/// Writes an inspection's outputs into `dir`: deviation.png (the scan's signed distance to
+/// the CAD, the contours by verdict), inspection.json, inspection.csv and report.html.
+pub(crate) fn write_inspection(
+    dir: &Path,
+    mesh: &Mesh,
+    path: &TrimPath,
+    scan: &PointCloud,
+    placement: &Placement,
+    settings: &InspectSettings,
+    result: &Inspection,
+) -> anyhow::Result<()> {
+    let spinner = stage("drawing the deviation map");
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let stride = scan.len().div_ceil(MAP_POINTS).max(1);
+    let cad_from_scan = placement.scan_from_cad.inverse();
+    let shown: Vec<Point3> = scan
+        .points()
+        .iter()
+        .step_by(stride)
+        .map(|q| placement.cad_from_scan_point(&cad_from_scan, q, settings.inverse_iterations))
+        .collect();
+    let distances = signed_distances(mesh, &shown)?;
+    let drawn: Vec<DrawnContour<'_>> = path
+        .contours()
+        .iter()
+        .zip(&result.contours)
+        .map(|(c, r)| DrawnContour {
+            points: c.points(),
+            verdict: r.verdict,
+        })
+        .collect();
+    write_map(
+        &dir.join("deviation.png"),
+        &shown,
+        &distances,
+        &drawn,
+        MAP_SCALE_TOLERANCES * settings.tolerance_um,
+    )?;
+    drop(spinner);
+    write_outputs(dir, result)
 }
 
 /// The scans as one cloud in the work-piece frame.
