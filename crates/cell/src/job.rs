@@ -383,6 +383,37 @@ impl Job {
         })
     }
 
+    /// Gives every polyline of a contour the passes `passes_of(contour)` says (1 to
+    /// [`crate::process::MAX_PASSES`], clamped) and moves the time estimate by what the extra
+    /// passes add: each layer's list model and its per-list terms as the planner computes them.
+    pub fn set_passes(&mut self, passes_of: impl Fn(ContourId) -> u32) {
+        use crate::galvo_timing::ListComposition;
+        let (galvo, timing) = (self.settings.plan.galvo, self.settings.plan.timing);
+        let e = &mut self.estimate;
+        for (zi, zone) in self.zones.iter_mut().enumerate() {
+            for layer in &mut zone.layers {
+                let before = ListComposition::of(&layer.polylines);
+                for p in &mut layer.polylines {
+                    p.passes = passes_of(p.contour).clamp(1, crate::process::MAX_PASSES);
+                }
+                let after = ListComposition::of(&layer.polylines);
+                let marking = after.marking_s(&galvo) - before.marking_s(&galvo);
+                let jumping = after.jumping_s(&galvo) - before.jumping_s(&galvo);
+                let overhead = timing.extra_s(&after) - timing.extra_s(&before);
+                e.marking_s += marking;
+                e.jumping_s += jumping;
+                e.overhead_s += overhead;
+                e.total_s += marking + jumping + overhead;
+                if let Some(z) = e.per_zone_s.get_mut(zi) {
+                    *z += marking + jumping + overhead;
+                }
+            }
+        }
+        if e.total_s > 0.0 {
+            e.laser_on_fraction = e.marking_s / e.total_s;
+        }
+    }
+
     /// Reads a job from JSON text, checking the version.
     pub fn from_json(text: &str) -> Result<Job, JobFormatError> {
         let value: serde_json::Value = serde_json::from_str(text)?;

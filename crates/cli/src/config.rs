@@ -28,6 +28,9 @@ pub struct JobConfig {
     /// `[field]`, `[machine]`, `[galvo]`, `[timing]`, `[calibration]`, as the planner takes them.
     #[serde(flatten)]
     pub plan: PlanSettings,
+    /// The ablation figures (`depth_per_pass_um`, `kerf_width_um`): how many passes a measured
+    /// burr needs (`run --verify`), and what the digital twin's cuts remove.
+    pub process: trim_cell::ProcessSettings,
     /// Where the devices are: "sim" starts the built-in simulator for that device.
     pub cell: CellConfig,
     /// The built-in simulators used where [cell] says "sim".
@@ -280,6 +283,7 @@ impl JobConfig {
     /// Checks every value's range, naming the key at fault.
     pub fn validate(&self) -> anyhow::Result<()> {
         self.plan.validate()?;
+        self.process.validate()?;
         self.sim
             .truth
             .validate(self.plan.machine.kinematics)

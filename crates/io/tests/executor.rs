@@ -508,8 +508,24 @@ async fn the_monitor_catches_emission_during_motion_in_the_simulated_cell() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_planned_job_runs_and_the_simulated_galvo_time_matches_the_planners_estimate() {
     let path = trim_synth::testing::synthetic_core_path(12, 7);
-    let job = trim_plan::planner::plan(&path, &trim_plan::planner::PlanSettings::default())
+    let mut job = trim_plan::planner::plan(&path, &trim_plan::planner::PlanSettings::default())
         .expect("plan");
+    // Every third contour marked three times: the estimate follows the passes (and the
+    // simulator's clock below checks it).
+    let once = job.estimate.clone();
+    job.set_passes(|c| if c % 3 == 0 { 3 } else { 1 });
+    assert!(
+        job.estimate.marking_s > once.marking_s * 1.2,
+        "{:?} vs {once:?}",
+        job.estimate
+    );
+    assert!(
+        (job.estimate.total_s
+            - job.estimate.per_zone_s.iter().sum::<f64>()
+            - (once.total_s - once.per_zone_s.iter().sum::<f64>()))
+        .abs()
+            < 1e-9
+    );
     let layers = job.layers().count();
     // Fast clocks: the galvo as fast as it can, the CNC 100× faster than real.
     let mut o = trim_sim::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());

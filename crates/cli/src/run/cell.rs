@@ -32,6 +32,10 @@ use crate::simulated::{self, SimCell, Twin};
 /// Connects the cell (starting simulators where the config says "sim"), then runs or resumes,
 /// recording (and with `live`, serving) the run.
 /// The outer error: the cell could not be set up; the inner: the execution stopped.
+#[expect(
+    clippy::too_many_arguments,
+    reason = "the run's parts, each a different thing; grouping them would only rename them"
+)]
 pub(super) fn execute(
     config: &JobConfig,
     args: &Args,
@@ -40,9 +44,9 @@ pub(super) fn execute(
     record: Option<(&Inputs, &Registration)>,
     resuming: bool,
     live: Option<&LiveServer>,
+    twin: &TwinLink,
 ) -> anyhow::Result<Executed> {
-    // The twin lands the galvo simulator's vectors on the true part ([sim.truth]).
-    let (twin, line_ids) = simulated::twin(config, truth_line(config, run_dir)?);
+    let (twin, line_ids) = (twin.twin.clone(), &twin.line_ids);
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -122,7 +126,7 @@ pub(super) fn execute(
             crate::timing_record::write(run_dir, &record, resuming)?;
         }
         let spots =
-            simulated::spot_report(twin.as_ref(), &run_dir.join(files::JOURNAL), job, &line_ids);
+            simulated::spot_report(twin.as_ref(), &run_dir.join(files::JOURNAL), job, line_ids);
         if let Some(rec) = recorder {
             if let Some(report) = &spots {
                 record_spot_error(&rec, report)?;
@@ -221,6 +225,20 @@ fn cell_addresses(
         laser_profile: profile,
         cnc,
     })
+}
+
+/// The digital twin a run's galvo simulator carries (none on a real galvo or without a true
+/// line), with the ids of the true line's contours.
+pub(super) struct TwinLink {
+    pub(super) twin: Option<std::sync::Arc<Twin>>,
+    pub(super) line_ids: std::collections::HashSet<i64>,
+}
+
+/// The twin that lands the galvo simulator's vectors on the true part ([sim.truth]), the
+/// demo's true line read from `run_dir`.
+pub(super) fn twin_link(config: &JobConfig, run_dir: &Path) -> anyhow::Result<TwinLink> {
+    let (twin, line_ids) = simulated::twin(config, truth_line(config, run_dir)?);
+    Ok(TwinLink { twin, line_ids })
 }
 
 /// The true trimming line the twin measures the spot error against: `[sim.truth] path`, or the

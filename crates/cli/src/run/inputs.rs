@@ -24,7 +24,19 @@ pub(super) struct Inputs {
     pub(super) hatch: Vec<HatchRegion>,
     pub(super) scan_from_cad_initial: Similarity3,
     pub(super) description: String,
+    /// The built-in demo part as generated (its own frame) and where the fixture holds it:
+    /// what the digital twin trims and rescans (`--verify`).
+    pub(super) demo: Option<DemoPart>,
 }
+
+/// The built-in demo part: the synthetic case in its own frame and its placement.
+pub(super) struct DemoPart {
+    pub(super) case: trim_synth::SynthCase,
+    pub(super) workpiece_from_case: Similarity3,
+}
+
+/// The share of the demo's contours that carry burrs under `--verify`.
+pub const DEMO_VERIFY_BURRS: f64 = 0.3;
 
 pub(super) fn load_inputs(
     config: &JobConfig,
@@ -42,9 +54,14 @@ pub(super) fn load_inputs(
             // top side, one below): with one view the ends of the demo's long strips are fixed
             // by the field alone and registration flags them.
             scanner_views: DEMO_SCANNER_VIEWS,
+            burr_fraction: if args.verify { DEMO_VERIFY_BURRS } else { 0.0 },
             ..SynthParams::default()
         };
         let mut case = generate(&params).context("building the demo part")?;
+        let demo = args.verify.then(|| DemoPart {
+            case: case.clone(),
+            workpiece_from_case: fixture,
+        });
         // The fixture holds the demo part at [part.scan_from_cad]: the synthetic scene (placed
         // about the identity) moves there, the ground truth with it.
         case.scan = case
@@ -105,6 +122,7 @@ pub(super) fn load_inputs(
             scan: config.scan_to_workpiece(&scan_in_scanner)?,
             path: case.path,
             scan_from_cad_initial: case.scan_from_cad_nominal,
+            demo,
         });
     }
     let (Some(cad_file), Some(path_file), Some(scan_file)) =
@@ -134,6 +152,7 @@ pub(super) fn load_inputs(
         scan,
         path,
         scan_from_cad_initial: fixture,
+        demo: None,
     })
 }
 

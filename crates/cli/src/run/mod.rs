@@ -27,7 +27,7 @@ use crate::exit::{Exit, Failure};
 use crate::progress::stage;
 use crate::summary;
 
-use cell::execute;
+use cell::{TwinLink, execute, twin_link};
 pub(crate) use cell::{connect, start_simulators};
 use inputs::load_inputs;
 pub(crate) use report::SpotReport;
@@ -156,6 +156,15 @@ pub struct Args {
     /// end of input, or no answer within 10 minutes, quits.
     #[arg(long, conflicts_with = "dry_run")]
     frame: bool,
+    /// After the job, rescan the part, inspect every contour (as `trimctl inspect`) and retrim
+    /// what failed, up to --rounds times; a part that still fails ends the run with exit 1.
+    /// The built-in demo part then carries burrs (30 % of its contours) and the digital twin
+    /// trims and rescans it; a real cell's rescan is not supported yet.
+    #[arg(long, conflicts_with = "dry_run")]
+    verify: bool,
+    /// With --verify: the most retrim rounds.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=5), requires = "verify")]
+    rounds: u32,
     /// The demo part's seed.
     #[arg(long, default_value_t = 1)]
     demo_seed: u64,
@@ -313,7 +322,10 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
 
     let t = Instant::now();
     let record = Some((&inputs, &registration));
-    let outcome = execute(&config, args, &run_dir, &plan.job, record, false, live);
+    let twin = twin_link(&config, &run_dir)?;
+    let outcome = execute(
+        &config, args, &run_dir, &plan.job, record, false, live, &twin,
+    );
     timings.execute_s = t.elapsed().as_secs_f64();
     finish(
         &run_dir,
@@ -604,7 +616,8 @@ fn resume(run_dir: &Path, args: &Args, live: Option<&LiveServer>) -> anyhow::Res
     }
     eprintln!("trimctl run: resuming {}", run_dir.display());
     let t = Instant::now();
-    let (outcome, spots) = execute(&config, args, run_dir, &job, None, true, live)?;
+    let twin = twin_link(&config, run_dir)?;
+    let (outcome, spots) = execute(&config, args, run_dir, &job, None, true, live, &twin)?;
     let wall_s = t.elapsed().as_secs_f64();
     if let Some(r) = &spots {
         print!("{}", r.line());
