@@ -818,3 +818,94 @@ fn sim_stops_cleanly_on_each_stop_signal() {
         );
     }
 }
+
+/// `run --verify` on the demo (which then carries burrs): the job trims every contour once,
+/// the twin rescans the part, inspection fails the contours whose webs the single pass did not
+/// cut through, and the retrims (passes from the measured excess) leave no web and no gouge
+/// over the tolerance; every round is in verify.json, report.md and its own folders.
+#[test]
+fn verify_inspects_the_rescanned_demo_and_retrims_what_failed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let result = Command::new(TRIMCTL)
+        .args(["run", "--verify", "--sim-time-scale", "0.01", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&result.stdout);
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert!(
+        result.status.success(),
+        "stdout:\n{stdout}\nstderr:\n{stderr}"
+    );
+    let rounds: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(out.join("verify.json")).unwrap()).unwrap();
+    assert!(rounds.len() >= 2, "{rounds:?}");
+    // After the one pass of the job, webs thicker than a pass stand and inspection fails them.
+    assert!(rounds[0]["fail"].as_u64().unwrap() > 0, "{:?}", rounds[0]);
+    assert!(rounds[0]["true_residual_max_um"].as_f64().unwrap() > 100.0);
+    let last = rounds.last().unwrap();
+    assert_eq!(last["fail"], 0, "{last:?}");
+    assert!(
+        last["true_residual_max_um"].as_f64().unwrap() <= SPOT_TOLERANCE_UM,
+        "{last:?}"
+    );
+    assert!(
+        last["true_gouge_max_um"].as_f64().unwrap() <= SPOT_TOLERANCE_UM,
+        "{last:?}"
+    );
+    for (k, r) in rounds.iter().enumerate() {
+        let dir = out.join(format!("verify_{}", k + 1));
+        for file in [
+            "inspection.json",
+            "inspection.csv",
+            "deviation.png",
+            "report.html",
+        ] {
+            assert!(
+                dir.join(file).is_file(),
+                "{} missing",
+                dir.join(file).display()
+            );
+        }
+        if r["retrimmed"] == true {
+            let retrim = out.join(format!("retrim_{}", k + 1));
+            assert!(retrim.join("plan.json").is_file() && retrim.join("journal.jsonl").is_file());
+        }
+    }
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("## Verify and retrim"), "{report}");
+    assert!(
+        stdout.contains("verify 1:") && stdout.contains("verified:"),
+        "{stdout}"
+    );
+    // A job naming its own part files is refused before anything moves: there is no twin to
+    // rescan a real part.
+    let inputs = out.join("inputs");
+    let job = tmp.path().join("job.toml");
+    std::fs::write(
+        &job,
+        format!(
+            "[part]\ncad = {:?}\npath = {:?}\nscan = {:?}\n",
+            inputs.join("cad_points.ply"),
+            inputs.join("path.csv"),
+            inputs.join("scan.ply")
+        ),
+    )
+    .unwrap();
+    let real = tmp.path().join("real");
+    let refused = Command::new(TRIMCTL)
+        .arg("run")
+        .arg(&job)
+        .args(["--verify", "--out"])
+        .arg(&real)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("only the built-in demo part can be rescanned"),
+        "{stderr}"
+    );
+    assert!(!real.join("journal.jsonl").exists());
+}

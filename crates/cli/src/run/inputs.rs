@@ -30,6 +30,10 @@ pub(super) struct Inputs {
 }
 
 /// The built-in demo part: the synthetic case in its own frame and its placement.
+#[cfg_attr(
+    not(feature = "sim"),
+    expect(dead_code, reason = "read by --verify, which needs the simulators")
+)]
 pub(super) struct DemoPart {
     pub(super) case: trim_synth::SynthCase,
     pub(super) workpiece_from_case: Similarity3,

@@ -37,6 +37,8 @@ mod cell;
 mod inputs;
 mod record;
 mod report;
+#[cfg(feature = "sim")]
+mod verify;
 
 /// Files of a run folder.
 pub mod files {
@@ -64,6 +66,12 @@ pub mod files {
     pub const FIELD: &str = "field.json";
     /// The demo part's true trimming line (work-piece frame), under [`INPUTS`].
     pub const TRUTH: &str = "truth.csv";
+    /// `--verify`'s rounds.
+    #[cfg_attr(
+        not(feature = "sim"),
+        expect(dead_code, reason = "written by --verify, which needs the simulators")
+    )]
+    pub const VERIFY: &str = "verify.json";
 }
 
 /// The simulated cell's default speed: real seconds per simulated second. The demo runs the
@@ -295,6 +303,14 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     drop(spinner);
     timings.load_s = t0.elapsed().as_secs_f64();
     println!("part: {}", inputs.description);
+    if args.verify && inputs.demo.is_none() {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "--verify: only the built-in demo part can be rescanned (by the digital twin); rescanning a real part is not supported yet"
+            ),
+        ));
+    }
 
     let registration = register_part(&inputs, &config, &run_dir, &mut timings)?;
     let trusted = trusted_contours(&registration, args, &run_dir)?;
@@ -335,7 +351,80 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
         &plan,
         &timings,
         outcome,
-    )
+    )?;
+    if args.verify {
+        verify_part(&config, args, &run_dir, &inputs, &registration, &twin)?;
+    }
+    Ok(())
+}
+
+/// `--verify`: the rounds of inspection and retrim, added to report.md; a part that still
+/// fails is exit 1.
+#[cfg(feature = "sim")]
+fn verify_part(
+    config: &JobConfig,
+    args: &Args,
+    run_dir: &Path,
+    inputs: &inputs::Inputs,
+    registration: &Registration,
+    twin: &TwinLink,
+) -> anyhow::Result<()> {
+    use std::fmt::Write as _;
+    let rounds = verify::verify(config, args, run_dir, inputs, registration, twin)?;
+    let mut md = String::from(
+        "\n## Verify and retrim\n\nEach inspection of the rescanned part (`verify_<k>/report.html`), and the digital twin's truth.\n\n| inspection | pass | fail | undecided | failing contours | true residual web max (µm) | true gouge max (µm) | retrimmed |\n|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in &rounds {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {:?} | {:.1} | {:.1} | {} |",
+            r.inspection,
+            r.pass,
+            r.fail,
+            r.undecided,
+            r.failing,
+            r.true_residual_max_um,
+            r.true_gouge_max_um,
+            if r.retrimmed { "yes" } else { "no" }
+        );
+    }
+    let report = run_dir.join(files::REPORT);
+    let mut text = std::fs::read_to_string(&report).unwrap_or_default();
+    text.push_str(&md);
+    std::fs::write(&report, text)?;
+    match rounds.last() {
+        Some(last) if last.fail > 0 => Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "the part still fails inspection after {} retrim(s): contours {:?} (see {})",
+                rounds.len() - 1,
+                last.failing,
+                run_dir
+                    .join(format!("verify_{}", last.inspection))
+                    .display()
+            ),
+        )),
+        _ => {
+            println!(
+                "verified: every contour passes or is undecided; run folder {}",
+                run_dir.display()
+            );
+            Ok(())
+        }
+    }
+}
+
+/// Without the simulators there is no twin to rescan the part.
+#[cfg(not(feature = "sim"))]
+fn verify_part(
+    _config: &JobConfig,
+    _args: &Args,
+    _run_dir: &Path,
+    _inputs: &inputs::Inputs,
+    _registration: &Registration,
+    _twin: &TwinLink,
+) -> anyhow::Result<()> {
+    bail!("--verify: this trimctl was built without the simulators (cargo feature `sim`)")
 }
 
 /// The job read (overrides applied) and the run folder made, with the run's own copy of the

@@ -1,0 +1,209 @@
+//! `trimctl run --verify`: after the job, the part is rescanned and every contour inspected
+//! (as `trimctl inspect`, through the run's own registration: the part has not moved); the
+//! contours that fail are planned again, each with the passes its measured excess needs, and
+//! trimmed, up to `--rounds` times (DESIGN.md "Inspection", "Ablation and the twin's part").
+//!
+//! On the built-in cell the digital twin does the physics: it trims its true part by the
+//! landed cuts of each round and rescans it, through the true scanner and `[calibration]` as
+//! the first scan was made. Each inspection is written to `verify_<k>/` (inspection.json/csv,
+//! deviation.png, report.html) and each retrim is a run of its own in `retrim_<k>/` (plan,
+//! journal, record); `verify.json` lists the rounds.
+
+use std::collections::BTreeSet;
+use std::path::Path;
+
+use anyhow::Context;
+use serde::Serialize;
+use trim_geom::{Path as TrimPath, PointCloud, Similarity3};
+use trim_inspect::{InspectSettings, Inspection, Placement, Verdict, inspect};
+use trim_plan::planner::plan_with_report;
+use trim_register::regional::Registration;
+use trim_sim::twin_part::TwinPart;
+
+use super::cell::{TwinLink, execute, twin_link};
+use super::inputs::Inputs;
+use super::{Args, exec_failure, files, write_plan};
+use crate::config::JobConfig;
+use crate::exit::{Exit, Failure};
+use crate::progress::stage;
+
+/// One inspection of the part and what followed it.
+#[derive(Debug, Clone, Serialize)]
+pub(super) struct Round {
+    /// 1 after the job, 2 after the first retrim, …
+    pub(super) inspection: u32,
+    /// Contours by verdict.
+    pub(super) pass: usize,
+    /// Contours that fail.
+    pub(super) fail: usize,
+    /// Contours neither proven good nor bad.
+    pub(super) undecided: usize,
+    /// The failing contours' ids.
+    pub(super) failing: Vec<i64>,
+    /// The digital twin's truth: the tallest web still standing and the deepest gouge over all
+    /// contours, µm.
+    pub(super) true_residual_max_um: f64,
+    /// See `true_residual_max_um`.
+    pub(super) true_gouge_max_um: f64,
+    /// Whether the failing contours were trimmed again after it.
+    pub(super) retrimmed: bool,
+}
+
+/// Inspects and retrims until every contour passes inspection or the rounds are spent; the
+/// rounds, in order. `twin` is the twin of the job just run.
+pub(super) fn verify(
+    config: &JobConfig,
+    args: &Args,
+    run_dir: &Path,
+    inputs: &Inputs,
+    registration: &Registration,
+    twin: &TwinLink,
+) -> anyhow::Result<Vec<Round>> {
+    let demo = inputs.demo.as_ref().context(
+        "--verify: only the built-in demo part can be rescanned (by the digital twin); rescanning a real part is not supported yet",
+    )?;
+    let mut part = TwinPart::new(demo.case.clone(), demo.workpiece_from_case);
+    let mesh = demo.case.cad_mesh()?;
+    let kerf_mm = config.process.kerf_width_mm(&config.plan.beam);
+    let settings = InspectSettings::default();
+    let placement = Placement::from_registration(registration);
+    let mut cuts = landed_cuts(twin)?;
+    let mut rounds: Vec<Round> = Vec::new();
+    for k in 1..=args.rounds + 1 {
+        part.trim(&cuts, &config.process, kerf_mm)?;
+        let spinner = stage("rescanning and inspecting the part");
+        let scan = rescan(config, &part, args.demo_seed ^ u64::from(k) << 32)?;
+        let result = inspect(&mesh, &inputs.path, scan.points(), &placement, &settings)?;
+        let dir = run_dir.join(format!("verify_{k}"));
+        crate::inspect::write_inspection(
+            &dir,
+            &mesh,
+            &inputs.path,
+            &scan,
+            &placement,
+            &settings,
+            &result,
+        )?;
+        drop(spinner);
+        let failing = ids(&result, Verdict::Fail);
+        let state = part.state();
+        let round = Round {
+            inspection: k,
+            pass: ids(&result, Verdict::Pass).len(),
+            fail: failing.len(),
+            undecided: ids(&result, Verdict::Undecided).len(),
+            failing: failing.iter().copied().collect(),
+            true_residual_max_um: state.iter().map(|c| c.residual_um).fold(0.0, f64::max),
+            true_gouge_max_um: state.iter().map(|c| c.gouge_um).fold(0.0, f64::max),
+            retrimmed: !failing.is_empty() && k <= args.rounds,
+        };
+        println!(
+            "verify {k}: {} pass, {} fail, {} undecided{} (twin truth: residual web max {:.1} µm, gouge max {:.1} µm); {}",
+            round.pass,
+            round.fail,
+            round.undecided,
+            if failing.is_empty() {
+                String::new()
+            } else {
+                format!(" {:?}", round.failing)
+            },
+            round.true_residual_max_um,
+            round.true_gouge_max_um,
+            dir.display()
+        );
+        let retrim = round.retrimmed;
+        rounds.push(round);
+        if !retrim {
+            break;
+        }
+        cuts = retrim_round(config, args, run_dir, registration, &result, &failing, k)?;
+    }
+    std::fs::write(
+        run_dir.join(files::VERIFY),
+        serde_json::to_string_pretty(&rounds)?,
+    )?;
+    Ok(rounds)
+}
+
+/// The ids of the contours with verdict `v`.
+fn ids(result: &Inspection, v: Verdict) -> BTreeSet<i64> {
+    result
+        .contours
+        .iter()
+        .filter(|c| c.verdict == v)
+        .map(|c| c.id)
+        .collect()
+}
+
+/// The twin's landed cuts of a run.
+fn landed_cuts(twin: &TwinLink) -> anyhow::Result<Vec<trim_sim::ablation::LandedCut>> {
+    twin.twin
+        .as_ref()
+        .map(|t| t.cuts())
+        .context("--verify: the galvo is not simulated, so nothing tells what the laser removed")
+}
+
+/// The part as it stands, scanned through the true cell's scanner and carried into the
+/// work-piece frame through `[calibration]`, as the first scan.
+fn rescan(config: &JobConfig, part: &TwinPart, seed: u64) -> anyhow::Result<PointCloud> {
+    let scanner_from_workpiece =
+        Similarity3::from_isometry(crate::simulated::true_scanner_from_workpiece(config)?, 1.0);
+    let in_scanner = part
+        .rescan(seed)?
+        .transformed(&scanner_from_workpiece)
+        .context("sim.truth at part.scan_pose")?;
+    config.scan_to_workpiece(&in_scanner)
+}
+
+/// Plans the failing contours (each polyline with the passes its measured excess height
+/// needs: a web is no thicker than it is tall) and runs them in `retrim_<k>/`; the cuts the
+/// twin saw land.
+fn retrim_round(
+    config: &JobConfig,
+    args: &Args,
+    run_dir: &Path,
+    registration: &Registration,
+    found: &Inspection,
+    failing: &BTreeSet<i64>,
+    k: u32,
+) -> anyhow::Result<Vec<trim_sim::ablation::LandedCut>> {
+    let path = TrimPath::new(
+        registration
+            .path
+            .contours()
+            .iter()
+            .filter(|c| failing.contains(&c.id()))
+            .cloned()
+            .collect(),
+    )?;
+    let mut plan = plan_with_report(&path, &config.plan).context("planning the retrim")?;
+    plan.job.set_passes(|id| {
+        found
+            .contours
+            .iter()
+            .find(|c| c.id == id)
+            .and_then(|c| config.process.passes_through(c.excess_height_um * 1e-3))
+            .unwrap_or(trim_cell::process::MAX_PASSES)
+    });
+    if !plan.job.validation.passed {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "the retrim of {failing:?} fails validation:\n  {}",
+                plan.job.validation.violations.join("\n  ")
+            ),
+        ));
+    }
+    let dir = run_dir.join(format!("retrim_{k}"));
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    write_plan(&dir, &plan)?;
+    println!(
+        "retrim {k}: contours {failing:?}, {} layers, passes from the measured excess; {}",
+        plan.job.layers().count(),
+        dir.display()
+    );
+    let twin = twin_link(config, run_dir)?;
+    let (outcome, _) = execute(config, args, &dir, &plan.job, None, false, None, &twin)?;
+    outcome.map_err(|e| exec_failure(e, &dir))?;
+    landed_cuts(&twin)
+}
