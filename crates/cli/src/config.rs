@@ -333,7 +333,7 @@ impl JobConfig {
     /// head, the machine pose of `[part.scan_pose]` and the rotary axes, all as `[calibration]`
     /// says. Refuses a non-finite pose by its key, and a chain that carries a point out of the
     /// finite range.
-    pub fn scan_to_workpiece(
+    pub fn workpiece_from_scan(
         &self,
         scan_in_scanner: &trim_geom::PointCloud,
     ) -> anyhow::Result<trim_geom::PointCloud> {
@@ -769,19 +769,19 @@ mod tests {
         let scan = trim_geom::PointCloud::new(vec![trim_geom::Point3::new(1.0, 2.0, 3.0)]).unwrap();
         let mut c = JobConfig::default();
         assert!(
-            c.scan_to_workpiece(&scan).unwrap().points()[0]
+            c.workpiece_from_scan(&scan).unwrap().points()[0]
                 .iter()
                 .all(|v| v.is_finite())
         );
         c.part.scan_pose.c_deg = f64::NAN;
-        let e = format!("{:#}", c.scan_to_workpiece(&scan).unwrap_err());
+        let e = format!("{:#}", c.workpiece_from_scan(&scan).unwrap_err());
         assert!(e.contains("part.scan_pose.c_deg"), "{e}");
         // A finite pose whose chain overflows a point is refused too.
         let mut c = JobConfig::default();
         c.part.scan_pose.xyz_mm = [f64::MAX, 0.0, 0.0];
         let huge =
             trim_geom::PointCloud::new(vec![trim_geom::Point3::new(f64::MAX, 0.0, 0.0)]).unwrap();
-        let e = format!("{:#}", c.scan_to_workpiece(&huge).unwrap_err());
+        let e = format!("{:#}", c.workpiece_from_scan(&huge).unwrap_err());
         assert!(
             e.contains("part.scan_pose") && e.contains("not finite"),
             "{e}"

@@ -248,12 +248,12 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
         offset_mm: [0.0, 0.0],
         ..truth.head
     };
-    let marks = trim_calib::field::synth_marks(
+    let marks = trim_calib::field_correction::synth_marks(
         &centred,
         truth
             .pivot_to_focal_plane_mm
             .unwrap_or(defaults.plan.beam.focal_length_mm),
-        &trim_calib::field::MarkGrid {
+        &trim_calib::field_correction::MarkGrid {
             grid: FIELD_GRID,
             half_field_mm: 0.5
                 * defaults.plan.galvo.field_mm[0].min(defaults.plan.galvo.field_mm[1]),
@@ -263,7 +263,7 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
         },
         args.seed,
     );
-    trim_calib::field::write_marks(&args.out.join("marks.csv"), &marks)?;
+    trim_calib::field_correction::write_marks(&args.out.join("marks.csv"), &marks)?;
     // The sphere scans: a Ø 25.4 mm sphere on a stem on the table, scanned at the default
     // poses by the true scanner on the true table; the tool mark at command 0 lands where the
     // true head puts it.

@@ -17,8 +17,8 @@ use trim_cell::kinematics::{KinematicsKind, MachineSettings};
 use trim_cell::truth::TruthSettings;
 use trim_io::executor::Executor;
 use trim_io::tap::Tap;
-use trim_plan::field::LensSettings;
 use trim_plan::planner::{PlanSettings, plan};
+use trim_plan::scan_field::LensSettings;
 use trim_sim::SimCell;
 use trim_sim::twin::{SpotStats, TrueCell, TruePart, Twin};
 
