@@ -251,6 +251,8 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
     let marks = trim_calib::field_correction::synth_marks(
         &centred,
         truth
+            .calibration
+            .lens
             .pivot_to_focal_plane_mm
             .unwrap_or(defaults.plan.beam.focal_length_mm),
         &trim_calib::field_correction::MarkGrid {
@@ -270,7 +272,7 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
     let plan = defaults.plan.clone();
     let nominal = trim_cell::cell_model::TableModel::nominal(&plan.machine);
     // The true cell's lines and scanner (as the digital twin resolves them).
-    let true_cell = truth.as_calibration();
+    let true_cell = &truth.calibration;
     let sphere = trim_geom::Point3::from(SPHERE_TABLE_MM);
     let poses = trim_calib::artefact::default_poses(&nominal, &sphere);
     let artefacts = trim_calib::artefact::synth_artefacts(
