@@ -48,7 +48,7 @@ pub use quality::{
 use quality::{contour_quality, refuse_part};
 pub use settings::{
     CoarseInit, CoarseSettings, DeformationSettings, MAX_CAD_SAMPLE_POINTS, Mode, QualitySettings,
-    RegisterSettings, Visibility,
+    RegisterSettings, Visibility, gate,
 };
 
 use crate::deformation::BSplineField;
