@@ -9,6 +9,7 @@ argument shape, dtype or a non-finite value raises :class:`ValueError` naming th
 from ._native import (
     FileFormatError,
     IcpResult,
+    UmeyamaResult,
     InternalError,
     Path,
     PlanningError,
@@ -53,6 +54,7 @@ __all__ = [
     "synth",
     "FileFormatError",
     "IcpResult",
+    "UmeyamaResult",
     "InternalError",
     "Path",
     "PlanningError",
