@@ -270,9 +270,8 @@ fn finish_plan(
 ) -> Result<PlanOutput, PlanError> {
     let focus_half_length_mm = settings.beam.focus_half_length_mm();
     let step_mm = settings.layers.step_for(focus_half_length_mm)?;
-    let (machine, rotary) = (&settings.machine, settings.table());
     // (5) order and poses.
-    let order = zone_order(&planned, machine, &rotary);
+    let order = zone_order(&planned, &settings.machine, &settings.table());
     let mut zones = Vec::with_capacity(planned.len());
     let mut traces: Vec<Vec<Vec<Trace>>> = Vec::with_capacity(planned.len());
     let mut table = Vec::with_capacity(planned.len());
@@ -282,39 +281,14 @@ fn finish_plan(
     for (zone_id, &idx) in order.iter().enumerate() {
         crate::error::check_cancel()?;
         let p = &planned[idx];
-        // An unreachable zone is planned all the same, with the nearest poses outside the
-        // limits, so that the plan and its SVG show it; validation fails and `run` refuses it.
-        let (poses, unreachable) =
-            match zone_poses(machine, &rotary, &focus_points(p), &p.axis, &previous) {
-                Ok(poses) => (poses, None),
-                Err(reason) => (
-                    unlimited_poses(machine, &rotary, &focus_points(p), &p.axis, &previous),
-                    Some(unreachable_reason(p, machine, &reason)),
-                ),
-            };
-        // (6) the zone frame is the galvo head's frame at the first pose.
-        let frame = head_frame_on(&rotary, poses[0].tilt_deg, poses[0].rotary_deg);
-        let (layers, zone_traces, zone_s) = zone_layers(
+        let (zone, zone_traces) = plan_zone(
+            zone_id,
             p,
-            &frame,
-            &poses,
             settings,
             &lens_model,
             &mut previous,
             &mut estimate,
         );
-        estimate.per_zone_s.push(zone_s);
-        let (max_incidence_rad, max_pairwise_rad) = section_angles(&p.section, &p.axis);
-        let zone = Zone {
-            id: zone_id,
-            origin: [p.section.origin.x, p.section.origin.y, p.section.origin.z],
-            frame,
-            contours: pieces_contours(&p.section),
-            max_incidence_deg: max_incidence_rad.to_degrees(),
-            max_pairwise_deg: max_pairwise_rad.to_degrees(),
-            layers,
-            unreachable,
-        };
         table.push(zone_row(p, &zone, &zone_traces, &lens_of(settings)));
         zones.push(zone);
         traces.push(zone_traces);
@@ -350,6 +324,45 @@ fn finish_plan(
         table,
         cover,
     })
+}
+
+/// One zone in execution order: its poses from the `previous` pose (the nearest outside the
+/// limits when none is within them: an unreachable zone is planned all the same, so that the
+/// plan and its SVG show it; validation fails and `run` refuses it), its frame (6: the galvo
+/// head's at the first pose), its layers and the traces validation checks them by.
+fn plan_zone(
+    zone_id: usize,
+    p: &Planned,
+    settings: &PlanSettings,
+    lens_model: &LensModel,
+    previous: &mut AxisPose,
+    estimate: &mut TimeEstimate,
+) -> (Zone, Vec<Vec<Trace>>) {
+    let (machine, rotary) = (&settings.machine, settings.table());
+    let (poses, unreachable) =
+        match zone_poses(machine, &rotary, &focus_points(p), &p.axis, previous) {
+            Ok(poses) => (poses, None),
+            Err(reason) => (
+                unlimited_poses(machine, &rotary, &focus_points(p), &p.axis, previous),
+                Some(unreachable_reason(p, machine, &reason)),
+            ),
+        };
+    let frame = head_frame_on(&rotary, poses[0].tilt_deg, poses[0].rotary_deg);
+    let (layers, zone_traces, zone_s) =
+        zone_layers(p, &frame, &poses, settings, lens_model, previous, estimate);
+    estimate.per_zone_s.push(zone_s);
+    let (max_incidence_rad, max_pairwise_rad) = section_angles(&p.section, &p.axis);
+    let zone = Zone {
+        id: zone_id,
+        origin: [p.section.origin.x, p.section.origin.y, p.section.origin.z],
+        frame,
+        contours: pieces_contours(&p.section),
+        max_incidence_deg: max_incidence_rad.to_degrees(),
+        max_pairwise_deg: max_pairwise_rad.to_degrees(),
+        layers,
+        unreachable,
+    };
+    (zone, zone_traces)
 }
 
 /// The focus points of a planned section's layers (work-piece frame, mm).
