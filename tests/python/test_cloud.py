@@ -18,7 +18,7 @@ def test_normals_of_a_plane_point_toward_the_viewpoint(plane_points):
 
 def test_voxel_downsample_keeps_one_centroid_per_voxel():
     pts = np.array([[0.1, 0.1, 0.1], [0.3, 0.3, 0.3], [1.5, 0.1, 0.1]])
-    down, normals = trimctl.voxel_downsample(pts, voxel=1.0)
+    down, normals = trimctl.voxel_downsample(pts, voxel_mm=1.0)
     assert normals is None
     assert down.shape == (2, 3)
     np.testing.assert_allclose(down[0], [0.2, 0.2, 0.2], atol=1e-12)
@@ -44,7 +44,7 @@ def test_out_of_range_options_raise_value_error(plane_points):
     with pytest.raises(ValueError, match="k"):
         trimctl.estimate_normals(plane_points, k=2)
     with pytest.raises(ValueError, match="voxel"):
-        trimctl.voxel_downsample(plane_points, voxel=0.0)
+        trimctl.voxel_downsample(plane_points, voxel_mm=0.0)
     with pytest.raises(ValueError, match="either viewpoint or reference"):
         trimctl.estimate_normals(plane_points, viewpoint=(0, 0, 1), reference=(0, 0, 1))
 
@@ -109,3 +109,23 @@ def test_bad_paths_and_files_name_the_fault(tmp_path):
     empty.write_bytes(b"")
     with pytest.raises(trimctl.FileFormatError, match="empty.ply"):
         trimctl.read_points(empty)
+
+
+def test_options_without_a_unit_are_refused_naming_the_new_name(plane_points):
+    with pytest.raises(TypeError, match="voxel= was renamed voxel_mm="):
+        trimctl.voxel_downsample(plane_points, voxel=1.0)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'voxels_mm'"):
+        trimctl.voxel_downsample(plane_points, voxels_mm=1.0)
+    scan = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    for old, new in [
+        ("pitch", "pitch_mm"),
+        ("spot_diameter", "spot_diameter_mm"),
+        ("step", "step_mm"),
+        ("chord_tolerance", "chord_tolerance_mm"),
+    ]:
+        with pytest.raises(TypeError, match=f"{old}= was renamed {new}="):
+            trimctl.hatch(scan, scan, **{old: 0.5})
+    path = trimctl.Path(np.array([1, 1]), scan[:2].copy(), np.tile([0.0, 0.0, 1.0], (2, 1)))
+    for old, new in [("layer_step", "layer_step_mm"), ("field", "field_mm")]:
+        with pytest.raises(TypeError, match=f"{old}= was renamed {new}="):
+            trimctl.plan(path, **{old: 0.5})

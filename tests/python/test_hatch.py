@@ -39,7 +39,7 @@ def test_tracks_are_one_pitch_apart_across_the_surface_and_carry_the_normal(rng)
     settings = {"outline": True}
     # Tracks along the cylinder's axis: their spacing runs around the curved direction.
     tracks = trimctl.hatch(
-        cylinder_scan(rng), square_boundary(), pitch=PITCH_MM, angle_deg=90.0, step=0.02,
+        cylinder_scan(rng), square_boundary(), pitch_mm=PITCH_MM, angle_deg=90.0, step_mm=0.02,
         settings=settings,
     )
     assert settings == {"outline": True}, "the caller's settings must not change"
@@ -77,38 +77,38 @@ def test_tracks_are_one_pitch_apart_across_the_surface_and_carry_the_normal(rng)
 
 def test_pitch_from_spot_and_overlap_and_the_slab_method(rng):
     scan, boundary = cylinder_scan(rng, 20_000), square_boundary()
-    a = trimctl.hatch(scan, boundary, spot_diameter=1.0, overlap=0.5, outline=False)
-    b = trimctl.hatch(scan, boundary, pitch=0.5, outline=False)
+    a = trimctl.hatch(scan, boundary, spot_diameter_mm=1.0, overlap=0.5, outline=False)
+    b = trimctl.hatch(scan, boundary, pitch_mm=0.5, outline=False)
     assert len(a) == len(b)
-    slab = trimctl.hatch(scan, boundary, pitch=0.5, method="slab", outline=False)
+    slab = trimctl.hatch(scan, boundary, pitch_mm=0.5, method="slab", outline=False)
     assert abs(len(slab) - len(b)) <= 1
 
 
 def test_bad_input_is_refused_by_name(rng):
     scan, boundary = cylinder_scan(rng, 5_000), square_boundary()
     with pytest.raises(ValueError, match="pitch"):
-        trimctl.hatch(scan, boundary, pitch=0.5, spot_diameter=1.0, overlap=0.5)
+        trimctl.hatch(scan, boundary, pitch_mm=0.5, spot_diameter_mm=1.0, overlap=0.5)
     with pytest.raises(ValueError, match="overlap"):
-        trimctl.hatch(scan, boundary, spot_diameter=1.0, overlap=1.5)
+        trimctl.hatch(scan, boundary, spot_diameter_mm=1.0, overlap=1.5)
     with pytest.raises(ValueError, match="pitch_mm"):
-        trimctl.hatch(scan, boundary, pitch=-1.0)
+        trimctl.hatch(scan, boundary, pitch_mm=-1.0)
     with pytest.raises(ValueError, match="method"):
-        trimctl.hatch(scan, boundary, pitch=0.5, method="zigzag")
+        trimctl.hatch(scan, boundary, pitch_mm=0.5, method="zigzag")
     with pytest.raises(ValueError, match="not closed"):
-        trimctl.hatch(scan, boundary[:-5], pitch=0.5)
+        trimctl.hatch(scan, boundary[:-5], pitch_mm=0.5)
     bad = scan.copy()
     bad[7, 1] = np.nan
     with pytest.raises(ValueError, match="finite"):
-        trimctl.hatch(bad, boundary, pitch=0.5)
+        trimctl.hatch(bad, boundary, pitch_mm=0.5)
     with pytest.raises(ValueError, match="boundary"):
-        trimctl.hatch(scan, boundary[:, :2], pitch=0.5)
+        trimctl.hatch(scan, boundary[:, :2], pitch_mm=0.5)
 
 
 def test_a_boundary_without_its_closing_row_is_closed_implicitly(rng):
     """A boundary is a polygon: without its last row (one 0.4 mm sample step short of the
     first) it is closed implicitly and hatched exactly as with it."""
     scan, boundary = cylinder_scan(rng, 10_000), square_boundary()
-    closed = trimctl.hatch(scan, boundary, pitch=1.0)
-    implicit = trimctl.hatch(scan, boundary[:-1], pitch=1.0)
+    closed = trimctl.hatch(scan, boundary, pitch_mm=1.0)
+    implicit = trimctl.hatch(scan, boundary[:-1], pitch_mm=1.0)
     assert len(closed) > 5 and len(implicit) == len(closed)
     np.testing.assert_array_equal(implicit.points, closed.points)

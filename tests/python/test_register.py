@@ -56,10 +56,11 @@ def test_umeyama_recovers_the_car_scale_to_1e9():
                    skiprows=1)[:, :3]
     b = np.loadtxt(TEST_DATA / "car-similarity" / "car_cloud400_scaled.csv", delimiter=",",
                    skiprows=1)[:, :3]
-    m, scale, rmse = trimctl.umeyama(a, b, scale=True)
-    assert abs(scale - 1.04) < 1e-9
-    assert rmse < 1e-9
-    np.testing.assert_allclose(m[:3, 3], [2.0, 2.0, 2.0], atol=1e-9)
+    fit = trimctl.umeyama(a, b, scale=True)
+    assert isinstance(fit, trimctl.UmeyamaResult)
+    assert abs(fit.scale - 1.04) < 1e-9
+    assert fit.rmse_mm < 1e-9
+    np.testing.assert_allclose(fit.b_from_a[:3, 3], [2.0, 2.0, 2.0], atol=1e-9)
 
 
 def test_icp_errors():

@@ -80,6 +80,12 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
         assert bounds[q.id] == q.predicted_max_error_um
         assert q.field_weak_direction.shape == (3,)
         assert abs(np.linalg.norm(q.field_weak_direction) - 1.0) < 1e-6
+        # Built in Rust with every field of registration.json's entry.
+        entry = next(c for c in registration.contours if c["id"] == q.id)
+        np.testing.assert_array_equal(q.weakest_direction, entry["weakest_direction"])
+        assert q.support_ratio == entry["support_ratio"]
+        assert q.degeneracy_ratio == entry["degeneracy_ratio"]
+        assert isinstance(q.flags, tuple) and list(q.flags) == entry["flags"]
         # The flag follows the bound (default tolerance 30 µm); a trusted contour has no flag.
         assert ("predicted_error" in q.flags) == (q.predicted_max_error_um > 30.0), q
         assert q.trustworthy == (not q.flags), q
@@ -118,7 +124,7 @@ def test_plan_invariants(registration):
             for contour, xy in layer.polylines:
                 assert xy.shape[1] == 2 and len(xy) >= 2
                 assert np.all(np.abs(xy) <= 50.0 + 1e-9)
-                back = p.galvo_to_workpiece(z, layer, xy)
+                back = p.workpiece_from_galvo(z, layer, xy)
                 pts, _ = registration.path.contour(contour)
                 # Every galvo point maps back onto the focal plane within ΔH/2 of the contour.
                 for q in back:
@@ -127,6 +133,8 @@ def test_plan_invariants(registration):
     assert planned == set(registration.path.contour_ids)
     back = trimctl.Plan.from_json(p.to_json())
     assert back.job == p.job
+    with pytest.raises(AttributeError, match="renamed Plan.workpiece_from_galvo"):
+        p.galvo_to_workpiece(p.zones[0], p.zones[0].layers[0], np.zeros((1, 2)))
 
 
 def _distance_to_polyline(q, pts):
@@ -181,8 +189,8 @@ def test_settings_are_honoured_and_the_callers_dict_is_left_unchanged(case, regi
     assert settings == before
     # A keyword that is given overrides its key, in a copy: the caller's nested dicts stay.
     p = trimctl.plan(
-        registration.path, settings=settings, max_incidence_deg=4.0, layer_step=0.4,
-        field=(90.0, 90.0), k=None,
+        registration.path, settings=settings, max_incidence_deg=4.0, layer_step_mm=0.4,
+        field_mm=(90.0, 90.0), k=None,
     )
     assert p.job["settings"]["max_incidence_deg"] == 4.0
     assert p.job["settings"]["galvo"]["field_mm"] == [90.0, 90.0]

@@ -16,7 +16,7 @@ use trim_cell::cell_model::{ScannerPose, TableModel};
 use trim_cell::kinematics::KinematicsKind;
 use trim_geom::{Point3, PointCloud, Vector3};
 
-use crate::cell::SphereObservation;
+use crate::cell_calibration::SphereObservation;
 use crate::error::CalibError;
 
 /// Stand-off of the scanner from the sphere along its view (mm).
@@ -188,7 +188,7 @@ pub fn synth_artefacts(
         scans.push(PointCloud::new(pts).unwrap_or_else(|_| unreachable!("finite points")));
     }
     // 2 µm RMS (3-D) measurement of the mark: 2/√3 µm per coordinate.
-    let mark_noise = normal(crate::cell::TOOL_MARK_SIGMA_MM);
+    let mark_noise = normal(crate::cell_calibration::TOOL_MARK_SIGMA_MM);
     let tool_mark_mm = poses.first().map_or(Point3::origin(), |p0| {
         let mark = Point3::new(
             p0.xyz_mm[0] + tool_offset_mm[0],
@@ -239,7 +239,7 @@ pub fn fit_observations(
                 centre_mm: fit.centre,
                 sigma_mm: (fit.covariance.trace() / 3.0)
                     .sqrt()
-                    .max(crate::cell::CENTRE_SIGMA_FLOOR_MM),
+                    .max(crate::cell_calibration::CENTRE_SIGMA_FLOOR_MM),
             })
         })
         .collect()

@@ -1,7 +1,7 @@
 //! The one nonlinear least-squares solver of the calibrations (DESIGN.md "Calibration"):
 //! MINPACK's Levenberg–Marquardt (the `levenberg-marquardt` crate, on nalgebra) over a residual
-//! function, with a central-difference Jacobian. The cell calibration ([`crate::cell`]) and the
-//! move-model fit ([`crate::timing`]) both use it.
+//! function, with a central-difference Jacobian. The cell calibration ([`crate::cell_calibration`]) and the
+//! move-model fit ([`crate::timing_fit`]) both use it.
 //!
 //! Non-finite residuals at a trial point make the solver reject that step and shrink its trust
 //! region (the crate's NaN/∞ handling); a solution whose residuals are not finite is never

@@ -11,11 +11,11 @@
 //! - [`error`]: the error type, [`CalibError`].
 
 pub mod artefact;
-pub mod cell;
+pub mod cell_calibration;
 pub mod error;
-pub mod field;
+pub mod field_correction;
 pub mod least_squares;
 pub mod sphere;
-pub mod timing;
+pub mod timing_fit;
 
 pub use error::CalibError;

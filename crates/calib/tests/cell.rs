@@ -4,7 +4,7 @@
 
 use trim_calib::CalibError;
 use trim_calib::artefact::{ArtefactTruth, default_poses, observe, synth_artefacts};
-use trim_calib::cell::{
+use trim_calib::cell_calibration::{
     calibrate_cell, direction_error_deg, line_offset_mm, rotation_about, rotation_error_deg,
 };
 use trim_cell::cell_model::{AxisLine, ScannerPose, TableModel};

@@ -4,7 +4,7 @@
 //! held-out commands (a grid between the fit's marks, measured separately) within 3 µm RMS, and
 //! L within 1 %. Also: a ripple no polynomial holds, the Newton inverse, the 65 × 65 table.
 
-use trim_calib::field::{FieldFitSettings, Mark, MarkGrid, fit_field, synth_marks};
+use trim_calib::field_correction::{FieldFitSettings, Mark, MarkGrid, fit_field, synth_marks};
 use trim_cell::lens::{CorrectionTable, FieldCorrection, LensDistortion, LensModel, height_scale};
 
 const HALF_FIELD_MM: f64 = 50.0;

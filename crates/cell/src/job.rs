@@ -449,7 +449,7 @@ impl Job {
 /// Maps a galvo point of a layer back to the work-piece frame (the inverse of the projection):
 /// `P = focus_point + x·frame.x + y·frame.y` (on the focal plane).
 #[must_use]
-pub fn galvo_to_workpiece(zone: &Zone, layer: &Layer, xy: [f64; 2]) -> Point3 {
+pub fn workpiece_from_galvo(zone: &Zone, layer: &Layer, xy: [f64; 2]) -> Point3 {
     Point3::from(layer.focus_point) + zone.frame.x_axis() * xy[0] + zone.frame.y_axis() * xy[1]
 }
 

@@ -11,29 +11,18 @@ use crate::cell_model::Calibration;
 use crate::kinematics::KinematicsKind;
 use crate::lens::LensDistortion;
 
-/// job.toml `[sim.truth]`: the true cell. A missing key is the nominal value (lines of
-/// `[machine]`, identity scanner, a perfect head, L = the focal length).
+/// job.toml `[sim.truth]`: the true cell, read as a `[calibration]` (its keys, the true
+/// values: axis lines, scanner pose, `[sim.truth.lens] pivot_to_focal_plane_mm`) plus the lens
+/// distortion of the true galvo head (`[sim.truth.head]`) and the true trimming line (`path`). A
+/// missing key is the nominal value (lines of `[machine]`, identity scanner, a perfect head, L =
+/// the focal length).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields, default)]
+#[serde(default)]
 pub struct TruthSettings {
-    /// The true A line's point, machine frame, mm.
-    pub a_axis_point_mm: Option<[f64; 3]>,
-    /// The true A line's direction.
-    pub a_axis_direction: Option<[f64; 3]>,
-    /// The true B line's point (xyzbc-trt), mm.
-    pub b_axis_point_mm: Option<[f64; 3]>,
-    /// The true B line's direction (xyzbc-trt).
-    pub b_axis_direction: Option<[f64; 3]>,
-    /// The true C line's point, mm.
-    pub c_axis_point_mm: Option<[f64; 3]>,
-    /// The true C line's direction.
-    pub c_axis_direction: Option<[f64; 3]>,
-    /// The scanner's true rotation on the head (3×3, rows).
-    pub scanner_rotation: Option<[[f64; 3]; 3]>,
-    /// The scanner's true translation on the head, mm.
-    pub scanner_translation_mm: Option<[f64; 3]>,
-    /// The lens's true pivot height L, mm (unset: beam.focal_length_mm).
-    pub pivot_to_focal_plane_mm: Option<f64>,
+    /// The true cell in `[calibration]`'s keys (flattened: `[sim.truth]` holds them directly).
+    /// `field_correction` has no meaning here (the true head is `head`) and is refused.
+    #[serde(flatten)]
+    pub calibration: Calibration,
     /// The true trimming line (path CSV, work-piece frame) the spot error is measured against; the
     /// built-in demo part brings its own.
     pub path: Option<PathBuf>,
@@ -42,35 +31,26 @@ pub struct TruthSettings {
     pub head: LensDistortion,
 }
 
-impl TruthSettings {
-    /// The axis lines and scanner pose as a [`Calibration`] (the same keys, the true values).
-    #[must_use]
-    pub fn as_calibration(&self) -> Calibration {
-        Calibration {
-            a_axis_point_mm: self.a_axis_point_mm,
-            a_axis_direction: self.a_axis_direction,
-            b_axis_point_mm: self.b_axis_point_mm,
-            b_axis_direction: self.b_axis_direction,
-            c_axis_point_mm: self.c_axis_point_mm,
-            c_axis_direction: self.c_axis_direction,
-            scanner_rotation: self.scanner_rotation,
-            scanner_translation_mm: self.scanner_translation_mm,
-            ..Calibration::default()
-        }
-    }
+/// Keys of `[sim.truth]` that moved, with where they went (job.toml refuses the old key,
+/// naming the new place).
+pub const MOVED_TRUTH_KEYS: &[(&str, &str)] = &[(
+    "pivot_to_focal_plane_mm",
+    "[sim.truth.lens] pivot_to_focal_plane_mm, as in [calibration]",
+)];
 
+impl TruthSettings {
     /// Refuses unusable values, naming the key (`sim.truth.…`).
     pub fn validate(&self, kind: KinematicsKind) -> Result<(), String> {
-        self.as_calibration()
+        if self.calibration.field_correction.is_some() {
+            return Err(
+                "sim.truth.field_correction: the true head's field is [sim.truth.head] \
+                 (a distortion), not a correction file"
+                    .to_owned(),
+            );
+        }
+        self.calibration
             .validate(kind)
             .map_err(|e| e.to_string().replacen("calibration.", "sim.truth.", 1))?;
-        if let Some(l) = self.pivot_to_focal_plane_mm
-            && !(l.is_finite() && l > 0.0)
-        {
-            return Err(format!(
-                "sim.truth.pivot_to_focal_plane_mm: must be a finite number > 0, got {l}"
-            ));
-        }
         self.head
             .validate()
             .map_err(|reason| format!("sim.truth.head: {reason}"))

@@ -1,12 +1,12 @@
 //! `trimctl calibrate cell --scans DIR --poses poses.csv --sphere-diameter-mm D --tool-mark X,Y,Z --out cal.toml`:
-//! the rotary axis lines and the scanner's pose on the head (`trim_calib::cell`).
+//! the rotary axis lines and the scanner's pose on the head (`trim_calib::cell_calibration`).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use trim_calib::artefact::{CalPose, fit_observations};
-use trim_calib::cell::calibrate_cell;
+use trim_calib::cell_calibration::calibrate_cell;
 use trim_cell::cell_model::{Calibration, TableModel};
 use trim_cell::kinematics::{KinematicsKind, MachineSettings};
 use trim_geom::Point3;
@@ -211,7 +211,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let t = cal.scanner.translation_mm;
     println!(
         "scanner: rotation {:.5}° from the identity, translation ({:.4}, {:.4}, {:.4}) mm",
-        trim_calib::cell::rotation_error_deg(&cal.scanner.rotation, &nalgebra::Matrix3::identity()),
+        trim_calib::cell_calibration::rotation_error_deg(
+            &cal.scanner.rotation,
+            &nalgebra::Matrix3::identity()
+        ),
         t.x,
         t.y,
         t.z

@@ -1,5 +1,5 @@
 //! `trimctl calibrate field --marks marks.csv --out field.json`: the galvo field correction
-//! (`trim_calib::field`), optionally as the controller's 65 × 65 table
+//! (`trim_calib::field_correction`), optionally as the controller's 65 × 65 table
 //! (`trim_cell::lens::CorrectionTable`, docs/protocols/correction-table.md) and as an SVG of the
 //! residual vectors.
 
@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use trim_calib::field::{FieldFitReport, FieldFitSettings, Mark, fit_field, read_marks};
+use trim_calib::field_correction::{FieldFitReport, FieldFitSettings, Mark, fit_field, read_marks};
 use trim_cell::lens::{CorrectionTable, FieldCorrection, height_scale};
 
 /// Arguments of `trimctl calibrate field`.

@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
-use trim_calib::timing::{ListSample, MOVE_PARAMETERS, MoveSample, fit_lists, fit_moves, median_s};
+use trim_calib::timing_fit::{
+    ListSample, MOVE_PARAMETERS, MoveSample, fit_lists, fit_moves, median_s,
+};
 use trim_cell::galvo_timing::TimingSettings;
 use trim_cell::kinematics::{AxisPose, MachineSettings, MoveModel};
 

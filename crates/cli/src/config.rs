@@ -9,8 +9,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 use toml::Value;
+use trim_cell::cell_model::Calibration;
 use trim_cell::cell_model::ScanPose;
-use trim_cell::truth::TruthSettings;
+use trim_cell::truth::{MOVED_TRUTH_KEYS, TruthSettings};
 use trim_plan::hatch::HatchSettings;
 use trim_plan::planner::PlanSettings;
 use trim_register::regional::RegisterSettings;
@@ -253,29 +254,23 @@ impl JobConfig {
     /// are refused first, and the planning tables are read once on their own.
     pub fn parse(text: &str) -> anyhow::Result<JobConfig> {
         let doc = parse_document(text)?;
-        let known = table_keys(&JobConfig::default());
-        if let Some((key, _)) = doc
-            .get_ref()
-            .iter()
-            .find(|(key, _)| !known.iter().any(|k| k == key.get_ref()))
-        {
-            let expected: Vec<String> = known.iter().map(|k| format!("`{k}`")).collect();
-            bail!(
-                "line {}: {key}: unknown field `{key}`, expected one of {}",
-                line_of(text, key.span().start),
-                expected.join(", "),
-                key = key.get_ref(),
-            );
+        refuse_unknown_keys::<JobConfig>(text, doc.get_ref(), "", &[])?;
+        let truth = sub_table(doc.get_ref(), "sim").and_then(|sim| sub_table(sim, "truth"));
+        if let Some(truth) = truth {
+            refuse_unknown_keys::<TruthSettings>(text, truth, "sim.truth.", MOVED_TRUTH_KEYS)?;
         }
-        let plan_keys = table_keys(&PlanSettings::default());
+        // The flattened parts alone: the planning tables, and [sim.truth]'s [calibration] keys.
         let span = doc.span();
-        let plan_tables: toml::de::DeTable = doc
-            .into_inner()
-            .into_iter()
-            .filter(|(key, _)| plan_keys.iter().any(|k| k == key.get_ref()))
-            .collect();
-        deserialize::<PlanSettings>(text, toml::Spanned::new(span, plan_tables))?;
-        let config: JobConfig = deserialize(text, parse_document(text)?)?;
+        let plan_tables = only_keys::<PlanSettings>(doc.into_inner());
+        deserialize::<PlanSettings>(text, toml::Spanned::new(span.clone(), plan_tables), "")?;
+        let doc = parse_document(text)?;
+        if let Some(truth) = sub_table(doc.get_ref(), "sim").and_then(|sim| sub_table(sim, "truth"))
+        {
+            let calibration = only_keys::<Calibration>(truth.clone());
+            let at = toml::Spanned::new(span, calibration);
+            deserialize::<Calibration>(text, at, "sim.truth.")?;
+        }
+        let config: JobConfig = deserialize(text, doc, "")?;
         config.validate()?;
         Ok(config)
     }
@@ -337,7 +332,7 @@ impl JobConfig {
     /// head, the machine pose of `[part.scan_pose]` and the rotary axes, all as `[calibration]`
     /// says. Refuses a non-finite pose by its key, and a chain that carries a point out of the
     /// finite range.
-    pub fn scan_to_workpiece(
+    pub fn workpiece_from_scan(
         &self,
         scan_in_scanner: &trim_geom::PointCloud,
     ) -> anyhow::Result<trim_geom::PointCloud> {
@@ -387,6 +382,7 @@ fn parse_document(text: &str) -> anyhow::Result<toml::Spanned<toml::de::DeTable<
 fn deserialize<T: serde::de::DeserializeOwned>(
     text: &str,
     doc: toml::Spanned<toml::de::DeTable<'_>>,
+    prefix: &str,
 ) -> anyhow::Result<T> {
     serde_path_to_error::deserialize(toml::Deserializer::from(doc)).map_err(|e| {
         let key = e.path().to_string();
@@ -395,7 +391,7 @@ fn deserialize<T: serde::de::DeserializeOwned>(
         let key = if key == "." {
             String::new()
         } else {
-            format!("{key}: ")
+            format!("{prefix}{key}: ")
         };
         match inner.span() {
             Some(s) => anyhow::anyhow!("line {}: {key}{message}", line_of(text, s.start)),
@@ -404,13 +400,62 @@ fn deserialize<T: serde::de::DeserializeOwned>(
     })
 }
 
-/// The top-level keys of a settings type, in order (none of these types has an unset `Option`
-/// at the top, which would not serialise).
-fn table_keys<T: Serialize>(settings: &T) -> Vec<String> {
-    match Value::try_from(settings) {
-        Ok(Value::Table(t)) => t.keys().cloned().collect(),
-        _ => Vec::new(),
+/// The keys of a settings table, in order, from its JSON Schema (flattened structs' keys
+/// included).
+fn schema_keys<T: schemars::JsonSchema>() -> Vec<String> {
+    let schema = schemars::schema_for!(T).to_value();
+    schema
+        .get("properties")
+        .and_then(serde_json::Value::as_object)
+        .map(|p| p.keys().cloned().collect())
+        .unwrap_or_default()
+}
+
+/// The table under `key` of `table`, if it is one.
+fn sub_table<'a, 'i>(
+    table: &'a toml::de::DeTable<'i>,
+    key: &str,
+) -> Option<&'a toml::de::DeTable<'i>> {
+    table.iter().find_map(|(k, v)| match v.get_ref() {
+        toml::de::DeValue::Table(t) if k.get_ref() == key => Some(t),
+        _ => None,
+    })
+}
+
+/// The entries of `table` whose keys `T` has.
+fn only_keys<'i, T: schemars::JsonSchema>(table: toml::de::DeTable<'i>) -> toml::de::DeTable<'i> {
+    let keys = schema_keys::<T>();
+    table
+        .into_iter()
+        .filter(|(key, _)| keys.iter().any(|k| k == key.get_ref()))
+        .collect()
+}
+
+/// Refuses a key of `table` (at `prefix`, e.g. "sim.truth.") that `T` does not have, naming its
+/// line, and a `moved` one with where it went. Serde refuses no unknown key beside a flattened
+/// struct, so the tables that flatten one are checked here.
+fn refuse_unknown_keys<T: schemars::JsonSchema>(
+    text: &str,
+    table: &toml::de::DeTable<'_>,
+    prefix: &str,
+    moved: &[(&str, &str)],
+) -> anyhow::Result<()> {
+    let known = schema_keys::<T>();
+    let Some((key, _)) = table
+        .iter()
+        .find(|(key, _)| !known.iter().any(|k| k == key.get_ref()))
+    else {
+        return Ok(());
+    };
+    let (line, key) = (line_of(text, key.span().start), key.get_ref());
+    if let Some((_, to)) = moved.iter().find(|(old, _)| old == key) {
+        bail!("line {line}: {prefix}{key}: this key moved: write it as {to}");
     }
+    let expected: Vec<String> = known.iter().map(|k| format!("`{k}`")).collect();
+    bail!(
+        "line {line}: {prefix}{key}: unknown field `{key}`, expected one of {}",
+        expected.join(", ")
+    );
 }
 
 /// The file's opening comment.
@@ -451,7 +496,7 @@ const EXAMPLES: &[(&str, &str)] = &[
         "[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]",
     ),
     ("sim.truth.scanner_translation_mm", "[0.3, -0.2, 0.15]"),
-    ("sim.truth.pivot_to_focal_plane_mm", "262.0"),
+    ("sim.truth.lens.pivot_to_focal_plane_mm", "262.0"),
     ("sim.truth.path", "\"truth.csv\""),
     ("register.scanner_viewpoint_mm", "[0.0, 0.0, 500.0]"),
     ("zoning.k", "10"),
@@ -773,19 +818,19 @@ mod tests {
         let scan = trim_geom::PointCloud::new(vec![trim_geom::Point3::new(1.0, 2.0, 3.0)]).unwrap();
         let mut c = JobConfig::default();
         assert!(
-            c.scan_to_workpiece(&scan).unwrap().points()[0]
+            c.workpiece_from_scan(&scan).unwrap().points()[0]
                 .iter()
                 .all(|v| v.is_finite())
         );
         c.part.scan_pose.c_deg = f64::NAN;
-        let e = format!("{:#}", c.scan_to_workpiece(&scan).unwrap_err());
+        let e = format!("{:#}", c.workpiece_from_scan(&scan).unwrap_err());
         assert!(e.contains("part.scan_pose.c_deg"), "{e}");
         // A finite pose whose chain overflows a point is refused too.
         let mut c = JobConfig::default();
         c.part.scan_pose.xyz_mm = [f64::MAX, 0.0, 0.0];
         let huge =
             trim_geom::PointCloud::new(vec![trim_geom::Point3::new(f64::MAX, 0.0, 0.0)]).unwrap();
-        let e = format!("{:#}", c.scan_to_workpiece(&huge).unwrap_err());
+        let e = format!("{:#}", c.workpiece_from_scan(&huge).unwrap_err());
         assert!(
             e.contains("part.scan_pose") && e.contains("not finite"),
             "{e}"
@@ -826,7 +871,46 @@ mod tests {
             ),
             (
                 "[part]\n[bem]\n",
-                "line 2: bem: unknown field `bem`, expected one of `part`",
+                "line 2: bem: unknown field `bem`, expected one of ",
+            ),
+        ] {
+            let e = format!("{:#}", JobConfig::parse(text).unwrap_err());
+            assert!(e.starts_with(expected), "{text}: {e}");
+        }
+    }
+
+    #[test]
+    fn sim_truth_reads_as_a_calibration_plus_the_head_and_refuses_the_old_pivot_key() {
+        let text = "[sim.truth]\nc_axis_point_mm = [0.1, 0.0, 0.0]\npath = \"t.csv\"\n\
+            [sim.truth.lens]\npivot_to_focal_plane_mm = 262.0\n[sim.truth.head]\nrotation_deg = 0.1\n";
+        let c = JobConfig::parse(text).unwrap();
+        let truth = &c.sim.truth;
+        assert_eq!(truth.calibration.c_axis_point_mm, Some([0.1, 0.0, 0.0]));
+        assert_eq!(truth.calibration.lens.pivot_to_focal_plane_mm, Some(262.0));
+        assert_eq!(truth.path, Some(PathBuf::from("t.csv")));
+        assert!((truth.head.rotation_deg - 0.1).abs() < 1e-12);
+        assert_eq!(JobConfig::parse(&toml::to_string(&c).unwrap()).unwrap(), c);
+        for (text, expected) in [
+            (
+                "[sim.truth]\npivot_to_focal_plane_mm = 262.0\n",
+                "line 2: sim.truth.pivot_to_focal_plane_mm: this key moved: write it as \
+                 [sim.truth.lens] pivot_to_focal_plane_mm",
+            ),
+            (
+                "[sim.truth]\n\nc_axis_pont_mm = [0.0, 0.0, 0.0]\n",
+                "line 3: sim.truth.c_axis_pont_mm: unknown field `c_axis_pont_mm`",
+            ),
+            (
+                "[sim.truth]\nc_axis_point_mm = \"x\"\n",
+                "line 2: sim.truth.c_axis_point_mm: invalid type",
+            ),
+            (
+                "[sim.truth.lens]\npivot_to_focal_plane_mm = -1.0\n",
+                "setting sim.truth.lens.pivot_to_focal_plane_mm",
+            ),
+            (
+                "[sim.truth]\nfield_correction = \"f.json\"\n",
+                "sim.truth.field_correction: the true head's field is [sim.truth.head]",
             ),
         ] {
             let e = format!("{:#}", JobConfig::parse(text).unwrap_err());

@@ -16,9 +16,9 @@ use anyhow::{Context, bail};
 use tokio::sync::mpsc::UnboundedReceiver;
 use tokio_util::sync::CancellationToken;
 use trim_cell::{Job, LayerKey};
-use trim_io::cell::{Cell, Timeouts};
+use trim_io::cell_devices::{Cell, Timeouts};
 use trim_io::executor::{StopCause, ZoneDecision, ZoneGate};
-use trim_io::frame::{FrameSettings, Framed, frame_layer, rearm};
+use trim_io::framing::{FrameSettings, Framed, frame_layer, rearm};
 use trim_io::galvo::outline::OutlineKind;
 use trim_io::tap::Tap;
 
@@ -167,7 +167,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     trim_io::limits::check_poses(&job, &config.plan.machine, Some(&keys))
         .map_err(|e| anyhow::anyhow!("{}: {e}; refusing to move there", plan.display()))?;
     for key in &keys {
-        trim_io::frame::find_layer(&job, *key)
+        trim_io::framing::find_layer(&job, *key)
             .map_err(|e| anyhow::anyhow!("{}: {e}", plan.display()))?;
         let (_, _, layer) = job
             .layers()

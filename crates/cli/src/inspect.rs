@@ -253,7 +253,7 @@ fn merged_scan(args: &Args, config: Option<&JobConfig>) -> anyhow::Result<PointC
         }
         let scan = read(&args.scan[0])?;
         return match config {
-            Some(c) => c.scan_to_workpiece(&scan),
+            Some(c) => c.workpiece_from_scan(&scan),
             None => Ok(scan),
         };
     };

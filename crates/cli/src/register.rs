@@ -97,7 +97,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // With a job file, the scan (scanner frame) goes into the work-piece frame through its
     // [calibration] and [part.scan_pose], as `trimctl run` does.
     let scan = match &config {
-        Some(c) => c.scan_to_workpiece(&scan)?,
+        Some(c) => c.workpiece_from_scan(&scan)?,
         None => scan,
     };
     let path = read_path(&args.path).with_context(|| format!("reading {}", args.path.display()))?;

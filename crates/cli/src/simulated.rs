@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 use trim_cell::Job;
 use trim_geom::Path as TrimPath;
-use trim_io::cell::CellAddresses;
+use trim_io::cell_devices::CellAddresses;
 use trim_io::laser::Profile;
 
 use crate::config::JobConfig;

@@ -262,12 +262,14 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
         offset_mm: [0.0, 0.0],
         ..truth.head
     };
-    let marks = trim_calib::field::synth_marks(
+    let marks = trim_calib::field_correction::synth_marks(
         &centred,
         truth
+            .calibration
+            .lens
             .pivot_to_focal_plane_mm
             .unwrap_or(defaults.plan.beam.focal_length_mm),
-        &trim_calib::field::MarkGrid {
+        &trim_calib::field_correction::MarkGrid {
             grid: FIELD_GRID,
             half_field_mm: 0.5
                 * defaults.plan.galvo.field_mm[0].min(defaults.plan.galvo.field_mm[1]),
@@ -277,14 +279,14 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
         },
         args.seed,
     );
-    trim_calib::field::write_marks(&args.out.join("marks.csv"), &marks)?;
+    trim_calib::field_correction::write_marks(&args.out.join("marks.csv"), &marks)?;
     // The sphere scans: a Ø 25.4 mm sphere on a stem on the table, scanned at the default
     // poses by the true scanner on the true table; the tool mark at command 0 lands where the
     // true head puts it.
     let plan = defaults.plan.clone();
     let nominal = trim_cell::cell_model::TableModel::nominal(&plan.machine);
     // The true cell's lines and scanner (as the digital twin resolves them).
-    let true_cell = truth.as_calibration();
+    let true_cell = &truth.calibration;
     let sphere = trim_geom::Point3::from(SPHERE_TABLE_MM);
     let poses = trim_calib::artefact::default_poses(&nominal, &sphere);
     let artefacts = trim_calib::artefact::synth_artefacts(

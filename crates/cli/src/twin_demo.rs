@@ -132,22 +132,27 @@ pub fn demo_truth(
         trim_cell::KinematicsKind::XyzbcTrt => (None, None, Some(tp), Some(td)),
         _ => (Some(tp), Some(td), None, None),
     };
+    let pivot_to_focal_plane_mm =
+        Some(focal_length_mm * (1.0 + magnitude(&mut rng, m.pivot_fraction)));
     TruthSettings {
-        a_axis_point_mm: a_point,
-        a_axis_direction: a_dir,
-        b_axis_point_mm: b_point,
-        b_axis_direction: b_dir,
-        c_axis_point_mm: Some(cp),
-        c_axis_direction: Some(cd),
-        scanner_rotation: Some([
-            [rm[(0, 0)], rm[(0, 1)], rm[(0, 2)]],
-            [rm[(1, 0)], rm[(1, 1)], rm[(1, 2)]],
-            [rm[(2, 0)], rm[(2, 1)], rm[(2, 2)]],
-        ]),
-        scanner_translation_mm: Some([t.x, t.y, t.z]),
-        pivot_to_focal_plane_mm: Some(
-            focal_length_mm * (1.0 + magnitude(&mut rng, m.pivot_fraction)),
-        ),
+        calibration: trim_cell::cell_model::Calibration {
+            a_axis_point_mm: a_point,
+            a_axis_direction: a_dir,
+            b_axis_point_mm: b_point,
+            b_axis_direction: b_dir,
+            c_axis_point_mm: Some(cp),
+            c_axis_direction: Some(cd),
+            scanner_rotation: Some([
+                [rm[(0, 0)], rm[(0, 1)], rm[(0, 2)]],
+                [rm[(1, 0)], rm[(1, 1)], rm[(1, 2)]],
+                [rm[(2, 0)], rm[(2, 1)], rm[(2, 2)]],
+            ]),
+            scanner_translation_mm: Some([t.x, t.y, t.z]),
+            field_correction: None,
+            lens: trim_cell::cell_model::LensCalibration {
+                pivot_to_focal_plane_mm,
+            },
+        },
         path: None,
         head,
     }

@@ -5,7 +5,7 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
-use trim_calib::field::{MarkGrid, synth_marks, write_marks};
+use trim_calib::field_correction::{MarkGrid, synth_marks, write_marks};
 use trim_cell::lens::{CorrectionTable, FieldCorrection, LensDistortion, LensModel};
 
 fn trimctl(args: &[&str]) -> Output {

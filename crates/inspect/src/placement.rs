@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 
 use trim_geom::{ContourId, Point3, Similarity3};
 use trim_register::Registration;
-use trim_register::field::BSplineField;
+use trim_register::deformation::BSplineField;
 
 use crate::error::{InspectError, Result};
 

@@ -10,7 +10,7 @@ use tokio_util::sync::CancellationToken;
 use trim_cell::job::{
     Frame, Job, JobSettings, Layer, Polyline, Pose, TimeEstimate, ValidationReport, Zone,
 };
-use trim_io::cell::{Cell, Timeouts};
+use trim_io::cell_devices::{Cell, Timeouts};
 use trim_io::executor::Executor;
 use trim_io::laser::Profile;
 use trim_io::record::{Recorder, device_tap};

@@ -18,11 +18,11 @@
 //! Device calls return `Result<Result<T, Fault>, Error>`: the outer error is the transport (link,
 //! timeout, garbled bytes), the inner one the device's own refusal or fault.
 
-pub mod cell;
+pub mod cell_devices;
 pub mod cnc;
 pub mod disk;
 pub mod executor;
-pub mod frame;
+pub mod framing;
 pub mod galvo;
 pub mod journal;
 pub mod laser;

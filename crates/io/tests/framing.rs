@@ -1,5 +1,5 @@
 //! Red-light framing against the simulators: the galvo's pointer and `EXECUTE_FRAME` rules
-//! (docs/protocols/galvo.md §5a), [`trim_io::frame::frame_layer`] on the simulated cell, and
+//! (docs/protocols/galvo.md §5a), [`trim_io::framing::frame_layer`] on the simulated cell, and
 //! the executor's zone gate (`run --frame`). Framing never opens the gate: no emission, no open
 //! gate, no marked vector, while the traced outline covers every point of the layer.
 
@@ -13,11 +13,11 @@ use common::{
 use futures::future::BoxFuture;
 use tokio_util::sync::CancellationToken;
 use trim_cell::job::{Job, LayerKey};
-use trim_io::cell::Cell;
+use trim_io::cell_devices::Cell;
 use trim_io::executor::{
     ExecError, ExecOptions, Executor, Phase, StopCause, ZoneDecision, ZoneGate,
 };
-use trim_io::frame::{FrameSettings, frame_layer, rearm};
+use trim_io::framing::{FrameSettings, frame_layer, rearm};
 use trim_io::galvo::outline::OutlineKind;
 use trim_io::galvo::protocol::{ControllerState, ListCommand, StatusCode};
 use trim_io::galvo::{GalvoClient, GalvoClientConfig};

@@ -21,7 +21,7 @@ use trim_cell::kinematics::{
     AxisPose, KinematicsKind, MachineSettings, forward, inverse, joints_of,
 };
 use trim_geom::{Point3, UnitVector3, Vector3};
-use trim_io::cell::{Cell, Timeouts};
+use trim_io::cell_devices::{Cell, Timeouts};
 use trim_io::cnc::linuxcnc::{LinuxCnc, LinuxCncConfig};
 use trim_io::cnc::{Cnc, CncFault, EnableSteps};
 use trim_io::executor::{ExecError, ExecOptions, Executor, Phase, Progress, StopCause};

@@ -57,8 +57,8 @@ use rayon::prelude::*;
 use trim_geom::{Path, Point3, UnitVector3, Vector3};
 
 use crate::error::PlanError;
-use crate::field::Lens;
 use crate::piece::{Piece, angle_rad, pieces_of};
+use crate::scan_field::Lens;
 use trim_cell::frame::paper_frame;
 
 /// The longest atom (mm). Longer contours are cut into equal atoms no longer than this.

@@ -14,17 +14,17 @@
 
 pub mod cover;
 pub mod error;
-pub mod field;
 pub mod hatch;
 pub mod layer;
 pub mod order;
 pub mod piece;
 pub mod planner;
+pub mod scan_field;
 pub mod svg;
 pub mod zoning;
 
 pub use error::PlanError;
-pub use field::LensSettings;
 pub use layer::LayerSettings;
 pub use planner::{PlanOutput, PlanSettings, ZoneRow, plan, plan_with_report};
+pub use scan_field::LensSettings;
 pub use zoning::{ZoningMethod, ZoningSettings};

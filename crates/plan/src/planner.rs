@@ -3,7 +3,7 @@
 //!
 //! Steps: (1) contours → pieces, splitting contours whose feature vectors spread wider than the
 //! zoning limit ([`crate::piece`]); (2) k-means zoning with automatic k ([`crate::zoning`]);
-//! (3) scan-field sections ([`crate::field`]) — or, with `zoning.method = "cover"` (the
+//! (3) scan-field sections ([`crate::scan_field`]) — or, with `zoning.method = "cover"` (the
 //! default), (1–3) pose selection as covering, each pose one section ([`crate::cover`]);
 //! (4) layers by paper Eq. 14 ([`crate::layer`]);
 //! (5) zone order (nearest neighbour + 2-opt on machine move time, [`crate::order`]) and machine
@@ -15,12 +15,12 @@
 //! # What the round trip guarantees
 //!
 //! A galvo point (x, y) of a layer is the projection of its registered point P along the zone
-//! axis onto the layer's focal plane: `job::galvo_to_workpiece(zone, layer, (x, y))` is
+//! axis onto the layer's focal plane: `job::workpiece_from_galvo(zone, layer, (x, y))` is
 //! `P − h·Z` with h = (P − F)·Z its height over the focal plane, |h| ≤ ΔH/2 ≤ the focus
 //! processing length. Validation recomputes P independently from the input path (each planned
 //! point remembers where on its contour it lies: original vertices, or points interpolated on a
 //! segment where a layer boundary or a section seam cuts it) and checks
-//! `|galvo_to_workpiece(x, y) + h·Z − P| ≤ 1 µm` for every galvo point, with h kept from the
+//! `|workpiece_from_galvo(x, y) + h·Z − P| ≤ 1 µm` for every galvo point, with h kept from the
 //! planning. Equivalently: in the focal plane, the galvo point is P's projection to 1 µm, and
 //! along the beam the point is within ΔH/2 of the focus — which the Job JSON alone (without h)
 //! can state but not undo. It also checks that every contour is covered exactly once: the
@@ -31,15 +31,15 @@ use serde::{Deserialize, Serialize};
 use trim_geom::{ContourId, Path, Point3, UnitVector3, Vector3};
 
 use crate::error::PlanError;
-use crate::field::{Lens, Section, sections};
 use crate::layer::{ZoneLayers, layer_pieces, project};
 use crate::piece::{Piece, angle_rad, pieces_of};
+use crate::scan_field::{Lens, Section, sections};
 use crate::zoning::{ZoneGroup, Zoning, ZoningMethod, make_group, zone_pieces};
 use trim_cell::cell_model::TableModel;
 use trim_cell::galvo_timing::ListComposition;
 use trim_cell::job::{
     JOB_VERSION, Job, JobSettings, Layer, LensRecord, Polyline, TimeEstimate, ValidationReport,
-    Zone, galvo_to_workpiece,
+    Zone, workpiece_from_galvo,
 };
 use trim_cell::kinematics::{
     AxisPose, MachineSettings, choose_pose, forward_on, head_frame_on, inverse_on, limit_violation,
@@ -270,9 +270,8 @@ fn finish_plan(
 ) -> Result<PlanOutput, PlanError> {
     let focus_half_length_mm = settings.beam.focus_half_length_mm();
     let step_mm = settings.layers.step_for(focus_half_length_mm)?;
-    let (machine, rotary) = (&settings.machine, settings.table());
     // (5) order and poses.
-    let order = zone_order(&planned, machine, &rotary);
+    let order = zone_order(&planned, &settings.machine, &settings.table());
     let mut zones = Vec::with_capacity(planned.len());
     let mut traces: Vec<Vec<Vec<Trace>>> = Vec::with_capacity(planned.len());
     let mut table = Vec::with_capacity(planned.len());
@@ -282,39 +281,14 @@ fn finish_plan(
     for (zone_id, &idx) in order.iter().enumerate() {
         crate::error::check_cancel()?;
         let p = &planned[idx];
-        // An unreachable zone is planned all the same, with the nearest poses outside the
-        // limits, so that the plan and its SVG show it; validation fails and `run` refuses it.
-        let (poses, unreachable) =
-            match zone_poses(machine, &rotary, &focus_points(p), &p.axis, &previous) {
-                Ok(poses) => (poses, None),
-                Err(reason) => (
-                    unlimited_poses(machine, &rotary, &focus_points(p), &p.axis, &previous),
-                    Some(unreachable_reason(p, machine, &reason)),
-                ),
-            };
-        // (6) the zone frame is the galvo head's frame at the first pose.
-        let frame = head_frame_on(&rotary, poses[0].tilt_deg, poses[0].rotary_deg);
-        let (layers, zone_traces, zone_s) = zone_layers(
+        let (zone, zone_traces) = plan_zone(
+            zone_id,
             p,
-            &frame,
-            &poses,
             settings,
             &lens_model,
             &mut previous,
             &mut estimate,
         );
-        estimate.per_zone_s.push(zone_s);
-        let (max_incidence_rad, max_pairwise_rad) = section_angles(&p.section, &p.axis);
-        let zone = Zone {
-            id: zone_id,
-            origin: [p.section.origin.x, p.section.origin.y, p.section.origin.z],
-            frame,
-            contours: pieces_contours(&p.section),
-            max_incidence_deg: max_incidence_rad.to_degrees(),
-            max_pairwise_deg: max_pairwise_rad.to_degrees(),
-            layers,
-            unreachable,
-        };
         table.push(zone_row(p, &zone, &zone_traces, &lens_of(settings)));
         zones.push(zone);
         traces.push(zone_traces);
@@ -350,6 +324,45 @@ fn finish_plan(
         table,
         cover,
     })
+}
+
+/// One zone in execution order: its poses from the `previous` pose (the nearest outside the
+/// limits when none is within them: an unreachable zone is planned all the same, so that the
+/// plan and its SVG show it; validation fails and `run` refuses it), its frame (6: the galvo
+/// head's at the first pose), its layers and the traces validation checks them by.
+fn plan_zone(
+    zone_id: usize,
+    p: &Planned,
+    settings: &PlanSettings,
+    lens_model: &LensModel,
+    previous: &mut AxisPose,
+    estimate: &mut TimeEstimate,
+) -> (Zone, Vec<Vec<Trace>>) {
+    let (machine, rotary) = (&settings.machine, settings.table());
+    let (poses, unreachable) =
+        match zone_poses(machine, &rotary, &focus_points(p), &p.axis, previous) {
+            Ok(poses) => (poses, None),
+            Err(reason) => (
+                unlimited_poses(machine, &rotary, &focus_points(p), &p.axis, previous),
+                Some(unreachable_reason(p, machine, &reason)),
+            ),
+        };
+    let frame = head_frame_on(&rotary, poses[0].tilt_deg, poses[0].rotary_deg);
+    let (layers, zone_traces, zone_s) =
+        zone_layers(p, &frame, &poses, settings, lens_model, previous, estimate);
+    estimate.per_zone_s.push(zone_s);
+    let (max_incidence_rad, max_pairwise_rad) = section_angles(&p.section, &p.axis);
+    let zone = Zone {
+        id: zone_id,
+        origin: [p.section.origin.x, p.section.origin.y, p.section.origin.z],
+        frame,
+        contours: pieces_contours(&p.section),
+        max_incidence_deg: max_incidence_rad.to_degrees(),
+        max_pairwise_deg: max_pairwise_rad.to_degrees(),
+        layers,
+        unreachable,
+    };
+    (zone, zone_traces)
 }
 
 /// The focus points of a planned section's layers (work-piece frame, mm).
@@ -821,7 +834,7 @@ impl Checks<'_> {
             self.violation(format!("{}: no galvo command", here()));
         }
         let registered = point_on_contour(contour, t.source[i]);
-        let back = galvo_to_workpiece(zone, layer, *xy) + fz * *h;
+        let back = workpiece_from_galvo(zone, layer, *xy) + fz * *h;
         let err = (back - registered).norm();
         self.report.max_round_trip_error_mm = self.report.max_round_trip_error_mm.max(err);
         if err > ROUND_TRIP_TOLERANCE_MM {
@@ -872,7 +885,7 @@ impl Checks<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::field::LensSettings;
+    use crate::scan_field::LensSettings;
     use crate::zoning::ZoningSettings;
     use trim_synth::testing::synthetic_core_path;
 

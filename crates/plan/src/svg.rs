@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 
 use trim_geom::Point3;
 
-use trim_cell::job::{Job, galvo_to_workpiece};
+use trim_cell::job::{Job, workpiece_from_galvo};
 
 /// The size of each part view (px).
 pub const VIEW_PX: f64 = 420.0;
@@ -126,7 +126,7 @@ pub fn job_svg(job: &Job) -> String {
                     z.unreachable.is_some(),
                     p.points
                         .iter()
-                        .map(|xy| galvo_to_workpiece(z, l, *xy))
+                        .map(|xy| workpiece_from_galvo(z, l, *xy))
                         .collect(),
                 ));
             }

@@ -5,8 +5,8 @@ use std::collections::BTreeMap;
 
 use trim_geom::Path;
 use trim_plan::cover::{CoverProblem, cover};
-use trim_plan::field::Lens;
 use trim_plan::planner::{PlanOutput, PlanSettings, plan_with_report};
+use trim_plan::scan_field::Lens;
 use trim_plan::zoning::{ZoningMethod, ZoningSettings};
 use trim_synth::testing::synthetic_core_path;
 

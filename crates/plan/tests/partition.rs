@@ -9,7 +9,7 @@
 
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
-use trim_cell::job::{Job, galvo_to_workpiece};
+use trim_cell::job::{Job, workpiece_from_galvo};
 use trim_geom::{Contour, Path, Point3, Vector3};
 use trim_plan::hatch::{HatchSettings, hatch};
 use trim_plan::planner::{PlanSettings, plan_with_report};
@@ -87,7 +87,7 @@ fn partition_violations(path: &Path, job: &Job) -> Vec<String> {
                             .points
                             .iter()
                             .zip(&pl.heights_mm)
-                            .map(|(xy, h)| galvo_to_workpiece(z, l, *xy) + fz * *h)
+                            .map(|(xy, h)| workpiece_from_galvo(z, l, *xy) + fz * *h)
                             .collect();
                         ((z.id, l.index), pts)
                     })
@@ -345,7 +345,7 @@ fn an_overlap_between_two_layers_is_caught() {
         let zone = &job.zones[z];
         let layer = &zone.layers[l];
         let pl = &layer.polylines[k];
-        galvo_to_workpiece(zone, layer, pl.points[i]) + zone.frame.z_axis() * pl.heights_mm[i]
+        workpiece_from_galvo(zone, layer, pl.points[i]) + zone.frame.z_axis() * pl.heights_mm[i]
     };
     let mut index = Vec::new();
     for (z, zone) in job.zones.iter().enumerate() {

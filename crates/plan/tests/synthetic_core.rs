@@ -4,8 +4,8 @@
 use trim_cell::kinematics::{KinematicsKind, MachineSettings, PoseMode};
 use trim_geom::formats::{encode_path, read_path_from_bytes};
 use trim_geom::{Contour, Path, Point3, Vector3};
-use trim_plan::field::LensSettings;
 use trim_plan::planner::{PlanSettings, ROUND_TRIP_TOLERANCE_MM, plan_with_report};
+use trim_plan::scan_field::LensSettings;
 use trim_synth::testing::synthetic_core_path;
 
 /// The seed of the synthetic path.

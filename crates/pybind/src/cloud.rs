@@ -1,14 +1,16 @@
 //! Point-cloud processing from trim-geom: normals and voxel down-sampling.
 
 use numpy::PyArray2;
+use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 use trim_geom::PointCloud;
 use trim_geom::math::{Point3, Vector3};
 use trim_geom::normals::{Orientation, estimate_normals as estimate};
 use trim_geom::voxel::voxel_downsample as downsample;
 
 use crate::arrays::{self, Array};
-use crate::errors::{geom_error, value_error};
+use crate::errors::{geom_error, refuse_renamed, value_error};
 use crate::gil::run_detached;
 
 /// Estimates unit normals by PCA over the `k` nearest neighbours, oriented toward `viewpoint`
@@ -38,16 +40,22 @@ pub fn estimate_normals<'py>(
     Ok(arrays::from_vectors(py, &normals))
 }
 
-/// Down-samples to one point per occupied `voxel` (mm) cube: the centroid of its points.
-/// Returns `(points, normals)`; `normals` is `None` when none were given.
+/// Down-samples to one point per occupied `voxel_mm` cube: the centroid of its points.
+/// Returns `(points, normals)`; `normals` is `None` when none were given. The old name `voxel`
+/// raises `TypeError` naming `voxel_mm`.
 #[pyfunction]
-#[pyo3(signature = (points, *, voxel, normals = None))]
+#[pyo3(signature = (points, *, voxel_mm = None, normals = None, **renamed))]
 pub fn voxel_downsample<'py>(
     py: Python<'py>,
     points: &Bound<'py, PyAny>,
-    voxel: f64,
+    voxel_mm: Option<f64>,
     normals: Option<&Bound<'py, PyAny>>,
+    renamed: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<(Array<'py>, Option<Array<'py>>)> {
+    refuse_renamed("voxel_downsample", renamed, &[("voxel", "voxel_mm")])?;
+    let voxel = voxel_mm.ok_or_else(|| {
+        PyTypeError::new_err("voxel_downsample() missing required keyword argument 'voxel_mm'")
+    })?;
     let pts = arrays::points("points", points)?;
     let cloud = match normals {
         Some(n) => PointCloud::with_normals(pts, arrays::vectors("normals", n)?),

@@ -85,3 +85,24 @@ pub fn register_error(e: RegisterError) -> PyErr {
         other => RegistrationError::new_err(other.to_string()),
     }
 }
+
+/// Refuses the keywords a function does not take (its `**renamed`) with `TypeError`, naming
+/// the new name of one that was renamed (`voxel` → `voxel_mm`: options carry their unit). The
+/// Python package's `_refuse_renamed` says the same.
+pub fn refuse_renamed(
+    function: &str,
+    given: Option<&Bound<'_, pyo3::types::PyDict>>,
+    renamed: &[(&str, &str)],
+) -> PyResult<()> {
+    let Some(key) = given.and_then(|g| g.keys().into_iter().next()) else {
+        return Ok(());
+    };
+    let key: String = key.extract()?;
+    let message = match renamed.iter().find(|(old, _)| *old == key) {
+        Some((_, new)) => {
+            format!("{function}(): {key}= was renamed {new}= (the unit is in the name)")
+        }
+        None => format!("{function}() got an unexpected keyword argument '{key}'"),
+    };
+    Err(pyo3::exceptions::PyTypeError::new_err(message))
+}

@@ -11,6 +11,7 @@ mod gil;
 mod inspect;
 mod path;
 mod register;
+mod results;
 mod workflow;
 
 use pyo3::prelude::*;
@@ -28,6 +29,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(path::read_path, m)?)?;
     m.add_function(wrap_pyfunction!(path::write_path, m)?)?;
     m.add_class::<register::IcpResult>()?;
+    m.add_class::<register::UmeyamaResult>()?;
+    m.add_class::<results::ContourQuality>()?;
     m.add_function(wrap_pyfunction!(register::icp, m)?)?;
     m.add_function(wrap_pyfunction!(register::umeyama, m)?)?;
     m.add_function(wrap_pyfunction!(workflow::synth_case, m)?)?;

@@ -165,8 +165,29 @@ pub fn icp(
     })
 }
 
-/// The closed-form similarity (Umeyama) that maps the rows of `a` onto the rows of `b`. Returns
-/// `(transform, scale, rmse)`: the 4×4 `b_from_a`, its scale, and the RMS residual (mm).
+/// The result of [`umeyama`].
+#[pyclass(module = "trimctl", frozen, get_all)]
+pub struct UmeyamaResult {
+    /// The 4×4 `b_from_a` similarity (the rows of `a` onto the rows of `b`, scale included).
+    pub b_from_a: Py<PyArray2<f64>>,
+    /// Its scale (1.0 for a rigid fit).
+    pub scale: f64,
+    /// The RMS residual over the pairs, mm.
+    pub rmse_mm: f64,
+}
+
+#[pymethods]
+impl UmeyamaResult {
+    fn __repr__(&self) -> String {
+        format!(
+            "UmeyamaResult(scale={:.9}, rmse_mm={:.6})",
+            self.scale, self.rmse_mm
+        )
+    }
+}
+
+/// The closed-form similarity (Umeyama) that maps the rows of `a` onto the rows of `b`: an
+/// [`UmeyamaResult`] with the 4×4 `b_from_a`, its scale and the RMS residual (mm).
 #[pyfunction]
 #[pyo3(signature = (a, b, *, scale = true))]
 pub fn umeyama<'py>(
@@ -174,7 +195,7 @@ pub fn umeyama<'py>(
     a: &Bound<'py, PyAny>,
     b: &Bound<'py, PyAny>,
     scale: bool,
-) -> PyResult<(Bound<'py, PyArray2<f64>>, f64, f64)> {
+) -> PyResult<UmeyamaResult> {
     let a = arrays::points("a", a)?;
     let b = arrays::points("b", b)?;
     if a.len() != b.len() {
@@ -186,9 +207,9 @@ pub fn umeyama<'py>(
     let fit =
         run_detached(py, move || trim_register::umeyama(&a, &b, scale))?.map_err(register_error)?;
     let m = to_matrix(&fit.target_from_source);
-    Ok((
-        matrix_to_numpy(py, &m),
-        fit.target_from_source.scaling(),
-        fit.rms_mm,
-    ))
+    Ok(UmeyamaResult {
+        b_from_a: matrix_to_numpy(py, &m).unbind(),
+        scale: fit.target_from_source.scaling(),
+        rmse_mm: fit.rms_mm,
+    })
 }

@@ -1,5 +1,5 @@
 //! The scripting workflow: the synthetic demo case, path registration, beam figures and the
-//! planner. Settings cross the boundary as JSON objects with the job.toml keys (so a Python
+//! planner. Settings come in as JSON objects with the job.toml keys (so a Python
 //! dict and a job.toml table mean the same), geometry as numpy arrays.
 
 use numpy::PyArray2;
@@ -18,6 +18,7 @@ use crate::errors::{PlanningError, geom_error, register_error, value_error};
 use crate::gil::run_detached;
 use crate::path::{PyPath, cloud_to_numpy};
 use crate::register::{matrix_to_numpy, similarity_from_numpy};
+use crate::results::{ContourQuality, to_py};
 
 /// Parses settings JSON into `T`, naming the offending key in a `ValueError`.
 fn settings_from_json<T: serde::de::DeserializeOwned>(what: &str, json: &str) -> PyResult<T> {
@@ -71,8 +72,17 @@ pub fn synth_case<'py>(py: Python<'py>, params_json: &str) -> PyResult<Bound<'py
     Ok(d)
 }
 
+/// What [`register_path`] returns: the registered path, the quality report (dicts), the coarse
+/// `scan_from_cad` (4×4) and each contour's typed quality.
+type Registered<'py> = (
+    PyPath,
+    Bound<'py, PyAny>,
+    Bound<'py, PyArray2<f64>>,
+    Vec<ContourQuality>,
+);
+
 /// Registers `path` (CAD frame) onto the scan. `cad` needs outward normals. Returns
-/// `(registered Path, quality report JSON, scan_from_cad 4×4)`.
+/// `(registered Path, quality report as a dict, scan_from_cad 4×4, [ContourQuality])`.
 #[pyfunction]
 #[pyo3(signature = (cad, cad_normals, scan, path, init, settings_json, scan_normals = None))]
 #[expect(
@@ -88,7 +98,7 @@ pub fn register_path<'py>(
     init: Option<&Bound<'py, PyAny>>,
     settings_json: &str,
     scan_normals: Option<&Bound<'py, PyAny>>,
-) -> PyResult<(PyPath, String, Bound<'py, PyArray2<f64>>)> {
+) -> PyResult<Registered<'py>> {
     let settings: RegisterSettings = settings_from_json("register settings", settings_json)?;
     settings.validate().map_err(register_error)?;
     let cad = PointCloud::with_normals(
@@ -111,14 +121,20 @@ pub fn register_path<'py>(
         register(&cad, &scan, &inner, &initial, &settings)
     })?
     .map_err(register_error)?;
-    let report =
-        serde_json::to_string(&registration.report).map_err(|e| value_error("report", e))?;
+    let report = to_py(py, "report", &registration.report)?;
+    let quality = registration
+        .report
+        .contours
+        .iter()
+        .map(|c| ContourQuality::of(py, c))
+        .collect::<PyResult<Vec<_>>>()?;
     Ok((
         PyPath {
             inner: registration.path,
         },
         report,
         matrix_to_numpy(py, &registration.scan_from_cad.to_homogeneous()),
+        quality,
     ))
 }
 
@@ -138,44 +154,50 @@ fn check_laser_limits(beam: &Beam, limits_json: Option<&str>) -> PyResult<()> {
         .map_err(|e| plan_error(e.into()))
 }
 
-/// The beam figures (the keys of `trimctl beam`) as JSON. `beam_json`: the `[beam]` keys;
+/// The beam figures (the keys of `trimctl beam`) as a dict. `beam_json`: the `[beam]` keys;
 /// `limits_json`: the source's limits (a laser profile's `[limits]` keys), which the operating
 /// point must be within.
 #[pyfunction]
 #[pyo3(signature = (beam_json, limits_json = None))]
-pub fn beam_report(beam_json: &str, limits_json: Option<&str>) -> PyResult<String> {
+pub fn beam_report<'py>(
+    py: Python<'py>,
+    beam_json: &str,
+    limits_json: Option<&str>,
+) -> PyResult<Bound<'py, PyAny>> {
     let beam: Beam = settings_from_json("beam", beam_json)?;
     beam.validate().map_err(|e| plan_error(e.into()))?;
     check_laser_limits(&beam, limits_json)?;
-    serde_json::to_string(&beam.report()).map_err(|e| value_error("beam", e))
+    to_py(py, "beam", &beam.report())
 }
 
 /// Plans a job from a registered path. `settings_json`: the planner's job.toml keys
 /// (`max_incidence_deg`, `beam`, `zoning`, `layers`, `field`, `machine`, `galvo`). Returns
-/// `(job JSON, zone table JSON, {"k": .., "automatic_k": ..})` as JSON strings. `limits_json`:
+/// `(job, zone table, {"k": .., "automatic_k": .., "pieces": ..})` as Python dicts and lists
+/// built here (the Job's serde form). `limits_json`:
 /// as for [`beam_report`], checked against the settings' beam before planning.
 #[pyfunction]
 #[pyo3(signature = (path, settings_json, limits_json = None))]
-pub fn plan_path(
-    py: Python<'_>,
+pub fn plan_path<'py>(
+    py: Python<'py>,
     path: PyPath,
     settings_json: &str,
     limits_json: Option<&str>,
-) -> PyResult<(String, String, String)> {
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
     let settings: PlanSettings = settings_from_json("plan settings", settings_json)?;
     settings.validate().map_err(|e| plan_error(e.into()))?;
     check_laser_limits(&settings.beam, limits_json)?;
     let out =
         run_detached(py, move || plan_with_report(&path.inner, &settings))?.map_err(plan_error)?;
-    let job = out.job.to_json().map_err(|e| value_error("job", e))?;
-    let table = serde_json::to_string(&out.table).map_err(|e| value_error("table", e))?;
     let meta = serde_json::json!({
         "k": out.k,
         "automatic_k": out.automatic_k,
         "pieces": out.pieces,
-    })
-    .to_string();
-    Ok((job, table, meta))
+    });
+    Ok((
+        to_py(py, "job", &out.job)?,
+        to_py(py, "table", &out.table)?,
+        to_py(py, "meta", &meta)?,
+    ))
 }
 
 /// Plans equal-spacing hatch tracks on a scanned surface (`trim_plan::hatch`). `points` (N, 3)

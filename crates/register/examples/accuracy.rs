@@ -15,8 +15,8 @@ use std::io::Write;
 use std::time::Instant;
 
 use trim_register::eval::path_errors;
-use trim_register::paper::{PaperSettings, paper_local_fits, paper_method};
 use trim_register::regional::{RegisterSettings, register};
+use trim_register::scaled_icp_baseline::{PaperSettings, paper_local_fits, paper_method};
 use trim_synth::generate;
 
 #[path = "../tests/common/cases.rs"]

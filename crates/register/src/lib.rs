@@ -17,17 +17,17 @@
 
 pub mod banded;
 pub mod datum;
+pub mod deformation;
 pub mod error;
 pub mod eval;
-pub mod field;
 pub mod icp;
 pub mod kdtree;
 pub mod kernel;
-pub mod paper;
 pub mod point_to_plane;
 pub mod reduce;
 pub mod regional;
 pub mod sampling;
+pub mod scaled_icp_baseline;
 pub mod umeyama;
 
 pub use error::{RegisterError, Result};

@@ -4,8 +4,8 @@
 use trim_geom::{Path, PointCloud, Similarity3, Vector3};
 use trim_register::RegisterError;
 use trim_register::eval::path_errors;
-use trim_register::paper::{PaperSettings, paper_method};
 use trim_register::regional::{Flag, RegisterSettings, register};
+use trim_register::scaled_icp_baseline::{PaperSettings, paper_method};
 use trim_synth::{SynthCase, SynthParams, generate};
 
 /// The targets, mm.

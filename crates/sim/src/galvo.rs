@@ -17,11 +17,11 @@ use tokio_util::codec::Framed;
 
 use crate::fault::{FaultKind, FaultSwitch};
 use crate::safety::{CellEvent, SafetyMonitor};
+use trim_io::galvo::list_clock::ListClock;
 use trim_io::galvo::protocol::{
     ControllerState, Frame, FrameBlock, FrameCodec, FrameError, ListCommand, NO_LIST,
     REPLY_CACHE_LEN, Request, StatusBlock, StatusCode, decode_frame, reply_frame, type_name,
 };
-use trim_io::galvo::timing::ListClock;
 
 /// How often the watchdog looks at the link (ms).
 const WATCHDOG_TICK_MS: u64 = 5;

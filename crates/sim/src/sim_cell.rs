@@ -3,7 +3,7 @@
 
 use std::net::SocketAddr;
 
-use trim_io::cell::CellAddresses;
+use trim_io::cell_devices::CellAddresses;
 use trim_io::laser::Profile;
 
 use crate::cnc::{CncSim, CncSimConfig};

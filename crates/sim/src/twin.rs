@@ -55,14 +55,15 @@ impl TrueCell {
     /// The true cell of `truth` on the machine and galvo of `plan`.
     #[must_use]
     pub fn new(truth: &TruthSettings, plan: &PlanSettings) -> TrueCell {
-        let cal = truth.as_calibration();
+        let cal = &truth.calibration;
         TrueCell {
             machine: plan.machine,
             table: cal.table(&plan.machine),
             scanner: cal.scanner(),
             head: truth.head,
             telecentric: plan.field.telecentric,
-            pivot_to_focal_plane_mm: truth
+            pivot_to_focal_plane_mm: cal
+                .lens
                 .pivot_to_focal_plane_mm
                 .unwrap_or(plan.beam.focal_length_mm),
             bits_per_mm: plan.galvo.bits_per_mm,

@@ -17,8 +17,8 @@ use trim_cell::kinematics::{KinematicsKind, MachineSettings};
 use trim_cell::truth::TruthSettings;
 use trim_io::executor::Executor;
 use trim_io::tap::Tap;
-use trim_plan::field::LensSettings;
 use trim_plan::planner::{PlanSettings, plan};
+use trim_plan::scan_field::LensSettings;
 use trim_sim::SimCell;
 use trim_sim::twin::{SpotStats, TrueCell, TruePart, Twin};
 
@@ -30,17 +30,15 @@ fn truth(kind: KinematicsKind) -> TruthSettings {
         KinematicsKind::XyzbcTrt => ([-20.12, 0.0, 10.07], [0.0004, 1.0, -0.0003]),
         _ => ([0.0, 20.09, 10.11], [1.0, 0.0005, 0.0004]),
     };
-    let mut t = TruthSettings {
-        c_axis_point_mm: Some([0.13, -0.08, 0.0]),
-        c_axis_direction: Some([0.0006, -0.0004, 1.0]),
-        ..TruthSettings::default()
-    };
+    let mut t = TruthSettings::default();
+    t.calibration.c_axis_point_mm = Some([0.13, -0.08, 0.0]);
+    t.calibration.c_axis_direction = Some([0.0006, -0.0004, 1.0]);
     if kind == KinematicsKind::XyzbcTrt {
-        t.b_axis_point_mm = Some(tilt_point);
-        t.b_axis_direction = Some(tilt_dir);
+        t.calibration.b_axis_point_mm = Some(tilt_point);
+        t.calibration.b_axis_direction = Some(tilt_dir);
     } else {
-        t.a_axis_point_mm = Some(tilt_point);
-        t.a_axis_direction = Some(tilt_dir);
+        t.calibration.a_axis_point_mm = Some(tilt_point);
+        t.calibration.a_axis_direction = Some(tilt_dir);
     }
     t
 }
@@ -96,7 +94,7 @@ async fn a_planner_that_knows_the_true_axes_lands_on_the_line_for_both_kinematic
             ..PlanSettings::default()
         };
         let calibrated = PlanSettings {
-            calibration: truth.as_calibration(),
+            calibration: truth.calibration.clone(),
             ..nominal.clone()
         };
         let known = spots(&calibrated, &truth).await;
@@ -120,16 +118,16 @@ async fn a_planner_that_knows_the_true_axes_lands_on_the_line_for_both_kinematic
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_planner_that_knows_the_head_field_and_pivot_lands_on_the_line() {
     use trim_cell::lens::{FieldCorrection, LensDistortion};
-    let truth = TruthSettings {
+    let mut truth = TruthSettings {
         head: LensDistortion {
             offset_mm: [0.0, 0.0],
             rotation_deg: 0.12,
             barrel_per_mm2: 4.0e-7,
             trapezoid_per_mm: [1.0e-5, -8.0e-6],
         },
-        pivot_to_focal_plane_mm: Some(240.0),
         ..truth(KinematicsKind::XyzacTrt)
     };
+    truth.calibration.lens.pivot_to_focal_plane_mm = Some(240.0);
     let dir = tempfile::tempdir().unwrap();
     let field_file = dir.path().join("field.json");
     let head = truth.head;
@@ -137,12 +135,13 @@ async fn a_planner_that_knows_the_head_field_and_pivot_lands_on_the_line() {
         .write(&field_file)
         .unwrap();
     let nominal = PlanSettings {
-        calibration: truth.as_calibration(),
+        calibration: truth.calibration.clone(),
         ..PlanSettings::default()
     };
     let mut calibrated = nominal.clone();
     calibrated.calibration.field_correction = Some(field_file);
-    calibrated.calibration.lens.pivot_to_focal_plane_mm = truth.pivot_to_focal_plane_mm;
+    calibrated.calibration.lens.pivot_to_focal_plane_mm =
+        truth.calibration.lens.pivot_to_focal_plane_mm;
     let known = spots(&calibrated, &truth).await;
     let assumed = spots(&nominal, &truth).await;
     eprintln!(
@@ -230,7 +229,7 @@ async fn a_calibrated_cell_cuts_every_burr_off_without_gouging_and_a_nominal_one
         ..PlanSettings::default()
     };
     let calibrated = PlanSettings {
-        calibration: truth.as_calibration(),
+        calibration: truth.calibration.clone(),
         ..nominal.clone()
     };
     let (residual, gouge) = trim_outcome(&calibrated, &truth).await;

@@ -123,7 +123,7 @@ pub(super) fn load_inputs(
                 case.scan.len()
             ),
             cad: case.cad_points,
-            scan: config.scan_to_workpiece(&scan_in_scanner)?,
+            scan: config.workpiece_from_scan(&scan_in_scanner)?,
             path: case.path,
             scan_from_cad_initial: case.scan_from_cad_nominal,
             demo,
@@ -136,7 +136,7 @@ pub(super) fn load_inputs(
     };
     let cad = load_cad(cad_file, "part.cad", config.register.cad_sample_points)?;
     let scan = config
-        .scan_to_workpiece(&formats::read_points(scan_file)?)
+        .workpiece_from_scan(&formats::read_points(scan_file)?)
         .with_context(|| format!("part.scan {}", scan_file.display()))?;
     let path = formats::read_path(path_file)?;
     if !config.hatch.is_empty() {

@@ -27,13 +27,13 @@ use crate::exit::{Exit, Failure};
 use crate::progress::stage;
 use crate::summary;
 
-use cell::{TwinLink, execute, twin_link};
-pub(crate) use cell::{connect, start_simulators};
+use execute::{TwinLink, execute, twin_link};
+pub(crate) use execute::{connect, start_simulators};
 use inputs::load_inputs;
 pub(crate) use report::SpotReport;
 use report::{append_resume_report, shutdown_of, shutdown_sentence, write_report};
 
-mod cell;
+mod execute;
 mod inputs;
 mod record;
 mod report;

@@ -20,7 +20,7 @@ use trim_plan::planner::plan_with_report;
 use trim_register::regional::Registration;
 use trim_sim::twin_part::TwinPart;
 
-use super::cell::{TwinLink, execute, twin_link};
+use super::execute::{TwinLink, execute, twin_link};
 use super::inputs::Inputs;
 use super::{Args, exec_failure, files, write_plan};
 use crate::config::JobConfig;
@@ -152,7 +152,7 @@ fn rescan(config: &JobConfig, part: &TwinPart, seed: u64) -> anyhow::Result<Poin
         .rescan(seed)?
         .transformed(&scanner_from_workpiece)
         .context("sim.truth at part.scan_pose")?;
-    config.scan_to_workpiece(&in_scanner)
+    config.workpiece_from_scan(&in_scanner)
 }
 
 /// Plans the failing contours (each polyline with the passes its measured excess height

@@ -13,7 +13,7 @@ use trim_cell::job::{Job, LayerKey};
 
 use super::shutdown::{At, LayerStep};
 use super::{Executor, Phase, StopCause};
-use crate::cell::Cell;
+use crate::cell_devices::Cell;
 
 /// What the operator chose for a zone.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]

@@ -13,8 +13,8 @@ use super::{
     Executor, LayerTiming, Phase, Progress, RunPlan, RunSummary, STATUS_POLL_MS, StopCause,
 };
 use crate::galvo::list::layer_list;
+use crate::galvo::list_clock::ListClock;
 use crate::galvo::protocol::{ControllerState, ListCommand, StatusBlock};
-use crate::galvo::timing::ListClock;
 use crate::journal::{Entry, Journal, JournalError};
 use crate::tap::Device;
 

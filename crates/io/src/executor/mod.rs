@@ -36,7 +36,7 @@ use tokio_util::sync::CancellationToken;
 use trim_cell::galvo_timing::ListComposition;
 use trim_cell::job::{Job, LayerKey};
 
-use crate::cell::{Cell, Timeouts};
+use crate::cell_devices::{Cell, Timeouts};
 use crate::galvo::list::{layer_list, vector_count};
 use crate::galvo::protocol::StatusBlock;
 use crate::journal::{CutLayer, Journal, JournalError, JournalSink, JournalState};

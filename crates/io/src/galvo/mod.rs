@@ -4,8 +4,8 @@
 
 pub mod client;
 pub mod list;
+pub mod list_clock;
 pub mod outline;
 pub mod protocol;
-pub mod timing;
 
 pub use client::{GalvoClient, GalvoClientConfig, GalvoError, GalvoFault, GalvoResult};

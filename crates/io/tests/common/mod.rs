@@ -8,7 +8,7 @@ use trim_cell::job::{
     Frame, GalvoSettings, Job, JobSettings, Layer, Polyline, Pose, TimeEstimate, ValidationReport,
     Zone,
 };
-use trim_io::cell::{Cell, Timeouts};
+use trim_io::cell_devices::{Cell, Timeouts};
 use trim_io::galvo::list::vectors_bits;
 use trim_io::laser::Profile;
 use trim_io::tap::Tap;

@@ -1,5 +1,5 @@
 import os
-from typing import List, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -22,7 +22,7 @@ def estimate_normals(
     reference: Optional[Sequence[float]] = None,
 ) -> Array: ...
 def voxel_downsample(
-    points: Array, *, voxel: float, normals: Optional[Array] = None
+    points: Array, *, voxel_mm: float, normals: Optional[Array] = None
 ) -> Tuple[Array, Optional[Array]]: ...
 
 class IcpResult:
@@ -48,7 +48,12 @@ def icp(
     kernel: Optional[Tuple[str, float]] = None,
     trim: float = 0.0,
 ) -> IcpResult: ...
-def umeyama(a: Array, b: Array, *, scale: bool = True) -> Tuple[Array, float, float]: ...
+class UmeyamaResult:
+    b_from_a: Array
+    scale: float
+    rmse_mm: float
+
+def umeyama(a: Array, b: Array, *, scale: bool = True) -> UmeyamaResult: ...
 
 class ContourInspection:
     id: int
@@ -106,6 +111,24 @@ def write_points(path: PathLike, points: Array, *, normals: Optional[Array] = No
 def read_path(path: PathLike) -> Path: ...
 def write_path(path: PathLike, trim_path: Path) -> None: ...
 
+class ContourQuality:
+    id: int
+    points: int
+    scan_points: int
+    coverage: float
+    residual_rms_mm: Optional[float]
+    degeneracy_ratio: float
+    weakest_direction: Array
+    support_ratio: float
+    max_field_displacement_mm: float
+    field_sigma_mm: float
+    field_weak_direction: Array
+    support_distance_mm: float
+    end_support_mm: float
+    predicted_max_error_um: float
+    flags: Tuple[str, ...]
+    trustworthy: bool
+
 def synth_case(params_json: str) -> dict: ...
 def register_path(
     cad: Array,
@@ -115,11 +138,11 @@ def register_path(
     init: Optional[Array],
     settings_json: str,
     scan_normals: Optional[Array] = None,
-) -> Tuple[Path, str, Array]: ...
-def beam_report(beam_json: str, limits_json: Optional[str] = None) -> str: ...
+) -> Tuple[Path, Dict[str, Any], Array, List[ContourQuality]]: ...
+def beam_report(beam_json: str, limits_json: Optional[str] = None) -> Dict[str, float]: ...
 def plan_path(
     path: Path, settings_json: str, limits_json: Optional[str] = None
-) -> Tuple[str, str, str]: ...
+) -> Tuple[Dict[str, Any], List[Dict[str, Any]], Dict[str, Any]]: ...
 def hatch_surface(
     points: Array,
     boundary: Array,

@@ -14,7 +14,7 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from . import _native
-from ._native import Path
+from ._native import ContourQuality, Path
 
 __all__ = [
     "Beam",
@@ -28,6 +28,17 @@ __all__ = [
     "register_path",
     "synth",
 ]
+
+
+def _refuse_renamed(function: str, given: Mapping[str, Any], renamed: Mapping[str, str]) -> None:
+    """Raises ``TypeError`` for a keyword ``function`` does not take, naming the new name of one
+    that was renamed (options carry their unit: ``layer_step`` is now ``layer_step_mm``)."""
+    for old in given:
+        if old in renamed:
+            raise TypeError(
+                f"{function}(): {old}= was renamed {renamed[old]}= (the unit is in the name)"
+            )
+        raise TypeError(f"{function}() got an unexpected keyword argument {old!r}")
 
 
 def _kw(settings: Optional[Mapping[str, Any]], **given: Any) -> Dict[str, Any]:
@@ -63,8 +74,8 @@ class Beam:
         self.laser_limits: Optional[Dict[str, float]] = (
             None if laser_limits is None else dict(laser_limits)
         )
-        self._report: Dict[str, float] = json.loads(
-            _native.beam_report(json.dumps(settings), _limits_json(self.laser_limits))
+        self._report: Dict[str, float] = _native.beam_report(
+            json.dumps(settings), _limits_json(self.laser_limits)
         )
         for key, value in self._report.items():
             setattr(self, key, value)
@@ -173,11 +184,18 @@ class Plan:
     def estimate(self) -> Dict[str, Any]:
         return dict(self.job["estimate"])
 
-    def galvo_to_workpiece(self, zone: Zone, layer: Layer, xy: np.ndarray) -> np.ndarray:
+    def workpiece_from_galvo(self, zone: Zone, layer: Layer, xy: np.ndarray) -> np.ndarray:
         """Maps (n, 2) galvo points of a layer back to the work-piece frame (on the focal
         plane): ``P = focus_point + x·X + y·Y``."""
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         return layer.focus_point + xy[:, :1] * zone.frame[0] + xy[:, 1:2] * zone.frame[1]
+
+    def galvo_to_workpiece(self, *args: Any, **kwargs: Any) -> np.ndarray:
+        """Renamed :meth:`workpiece_from_galvo` (transforms read ``a_from_b``)."""
+        raise AttributeError(
+            "Plan.galvo_to_workpiece was renamed Plan.workpiece_from_galvo (a_from_b, as the "
+            "rest of trimctl names transforms)"
+        )
 
     def to_json(self) -> str:
         return json.dumps(self.job, indent=2)
@@ -200,87 +218,42 @@ def plan(
     beam: Optional[Beam] = None,
     laser_limits: Optional[Mapping[str, float]] = None,
     max_incidence_deg: Optional[float] = None,
-    layer_step: Optional[float] = None,
-    field: Optional[Sequence[float]] = None,
+    layer_step_mm: Optional[float] = None,
+    field_mm: Optional[Sequence[float]] = None,
     kinematics: Optional[str] = None,
     k: Optional[int] = None,
     settings: Optional[Mapping[str, Any]] = None,
+    **renamed: Any,
 ) -> Plan:
     """Plans zones, layers, galvo polylines and machine poses for a (registered) path.
 
     ``settings`` takes any planner key of job.toml (``max_incidence_deg`` and the ``zoning``,
     ``layers``, ``field``, ``machine``, ``galvo`` tables). A keyword option that is given
-    overrides its key (``max_incidence_deg``; ``beam`` → ``beam``; ``layer_step`` →
-    ``layers.step_mm``; ``field`` → ``galvo.field_mm``; ``kinematics`` →
+    overrides its key (``max_incidence_deg``; ``beam`` → ``beam``; ``layer_step_mm`` →
+    ``layers.step_mm``; ``field_mm`` → ``galvo.field_mm``; ``kinematics`` →
     ``machine.kinematics``; ``k`` → ``zoning.k``); one that is not given leaves the key to
     ``settings``, else to the job.toml default (5°, 100 × 100 mm, ``xyzac-trt``).
     ``settings`` itself is not changed. ``laser_limits`` (as for :class:`Beam`; default: those
     ``beam`` was made with): the beam's operating point must be within them, else
-    ``ValueError`` before anything is planned.
+    ``ValueError`` before anything is planned. The old option names without a unit
+    (``layer_step``, ``field``) raise ``TypeError`` naming the new one.
     """
+    _refuse_renamed("plan", renamed, {"layer_step": "layer_step_mm", "field": "field_mm"})
     s = _kw(settings, max_incidence_deg=max_incidence_deg)
     if beam is not None:
         s["beam"] = dict(beam.settings)
-    if layer_step is not None:
-        s.setdefault("layers", {})["step_mm"] = layer_step
+    if layer_step_mm is not None:
+        s.setdefault("layers", {})["step_mm"] = layer_step_mm
     if k is not None:
         s.setdefault("zoning", {})["k"] = k
-    if field is not None:
-        s.setdefault("galvo", {})["field_mm"] = [float(field[0]), float(field[1])]
+    if field_mm is not None:
+        s.setdefault("galvo", {})["field_mm"] = [float(field_mm[0]), float(field_mm[1])]
     if kinematics is not None:
         s.setdefault("machine", {})["kinematics"] = kinematics
     if laser_limits is None and beam is not None:
         laser_limits = beam.laser_limits
     job, table, meta = _native.plan_path(path, json.dumps(s), _limits_json(laser_limits))
-    m = json.loads(meta)
-    return Plan(job=json.loads(job), table=json.loads(table), k=m["k"], automatic_k=m["automatic_k"])
-
-
-@dataclass(frozen=True)
-class ContourQuality:
-    """One registered contour's quality (``registration.json``'s ``contours`` entry, typed).
-
-    ``predicted_max_error_um`` is the registration's own bound on the contour's largest
-    cross-edge error, from the field's posterior deviation across the contour
-    (``field_sigma_mm`` along ``field_weak_direction``), its residual, its coverage and its
-    distance to supporting scan data; over ``quality.tolerance_um`` (default 30) it flags the
-    contour ``predicted_error``. ``residual_rms_mm`` is ``None`` when no scan point is near.
-    ``end_support_mm``: for a strip, how far its ends lie from scan surface facing along it.
-    """
-
-    id: int
-    points: int
-    scan_points: int
-    coverage: float
-    residual_rms_mm: Optional[float]
-    predicted_max_error_um: float
-    field_sigma_mm: float
-    field_weak_direction: np.ndarray
-    support_distance_mm: float
-    end_support_mm: float
-    max_field_displacement_mm: float
-    degeneracy_ratio: float
-    flags: Tuple[str, ...]
-    trustworthy: bool
-
-    @classmethod
-    def from_report(cls, c: Mapping[str, Any]) -> "ContourQuality":
-        return cls(
-            id=int(c["id"]),
-            points=int(c["points"]),
-            scan_points=int(c["scan_points"]),
-            coverage=float(c["coverage"]),
-            residual_rms_mm=None if c["residual_rms_mm"] is None else float(c["residual_rms_mm"]),
-            predicted_max_error_um=float(c["predicted_max_error_um"]),
-            field_sigma_mm=float(c["field_sigma_mm"]),
-            field_weak_direction=np.asarray(c["field_weak_direction"], dtype=np.float64),
-            support_distance_mm=float(c["support_distance_mm"]),
-            end_support_mm=float(c.get("end_support_mm", 0.0)),
-            max_field_displacement_mm=float(c["max_field_displacement_mm"]),
-            degeneracy_ratio=float(c["degeneracy_ratio"]),
-            flags=tuple(str(f) for f in c["flags"]),
-            trustworthy=bool(c["trustworthy"]),
-        )
+    return Plan(job=job, table=table, k=meta["k"], automatic_k=meta["automatic_k"])
 
 
 @dataclass(frozen=True)
@@ -290,16 +263,13 @@ class Registration:
     path: Path
     report: Dict[str, Any]
     scan_from_cad: np.ndarray
+    quality: List[ContourQuality] = field(default_factory=list)
+    """Per-contour quality, typed (built in Rust), in path order."""
 
     @property
     def contours(self) -> List[Dict[str, Any]]:
         """Per-contour quality as the report's dicts (see :attr:`quality` for typed ones)."""
         return list(self.report["contours"])
-
-    @property
-    def quality(self) -> List[ContourQuality]:
-        """Per-contour quality, typed, in path order."""
-        return [ContourQuality.from_report(c) for c in self.report["contours"]]
 
     @property
     def predicted_max_error_um(self) -> Dict[int, float]:
@@ -335,10 +305,12 @@ def register_path(
     (default ``"regional"``). ``settings`` itself is not changed.
     """
     s = _kw(settings, mode=mode)
-    registered, report, scan_from_cad = _native.register_path(
+    registered, report, scan_from_cad, quality = _native.register_path(
         cad, cad_normals, scan, path, init, json.dumps(s), scan_normals
     )
-    return Registration(path=registered, report=json.loads(report), scan_from_cad=scan_from_cad)
+    return Registration(
+        path=registered, report=report, scan_from_cad=scan_from_cad, quality=quality
+    )
 
 
 @dataclass(frozen=True)
@@ -381,47 +353,62 @@ def hatch(
     points: np.ndarray,
     boundary: np.ndarray,
     *,
-    pitch: Optional[float] = None,
-    spot_diameter: Optional[float] = None,
+    pitch_mm: Optional[float] = None,
+    spot_diameter_mm: Optional[float] = None,
     overlap: Optional[float] = None,
     normals: Optional[np.ndarray] = None,
     angle_deg: Optional[float] = None,
     method: Optional[str] = None,
-    step: Optional[float] = None,
-    chord_tolerance: Optional[float] = None,
+    step_mm: Optional[float] = None,
+    chord_tolerance_mm: Optional[float] = None,
     outline: Optional[bool] = None,
     settings: Optional[Mapping[str, Any]] = None,
+    **renamed: Any,
 ) -> Path:
     """Equal-spacing hatch tracks on a scanned surface (``trimctl hatch``; the cladding paper's
     method done better).
 
     ``points`` (N, 3) is the surface scan in mm, ``normals`` (N, 3) its normals if known (else
     they come from the surface fit); ``boundary`` (M, 3) a closed polyline lying on the surface
-    (a polygon: the last row may repeat the first, else the closing edge is implied). The track pitch is ``pitch`` mm, or
-    ``spot_diameter × (1 − overlap)``. ``angle_deg`` turns the hatch direction in the patch's
+    (a polygon: the last row may repeat the first, else the closing edge is implied). The track
+    pitch is ``pitch_mm``, or ``spot_diameter_mm × (1 − overlap)``. ``angle_deg`` turns the hatch direction in the patch's
     best-fit plane from world X; ``method`` is ``"geodesic"`` (default) or ``"slab"`` (the
-    paper's); points along a track are ``step`` mm apart (default: the pitch), or placed by
-    ``chord_tolerance`` mm for vector marking; ``outline=False`` leaves out the track along the
+    paper's); points along a track are ``step_mm`` apart (default: the pitch), or placed by
+    ``chord_tolerance_mm`` for vector marking; ``outline=False`` leaves out the track along the
     boundary. ``settings`` takes the same keys as job.toml's ``[[hatch]]`` (``pitch_mm``,
     ``angle_deg``, ``method``, ``step_mm``, ``chord_tolerance_mm``, ``outline``, ``grid_mm``); a
     keyword that is given overrides its key.
 
     Returns a :class:`Path`: one contour per track, in serpentine order (the outline last), each
     point's feature vector the unit surface normal. Raises ``ValueError`` for bad input (naming
-    it) and ``PlanningError`` when the region cannot be hatched.
+    it) and ``PlanningError`` when the region cannot be hatched. The old option names without a
+    unit (``pitch``, ``spot_diameter``, ``step``, ``chord_tolerance``) raise ``TypeError`` naming
+    the new one.
     """
-    if pitch is not None and (spot_diameter is not None or overlap is not None):
-        raise ValueError("pitch: give either pitch or spot_diameter and overlap, not both")
-    if (spot_diameter is None) != (overlap is None):
-        raise ValueError("spot_diameter, overlap: give both (pitch = spot_diameter × (1 − overlap))")
-    spot = None if spot_diameter is None else (float(spot_diameter), float(overlap))
+    _refuse_renamed(
+        "hatch",
+        renamed,
+        {
+            "pitch": "pitch_mm",
+            "spot_diameter": "spot_diameter_mm",
+            "step": "step_mm",
+            "chord_tolerance": "chord_tolerance_mm",
+        },
+    )
+    if pitch_mm is not None and (spot_diameter_mm is not None or overlap is not None):
+        raise ValueError("pitch_mm: give either pitch_mm or spot_diameter_mm and overlap, not both")
+    if (spot_diameter_mm is None) != (overlap is None):
+        raise ValueError(
+            "spot_diameter_mm, overlap: give both (pitch = spot_diameter_mm × (1 − overlap))"
+        )
+    spot = None if spot_diameter_mm is None else (float(spot_diameter_mm), float(overlap))
     s = _kw(
         settings,
-        pitch_mm=pitch,
+        pitch_mm=pitch_mm,
         angle_deg=angle_deg,
         method=method,
-        step_mm=step,
-        chord_tolerance_mm=chord_tolerance,
+        step_mm=step_mm,
+        chord_tolerance_mm=chord_tolerance_mm,
         outline=outline,
     )
     pts = np.ascontiguousarray(points, dtype=np.float64)

@@ -4,7 +4,16 @@
 //! the *refinement* then runs scan → CAD point-to-plane ICP with scale down the rest of the voxel
 //! pyramid.
 
-use super::*;
+use super::settings::{CoarseInit, CoarseSettings};
+use crate::error::{RegisterError, Result};
+use crate::icp::{IcpMethod, IcpResult, IcpSettings, IcpTarget, PyramidLevel, icp};
+use crate::kdtree;
+use crate::kdtree::Scratch;
+use crate::kernel::RobustKernel;
+use crate::sampling::{VoxelPyramid, dense_voxel_centroids};
+use nalgebra::{Matrix3, SymmetricEigen};
+use rayon::prelude::*;
+use trim_geom::{Point3, PointCloud, Similarity3, Vector3};
 
 /// The coarse stage refuses a scale change beyond `exp(±0.1)` (±10 %) from the fixture's: no
 /// part is that far off, and a scan → CAD fit that gets there is shrinking onto the surface.

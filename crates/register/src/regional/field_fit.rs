@@ -1,7 +1,17 @@
 //! The deformation field: scan → CAD matches (curvature-aware, same face), the Gauss-Newton fit
 //! of the B-spline field, and moving contours through it.
 
-use super::*;
+use super::settings::DeformationSettings;
+use crate::banded::solve_banded_spd;
+use crate::deformation::{BSplineField, SUPPORT};
+use crate::error::{RegisterError, Result};
+use crate::icp::IcpTarget;
+use crate::kdtree;
+use crate::kdtree::Scratch;
+use crate::kernel::RobustKernel;
+use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen};
+use rayon::prelude::*;
+use trim_geom::{Contour, Point3, PointCloud, Similarity3, Vector3};
 
 /// Levenberg-Marquardt damping of the field's Gauss-Newton step, relative to the mean data
 /// weight per unknown.

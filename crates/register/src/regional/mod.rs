@@ -8,7 +8,7 @@
 //!    scan is the source: every scan point has its counterpart on the (whole, unclipped) CAD, so
 //!    no clip border pulls the fit inward and no unseen face attracts it.
 //! 3. **Deformation field.** A quadratic B-spline displacement field `F(x) = x + d(x)` over the
-//!    part ([`crate::field`]), fitted by Gauss-Newton to scan → CAD point-to-plane residuals
+//!    part ([`crate::deformation`]), fitted by Gauss-Newton to scan → CAD point-to-plane residuals
 //!    `r = n'·(F(c) − q)` (CAD normals carried by `F`; scan points matched within a sample
 //!    spacing of a sharp edge left out, their face being a biased guess), with a Huber kernel,
 //!    a maximum distance shrinking from the coarse residual to a few noise levels, and a
@@ -22,32 +22,43 @@
 //!    or residual fails, is flagged untrustworthy.
 //!
 //! The stages live in the submodules `settings`, `coarse`, `field_fit` and `quality`; their
-//! items are re-exported here.
+//! public items are re-exported here by name.
 
 mod coarse;
 mod field_fit;
 mod quality;
 mod settings;
 
-pub use coarse::*;
-pub use field_fit::*;
-pub use quality::*;
-pub use settings::*;
-
-use crate::banded::solve_banded_spd;
-use crate::error::{RegisterError, Result};
-use crate::field::{BSplineField, SUPPORT};
-use crate::icp::{IcpMethod, IcpResult, IcpSettings, IcpTarget, PyramidLevel, icp};
-use crate::kdtree::{self, Scratch};
-use crate::kernel::RobustKernel;
-use crate::sampling::{
-    View, VoxelPyramid, dense_voxel_centroids, facing_indices, spatial_order, voxel_pick,
+use coarse::overlap_fraction;
+pub use coarse::{
+    CAPTURE_ACCEPT_SCORE, CAPTURE_INLIER_MM, CAPTURE_MARGIN_DEG, CAPTURE_MARGIN_MM,
+    CAPTURE_MIN_SCORE, CAPTURE_STEP_DEG, Capture, MAX_COARSE_LOG_SCALE_CHANGE,
+    MIN_AXIS_VARIANCE_RATIO, PoseOffset, capture, coarse_fit, refine, scan_pyramid,
 };
-use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen};
+pub use field_fit::{
+    CURVATURE_NEIGHBOURS, EARLY_STRIDE, FIELD_DAMPING, FieldPosterior, LocalShape,
+    MATCH_CANDIDATES, MIN_SAME_FACE_COS, POSTERIOR_PRIOR_SCALE, PRIOR_REACH, local_shapes,
+};
+use field_fit::{final_matches, fit_field, move_contour};
+pub use quality::{
+    BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_RESIDUAL_FACTOR,
+    BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS, ContourQuality,
+    END_SUPPORT_MIN_COS, Flag, GlobalQuality, QualityReport, SUPPORT_MIN_COS, predicted_bound_mm,
+};
+use quality::{contour_quality, refuse_part};
+pub use settings::{
+    CoarseInit, CoarseSettings, DeformationSettings, MAX_CAD_SAMPLE_POINTS, Mode, QualitySettings,
+    RegisterSettings, Visibility, gate,
+};
+
+use crate::deformation::BSplineField;
+use crate::error::{RegisterError, Result};
+use crate::icp::{IcpResult, IcpTarget};
+use crate::kdtree::{self};
+use crate::sampling::{View, VoxelPyramid, facing_indices, spatial_order, voxel_pick};
 use rayon::prelude::*;
 use std::time::Instant;
-use trim_geom::crop::crop_near_polyline;
-use trim_geom::{Contour, ContourId, KdTree, Path, Point3, PointCloud, Similarity3, Vector3};
+use trim_geom::{Path, Point3, PointCloud, Similarity3, Vector3};
 
 /// The registration's result.
 #[derive(Debug, Clone)]

@@ -1,7 +1,14 @@
 //! Per-contour quality: coverage, residual, the predicted error bound (and, informational, the
 //! translational degeneracy and support), and the flags that make a contour untrustworthy.
 
-use super::*;
+use super::coarse::PoseOffset;
+use super::field_fit::{FieldPosterior, Match};
+use super::settings::QualitySettings;
+use crate::deformation::BSplineField;
+use nalgebra::{Matrix3, SymmetricEigen};
+use rayon::prelude::*;
+use trim_geom::crop::crop_near_polyline;
+use trim_geom::{ContourId, KdTree, Path, Point3, Similarity3, Vector3};
 
 /// Why a contour is flagged.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]

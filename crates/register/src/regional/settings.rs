@@ -1,6 +1,7 @@
 //! The registration's settings (job.toml `[register]`) and their checks.
-
-use super::*;
+use crate::error::{RegisterError, Result};
+use crate::icp::PyramidLevel;
+use trim_geom::Vector3;
 
 /// What the registration does.
 #[derive(

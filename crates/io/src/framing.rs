@@ -16,12 +16,12 @@ use std::time::{Duration, Instant};
 use tokio_util::sync::CancellationToken;
 use trim_cell::job::{Job, Layer, LayerKey};
 
-use crate::cell::{Cell, Timeouts};
+use crate::cell_devices::{Cell, Timeouts};
 use crate::executor::{Executor, Preparation, StopCause, prepare_cell};
 use crate::galvo::GalvoClient;
+use crate::galvo::list_clock::ListClock;
 use crate::galvo::outline::{Outline, OutlineKind, frame_list, frame_tag, layer_outline};
 use crate::galvo::protocol::StatusBlock;
-use crate::galvo::timing::ListClock;
 use crate::tap::Device;
 
 /// How often the galvo is polled while a frame is traced (ms).

@@ -8,7 +8,7 @@ use tokio_util::sync::CancellationToken;
 use trim_cell::Job;
 use trim_geom::Path as TrimPath;
 use trim_geom::formats;
-use trim_io::cell::{Cell, CellAddresses, Timeouts};
+use trim_io::cell_devices::{Cell, CellAddresses, Timeouts};
 use trim_io::executor::{ExecOptions, Executor, Progress};
 use trim_io::galvo::list::vector_count;
 use trim_io::journal::CutLayer;

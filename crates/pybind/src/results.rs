@@ -1,0 +1,137 @@
+//! Results built in Rust for Python: serde values as Python objects (dicts, lists, floats,
+//! ints, strings, `None`; what `pythonize` does, through `serde_json::Value`), and the typed
+//! per-contour registration quality. Nothing crosses as JSON text to be parsed again.
+
+use numpy::PyArray1;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+use serde::Serialize;
+use serde_json::Value;
+
+use crate::errors::value_error;
+
+/// `value` as Python objects: its serde form with JSON's types (a map a dict, a sequence a
+/// list, a number an int or float, a unit `None`).
+pub fn to_py<'py, T: Serialize>(
+    py: Python<'py>,
+    what: &str,
+    value: &T,
+) -> PyResult<Bound<'py, PyAny>> {
+    let v = serde_json::to_value(value).map_err(|e| value_error(what, e))?;
+    value_to_py(py, &v)
+}
+
+fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
+    Ok(match v {
+        Value::Null => py.None().into_bound(py),
+        Value::Bool(b) => b.into_pyobject(py)?.to_owned().into_any(),
+        Value::Number(n) => match (n.as_i64(), n.as_u64()) {
+            (Some(i), _) => i.into_pyobject(py)?.into_any(),
+            (None, Some(u)) => u.into_pyobject(py)?.into_any(),
+            _ => n.as_f64().unwrap_or(f64::NAN).into_pyobject(py)?.into_any(),
+        },
+        Value::String(s) => s.into_pyobject(py)?.into_any(),
+        Value::Array(items) => {
+            let list = PyList::empty(py);
+            for item in items {
+                list.append(value_to_py(py, item)?)?;
+            }
+            list.into_any()
+        }
+        Value::Object(map) => {
+            let dict = PyDict::new(py);
+            for (k, item) in map {
+                dict.set_item(k, value_to_py(py, item)?)?;
+            }
+            dict.into_any()
+        }
+    })
+}
+
+/// One registered contour's quality (`registration.json`'s `contours` entry), typed.
+///
+/// `predicted_max_error_um` is the registration's own bound on the contour's largest
+/// cross-edge error, from the field's posterior deviation across the contour (`field_sigma_mm`
+/// along `field_weak_direction`), its residual, its coverage and its distance to supporting scan
+/// data; over `quality.tolerance_um` (default 30) it flags the contour `predicted_error`.
+/// `residual_rms_mm` is `None` when no scan point is near. `degeneracy_ratio` and
+/// `weakest_direction`: how well the patch's normals fix it, and along which direction least;
+/// `support_ratio` the same ratio along that direction over the support radius.
+/// `end_support_mm`: for a strip, how far its ends lie from scan surface facing along it.
+#[pyclass(module = "trimctl", frozen, get_all)]
+pub struct ContourQuality {
+    /// The contour id.
+    pub id: i64,
+    /// Contour points.
+    pub points: usize,
+    /// Matched scan points.
+    pub scan_points: usize,
+    /// Fraction of contour points with a matched scan point.
+    pub coverage: f64,
+    /// RMS point-to-plane residual, mm; `None` without scan points.
+    pub residual_rms_mm: Option<f64>,
+    /// `λmin/λmax` of the patch's translational normal matrix.
+    pub degeneracy_ratio: f64,
+    /// The patch's least-constrained direction, scan frame (3,).
+    pub weakest_direction: Py<PyArray1<f64>>,
+    /// The same ratio along that direction over the support radius.
+    pub support_ratio: f64,
+    /// Largest field displacement along the contour, mm.
+    pub max_field_displacement_mm: f64,
+    /// The field's posterior standard deviation across the contour, mm.
+    pub field_sigma_mm: f64,
+    /// The direction of that deviation, scan frame (3,).
+    pub field_weak_direction: Py<PyArray1<f64>>,
+    /// Distance to the nearest scan surface facing along the weak direction, mm.
+    pub support_distance_mm: f64,
+    /// For a strip, how far its ends lie from scan surface facing along it, mm.
+    pub end_support_mm: f64,
+    /// The predicted bound on the largest cross-edge error, µm.
+    pub predicted_max_error_um: f64,
+    /// What was found wrong (the report's flag names).
+    pub flags: Py<pyo3::types::PyTuple>,
+    /// Whether the planner may use the contour.
+    pub trustworthy: bool,
+}
+
+#[pymethods]
+impl ContourQuality {
+    fn __repr__(&self) -> String {
+        format!(
+            "ContourQuality(id={}, predicted_max_error_um={:.1}, trustworthy={})",
+            self.id, self.predicted_max_error_um, self.trustworthy
+        )
+    }
+}
+
+impl ContourQuality {
+    /// The Python object of one contour's quality.
+    pub fn of(py: Python<'_>, c: &trim_register::regional::ContourQuality) -> PyResult<Self> {
+        let flags: Vec<String> = c
+            .flags
+            .iter()
+            .map(|f| match serde_json::to_value(f) {
+                Ok(Value::String(s)) => s,
+                _ => format!("{f:?}"),
+            })
+            .collect();
+        Ok(ContourQuality {
+            id: c.id,
+            points: c.points,
+            scan_points: c.scan_points,
+            coverage: c.coverage,
+            residual_rms_mm: c.residual_rms_mm,
+            degeneracy_ratio: c.degeneracy_ratio,
+            weakest_direction: PyArray1::from_slice(py, &c.weakest_direction).unbind(),
+            support_ratio: c.support_ratio,
+            max_field_displacement_mm: c.max_field_displacement_mm,
+            field_sigma_mm: c.field_sigma_mm,
+            field_weak_direction: PyArray1::from_slice(py, &c.field_weak_direction).unbind(),
+            support_distance_mm: c.support_distance_mm,
+            end_support_mm: c.end_support_mm,
+            predicted_max_error_um: c.predicted_max_error_um,
+            flags: pyo3::types::PyTuple::new(py, flags)?.unbind(),
+            trustworthy: c.trustworthy,
+        })
+    }
+}
