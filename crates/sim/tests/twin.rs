@@ -6,23 +6,22 @@
     reason = "integration test: a failed setup step should fail the test loudly"
 )]
 
-#[expect(dead_code, reason = "shared helpers; this test uses two of them")]
+#[expect(
+    dead_code,
+    reason = "shared helpers; this test uses two of them (through twin_run)"
+)]
 #[path = "../../io/tests/common/mod.rs"]
 mod common;
+#[path = "support/twin_run.rs"]
+mod twin_run;
 
-use std::sync::Arc;
-
-use tokio_util::sync::CancellationToken;
 use trim_cell::kinematics::{KinematicsKind, MachineSettings};
 use trim_cell::truth::TruthSettings;
-use trim_io::executor::Executor;
-use trim_io::tap::Tap;
 use trim_plan::planner::{PlanSettings, plan};
 use trim_plan::scan_field::LensSettings;
-use trim_sim::SimCell;
 use trim_sim::twin::{SpotStats, TrueCell, TruePart, Twin};
 
-use common::{connect, test_timeouts};
+use twin_run::run_on_twin;
 
 /// A true cell off the nominal one by a few hundredths of a degree and a tenth of a millimetre.
 fn truth(kind: KinematicsKind) -> TruthSettings {
@@ -48,26 +47,7 @@ async fn spots(settings: &PlanSettings, truth: &TruthSettings) -> SpotStats {
     let job = plan(&path, settings).unwrap();
     assert!(job.validation.passed, "{:?}", job.validation.violations);
     let twin = Twin::new(TrueCell::new(truth, settings), TruePart::new(&path));
-    let mut o = trim_sim::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
-    o.galvo_time_scale = 0.0;
-    o.cnc_time_scale = 0.002;
-    o.twin = Some(Arc::clone(&twin));
-    let sim = SimCell::start(o).await.unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    Executor::new(
-        job.clone(),
-        connect(&sim, Tap::none()).await,
-        dir.path().join("j"),
-        None,
-    )
-    .with_options(trim_io::executor::ExecOptions {
-        timeouts: test_timeouts(),
-        ..trim_io::executor::ExecOptions::default()
-    })
-    .run(CancellationToken::new(), None)
-    .await
-    .unwrap_or_else(|e| panic!("{e}"));
-    assert!(sim.monitor.violations().is_empty());
+    run_on_twin(job.clone(), &twin).await;
     let errors: Vec<f64> = twin.spots().iter().map(|s| s.error_mm).collect();
     let vectors: usize = job
         .layers()
@@ -185,25 +165,7 @@ async fn trim_outcome(settings: &PlanSettings, truth: &TruthSettings) -> (f64, f
         }
     }
     let twin = Twin::new(TrueCell::new(truth, settings), TruePart::new(&truth_path));
-    let mut o = trim_sim::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
-    o.galvo_time_scale = 0.0;
-    o.cnc_time_scale = 0.002;
-    o.twin = Some(Arc::clone(&twin));
-    let sim = SimCell::start(o).await.unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    Executor::new(
-        job,
-        connect(&sim, Tap::none()).await,
-        dir.path().join("j"),
-        None,
-    )
-    .with_options(trim_io::executor::ExecOptions {
-        timeouts: test_timeouts(),
-        ..trim_io::executor::ExecOptions::default()
-    })
-    .run(CancellationToken::new(), None)
-    .await
-    .unwrap_or_else(|e| panic!("{e}"));
+    run_on_twin(job, &twin).await;
     let kerf = process.kerf_width_mm(&settings.beam);
     let after = part.trim(&twin.cuts(), &process, kerf).unwrap();
     let residual = after.iter().map(|c| c.residual_um).fold(0.0, f64::max) / 1e3;

@@ -10,30 +10,30 @@
     reason = "integration test: a failed setup step should fail the test loudly"
 )]
 
-#[expect(dead_code, reason = "shared helpers; this test uses two of them")]
+#[expect(
+    dead_code,
+    reason = "shared helpers; this test uses two of them (through twin_run)"
+)]
 #[path = "../../io/tests/common/mod.rs"]
 mod common;
+#[path = "support/twin_run.rs"]
+mod twin_run;
 
 use std::collections::BTreeSet;
-use std::sync::Arc;
 
-use tokio_util::sync::CancellationToken;
 use trim_cell::ProcessSettings;
 use trim_cell::job::Job;
 use trim_cell::truth::TruthSettings;
 use trim_geom::{Path, Similarity3};
 use trim_inspect::{InspectSettings, Inspection, Placement, Verdict, inspect};
-use trim_io::executor::Executor;
-use trim_io::tap::Tap;
 use trim_plan::planner::{PlanSettings, plan};
 use trim_plan::scan_field::LensSettings;
 use trim_register::regional::{RegisterSettings, Registration, register};
-use trim_sim::SimCell;
 use trim_sim::twin::{TrueCell, TruePart, Twin};
 use trim_sim::twin_part::{ContourTrim, TwinPart};
 use trim_synth::{SynthParams, generate};
 
-use common::{connect, test_timeouts};
+use twin_run::run_on_twin;
 
 /// The residual web and the gouge the product promises, µm.
 const TOLERANCE_UM: f64 = 30.0;
@@ -84,26 +84,7 @@ async fn run(
         TrueCell::new(&TruthSettings::default(), settings),
         TruePart::new(true_path),
     );
-    let mut o = trim_sim::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
-    o.galvo_time_scale = 0.0;
-    o.cnc_time_scale = 0.002;
-    o.twin = Some(Arc::clone(&twin));
-    let sim = SimCell::start(o).await.unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    Executor::new(
-        job,
-        connect(&sim, Tap::none()).await,
-        dir.path().join("j"),
-        None,
-    )
-    .with_options(trim_io::executor::ExecOptions {
-        timeouts: test_timeouts(),
-        ..trim_io::executor::ExecOptions::default()
-    })
-    .run(CancellationToken::new(), None)
-    .await
-    .unwrap_or_else(|e| panic!("{e}"));
-    assert!(sim.monitor.violations().is_empty());
+    run_on_twin(job, &twin).await;
     twin.cuts()
 }
 
