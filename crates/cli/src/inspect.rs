@@ -17,7 +17,7 @@ use trim_geom::mesh::Mesh;
 use trim_geom::{Path as TrimPath, Point3, PointCloud, Similarity3, Vector3};
 use trim_inspect::{InspectSettings, Inspection, Placement, Verdict, inspect, signed_distances};
 use trim_register::datum::datum_fit;
-use trim_register::regional::{RegisterSettings, register};
+use trim_register::regional::register;
 use trim_register::sampling::View;
 
 use crate::cad::CAD_SAMPLE_SEED;
@@ -80,20 +80,8 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let config = args.config.as_deref().map(JobConfig::load).transpose()?;
-    let mut reg_settings = config
-        .as_ref()
-        .map_or_else(RegisterSettings::default, |c| c.register.clone());
-    if let Some(v) = &args.viewpoint {
-        anyhow::ensure!(
-            v.len() == 3,
-            "--viewpoint: expected x,y,z, got {} numbers",
-            v.len()
-        );
-        reg_settings.scanner_viewpoint_mm = Some([v[0], v[1], v[2]]);
-    }
-    reg_settings
-        .validate()
-        .map_err(|e| anyhow::anyhow!("register.{e}"))?;
+    let reg_settings =
+        crate::register::register_settings(config.as_ref(), args.viewpoint.as_deref())?;
     let mut settings = InspectSettings::default();
     if let Some(t) = args.tolerance_um {
         settings.tolerance_um = t;

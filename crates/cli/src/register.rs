@@ -55,14 +55,14 @@ pub struct Args {
     pub datums: Option<PathBuf>,
 }
 
-/// Runs the command.
-pub fn run(args: Args) -> anyhow::Result<()> {
-    let t0 = Instant::now();
-    let config = args.config.as_deref().map(JobConfig::load).transpose()?;
-    let mut settings = config
-        .as_ref()
-        .map_or_else(RegisterSettings::default, |c| c.register.clone());
-    if let Some(v) = &args.viewpoint {
+/// The job's `[register]` (defaults without a job file) with `--viewpoint x,y,z` applied,
+/// validated.
+pub(crate) fn register_settings(
+    config: Option<&JobConfig>,
+    viewpoint: Option<&[f64]>,
+) -> anyhow::Result<RegisterSettings> {
+    let mut settings = config.map_or_else(RegisterSettings::default, |c| c.register.clone());
+    if let Some(v) = viewpoint {
         anyhow::ensure!(
             v.len() == 3,
             "--viewpoint: expected x,y,z, got {} numbers",
@@ -73,6 +73,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     settings
         .validate()
         .map_err(|e| anyhow::anyhow!("register.{e}"))?;
+    Ok(settings)
+}
+
+/// Runs the command.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let t0 = Instant::now();
+    let config = args.config.as_deref().map(JobConfig::load).transpose()?;
+    let settings = register_settings(config.as_ref(), args.viewpoint.as_deref())?;
     let initial = match (&args.initial, &config) {
         (Some(p), _) => read_matrix(p).with_context(|| format!("--initial {}", p.display()))?,
         (None, Some(c)) => c.part.scan_from_cad.scan_from_cad("part.scan_from_cad")?,
