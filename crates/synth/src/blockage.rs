@@ -12,7 +12,7 @@ use rand::Rng;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use trim_geom::{Point3, Vector3};
 
-use crate::part::{Cutout, DomainSample, THICKNESS_MM};
+use crate::part::{AreaTable, Cutout, DomainSample, THICKNESS_MM};
 
 /// Grid nodes per side over a cutout's bounding box when the film's free edge is placed for a
 /// covered share (the share is then exact to about 1/(π/4·GRID²) of the opening).
@@ -120,15 +120,14 @@ type Segment2 = ([f64; 2], [f64; 2]);
 /// free edge uniformly in (length, thickness).
 pub(crate) struct BlockageSampler {
     films: Vec<(Cutout, Blockage, f64, Option<Segment2>)>,
-    cumulative_area: Vec<f64>,
+    areas: AreaTable,
 }
 
 impl BlockageSampler {
     /// The films of `blockages` over `cutouts` (contour id = index + 1).
     pub(crate) fn new(cutouts: &[Cutout], blockages: &[Blockage]) -> Self {
-        let mut acc = 0.0;
         let mut films = Vec::with_capacity(blockages.len());
-        let mut cumulative_area = Vec::with_capacity(blockages.len());
+        let mut areas = AreaTable::default();
         for b in blockages {
             let Some(c) = usize::try_from(b.contour - 1)
                 .ok()
@@ -139,31 +138,23 @@ impl BlockageSampler {
             let face = b.covered_share * opening_area(c);
             let edge = free_edge(c, b);
             let edge_len = edge.map_or(0.0, |(a, e)| (e[0] - a[0]).hypot(e[1] - a[1]));
-            acc += 2.0 * face + edge_len * b.thickness_mm;
+            areas.push(2.0 * face + edge_len * b.thickness_mm);
             films.push((*c, *b, face, edge));
-            cumulative_area.push(acc);
         }
-        BlockageSampler {
-            films,
-            cumulative_area,
-        }
+        BlockageSampler { films, areas }
     }
 
     /// The sampled area (upper side, underside, free edge), mm².
     pub(crate) fn area(&self) -> f64 {
-        *self.cumulative_area.last().unwrap_or(&0.0)
+        self.areas.total()
     }
 
     /// One sample (domain point and normal). Only called when [`Self::area`] is positive.
     pub(crate) fn sample(&self, rng: &mut impl Rng) -> DomainSample {
-        let pick = rng.random_range(0.0..self.area());
-        let i = self
-            .cumulative_area
-            .partition_point(|&a| a <= pick)
-            .min(self.films.len() - 1);
+        let i = self.areas.pick(rng);
         let (c, b, face, edge) = &self.films[i];
         let top = THICKNESS_MM / 2.0;
-        let piece = rng.random_range(0.0..(self.cumulative_area[i] - self.start_of(i)));
+        let piece = rng.random_range(0.0..self.areas.area_of(i));
         if let Some((a, e)) = edge.filter(|_| piece >= 2.0 * face) {
             let s = rng.random_range(0.0..1.0);
             let w = top - b.thickness_mm * rng.random_range(0.0..1.0);
@@ -188,14 +179,6 @@ impl BlockageSampler {
         DomainSample {
             point: Point3::new(u, v, w),
             normal: Vector3::new(0.0, 0.0, normal),
-        }
-    }
-
-    fn start_of(&self, i: usize) -> f64 {
-        if i == 0 {
-            0.0
-        } else {
-            self.cumulative_area[i - 1]
         }
     }
 }

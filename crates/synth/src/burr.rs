@@ -13,7 +13,7 @@ use rand::Rng;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use trim_geom::{Point3, Vector3};
 
-use crate::part::{DomainSample, Edge, THICKNESS_MM, contour_segments};
+use crate::part::{AreaTable, DomainSample, Edge, THICKNESS_MM, contour_segments};
 
 /// One burr's ground truth: where it stands and how big it is, domain (design) measures in
 /// mm, before the deformation.
@@ -95,15 +95,14 @@ pub(crate) fn draw_burrs(
 /// Samples the burrs' surfaces uniformly in (arc length, height) and (arc length, thickness).
 pub(crate) struct BurrSampler {
     webs: Vec<(Edge, Burr)>,
-    cumulative_area: Vec<f64>,
+    areas: AreaTable,
 }
 
 impl BurrSampler {
     /// The webs of `burrs` on `edges` (contour id = index + 1).
     pub(crate) fn new(edges: &[Edge], burrs: &[Burr]) -> Self {
-        let mut acc = 0.0;
         let mut webs = Vec::with_capacity(burrs.len());
-        let mut cumulative_area = Vec::with_capacity(burrs.len());
+        let mut areas = AreaTable::default();
         for b in burrs {
             let Some(edge) = usize::try_from(b.contour - 1)
                 .ok()
@@ -111,29 +110,20 @@ impl BurrSampler {
             else {
                 continue;
             };
-            acc += web_area(b);
+            areas.push(web_area(b));
             webs.push((*edge, *b));
-            cumulative_area.push(acc);
         }
-        BurrSampler {
-            webs,
-            cumulative_area,
-        }
+        BurrSampler { webs, areas }
     }
 
     /// The sampled area (upper side, underside, free edge), mm².
     pub(crate) fn area(&self) -> f64 {
-        *self.cumulative_area.last().unwrap_or(&0.0)
+        self.areas.total()
     }
 
     /// One sample (domain point and normal). Only called when [`Self::area`] is positive.
     pub(crate) fn sample(&self, rng: &mut impl Rng) -> DomainSample {
-        let pick = rng.random_range(0.0..self.area());
-        let i = self
-            .cumulative_area
-            .partition_point(|&a| a <= pick)
-            .min(self.webs.len() - 1);
-        let (edge, b) = &self.webs[i];
+        let (edge, b) = &self.webs[self.areas.pick(rng)];
         let length = b.end_mm - b.start_mm;
         let top = THICKNESS_MM / 2.0;
         let s = b.start_mm + length * rng.random_range(0.0..1.0);

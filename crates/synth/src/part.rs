@@ -516,3 +516,37 @@ pub(crate) fn map_contour(c: &Contour, map: &impl Fn(&Point3) -> Point3) -> Resu
         .collect();
     Contour::with_features(c.id(), points, features)
 }
+
+/// Pieces of a surface by area, to pick one in proportion to its area (the burrs' webs, the
+/// films over openings).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct AreaTable {
+    cumulative: Vec<f64>,
+}
+
+impl AreaTable {
+    /// Adds a piece of `area` mm².
+    pub(crate) fn push(&mut self, area: f64) {
+        let total = self.total();
+        self.cumulative.push(total + area);
+    }
+
+    /// The pieces' total area, mm².
+    pub(crate) fn total(&self) -> f64 {
+        *self.cumulative.last().unwrap_or(&0.0)
+    }
+
+    /// Piece `i`'s area, mm².
+    pub(crate) fn area_of(&self, i: usize) -> f64 {
+        self.cumulative[i] - if i == 0 { 0.0 } else { self.cumulative[i - 1] }
+    }
+
+    /// A piece drawn in proportion to its area (one draw of `rng`). Only called when
+    /// [`Self::total`] is positive.
+    pub(crate) fn pick(&self, rng: &mut impl Rng) -> usize {
+        let pick = rng.random_range(0.0..self.total());
+        self.cumulative
+            .partition_point(|&a| a <= pick)
+            .min(self.cumulative.len() - 1)
+    }
+}
