@@ -90,6 +90,9 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
         assert ("predicted_error" in q.flags) == (q.predicted_max_error_um > 30.0), q
         assert q.trustworthy == (not q.flags), q
         assert np.isfinite(q.end_support_mm) and q.end_support_mm >= 0.0, q
+        # The check fit ran (quality.model_check defaults on) and agrees on the demo part to
+        # well within the tolerance.
+        assert 0.0 < q.model_disagreement_mm < 0.015, q
     # The demo case is trusted as a part (a refusal would flag every contour part_refused).
     assert registration.refused is None
     assert not any("part_refused" in q.flags for q in quality)

@@ -58,6 +58,8 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// `weakest_direction`: how well the patch's normals fix it, and along which direction least;
 /// `support_ratio` the same ratio along that direction over the support radius.
 /// `end_support_mm`: for a strip, how far its ends lie from scan surface facing along it.
+/// `model_disagreement_mm`: how far apart the field and a second fit at 0.75× its control
+/// spacing put the contour (large where the smoothness prior, not the data, places it).
 #[pyclass(module = "trimctl", frozen, get_all)]
 pub struct ContourQuality {
     /// The contour id.
@@ -86,6 +88,9 @@ pub struct ContourQuality {
     pub support_distance_mm: f64,
     /// For a strip, how far its ends lie from scan surface facing along it, mm.
     pub end_support_mm: f64,
+    /// How far apart the field and the check fit put the contour, mm (0 without
+    /// `quality.model_check`).
+    pub model_disagreement_mm: f64,
     /// The predicted bound on the largest cross-edge error, µm.
     pub predicted_max_error_um: f64,
     /// What was found wrong (the report's flag names).
@@ -129,6 +134,7 @@ impl ContourQuality {
             field_weak_direction: PyArray1::from_slice(py, &c.field_weak_direction).unbind(),
             support_distance_mm: c.support_distance_mm,
             end_support_mm: c.end_support_mm,
+            model_disagreement_mm: c.model_disagreement_mm,
             predicted_max_error_um: c.predicted_max_error_um,
             flags: pyo3::types::PyTuple::new(py, flags)?.unbind(),
             trustworthy: c.trustworthy,

@@ -125,6 +125,7 @@ class ContourQuality:
     field_weak_direction: Array
     support_distance_mm: float
     end_support_mm: float
+    model_disagreement_mm: float
     predicted_max_error_um: float
     flags: Tuple[str, ...]
     trustworthy: bool

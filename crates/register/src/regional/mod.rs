@@ -41,9 +41,10 @@ pub use field_fit::{
 };
 use field_fit::{final_matches, fit_field, move_contour};
 pub use quality::{
-    BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_RESIDUAL_FACTOR,
-    BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS, ContourQuality,
-    END_SUPPORT_MIN_COS, Flag, GlobalQuality, QualityReport, SUPPORT_MIN_COS, predicted_bound_mm,
+    BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_MODEL_FACTOR,
+    BOUND_RESIDUAL_FACTOR, BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS,
+    ContourQuality, END_SUPPORT_MIN_COS, Flag, GlobalQuality, MODEL_CHECK_SPACING_RATIO,
+    QualityReport, SUPPORT_MIN_COS, predicted_bound_mm,
 };
 use quality::{contour_quality, refuse_part};
 pub use settings::{
@@ -300,6 +301,7 @@ pub fn register(
         });
     }
 
+    let mut check_field = None;
     let (field, matches, posterior) = match settings.mode {
         Mode::Global => (
             None,
@@ -313,9 +315,26 @@ pub fn register(
             None,
         ),
         Mode::Regional => {
-            let (f, m, p) = stage(&mut timings, "deformation field", || {
-                fit_field(&field_points, &target, &shapes, &settings.field)
+            // The check field (`quality.model_check`) beside the fit: the Gauss-Newton solves are
+            // serial, so the two share the cores well.
+            let check_settings = DeformationSettings {
+                spacing_mm: settings.field.spacing_mm * MODEL_CHECK_SPACING_RATIO,
+                ..settings.field
+            };
+            let ((f, m, p), check) = stage(&mut timings, "deformation field + check", || {
+                let cancel = trim_geom::cancel::current();
+                let (fit, check) = rayon::join(
+                    || cancel.run(|| fit_field(&field_points, &target, &shapes, &settings.field)),
+                    || {
+                        settings.quality.model_check.then(|| {
+                            cancel
+                                .run(|| fit_field(&field_points, &target, &shapes, &check_settings))
+                        })
+                    },
+                );
+                Ok((fit?, check.transpose()?.map(|(f, ..)| f)))
             })?;
+            check_field = check;
             (Some(f), m, p)
         }
     };
@@ -333,6 +352,7 @@ pub fn register(
         Ok(contour_quality(
             path,
             field.as_ref(),
+            check_field.as_ref(),
             posterior.as_ref(),
             &matches,
             &scan_from_cad,

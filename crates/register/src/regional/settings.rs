@@ -205,6 +205,11 @@ pub struct QualitySettings {
     pub min_overlap: f64,
     /// Distance for the overlap test, mm.
     pub overlap_distance_mm: f64,
+    /// Fit the field a second time with its control points at 0.75× the spacing and widen each
+    /// contour's bound by how far the two fits disagree on it (`model_disagreement_mm`): where
+    /// the data fix the contour they agree; where the smoothness prior decides (a corner with
+    /// little data, an end the scanner barely saw) they do not. Costs a second field fit.
+    pub model_check: bool,
 }
 
 impl Default for QualitySettings {
@@ -219,6 +224,7 @@ impl Default for QualitySettings {
             support_radius_mm: 15.0,
             min_overlap: 0.3,
             overlap_distance_mm: 1.0,
+            model_check: true,
         }
     }
 }
