@@ -207,13 +207,51 @@ pub(crate) fn final_matches(
         .collect()
 }
 
-/// Fits the displacement field (CAD frame) to the scan points `q` (CAD frame).
+/// Fits the displacement field (CAD frame) to the scan points `q` (CAD frame), with its final
+/// matches and its posterior.
 pub(crate) fn fit_field(
     points: &[Point3],
     target: &IcpTarget,
     shapes: &[LocalShape],
     settings: &DeformationSettings,
 ) -> Result<(BSplineField, Vec<Match>, Option<FieldPosterior>)> {
+    let (field, prior) = solve_field(points, target, shapes, settings)?;
+    // All final matches, edges included, for the quality report (coverage and residuals are
+    // about what the scanner saw); the posterior from those the fit used.
+    let matched = match_points(
+        points,
+        target,
+        shapes,
+        Some(&field),
+        settings.max_distance_end_mm,
+        false,
+    );
+    let fitted: Vec<Option<Matched>> = matched
+        .iter()
+        .map(|m| {
+            m.filter(|(index, ..)| {
+                !(settings.exclude_edges && shapes.get(*index).is_some_and(|l| l.near_edge))
+            })
+        })
+        .collect();
+    let posterior = field_posterior(&field, &fitted, &prior, settings);
+    let matches = matched
+        .into_iter()
+        .zip(points)
+        .filter_map(|(m, q)| m.map(|(_, _, n, _, r)| Match { q: *q, n, r }))
+        .collect();
+    Ok((field, matches, posterior))
+}
+
+/// The displacement field alone (CAD frame), and the prior it was fitted under: the
+/// Gauss-Newton iterations of [`fit_field`] without its final matches and posterior (the model
+/// check's second fit needs no more).
+pub(crate) fn solve_field(
+    points: &[Point3],
+    target: &IcpTarget,
+    shapes: &[LocalShape],
+    settings: &DeformationSettings,
+) -> Result<(BSplineField, Vec<PriorTerm>)> {
     let bounds = target
         .cloud()
         .bounds()
@@ -294,31 +332,7 @@ pub(crate) fn fit_field(
         }
         field.add_step(step.as_slice());
     }
-    // All final matches, edges included, for the quality report (coverage and residuals are
-    // about what the scanner saw); the posterior from those the fit used.
-    let matched = match_points(
-        points,
-        target,
-        shapes,
-        Some(&field),
-        settings.max_distance_end_mm,
-        false,
-    );
-    let fitted: Vec<Option<Matched>> = matched
-        .iter()
-        .map(|m| {
-            m.filter(|(index, ..)| {
-                !(settings.exclude_edges && shapes.get(*index).is_some_and(|l| l.near_edge))
-            })
-        })
-        .collect();
-    let posterior = field_posterior(&field, &fitted, &prior, settings);
-    let matches = matched
-        .into_iter()
-        .zip(points)
-        .filter_map(|(m, q)| m.map(|(_, _, n, _, r)| Match { q: *q, n, r }))
-        .collect();
-    Ok((field, matches, posterior))
+    Ok((field, prior))
 }
 
 /// The posterior that bounds a contour's error is taken under this fraction of the fit's prior

@@ -39,7 +39,7 @@ pub use field_fit::{
     CURVATURE_NEIGHBOURS, EARLY_STRIDE, FIELD_DAMPING, FieldPosterior, LocalShape,
     MATCH_CANDIDATES, MIN_SAME_FACE_COS, POSTERIOR_PRIOR_SCALE, PRIOR_REACH, local_shapes,
 };
-use field_fit::{final_matches, fit_field, move_contour};
+use field_fit::{final_matches, fit_field, move_contour, solve_field};
 pub use quality::{
     BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_MODEL_FACTOR,
     BOUND_RESIDUAL_FACTOR, BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS,
@@ -327,12 +327,13 @@ pub fn register(
                     || cancel.run(|| fit_field(&field_points, &target, &shapes, &settings.field)),
                     || {
                         settings.quality.model_check.then(|| {
-                            cancel
-                                .run(|| fit_field(&field_points, &target, &shapes, &check_settings))
+                            cancel.run(|| {
+                                solve_field(&field_points, &target, &shapes, &check_settings)
+                            })
                         })
                     },
                 );
-                Ok((fit?, check.transpose()?.map(|(f, ..)| f)))
+                Ok((fit?, check.transpose()?.map(|(f, _)| f)))
             })?;
             check_field = check;
             (Some(f), m, p)
