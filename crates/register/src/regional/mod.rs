@@ -321,7 +321,12 @@ pub fn register(
                 spacing_mm: settings.field.spacing_mm * MODEL_CHECK_SPACING_RATIO,
                 ..settings.field
             };
-            let ((f, m, p), check) = stage(&mut timings, "deformation field + check", || {
+            let name = if settings.quality.model_check {
+                "deformation field + check"
+            } else {
+                "deformation field"
+            };
+            let ((f, m, p), check) = stage(&mut timings, name, || {
                 let cancel = trim_geom::cancel::current();
                 let (fit, check) = rayon::join(
                     || cancel.run(|| fit_field(&field_points, &target, &shapes, &settings.field)),

@@ -73,7 +73,7 @@ pub struct ContourQuality {
     pub model_disagreement_mm: f64,
     /// The predicted bound on the contour's largest cross-edge error, µm: from the field's
     /// posterior deviation across it, the two fits' disagreement, its residual, its coverage and
-    /// its distance to supporting data (constants in `quality.rs`, calibrated on synthetic cores, DESIGN.md).
+    /// its distance to supporting data (the `BOUND_*` constants in `quality.rs`, DESIGN.md).
     pub predicted_max_error_um: f64,
     /// What was found wrong.
     pub flags: Vec<Flag>,
