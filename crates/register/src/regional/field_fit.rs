@@ -263,12 +263,7 @@ pub(crate) fn solve_field(
         settings.spacing_mm,
     );
     let dim = 3 * field.len();
-    let prior = prior_terms(
-        &field,
-        target.cloud().points(),
-        settings.free_bending,
-        settings.in_plane_bending,
-    );
+    let prior = prior_terms(&field, target.cloud().points(), settings);
     let kernel = RobustKernel::Huber {
         k_mm: settings.huber_mm,
     };
@@ -420,12 +415,25 @@ fn field_posterior(
 /// Control points one prior stencil spans beyond its first (third differences).
 pub const PRIOR_REACH: usize = 3;
 
-/// One term of the smoothness prior: a finite-difference stencil over control points along an
-/// axis, applied to the displacements projected by `projector` (CAD frame).
+/// One term of the smoothness prior: a finite-difference stencil over control points, each
+/// control displacement taken along its own direction, `e = Σₘ aₘ·δₘ` (CAD frame); the prior
+/// adds `λ e²`. A stencil over one component along an axis has every `aₘ = cₘ v`; a beam term
+/// mixes components.
 pub(crate) struct PriorTerm {
-    index: Vec<usize>,
-    coefficients: Vec<f64>,
-    projector: Matrix3<f64>,
+    entries: Vec<(usize, Vector3)>,
+}
+
+impl PriorTerm {
+    /// The stencil `(index, coefficients)` applied to the displacement's component along `v`.
+    fn along((index, coefficients): &(Vec<usize>, Vec<f64>), v: &Vector3) -> Self {
+        PriorTerm {
+            entries: index
+                .iter()
+                .zip(coefficients)
+                .map(|(&i, &c)| (i, v * c))
+                .collect(),
+        }
+    }
 }
 
 /// The part's thin and long axes, CAD frame: the least principal axis of the CAD points (a
@@ -447,63 +455,110 @@ pub(crate) fn thin_and_long_axes(points: &[Point3]) -> (Vector3, Vector3) {
     )
 }
 
-/// The prior's terms. Without `free_bending`: second differences of the whole displacement
-/// (affine motion free). With it: second differences of the displacement across the part's
-/// thin axis `u` (projector `I − u uᵀ`) and third differences of its component along `u`
-/// (`u uᵀ`), so a bend (a displacement along `u` quadratic along the part) costs nothing while
-/// the in-plane motion, which only walls and rims fix, stays as stiff as before.
+/// The prior's terms. Without `free_bending`: second differences of each displacement
+/// component (affine motion free). With it: second differences of the displacement across the
+/// part's thin axis `u` and third differences of its component along `u`, so a bend (a
+/// displacement along `u` quadratic along the part) costs nothing while the in-plane motion,
+/// which only walls and rims fix, stays as stiff as before; `in_plane_bending` frees the bend
+/// in the chord direction too; `beam_kinematics` adds [`beam_terms`].
 pub(crate) fn prior_terms(
     field: &BSplineField,
     cad: &[Point3],
-    free_bending: bool,
-    in_plane_bending: bool,
+    settings: &DeformationSettings,
 ) -> Vec<PriorTerm> {
-    let term = |(index, coefficients), projector| PriorTerm {
-        index,
-        coefficients,
-        projector,
-    };
-    if !free_bending {
+    if !settings.free_bending {
         return field
             .differences(2)
-            .into_iter()
-            .map(|s| term(s, Matrix3::identity()))
+            .iter()
+            .flat_map(|s| {
+                [Vector3::x(), Vector3::y(), Vector3::z()].map(|v| PriorTerm::along(s, &v))
+            })
             .collect();
     }
 
     let (u, long) = thin_and_long_axes(cad);
-    let along = u * u.transpose();
     // The grid axis nearest the part's long axis: a beam bends along it in any direction
     // across it, so the displacement across both the thin and the long axis (the chord
     // direction) takes third differences along that axis alone; along the long axis it stays
     // affine (second differences), as without `in_plane_bending`.
     let chord = u.cross(&long).normalize();
-    let across_long = chord * chord.transpose();
-    let along_long = Matrix3::identity() - along - across_long;
+    let along_long = chord.cross(&u).normalize();
     let long_axis = long.iamax();
     let second = field.differences_along(2);
     let third = field.differences_along(3);
-    let chord_third = |axis: usize| in_plane_bending && axis == long_axis;
-    second
+    let chord_third = |axis: usize| settings.in_plane_bending && axis == long_axis;
+    let mut terms: Vec<PriorTerm> = second
         .iter()
-        .map(|(_, s)| term(s.clone(), along_long))
+        .map(|(_, s)| PriorTerm::along(s, &along_long))
         .chain(
             second
                 .iter()
                 .filter(|(axis, _)| !chord_third(*axis))
-                .map(|(_, s)| term(s.clone(), across_long)),
+                .map(|(_, s)| PriorTerm::along(s, &chord)),
         )
         .chain(
             third
                 .iter()
                 .filter(|(axis, _)| chord_third(*axis))
-                .map(|(_, s)| term(s.clone(), across_long)),
+                .map(|(_, s)| PriorTerm::along(s, &chord)),
         )
-        .chain(third.iter().map(|(_, s)| term(s.clone(), along)))
-        .collect()
+        .chain(third.iter().map(|(_, s)| PriorTerm::along(s, &u)))
+        .collect();
+    if settings.beam_kinematics {
+        terms.extend(beam_terms(field, long_axis, [chord.iamax(), u.iamax()]));
+    }
+    terms
 }
 
-/// Adds `λ Σ |P Σₘ cₘ δₘ|²` (gradient and Gauss-Newton matrix) to the normal equations.
+/// Euler–Bernoulli kinematics on the grid: for each grid axis `a` across the span (the ones
+/// nearest the chord and the thin axis) and the span's grid axis `l`, the change along the span
+/// of the cross-section's shear, `∂²d_a/∂l² + ∂²d_l/∂a∂l`, at every control point with
+/// neighbours on both sides along both axes: `(δ₋ₗ − 2δ₀ + δ₊ₗ)·eₐ + ¼(δ₊ₐ₊ₗ − δ₊ₐ₋ₗ − δ₋ₐ₊ₗ +
+/// δ₋ₐ₋ₗ)·eₗ`. A bend `d_a = κ l²/2` with its plane sections `d_l = −κ a l` (and any affine
+/// motion, a twist about the span, a shear constant along it) costs nothing; an along-span
+/// slide that grows along the span and across it without the bend that would carry it
+/// (`d_l = c a l` alone) costs as a bend of the same size would. Axes that coincide give none.
+fn beam_terms(field: &BSplineField, l: usize, across: [usize; 2]) -> Vec<PriorTerm> {
+    let d = field.dims();
+    let unit = |axis: usize| Vector3::ith(axis, 1.0);
+    let mut out = Vec::new();
+    for a in across {
+        if a == l {
+            continue;
+        }
+        for k in 0..d[2] {
+            for j in 0..d[1] {
+                for i in 0..d[0] {
+                    let c = [i, j, k];
+                    if c[a] == 0 || c[a] + 1 >= d[a] || c[l] == 0 || c[l] + 1 >= d[l] {
+                        continue;
+                    }
+                    let at = |da: isize, dl: isize| {
+                        let mut p = c;
+                        p[a] = p[a].wrapping_add_signed(da);
+                        p[l] = p[l].wrapping_add_signed(dl);
+                        field.flat(p[0], p[1], p[2])
+                    };
+                    let (ea, el) = (unit(a), unit(l));
+                    out.push(PriorTerm {
+                        entries: vec![
+                            (at(0, -1), ea),
+                            (at(0, 0), ea * -2.0),
+                            (at(0, 1), ea),
+                            (at(1, 1), el * 0.25),
+                            (at(1, -1), el * -0.25),
+                            (at(-1, 1), el * -0.25),
+                            (at(-1, -1), el * 0.25),
+                        ],
+                    });
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Adds `λ Σ e²`, `e = Σₘ aₘ·δₘ` (gradient and Gauss-Newton matrix), to the normal equations.
 pub(crate) fn add_prior(
     h: &mut DMatrix<f64>,
     g: &mut DVector<f64>,
@@ -513,21 +568,15 @@ pub(crate) fn add_prior(
 ) {
     let coeffs = field.coefficients();
     for t in prior {
-        let e: Vector3 = t
-            .index
-            .iter()
-            .zip(&t.coefficients)
-            .map(|(&k, &c)| c * coeffs[k])
-            .sum();
-        let pe = t.projector * e;
-        for (&ia, &ca) in t.index.iter().zip(&t.coefficients) {
+        let e: f64 = t.entries.iter().map(|(k, a)| a.dot(&coeffs[*k])).sum();
+        for (ia, a) in &t.entries {
             for x in 0..3 {
-                g[3 * ia + x] += lambda * ca * pe[x];
+                g[3 * ia + x] += lambda * a[x] * e;
             }
-            for (&ib, &cb) in t.index.iter().zip(&t.coefficients) {
+            for (ib, b) in &t.entries {
                 for x in 0..3 {
                     for y in 0..3 {
-                        h[(3 * ia + x, 3 * ib + y)] += lambda * ca * cb * t.projector[(x, y)];
+                        h[(3 * ia + x, 3 * ib + y)] += lambda * a[x] * b[y];
                     }
                 }
             }
@@ -611,4 +660,70 @@ pub(crate) fn move_contour(
         .map(|(p, n)| rot * field.map_or(*n, |f| f.apply_normal(p, n)))
         .collect();
     Ok(Contour::with_features(c.id(), points, features)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The beam terms' energy `Σ e²` of the field whose control displacement at grid point
+    /// `(i, j, k)` (mm from the first) is `d`.
+    fn beam_energy(d: impl Fn(f64, f64, f64) -> Vector3) -> f64 {
+        let mut field = BSplineField::zero(
+            &Point3::new(-20.0, -4.0, 0.0),
+            &Point3::new(20.0, 4.0, 100.0),
+            10.0,
+        );
+        let dims = field.dims();
+        let mut step = vec![0.0; 3 * field.len()];
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                for i in 0..dims[0] {
+                    let h = field.spacing_mm();
+                    let v = d(i as f64 * h, j as f64 * h, k as f64 * h);
+                    let at = 3 * field.flat(i, j, k);
+                    step[at..at + 3].copy_from_slice(v.as_slice());
+                }
+            }
+        }
+        field.add_step(&step);
+        let terms = beam_terms(&field, 2, [0, 1]);
+        assert!(!terms.is_empty());
+        terms
+            .iter()
+            .map(|t| {
+                let e: f64 = t
+                    .entries
+                    .iter()
+                    .map(|(k, a)| a.dot(&field.coefficients()[*k]))
+                    .sum();
+                e * e
+            })
+            .sum()
+    }
+
+    #[test]
+    fn a_beam_bend_a_twist_and_affine_motion_cost_nothing_a_bare_along_span_shear_does() {
+        let kappa = 1e-4;
+        // A bend across the span in x and in y, each with its plane sections.
+        let bend = beam_energy(|x, y, z| {
+            Vector3::new(
+                kappa * z * z / 2.0,
+                0.5 * kappa * z * z / 2.0,
+                -kappa * x * z - 0.5 * kappa * y * z,
+            )
+        });
+        // A twist about the span and an anisotropic, sheared affine map.
+        let twist = beam_energy(|x, y, z| Vector3::new(-1e-4 * z * y, 1e-4 * z * x, 0.0));
+        let affine = beam_energy(|x, y, z| {
+            Vector3::new(0.01 * x + 0.003 * z, -0.02 * y, 0.015 * z + 0.002 * x)
+        });
+        // The slide of the edges along the span that a bend would carry, without the bend.
+        let shear = beam_energy(|x, _, z| Vector3::new(0.0, 0.0, -kappa * x * z));
+        assert!(bend < 1e-20, "bend {bend:e}");
+        assert!(twist < 1e-20, "twist {twist:e}");
+        assert!(affine < 1e-20, "affine {affine:e}");
+        // Each interior term sees κh² = 0.01 mm.
+        assert!(shear > 1e-5, "shear {shear:e}");
+    }
 }
