@@ -84,9 +84,12 @@ fn meets_the_accuracy_targets_on_mild_and_large_deformation() {
             .target_from_source
             .scaling();
         let scale = reg.scan_from_cad.scaling();
+        // The second check only where it can tell: a case whose best similarity's scale lies
+        // within SCALE_TOL of 1 cannot show whether the fit absorbed it.
         assert!(
             (scale - reference).abs() < SCALE_TOL
-                && (scale - reference).abs() < (1.0 - reference).abs(),
+                && ((1.0 - reference).abs() < SCALE_TOL
+                    || (scale - reference).abs() < (1.0 - reference).abs()),
             "seed {seed} large {large}: scale {scale}, reference {reference}"
         );
     }

@@ -45,7 +45,8 @@ pub struct Deformation {
     pub pressing_axes: [[f64; 3]; 3],
     /// Twist end to end over [`LENGTH_MM`], radians.
     pub twist_rad: f64,
-    /// Bend: the rise of mid-length over the ends along Z, mm.
+    /// Bend: the rise of mid-length over the ends along Z, mm (the sections turn with it, as
+    /// a beam's do).
     pub sag_mm: f64,
     /// Curl of the free `+Y` end along Z, mm: a sintered core's ends warp on their own (the
     /// bend is not a parabola), rising as the cube of the distance past
@@ -92,13 +93,17 @@ impl Deformation {
         let (sin, cos) = phi.sin_cos();
         let x = cos * s.x - sin * s.z;
         let z = sin * s.x + cos * s.z;
+        // The bend and the curl as a beam bends (Euler–Bernoulli): the mid-plane rises by
+        // `w(y)` and each cross-section turns with it, so a point `z` off the mid-plane moves
+        // back along the length by `z·w′(y)` (shifting the sections up without turning them
+        // would shear the material by the slope, over 1 % at the ends of a 0.3 mm sag).
         let t = 2.0 * s.y / LENGTH_MM;
-        let curl = ((t - TIP_CURL_START) / (1.0 - TIP_CURL_START)).max(0.0);
-        Point3::new(
-            x,
-            s.y,
-            z + self.sag_mm * (1.0 - t * t) + self.tip_curl_mm * curl.powi(3),
-        )
+        let dt_dy = 2.0 / LENGTH_MM;
+        let span = 1.0 - TIP_CURL_START;
+        let curl = ((t - TIP_CURL_START) / span).max(0.0);
+        let w = self.sag_mm * (1.0 - t * t) + self.tip_curl_mm * curl.powi(3);
+        let slope = (self.sag_mm * -2.0 * t + self.tip_curl_mm * 3.0 * curl * curl / span) * dt_dy;
+        Point3::new(x, s.y - z * slope, z + w)
     }
 }
 
