@@ -44,6 +44,9 @@ fn synth(case: &Path) {
             "0.15",
             "--dropouts",
             "0",
+            // A scanner fixed to the cell, from three directions as the demo's.
+            "--views",
+            "3",
             "--scan-points",
             "300000",
             "--out",
