@@ -64,13 +64,13 @@ pub(super) fn verify(
     )?;
     let mut part = TwinPart::new(demo.case.clone(), demo.workpiece_from_case);
     let mesh = demo.case.cad_mesh()?;
-    let kerf_mm = config.process.kerf_width_mm(&config.plan.beam);
+    let kerf_mm = config.plan.process.kerf_width_mm(&config.plan.beam);
     let settings = InspectSettings::default();
     let placement = Placement::from_registration(registration);
     let mut cuts = landed_cuts(twin)?;
     let mut rounds: Vec<Round> = Vec::new();
     for k in 1..=args.rounds + 1 {
-        part.trim(&cuts, &config.process, kerf_mm)?;
+        part.trim(&cuts, &config.plan.process, kerf_mm)?;
         let spinner = stage("rescanning and inspecting the part");
         let scan = rescan(config, &part, args.demo_seed ^ u64::from(k) << 32)?;
         let result = inspect(&mesh, &inputs.path, scan.points(), &placement, &settings)?;
@@ -182,7 +182,7 @@ fn retrim_round(
             .contours
             .iter()
             .find(|c| c.id == id)
-            .and_then(|c| config.process.passes_through(c.excess_height_um * 1e-3))
+            .and_then(|c| config.plan.process.passes_through(c.excess_height_um * 1e-3))
             .unwrap_or(trim_cell::process::MAX_PASSES)
     });
     if !plan.job.validation.passed {
