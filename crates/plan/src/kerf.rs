@@ -390,9 +390,7 @@ fn mitred(a: Option<Vector3>, b: Option<Vector3>, f: &Vector3, offset_mm: f64) -
         (None, None) => return Vector3::zeros(),
     };
     let sum = a + b;
-    let bisector = (sum - f * sum.dot(f))
-        .try_normalize(1e-9)
-        .unwrap_or_else(|| a);
+    let bisector = (sum - f * sum.dot(f)).try_normalize(1e-9).unwrap_or(a);
     let cos_half = bisector.dot(&a).max(1.0 / MAX_MITER);
     bisector * (offset_mm / cos_half)
 }
