@@ -33,6 +33,35 @@ pub struct Job {
     pub validation: ValidationReport,
     /// The time estimate.
     pub estimate: TimeEstimate,
+    /// Kerf compensation (`[trim]`): how far the lines stand out of the material and which
+    /// contours were, and were not, offset. Absent when it is off (and in jobs planned before
+    /// it existed: their lines lie on the edges).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kerf: Option<KerfRecord>,
+}
+
+/// What kerf compensation did to a job's lines (DESIGN.md "Planning"): every galvo point of a
+/// compensated contour is its registered point moved `offset_mm` out of the material, in the
+/// face the contour edges (a mitred offset of the contour: its segments stand `offset_mm` off
+/// the registered ones).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct KerfRecord {
+    /// Half the kerf plus `trim.kerf_clearance_um`, mm.
+    pub offset_mm: f64,
+    /// The contours offset out of the material.
+    pub compensated: Vec<ContourId>,
+    /// The contours left on the edge, each with why its material side could not be told.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub uncompensated: Vec<UncompensatedContour>,
+}
+
+/// A contour kerf compensation left on its edge.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct UncompensatedContour {
+    /// The contour id.
+    pub contour: ContourId,
+    /// Why its material side was not determined.
+    pub reason: String,
 }
 
 /// One zone: contours processed from one machine orientation, in layers along its axis.

@@ -1,6 +1,6 @@
 //! The settings a plan is made with: job.toml's planning tables (top-level `max_incidence_deg`,
-//! `[beam]`, `[zoning]`, `[layers]`, `[field]`, `[machine]`, `[galvo]`, `[timing]` and
-//! `[calibration]`), and what a [`crate::Job`] records of them (`settings`). They live with the Job
+//! `[beam]`, `[zoning]`, `[layers]`, `[field]`, `[machine]`, `[galvo]`, `[timing]`,
+//! `[calibration]`, `[process]` and `[trim]`), and what a [`crate::Job`] records of them (`settings`). They live with the Job
 //! contract so that the Job carries them typed; the algorithms that use them are trim-plan's.
 
 use serde::{Deserialize, Serialize};
@@ -12,6 +12,7 @@ use crate::galvo_timing::TimingSettings;
 use crate::job::{FieldCorrectionRecord, GalvoSettings, LensRecord};
 use crate::kinematics::MachineSettings;
 use crate::lens::{FieldCorrection, LensModel};
+use crate::process::ProcessSettings;
 
 /// The default weight of the extent-scaled positions. Scaled positions span about 1 while
 /// feature vectors a few degrees apart differ by about 0.09 (5°): at weight 1 the positions
@@ -252,9 +253,52 @@ impl LensSettings {
     }
 }
 
+/// The largest extra clearance of kerf compensation, µm (`trim.kerf_clearance_um`): the line
+/// then stands this far beyond the half kerf, and a web stub as tall stays on the edge, so more
+/// than 100 µm (over three times the ±30 µm product tolerance) is no trim.
+pub const MAX_KERF_CLEARANCE_UM: f64 = 100.0;
+
+/// Trimming options (job.toml `[trim]`): kerf compensation.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrimSettings {
+    /// Offset every trimming line out of the material by half the kerf ([process]
+    /// kerf_width_um, or the spot diameter when it is unset) plus kerf_clearance_um, in the face
+    /// the contour edges, so the kerf's inner side lies on the edge instead of half a kerf
+    /// inside it. The material side comes from the path's geometry (closed loops and their
+    /// nesting); a contour whose side cannot be told (an open strip whose ends meet no other
+    /// contour, a lone loop) is left on the edge and named in the plan output. false: every
+    /// line on the edge.
+    pub kerf_compensation: bool,
+    /// Extra clearance beyond the half kerf, µm (0-100): the line stands this much further out
+    /// of the material, and a web stub this tall stays on the edge.
+    pub kerf_clearance_um: f64,
+}
+
+impl Default for TrimSettings {
+    fn default() -> Self {
+        TrimSettings {
+            kerf_compensation: true,
+            kerf_clearance_um: 0.0,
+        }
+    }
+}
+
+impl TrimSettings {
+    /// Refuses out-of-range values, naming the key.
+    pub fn validate(&self) -> Result<(), CellError> {
+        require_range(
+            "trim.kerf_clearance_um",
+            self.kerf_clearance_um,
+            0.0,
+            MAX_KERF_CLEARANCE_UM,
+        )
+    }
+}
+
 /// Every planning option: job.toml's top-level `max_incidence_deg` and its `[beam]`,
-/// `[zoning]`, `[layers]`, `[field]`, `[machine]`, `[galvo]`, `[timing]` and `[calibration]`
-/// tables (trimctl's `JobConfig` embeds them; a Job records them as `settings`).
+/// `[zoning]`, `[layers]`, `[field]`, `[machine]`, `[galvo]`, `[timing]`, `[calibration]`,
+/// `[process]` and `[trim]` tables (trimctl's `JobConfig` embeds them; a Job records them as `settings`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PlanSettings {
@@ -282,6 +326,12 @@ pub struct PlanSettings {
     /// and the calibration chain"). A missing key is the nominal value of [machine] (axis lines),
     /// the identity (scanner) or none (field correction).
     pub calibration: Calibration,
+    /// The ablation figures (depth_per_pass_um, kerf_width_um): the kerf that [trim]
+    /// compensates, how many passes a measured burr needs (`run --verify`), and what the
+    /// digital twin's cuts remove.
+    pub process: ProcessSettings,
+    /// Trimming: kerf compensation (the line offset out of the material by half the kerf).
+    pub trim: TrimSettings,
 }
 
 impl Default for PlanSettings {
@@ -296,6 +346,8 @@ impl Default for PlanSettings {
             galvo: GalvoSettings::default(),
             timing: TimingSettings::default(),
             calibration: Calibration::default(),
+            process: ProcessSettings::default(),
+            trim: TrimSettings::default(),
         }
     }
 }
@@ -312,7 +364,19 @@ impl PlanSettings {
         self.machine.validate()?;
         self.galvo.validate()?;
         self.calibration.validate(self.machine.kinematics)?;
+        self.process.validate()?;
+        self.trim.validate()?;
         Ok(())
+    }
+
+    /// How far kerf compensation offsets a trimming line out of the material, mm: half the
+    /// kerf (`[process]`) plus `trim.kerf_clearance_um`; `None` with `trim.kerf_compensation`
+    /// off.
+    #[must_use]
+    pub fn kerf_offset_mm(&self) -> Option<f64> {
+        self.trim.kerf_compensation.then(|| {
+            0.5 * self.process.kerf_width_mm(&self.beam) + self.trim.kerf_clearance_um * 1e-3
+        })
     }
 
     /// The lens model the galvo commands are computed with: the height term with L from
@@ -378,5 +442,58 @@ impl PlanSettings {
     #[must_use]
     pub fn table(&self) -> TableModel {
         self.calibration.table(&self.machine)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_kerf_offset_is_half_the_kerf_plus_the_clearance_and_none_when_off() {
+        let s = PlanSettings::default();
+        let half = 0.5 * s.process.kerf_width_mm(&s.beam);
+        assert!((s.kerf_offset_mm().unwrap() - half).abs() < 1e-15);
+        let cleared = PlanSettings {
+            trim: TrimSettings {
+                kerf_clearance_um: 5.0,
+                ..TrimSettings::default()
+            },
+            ..PlanSettings::default()
+        };
+        assert!((cleared.kerf_offset_mm().unwrap() - (half + 0.005)).abs() < 1e-15);
+        let off = PlanSettings {
+            trim: TrimSettings {
+                kerf_compensation: false,
+                ..TrimSettings::default()
+            },
+            ..PlanSettings::default()
+        };
+        assert_eq!(off.kerf_offset_mm(), None);
+    }
+
+    #[test]
+    fn an_out_of_range_clearance_is_refused_by_its_key() {
+        for bad in [-1.0, 100.5, f64::NAN, f64::INFINITY] {
+            let s = PlanSettings {
+                trim: TrimSettings {
+                    kerf_clearance_um: bad,
+                    ..TrimSettings::default()
+                },
+                ..PlanSettings::default()
+            };
+            let e = s.validate().unwrap_err().to_string();
+            assert!(e.contains("trim.kerf_clearance_um"), "{bad}: {e}");
+        }
+        for good in [0.0, 12.5, MAX_KERF_CLEARANCE_UM] {
+            let s = PlanSettings {
+                trim: TrimSettings {
+                    kerf_clearance_um: good,
+                    ..TrimSettings::default()
+                },
+                ..PlanSettings::default()
+            };
+            s.validate().unwrap();
+        }
     }
 }

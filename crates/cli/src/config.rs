@@ -26,12 +26,10 @@ pub struct JobConfig {
     /// Registration of the CAM path onto the scan (docs/DESIGN.md "Registration").
     pub register: RegisterSettings,
     /// The planning tables: top-level `max_incidence_deg` and `[beam]`, `[zoning]`, `[layers]`,
-    /// `[field]`, `[machine]`, `[galvo]`, `[timing]`, `[calibration]`, as the planner takes them.
+    /// `[field]`, `[machine]`, `[galvo]`, `[timing]`, `[calibration]`, `[process]`, `[trim]`, as
+    /// the planner takes them.
     #[serde(flatten)]
     pub plan: PlanSettings,
-    /// The ablation figures (`depth_per_pass_um`, `kerf_width_um`): how many passes a measured
-    /// burr needs (`run --verify`), and what the digital twin's cuts remove.
-    pub process: trim_cell::ProcessSettings,
     /// Where the devices are: "sim" starts the built-in simulator for that device.
     pub cell: CellConfig,
     /// The built-in simulators used where [cell] says "sim".
@@ -278,7 +276,6 @@ impl JobConfig {
     /// Checks every value's range, naming the key at fault.
     pub fn validate(&self) -> anyhow::Result<()> {
         self.plan.validate()?;
-        self.process.validate()?;
         self.sim
             .truth
             .validate(self.plan.machine.kinematics)

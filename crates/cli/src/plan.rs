@@ -97,6 +97,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         job.estimate.settle_s,
         job.estimate.laser_on_fraction * 1e2,
     );
+    for line in crate::summary::kerf(job).lines() {
+        eprintln!("trimctl plan: {line}");
+    }
     for line in &v.violations {
         eprintln!("trimctl plan: violation: {line}");
     }

@@ -169,6 +169,35 @@ pub fn plan(plan: &PlanOutput) -> String {
             format!(", {} violations", v.violations.len())
         }
     );
+    s.push_str(&kerf(job));
+    s
+}
+
+/// The kerf compensation line: how far the lines stand out of the material, and every contour
+/// left on its edge with why (its material side unknown).
+#[must_use]
+pub fn kerf(job: &trim_cell::Job) -> String {
+    let Some(k) = &job.kerf else {
+        return "kerf compensation: off (trim.kerf_compensation = false): every line on its edge\n"
+            .to_owned();
+    };
+    let mut s = format!(
+        "kerf compensation: {} contours offset {:.1} µm out of the material",
+        k.compensated.len(),
+        k.offset_mm * 1e3
+    );
+    if k.uncompensated.is_empty() {
+        s.push('\n');
+    } else {
+        let _ = writeln!(
+            s,
+            "; {} left on the edge (material side unknown):",
+            k.uncompensated.len()
+        );
+        for u in &k.uncompensated {
+            let _ = writeln!(s, "  contour {}: {}", u.contour, u.reason);
+        }
+    }
     s
 }
 

@@ -70,6 +70,7 @@ fn job() -> Job {
         },
         validation: ValidationReport::default(),
         estimate: TimeEstimate::default(),
+        kerf: None,
     }
 }
 

@@ -481,6 +481,7 @@ mod tests {
             },
             validation: ValidationReport::default(),
             estimate: TimeEstimate::default(),
+            kerf: None,
         }
     }
 

@@ -83,6 +83,10 @@ pub enum PlanError {
         /// linfa's message.
         message: String,
     },
+    /// A contour offset by kerf compensation is no valid contour (trim-geom's check, naming
+    /// the contour).
+    #[error("kerf compensation: {0}")]
+    Geom(#[from] trim_geom::GeomError),
     /// The caller asked the planning to stop (`trim_geom::cancel`; Ctrl-C in Python).
     #[error("planning cancelled")]
     Cancelled,

@@ -5,6 +5,7 @@
 //! - [`zoning`]: k-means zoning with the incidence limit and automatic k.
 //! - [`cover`]: zoning as covering: few poses (axis + field centre) checked with the real ray.
 //! - [`hatch`]: surface hatching: equal-spacing tracks on a scanned freeform surface.
+//! - [`kerf`]: kerf compensation: each contour's material side and the offset out of it.
 //! - [`layer`]: layers by paper Eq. 14 and the galvo projection.
 //! - [`field`]: scan-field sections and the lens ray angle.
 //! - [`order`]: zone ordering (nearest neighbour + 2-opt).
@@ -15,6 +16,7 @@
 pub mod cover;
 pub mod error;
 pub mod hatch;
+pub mod kerf;
 pub mod layer;
 pub mod order;
 pub mod piece;
@@ -25,6 +27,6 @@ pub mod zoning;
 
 pub use error::PlanError;
 pub use layer::LayerSettings;
-pub use planner::{PlanOutput, PlanSettings, ZoneRow, plan, plan_with_report};
+pub use planner::{PlanOutput, PlanSettings, ZoneRow, plan, plan_with_report, plan_with_sides};
 pub use scan_field::LensSettings;
 pub use zoning::{ZoningMethod, ZoningSettings};

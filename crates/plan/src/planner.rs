@@ -12,6 +12,11 @@
 //! the zone axis; X/Y are where the galvo's x/y point), and the galvo polylines are the points'
 //! (x, y) in it relative to the layer's focus point; (7) validation and the time estimate.
 //!
+//! With kerf compensation (`[trim]`, [`crate::kerf`]) the path planned is the registered path
+//! with each contour whose material side is known offset out of the material by half the kerf
+//! (plus the clearance); "registered point" below means that offset point, and validation also
+//! checks the offset against the registered path.
+//!
 //! # What the round trip guarantees
 //!
 //! A galvo point (x, y) of a layer is the projection of its registered point P along the zone
@@ -136,8 +141,103 @@ pub fn plan(path: &Path, settings: &PlanSettings) -> Result<Job, PlanError> {
     Ok(plan_with_report(path, settings)?.job)
 }
 
-/// [`plan`], also returning the zoning summary and the zone table.
+/// [`plan`], also returning the zoning summary and the zone table. Kerf compensation takes
+/// each contour's material side from `path` itself ([`crate::kerf::material_sides`]).
 pub fn plan_with_report(path: &Path, settings: &PlanSettings) -> Result<PlanOutput, PlanError> {
+    plan_with_sides(path, settings, None)
+}
+
+/// [`plan_with_report`] with the material sides given: those of a fuller path when `path` is
+/// some of its contours (a retrim plans the failing contours alone, and a lone hole does not
+/// say where its material is; the whole registered path does). `None`: from `path`.
+///
+/// With `trim.kerf_compensation` (the default) every contour whose side is known is offset by
+/// [`PlanSettings::kerf_offset_mm`] out of the material ([`crate::kerf::compensate`]) and the
+/// offset path is planned; the Job records what moved (`kerf`), and validation checks the
+/// round trip against the offset path and the offset against `path`.
+pub fn plan_with_sides(
+    path: &Path,
+    settings: &PlanSettings,
+    sides: Option<&crate::kerf::MaterialSides>,
+) -> Result<PlanOutput, PlanError> {
+    settings.validate()?;
+    let Some(offset_mm) = settings.kerf_offset_mm() else {
+        return plan_line(path, settings);
+    };
+    let own;
+    let sides = match sides {
+        Some(s) => s,
+        None => {
+            own = crate::kerf::material_sides(path);
+            &own
+        }
+    };
+    let (line, record) = crate::kerf::compensate(path, sides, offset_mm)?;
+    let mut out = plan_line(&line, settings)?;
+    check_kerf(&mut out.job.validation, path, &line, &record);
+    out.job.kerf = Some(record);
+    Ok(out)
+}
+
+/// Kerf validation: every vertex of a compensated contour stands between the offset and
+/// [`crate::kerf::MAX_MITER`] offsets from its registered point, in the face (normal to its
+/// feature vector); every other contour's vertices are where they were.
+fn check_kerf(
+    report: &mut ValidationReport,
+    path: &Path,
+    line: &Path,
+    record: &trim_cell::job::KerfRecord,
+) {
+    let d = record.offset_mm;
+    let mut lines = Vec::new();
+    for c in path.contours() {
+        let Some(moved) = line.get(c.id()) else {
+            lines.push(format!("contour {}: not in the offset path", c.id()));
+            continue;
+        };
+        let compensated = record.compensated.contains(&c.id());
+        let (lo, hi) = if compensated {
+            (d, crate::kerf::MAX_MITER * d)
+        } else {
+            (0.0, 0.0)
+        };
+        let bad = c
+            .points()
+            .iter()
+            .zip(moved.points())
+            .zip(c.features())
+            .position(|((p, q), f)| {
+                let delta = q - p;
+                let norm = delta.norm();
+                norm < lo - CHECK_SLACK
+                    || norm > hi + CHECK_SLACK
+                    || delta.dot(f).abs() > CHECK_SLACK
+            });
+        if let Some(i) = bad.or((moved.points().len() != c.points().len()).then_some(0)) {
+            lines.push(format!(
+                "contour {} point {i}: kerf offset {:.6} mm, expected {} (in the face)",
+                c.id(),
+                moved
+                    .points()
+                    .get(i)
+                    .map_or(f64::NAN, |q| (q - c.points()[i]).norm()),
+                if compensated {
+                    format!("{lo:.6}–{hi:.6} mm")
+                } else {
+                    "none".to_owned()
+                }
+            ));
+        }
+    }
+    if !lines.is_empty() {
+        report.passed = false;
+        report.violations.extend(lines);
+    }
+}
+
+/// Plans `path` as given: the line the beam is to draw (the registered path, or its
+/// kerf-compensated offset).
+fn plan_line(path: &Path, settings: &PlanSettings) -> Result<PlanOutput, PlanError> {
     settings.validate()?;
     let limit_rad = settings.max_incidence_deg.to_radians();
     let zoning_limit_rad = settings.field.zoning_limit_rad(limit_rad);
@@ -311,6 +411,7 @@ fn finish_plan(
         },
         validation: ValidationReport::default(),
         estimate,
+        kerf: None,
     };
     job.validation = validate(&job, &traces, path, settings, &lens_model);
     Ok(PlanOutput {
@@ -1012,6 +1113,106 @@ mod tests {
         }
     }
 
+    /// A square loop of side `s` about (cx, 0, 0) in the plane z = 0, feature +z, closed.
+    fn square(id: ContourId, cx: f64, s: f64, n: usize) -> trim_geom::Contour {
+        let h = s / 2.0;
+        let corners = [[-h, -h], [h, -h], [h, h], [-h, h], [-h, -h]];
+        let mut points = Vec::new();
+        for w in corners.windows(2) {
+            for k in 0..n {
+                let t = k as f64 / n as f64;
+                points.push(Point3::new(
+                    cx + w[0][0] + t * (w[1][0] - w[0][0]),
+                    w[0][1] + t * (w[1][1] - w[0][1]),
+                    0.0,
+                ));
+            }
+        }
+        points.push(points[0]);
+        trim_geom::Contour::new(id, points, Vector3::z()).unwrap()
+    }
+
+    /// Every galvo point of contour `id`, back in the work-piece frame (its height kept).
+    fn landed(job: &Job, id: ContourId) -> Vec<Point3> {
+        job.layers()
+            .flat_map(|(_, zone, layer)| {
+                layer
+                    .polylines
+                    .iter()
+                    .filter(move |p| p.contour == id)
+                    .flat_map(move |p| {
+                        p.points.iter().zip(&p.heights_mm).map(move |(xy, h)| {
+                            workpiece_from_galvo(zone, layer, *xy) + zone.frame.z_axis() * *h
+                        })
+                    })
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_planned_line_stands_half_a_kerf_out_of_the_material_a_hole_inward_an_outline_outward() {
+        // A 20 mm square outline (material inside) holding a 4 mm square hole (material
+        // outside), on the plane z = 0.
+        let path = Path::new(vec![square(1, 0.0, 20.0, 20), square(2, 0.0, 4.0, 8)]).unwrap();
+        let settings = PlanSettings::default();
+        let d = settings.kerf_offset_mm().unwrap();
+        assert!((d - 0.5 * 2.0 * settings.beam.waist_radius_mm()).abs() < 1e-15);
+        let out = plan_with_report(&path, &settings).unwrap();
+        assert!(
+            out.job.validation.passed,
+            "{:?}",
+            out.job.validation.violations
+        );
+        let kerf = out.job.kerf.as_ref().expect("kerf record");
+        assert_eq!(kerf.compensated, vec![1, 2]);
+        assert!(kerf.uncompensated.is_empty());
+        // Signed distance out of a square centred at the origin (negative inside).
+        let out_of = |q: &Point3, s: f64| {
+            let (dx, dy) = (q.x.abs() - s / 2.0, q.y.abs() - s / 2.0);
+            if dx > 0.0 || dy > 0.0 {
+                dx.max(0.0).hypot(dy.max(0.0))
+            } else {
+                dx.max(dy)
+            }
+        };
+        let hole = landed(&out.job, 2);
+        assert!(!hole.is_empty());
+        for q in &hole {
+            // Into the hole by the offset (1 µm: the round-trip tolerance), on the face.
+            assert!(
+                (out_of(q, 4.0) + d).abs() < 1e-3,
+                "hole {q}: {}",
+                out_of(q, 4.0)
+            );
+            assert!(q.z.abs() < 1e-9);
+        }
+        for q in &landed(&out.job, 1) {
+            let o = out_of(q, 20.0);
+            assert!(o > d - 1e-3 && o < 2.0 * d, "outline {q}: {o}");
+        }
+        // Off: the line on the edges, no record.
+        let mut off = settings.clone();
+        off.trim.kerf_compensation = false;
+        let on_edge = plan_with_report(&path, &off).unwrap();
+        assert!(on_edge.job.kerf.is_none());
+        for q in &landed(&on_edge.job, 2) {
+            assert!(out_of(q, 4.0).abs() < 1e-3, "{q}");
+        }
+        // Sides from a fuller path: the hole alone says nothing, the path with its outline
+        // does.
+        let hole_only = Path::new(vec![square(2, 0.0, 4.0, 8)]).unwrap();
+        let alone = plan_with_report(&hole_only, &settings).unwrap();
+        let rec = alone.job.kerf.as_ref().unwrap();
+        assert!(rec.compensated.is_empty());
+        assert_eq!(rec.uncompensated[0].contour, 2);
+        let sides = crate::kerf::material_sides(&path);
+        let given = plan_with_sides(&hole_only, &settings, Some(&sides)).unwrap();
+        assert_eq!(given.job.kerf.as_ref().unwrap().compensated, vec![2]);
+        for q in &landed(&given.job, 2) {
+            assert!((out_of(q, 4.0) + d).abs() < 1e-3, "{q}");
+        }
+    }
+
     #[test]
     fn refuses_bad_settings_by_key() {
         let path = synthetic_core_path(4, 1);
@@ -1030,5 +1231,9 @@ mod tests {
         };
         let e = plan(&path, &settings).unwrap_err();
         assert!(matches!(e, PlanError::TooManyZones { k: 100, .. }), "{e}");
+        let mut settings = PlanSettings::default();
+        settings.trim.kerf_clearance_um = 150.0;
+        let e = plan(&path, &settings).unwrap_err();
+        assert!(e.to_string().contains("trim.kerf_clearance_um"), "{e}");
     }
 }

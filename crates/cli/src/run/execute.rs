@@ -235,9 +235,15 @@ pub(super) struct TwinLink {
 }
 
 /// The twin that lands the galvo simulator's vectors on the true part ([sim.truth]), the
-/// demo's true line read from `run_dir`.
+/// demo's true line read from `run_dir`. Its spot error is measured against the line the plan
+/// means to draw: the true line offset out of the material as `[trim]` offsets the registered
+/// one (the landed line itself comes from the galvo commands, offset once, by the planner).
 pub(super) fn twin_link(config: &JobConfig, run_dir: &Path) -> anyhow::Result<TwinLink> {
-    let (twin, line_ids) = simulated::twin(config, truth_line(config, run_dir)?);
+    let line = truth_line(config, run_dir)?
+        .map(|l| trim_plan::kerf::intended_line(&l, config.plan.kerf_offset_mm()))
+        .transpose()
+        .context("sim.truth.path: the true line's kerf compensation")?;
+    let (twin, line_ids) = simulated::twin(config, line);
     Ok(TwinLink { twin, line_ids })
 }
 

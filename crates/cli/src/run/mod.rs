@@ -19,7 +19,7 @@ use trim_geom::formats;
 use trim_io::executor::{ExecError, RunSummary, StopCause};
 use trim_io::journal::CutLayer;
 use trim_io::live::{DEFAULT_LIVE_ADDR, LiveAddr, LiveServer};
-use trim_plan::planner::{PlanOutput, plan_with_report};
+use trim_plan::planner::{PlanOutput, plan_with_sides};
 use trim_register::regional::{Registration, register};
 
 use crate::config::JobConfig;
@@ -315,7 +315,13 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     let registration = register_part(&inputs, &config, &run_dir, &mut timings)?;
     let trusted = trusted_contours(&registration, args, &run_dir)?;
     let to_plan = with_hatch_tracks(trusted, &inputs, &registration, &run_dir, &mut timings)?;
-    let plan = plan_part(&to_plan, &config, &run_dir, &mut timings)?;
+    let plan = plan_part(
+        &to_plan,
+        &registration.path,
+        &config,
+        &run_dir,
+        &mut timings,
+    )?;
     check_plan(&plan, args)?;
     if args.dry_run {
         write_report(
@@ -567,16 +573,24 @@ fn with_hatch_tracks(
     Ok(TrimPath::new(contours)?)
 }
 
-/// Zones and layers planned, written and summarised.
+/// Zones and layers planned, written and summarised. Kerf compensation takes the material
+/// sides from the whole `registered` path (an untrusted contour left out may be a hole's
+/// outline).
 fn plan_part(
     to_plan: &TrimPath,
+    registered: &TrimPath,
     config: &JobConfig,
     run_dir: &Path,
     timings: &mut Timings,
 ) -> anyhow::Result<PlanOutput> {
     let t = Instant::now();
     let spinner = stage("planning zones and layers");
-    let plan = plan_with_report(to_plan, &config.plan).context("planning")?;
+    let sides = config
+        .plan
+        .trim
+        .kerf_compensation
+        .then(|| trim_plan::kerf::material_sides(registered));
+    let plan = plan_with_sides(to_plan, &config.plan, sides.as_ref()).context("planning")?;
     drop(spinner);
     timings.plan_s = t.elapsed().as_secs_f64();
     write_plan(run_dir, &plan)?;

@@ -16,7 +16,7 @@ use anyhow::Context;
 use serde::Serialize;
 use trim_geom::{Path as TrimPath, PointCloud, Similarity3};
 use trim_inspect::{InspectSettings, Inspection, Placement, Verdict, inspect};
-use trim_plan::planner::plan_with_report;
+use trim_plan::planner::plan_with_sides;
 use trim_register::regional::Registration;
 use trim_sim::twin_part::TwinPart;
 
@@ -64,13 +64,13 @@ pub(super) fn verify(
     )?;
     let mut part = TwinPart::new(demo.case.clone(), demo.workpiece_from_case);
     let mesh = demo.case.cad_mesh()?;
-    let kerf_mm = config.process.kerf_width_mm(&config.plan.beam);
+    let kerf_mm = config.plan.process.kerf_width_mm(&config.plan.beam);
     let settings = InspectSettings::default();
     let placement = Placement::from_registration(registration);
     let mut cuts = landed_cuts(twin)?;
     let mut rounds: Vec<Round> = Vec::new();
     for k in 1..=args.rounds + 1 {
-        part.trim(&cuts, &config.process, kerf_mm)?;
+        part.trim(&cuts, &config.plan.process, kerf_mm)?;
         let spinner = stage("rescanning and inspecting the part");
         let scan = rescan(config, &part, args.demo_seed ^ u64::from(k) << 32)?;
         let result = inspect(&mesh, &inputs.path, scan.points(), &placement, &settings)?;
@@ -176,13 +176,22 @@ fn retrim_round(
             .cloned()
             .collect(),
     )?;
-    let mut plan = plan_with_report(&path, &config.plan).context("planning the retrim")?;
+    // The failing contours alone may not say where their material is (a hole without its
+    // outline): the sides come from the whole registered path.
+    let sides = trim_plan::kerf::material_sides(&registration.path);
+    let mut plan =
+        plan_with_sides(&path, &config.plan, Some(&sides)).context("planning the retrim")?;
     plan.job.set_passes(|id| {
         found
             .contours
             .iter()
             .find(|c| c.id == id)
-            .and_then(|c| config.process.passes_through(c.excess_height_um * 1e-3))
+            .and_then(|c| {
+                config
+                    .plan
+                    .process
+                    .passes_through(c.excess_height_um * 1e-3)
+            })
             .unwrap_or(trim_cell::process::MAX_PASSES)
     });
     if !plan.job.validation.passed {

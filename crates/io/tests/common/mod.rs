@@ -107,6 +107,7 @@ pub fn demo_job(layers: usize) -> Job {
         },
         validation: ValidationReport::default(),
         estimate: TimeEstimate::default(),
+        kerf: None,
     }
 }
 
