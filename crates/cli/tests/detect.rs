@@ -3,8 +3,9 @@
 //! a layer whose beam the simulated cell blocks on purpose (`--sim-block-beam`) leaves its
 //! contours' burrs standing, which `--verify`'s inspection fails and its retrim fixes.
 //!
-//! Both run the built-in demo part (seed 1, burrs on 30 % of its 52 contours) on the built-in
-//! simulated cell, in a debug build.
+//! The first two run the built-in demo part (seed 1, burrs on 30 % of its 52 contours) on the
+//! built-in simulated cell, in a debug build; the third a job of `trimctl synth`'s files, clean
+//! (nothing to trim: nothing planned, nothing moved) and burred.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
@@ -395,4 +396,88 @@ fn a_layer_whose_beam_is_blocked_fails_its_burred_contours_and_the_retrim_fixes_
     }
     assert!(num(last, "true_residual_max_um") <= TOLERANCE_UM, "{last}");
     assert!(num(last, "true_gouge_max_um") <= TOLERANCE_UM, "{last}");
+}
+
+/// A synthetic core (`trimctl synth`, seed 2, four views, no dropouts) scanned clean, and the
+/// same core with burrs on 30 % of its contours, each as a job of its own files.
+fn synth_job(dir: &Path, burrs: &str) -> std::path::PathBuf {
+    let core = dir.join("core");
+    let result = Command::new(TRIMCTL)
+        .args([
+            "synth",
+            "--seed",
+            "2",
+            "--views",
+            "4",
+            "--dropouts",
+            "0",
+            "--burrs",
+            burrs,
+            "--out",
+        ])
+        .arg(&core)
+        .output()
+        .expect("trimctl synth runs");
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let job = dir.join("job.toml");
+    std::fs::write(
+        &job,
+        format!(
+            "[trim]\nonly_detected = true\n[part]\ncad = {:?}\npath = {:?}\nscan = {:?}\n",
+            core.join("cad.stl"),
+            core.join("path.csv"),
+            core.join("scan.ply")
+        ),
+    )
+    .expect("job file");
+    job
+}
+
+#[test]
+fn a_part_with_nothing_detected_is_not_moved_and_the_report_says_so() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let clean_dir = tmp.path().join("clean");
+    std::fs::create_dir_all(&clean_dir).expect("dir");
+    let job = synth_job(&clean_dir, "0");
+    let out = clean_dir.join("run");
+    let (code, stdout, stderr) = trimctl(&[], &job, &out);
+    assert_eq!(code, Some(0), "stdout:\n{stdout}\nstderr:\n{stderr}");
+    assert!(stdout.contains("nothing to trim:"), "{stdout}");
+    // Nothing planned, nothing executed: no plan, no journal, no record.
+    for file in ["plan.json", "journal.jsonl", "run.mcap"] {
+        assert!(!out.join(file).exists(), "{file} written");
+    }
+    let summary = read_json(&out.join("summary.json"));
+    assert!(summary["nothing_to_trim"].is_string(), "{summary}");
+    let calls = summary["detection"]["contours"]
+        .as_array()
+        .expect("detection.contours");
+    assert_eq!(calls.len(), 52);
+    assert!(calls.iter().all(|c| c["trimmed"] == false), "{calls:?}");
+    let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    assert!(report.contains("**Nothing to trim**"), "{report}");
+
+    // The same core with burrs: the same job plans and trims them.
+    let burred_dir = tmp.path().join("burred");
+    std::fs::create_dir_all(&burred_dir).expect("dir");
+    let job = synth_job(&burred_dir, "0.3");
+    let out = burred_dir.join("run");
+    let (code, stdout, stderr) = trimctl(&[], &job, &out);
+    assert_eq!(code, Some(0), "stdout:\n{stdout}\nstderr:\n{stderr}");
+    assert!(!stdout.contains("nothing to trim"), "{stdout}");
+    let first = inspection(&out.join("detect"));
+    let burrs = burrs_seen(&first);
+    let planned = planned_passes(&read_json(&out.join("plan.json")));
+    eprintln!(
+        "clean core: nothing to trim; burred core: {} burrs seen, {} contours planned",
+        burrs.len(),
+        planned.len()
+    );
+    assert!(!burrs.is_empty());
+    assert!(burrs.iter().all(|id| planned.contains_key(id)), "{burrs:?}");
+    assert!(out.join("journal.jsonl").is_file());
 }
