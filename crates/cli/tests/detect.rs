@@ -481,3 +481,36 @@ fn a_part_with_nothing_detected_is_not_moved_and_the_report_says_so() {
     assert!(burrs.iter().all(|id| planned.contains_key(id)), "{burrs:?}");
     assert!(out.join("journal.jsonl").is_file());
 }
+
+#[test]
+fn sim_block_beam_is_refused_on_a_real_galvo_for_a_layer_the_plan_lacks_and_when_malformed() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let job = tmp.path().join("job.toml");
+    std::fs::write(&job, "").expect("job file");
+    // Not ZONE:LAYER: a usage error.
+    let (code, _, stderr) = trimctl(&["--sim-block-beam", "3-0"], &job, &tmp.path().join("a"));
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(stderr.contains("expected ZONE:LAYER"), "{stderr}");
+    // A layer the plan does not have: refused after planning, before anything moves.
+    let out = tmp.path().join("b");
+    let (code, _, stderr) = trimctl(&["--sim-block-beam", "999:0"], &job, &out);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains("--sim-block-beam 999:0: the plan has no such layer"),
+        "{stderr}"
+    );
+    assert!(out.join("plan.json").is_file() && !out.join("journal.jsonl").exists());
+    // A real galvo (an address, nothing listening): no twin, refused before connecting.
+    let out = tmp.path().join("c");
+    let (code, _, stderr) = trimctl(
+        &["--sim-block-beam", "0:0", "--galvo", "127.0.0.1:9"],
+        &job,
+        &out,
+    );
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains("--sim-block-beam: needs the digital twin"),
+        "{stderr}"
+    );
+    assert!(!out.join("journal.jsonl").exists());
+}
