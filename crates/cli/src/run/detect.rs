@@ -90,6 +90,9 @@ pub(super) struct ContourCall {
     pub(super) call: Call,
     /// Whether it is planned.
     pub(super) trimmed: bool,
+    /// Called for trimming but left out: registration flags it untrustworthy
+    /// (`--skip-untrusted`).
+    pub(super) untrusted: bool,
     /// The measured excess height, µm (0: none clearly above the noise).
     pub(super) excess_height_um: f64,
     /// The expanded uncertainty U, µm.
@@ -158,6 +161,7 @@ pub(super) fn call(
         verdict: c.verdict,
         call,
         trimmed: call.trimmed(),
+        untrusted: false,
         excess_height_um: h,
         uncertainty_um: u,
         coverage: c.coverage,
@@ -168,6 +172,20 @@ pub(super) fn call(
 }
 
 impl Detection {
+    /// Leaves out of the trim the contours not in `trusted` (registration flags them
+    /// untrustworthy and `--skip-untrusted` plans without them), so the record says what was
+    /// planned.
+    pub(super) fn leave_out_untrusted(&mut self, trusted: &BTreeSet<i64>) {
+        for c in &mut self.contours {
+            if c.trimmed && !trusted.contains(&c.id) {
+                c.trimmed = false;
+                c.untrusted = true;
+                c.passes = None;
+                c.passes_from = None;
+            }
+        }
+    }
+
     /// The ids of the contours to trim.
     pub(super) fn trimmed(&self) -> BTreeSet<i64> {
         self.ids(|c| c.trimmed)
@@ -236,7 +254,14 @@ impl Detection {
                 c.excess_height_um,
                 c.uncertainty_um,
                 100.0 * c.coverage,
-                c.call.words(),
+                if c.untrusted {
+                    format!(
+                        "{}, but untrustworthy (--skip-untrusted): not planned",
+                        c.call.words()
+                    )
+                } else {
+                    c.call.words().to_owned()
+                },
                 match (c.passes, c.passes_from) {
                     (Some(p), Some(PassesFrom::HeightCapped)) => format!("{p} (capped)"),
                     (Some(p), Some(PassesFrom::NothingSeen)) => format!("{p} (no excess seen)"),
@@ -250,7 +275,8 @@ impl Detection {
 }
 
 /// Inspects the first scan (`inputs.scan`, work-piece frame) through `registration` against
-/// the CAD `mesh` ([`cad_mesh`]), writes `detect/` and calls every contour.
+/// the CAD `mesh` ([`cad_mesh`]), writes `detect/` and calls every contour (printed by the
+/// caller, once the untrusted contours are left out).
 pub(super) fn detect(
     config: &JobConfig,
     inputs: &Inputs,
@@ -292,7 +318,6 @@ pub(super) fn detect(
             .collect(),
     };
     timings.detect_s = t.elapsed().as_secs_f64();
-    println!("{}", detection.line());
     for c in detection
         .contours
         .iter()
@@ -443,5 +468,11 @@ mod tests {
         let md = d.markdown();
         assert!(md.contains("| 4 | undecided | 0 | 25 | 50 | not covered enough to tell: trimmed | 1 (no excess seen) |"), "{md}");
         assert!(md.contains("Skipped as clean: {6, 7, 8}"), "{md}");
+        // A burr on a contour registration does not trust is not planned, and says so.
+        let mut d = d;
+        d.leave_out_untrusted(&BTreeSet::from([1, 3, 4, 5, 6, 7, 8, 9]));
+        assert_eq!(d.trimmed(), BTreeSet::from([1, 3, 4, 5, 9]));
+        assert!(!d.passes().contains_key(&2));
+        assert!(d.markdown().contains("| 2 | fail | 56 | 25 | 100 | burr: fails on excess, but untrustworthy (--skip-untrusted): not planned | - |"));
     }
 }

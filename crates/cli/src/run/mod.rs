@@ -351,7 +351,7 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
         .contours()
         .to_vec();
     let detection = if let Some(mesh) = &mesh {
-        let d = detect::detect(
+        let mut d = detect::detect(
             &config,
             &inputs,
             mesh,
@@ -359,6 +359,8 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
             &run_dir,
             &mut timings,
         )?;
+        d.leave_out_untrusted(&contours.iter().map(trim_geom::Contour::id).collect());
+        println!("{}", d.line());
         let keep = d.trimmed();
         contours.retain(|c| keep.contains(&c.id()));
         Some(d)
