@@ -236,7 +236,7 @@ pub struct Twin {
 struct BeamBlock {
     /// The list (1 = the first to mark) whose beam is blocked.
     nth_list: Option<u32>,
-    /// The tags of the lists that marked, in order.
+    /// The tags of the lists that marked, in order (kept only while a block is set).
     tags: Vec<u32>,
     /// Mark vectors that landed nothing because of the block.
     marks_blocked: u64,
@@ -270,7 +270,7 @@ impl Twin {
     /// normal layer (marked, journaled as done); nothing reaches the part: no spot, no cut. It
     /// stands for a beam that did not arrive (a shutter, a soiled window, a power drop) and
     /// exists to show that inspection catches an under-trimmed part. A simulator-only fault:
-    /// a real cell has no twin.
+    /// a real cell has no twin. Set it before the run: lists are counted from then on.
     pub fn block_beam(&self, nth_list: u32) {
         self.blocked
             .lock()
@@ -293,16 +293,18 @@ impl Twin {
             .blocked
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        let ordinal = match b.tags.iter().position(|t| *t == tag) {
+        let Some(nth) = b.nth_list else {
+            return false;
+        };
+        // The lists mark one after the other: the last tag seen is almost always this one.
+        let ordinal = match b.tags.iter().rposition(|t| *t == tag) {
             Some(i) => i + 1,
             None => {
                 b.tags.push(tag);
                 b.tags.len()
             }
         };
-        let blocked = b
-            .nth_list
-            .is_some_and(|n| usize::try_from(n).is_ok_and(|n| n == ordinal));
+        let blocked = usize::try_from(nth).is_ok_and(|n| n == ordinal);
         if blocked {
             b.marks_blocked += 1;
         }
