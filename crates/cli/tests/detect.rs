@@ -36,7 +36,7 @@ fn trimctl(args: &[&str], job: &Path, out: &Path) -> (Option<i32>, String, Strin
         .arg("run")
         .arg(job)
         .args(args)
-        .args(["--sim-time-scale", "0.005", "--out"])
+        .args(["--sim-time-scale", "0.01", "--out"])
         .arg(out)
         .output()
         .expect("trimctl runs");
@@ -315,10 +315,18 @@ fn a_layer_whose_beam_is_blocked_fails_its_burred_contours_and_the_retrim_fixes_
     assert_eq!(layers(&read_json(&out.join("plan.json"))), plan_layers);
     let summary = read_json(&out.join("summary.json"));
     let fault = &summary["injected_fault"];
-    assert!(
-        fault["marks_blocked"].as_u64().expect("marks_blocked") > 0,
-        "{fault}"
-    );
+    // Every mark vector of the layer, every pass, and no other: what the journal says the
+    // layer marked.
+    let journaled = std::fs::read_to_string(out.join("journal.jsonl"))
+        .expect("journal")
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).expect("journal line"))
+        .find(|e| {
+            e["kind"] == "layer_done" && e["key"]["zone"] == zone && e["key"]["layer"] == layer
+        })
+        .expect("the blocked layer journaled as done");
+    assert!(journaled["vectors"].as_u64().expect("vectors") > 0);
+    assert_eq!(fault["marks_blocked"], journaled["vectors"], "{fault}");
     let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
     assert!(report.contains("## Injected fault"), "{report}");
 
