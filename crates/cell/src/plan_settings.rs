@@ -258,7 +258,7 @@ impl LensSettings {
 /// than 100 µm (over three times the ±30 µm product tolerance) is no trim.
 pub const MAX_KERF_CLEARANCE_UM: f64 = 100.0;
 
-/// Trimming options (job.toml `[trim]`): kerf compensation.
+/// Trimming options (job.toml `[trim]`): kerf compensation, and what `run` trims.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrimSettings {
@@ -273,6 +273,13 @@ pub struct TrimSettings {
     /// Extra clearance beyond the half kerf, µm (0-100): the line stands this much further out
     /// of the material, and a web stub this tall stays on the edge.
     pub kerf_clearance_um: f64,
+    /// true: `trimctl run` inspects the first scan after registration (as `trimctl inspect`)
+    /// and trims only the contours that carry excess (failing on it, or within U of the
+    /// tolerance) or that the scan covers too little to tell (those are listed as such), each
+    /// with the passes its measured excess height needs at process.depth_per_pass_um; clean
+    /// contours are skipped and listed. Needs part.cad to be a mesh (STL or PLY faces). false:
+    /// trim every contour, one pass each.
+    pub only_detected: bool,
 }
 
 impl Default for TrimSettings {
@@ -280,6 +287,7 @@ impl Default for TrimSettings {
         TrimSettings {
             kerf_compensation: true,
             kerf_clearance_um: 0.0,
+            only_detected: false,
         }
     }
 }

@@ -322,6 +322,15 @@ impl JobConfig {
         if given != 0 && given != 3 {
             bail!("part: give all of cad, path and scan, or none (for the built-in demo part)");
         }
+        if self.plan.trim.only_detected
+            && let Some(cad) = &self.part.cad
+            && !cad_may_be_a_mesh(cad)
+        {
+            bail!(
+                "trim.only_detected: part.cad {} is a point-cloud format; detecting burrs measures distances to the CAD's surface: give the STL or PLY mesh",
+                cad.display()
+            );
+        }
         Ok(())
     }
 
@@ -356,6 +365,15 @@ impl JobConfig {
     pub fn is_demo(&self) -> bool {
         self.part.cad.is_none()
     }
+}
+
+/// Whether `file`'s format can hold a mesh (STL, PLY); PCD and XYZ are point clouds only. A
+/// PLY holding points alone is refused when it is read.
+fn cad_may_be_a_mesh(file: &Path) -> bool {
+    !file
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("pcd") || e.eq_ignore_ascii_case("xyz"))
 }
 
 /// The 1-based line of byte `at` of `text`.
@@ -913,6 +931,34 @@ mod tests {
             let e = format!("{:#}", JobConfig::parse(text).unwrap_err());
             assert!(e.starts_with(expected), "{text}: {e}");
         }
+    }
+
+    #[test]
+    fn trim_only_detected_reads_defaults_to_false_and_is_refused_by_name() {
+        assert!(!JobConfig::default().plan.trim.only_detected);
+        let c = JobConfig::parse("[trim]\nonly_detected = true\n").unwrap();
+        assert!(c.plan.trim.only_detected);
+        assert_eq!(JobConfig::parse(&toml::to_string(&c).unwrap()).unwrap(), c);
+        for (text, expected) in [
+            (
+                "[trim]\nonly_detected = \"yes\"\n",
+                "line 2: trim.only_detected: invalid type",
+            ),
+            (
+                "[trim]\nonly_detect = true\n",
+                "line 2: trim.only_detect: unknown field `only_detect`",
+            ),
+            (
+                "[trim]\nonly_detected = true\n[part]\ncad = \"cad.xyz\"\npath = \"p.csv\"\nscan = \"s.ply\"\n",
+                "trim.only_detected: part.cad cad.xyz is a point-cloud format",
+            ),
+        ] {
+            let e = format!("{:#}", JobConfig::parse(text).unwrap_err());
+            assert!(e.starts_with(expected), "{text}: {e}");
+        }
+        // The same files without only_detected are a job (registration takes a cloud).
+        JobConfig::parse("[part]\ncad = \"cad.xyz\"\npath = \"p.csv\"\nscan = \"s.ply\"\n")
+            .unwrap();
     }
 
     #[test]

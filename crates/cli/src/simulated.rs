@@ -111,6 +111,26 @@ pub(crate) fn twin(
     (None, HashSet::new())
 }
 
+/// `--sim-block-beam`: the twin lands nothing of the run's `nth_list`-th list
+/// ([`trim_sim::twin::Twin::block_beam`]).
+pub(crate) fn block_beam(twin: &Arc<Twin>, nth_list: u32) {
+    #[cfg(feature = "sim")]
+    twin.block_beam(nth_list);
+    #[cfg(not(feature = "sim"))]
+    {
+        let _ = nth_list;
+        match **twin {}
+    }
+}
+
+/// The mark vectors the twin's blocked beam kept off the part (0 without a twin).
+pub(crate) fn marks_blocked(twin: Option<&Arc<Twin>>) -> u64 {
+    #[cfg(feature = "sim")]
+    return twin.map_or(0, |t| t.marks_blocked());
+    #[cfg(not(feature = "sim"))]
+    twin.map_or(0, |t| match **t {})
+}
+
 /// The twin's spot errors of a run, if it landed any spot (the journal finds each spot's
 /// layer).
 pub(crate) fn spot_report(

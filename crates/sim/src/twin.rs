@@ -227,6 +227,19 @@ pub struct Twin {
     pose: Mutex<Option<PoseSource>>,
     spots: Mutex<Vec<Spot>>,
     cuts: Mutex<Vec<LandedCut>>,
+    blocked: Mutex<BeamBlock>,
+}
+
+/// An injected fault of the twin's beam ([`Twin::block_beam`]): the lists seen so far, in the
+/// order their first mark arrived, and which one lands nothing.
+#[derive(Debug, Default)]
+struct BeamBlock {
+    /// The list (1 = the first to mark) whose beam is blocked.
+    nth_list: Option<u32>,
+    /// The tags of the lists that marked, in order (kept only while a block is set).
+    tags: Vec<u32>,
+    /// Mark vectors that landed nothing because of the block.
+    marks_blocked: u64,
 }
 
 impl std::fmt::Debug for Twin {
@@ -247,7 +260,55 @@ impl Twin {
             pose: Mutex::new(None),
             spots: Mutex::new(Vec::new()),
             cuts: Mutex::new(Vec::new()),
+            blocked: Mutex::new(BeamBlock::default()),
         })
+    }
+
+    /// Fault injection: the beam is blocked while the `nth_list`-th galvo list marks (1 = the
+    /// first list whose marks reach the twin; in a fresh run the layers mark in the job's
+    /// order, so that is the job's n-th layer). The galvo, the laser and the executor see a
+    /// normal layer (marked, journaled as done); nothing reaches the part: no spot, no cut. It
+    /// stands for a beam that did not arrive (a shutter, a soiled window, a power drop) and
+    /// exists to show that inspection catches an under-trimmed part. A simulator-only fault:
+    /// a real cell has no twin. Set it before the run: lists are counted from then on.
+    pub fn block_beam(&self, nth_list: u32) {
+        self.blocked
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .nth_list = Some(nth_list);
+    }
+
+    /// Mark vectors that landed nothing because of [`Twin::block_beam`].
+    #[must_use]
+    pub fn marks_blocked(&self) -> u64 {
+        self.blocked
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .marks_blocked
+    }
+
+    /// Whether list `tag`'s beam is blocked (and counts the vector if so).
+    fn beam_blocked(&self, tag: u32) -> bool {
+        let mut b = self
+            .blocked
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let Some(nth) = b.nth_list else {
+            return false;
+        };
+        // The lists mark one after the other: the last tag seen is almost always this one.
+        let ordinal = match b.tags.iter().rposition(|t| *t == tag) {
+            Some(i) => i + 1,
+            None => {
+                b.tags.push(tag);
+                b.tags.len()
+            }
+        };
+        let blocked = usize::try_from(nth).is_ok_and(|n| n == ordinal);
+        if blocked {
+            b.marks_blocked += 1;
+        }
+        blocked
     }
 
     /// The true cell.
@@ -267,6 +328,9 @@ impl Twin {
     /// Mark vector `vector` (0-based in the list; galvo bits, from → to) of list `tag`: lands
     /// both ends on the true part.
     pub fn on_mark(&self, tag: u32, vector: u32, from_bits: [i32; 2], to_bits: [i32; 2]) {
+        if self.beam_blocked(tag) {
+            return;
+        }
         let Some((position, tcp)) = self
             .pose
             .lock()
@@ -403,6 +467,37 @@ mod tests {
         let (p, d) = cell.beam(pos, true, [4.0, 0.0]);
         let (spot, _) = part.land(&p, &d).expect("lands");
         assert!((spot.x - 4.0 * (l + 0.2) / l).abs() < 1e-9, "{spot}");
+    }
+
+    #[test]
+    fn a_blocked_beam_lands_nothing_of_its_list_and_everything_of_the_others() {
+        let plan = PlanSettings::default();
+        let twin = Twin::new(
+            TrueCell::new(&TruthSettings::default(), &plan),
+            TruePart::new(&line_part()),
+        );
+        twin.attach_cnc(Box::new(|| ([0.0, 2.0, 1.0, 0.0, 0.0, 0.0], true)));
+        twin.block_beam(2);
+        let bits = |x_mm: f64| [(x_mm * twin.cell().bits_per_mm).round() as i32, 0];
+        // Three lists in the order they mark; the second is blocked.
+        for (tag, vectors) in [(0x5A00_0001, 2), (0x5A00_0002, 3), (0x5A00_0003, 2)] {
+            for v in 0..vectors {
+                twin.on_mark(tag, v, bits(f64::from(v)), bits(f64::from(v) + 0.5));
+            }
+        }
+        assert_eq!(twin.marks_blocked(), 3);
+        assert_eq!(twin.cuts().len(), 4);
+        let tags: Vec<u32> = twin.spots().iter().map(|s| s.tag).collect();
+        assert_eq!(tags.len(), 8);
+        assert!(!tags.contains(&0x5A00_0002), "{tags:x?}");
+        // Without a block every vector lands.
+        let clear = Twin::new(
+            TrueCell::new(&TruthSettings::default(), &plan),
+            TruePart::new(&line_part()),
+        );
+        clear.attach_cnc(Box::new(|| ([0.0, 2.0, 1.0, 0.0, 0.0, 0.0], true)));
+        clear.on_mark(1, 0, bits(0.0), bits(0.5));
+        assert_eq!((clear.cuts().len(), clear.marks_blocked()), (1, 0));
     }
 
     #[test]

@@ -25,7 +25,8 @@ pub(super) struct Inputs {
     pub(super) scan_from_cad_initial: Similarity3,
     pub(super) description: String,
     /// The built-in demo part as generated (its own frame) and where the fixture holds it:
-    /// what the digital twin trims and rescans (`--verify`).
+    /// what the digital twin trims and rescans (`--verify`), and whose CAD mesh detection
+    /// measures against (`[trim] only_detected`).
     pub(super) demo: Option<DemoPart>,
 }
 
@@ -39,7 +40,7 @@ pub(super) struct DemoPart {
     pub(super) workpiece_from_case: Similarity3,
 }
 
-/// The share of the demo's contours that carry burrs under `--verify`.
+/// The share of the demo's contours that carry burrs under `--verify` or `[trim] only_detected`.
 pub const DEMO_VERIFY_BURRS: f64 = 0.3;
 
 pub(super) fn load_inputs(
@@ -52,17 +53,20 @@ pub(super) fn load_inputs(
         .scan_from_cad
         .scan_from_cad("part.scan_from_cad")?;
     if config.is_demo() {
+        // The demo part carries burrs when something looks for them: `--verify`'s inspections
+        // or `[trim] only_detected`'s.
+        let burred = args.verify || config.plan.trim.only_detected;
         let params = SynthParams {
             seed: args.demo_seed,
             // A cell's scanner fixed to the machine, looking from three directions (two on the
             // top side, one below): with one view the ends of the demo's long strips are fixed
             // by the field alone and registration flags them.
             scanner_views: DEMO_SCANNER_VIEWS,
-            burr_fraction: if args.verify { DEMO_VERIFY_BURRS } else { 0.0 },
+            burr_fraction: if burred { DEMO_VERIFY_BURRS } else { 0.0 },
             ..SynthParams::default()
         };
         let mut case = generate(&params).context("building the demo part")?;
-        let demo = args.verify.then(|| DemoPart {
+        let demo = burred.then(|| DemoPart {
             case: case.clone(),
             workpiece_from_case: fixture,
         });

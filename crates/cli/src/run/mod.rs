@@ -13,7 +13,7 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use serde::Serialize;
-use trim_cell::Job;
+use trim_cell::{Job, LayerKey};
 use trim_geom::Path as TrimPath;
 use trim_geom::formats;
 use trim_io::executor::{ExecError, RunSummary, StopCause};
@@ -31,8 +31,11 @@ use execute::{TwinLink, execute, twin_link};
 pub(crate) use execute::{connect, start_simulators};
 use inputs::load_inputs;
 pub(crate) use report::SpotReport;
-use report::{append_resume_report, shutdown_of, shutdown_sentence, write_report};
+use report::{
+    BeamBlock, RunNotes, append_resume_report, shutdown_of, shutdown_sentence, write_report,
+};
 
+mod detect;
 mod execute;
 mod inputs;
 mod record;
@@ -66,6 +69,8 @@ pub mod files {
     pub const FIELD: &str = "field.json";
     /// The demo part's true trimming line (work-piece frame), under [`INPUTS`].
     pub const TRUTH: &str = "truth.csv";
+    /// The first scan's inspection under `[trim] only_detected`.
+    pub const DETECT: &str = "detect";
     /// `--verify`'s rounds.
     #[cfg_attr(
         not(feature = "sim"),
@@ -173,6 +178,13 @@ pub struct Args {
     /// With --verify: the most retrim rounds.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=5), requires = "verify")]
     rounds: u32,
+    /// Fault injection on the simulated cell, to show that inspection catches an under-trimmed
+    /// part: the digital twin's beam is blocked while layer ZONE:LAYER of the job (plan.json's
+    /// zone id and layer index) marks. The galvo, the laser and the journal see the layer marked;
+    /// nothing reaches the twin's part. Needs the simulated galvo with the twin (refused
+    /// otherwise, before anything moves); the report and summary.json record it.
+    #[arg(long, value_name = "ZONE:LAYER", value_parser = parse_layer_key, conflicts_with_all = ["dry_run", "resume"])]
+    sim_block_beam: Option<LayerKey>,
     /// The demo part's seed.
     #[arg(long, default_value_t = 1)]
     demo_seed: u64,
@@ -205,6 +217,22 @@ fn parse_live_addr(s: &str) -> Result<LiveAddr, String> {
     })
 }
 
+/// `--sim-block-beam`'s value: ZONE:LAYER.
+fn parse_layer_key(s: &str) -> Result<LayerKey, String> {
+    let (zone, layer) = s
+        .split_once(':')
+        .ok_or_else(|| format!("expected ZONE:LAYER (e.g. 3:0), got {s:?}"))?;
+    let number = |what: &str, v: &str| {
+        v.trim()
+            .parse::<usize>()
+            .map_err(|_| format!("{what} in {s:?}: expected a whole number, got {v:?}"))
+    };
+    Ok(LayerKey {
+        zone: number("ZONE", zone)?,
+        layer: number("LAYER", layer)?,
+    })
+}
+
 /// `--cut-layer`.
 #[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
 pub enum CutLayerArg {
@@ -228,6 +256,7 @@ impl From<CutLayerArg> for CutLayer {
 pub(super) struct Timings {
     load_s: f64,
     register_s: f64,
+    detect_s: f64,
     hatch_s: f64,
     plan_s: f64,
     execute_s: f64,
@@ -312,12 +341,45 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
         ));
     }
 
+    let mesh = if config.plan.trim.only_detected {
+        Some(detect::cad_mesh(&config, &inputs)?)
+    } else {
+        None
+    };
     let registration = register_part(&inputs, &config, &run_dir, &mut timings)?;
-    let trusted = trusted_contours(&registration, args, &run_dir)?;
-    let to_plan = with_hatch_tracks(trusted, &inputs, &registration, &run_dir, &mut timings)?;
+    let mut contours = trusted_contours(&registration, args, &run_dir)?
+        .contours()
+        .to_vec();
+    let detection = if let Some(mesh) = &mesh {
+        let mut d = detect::detect(
+            &config,
+            &inputs,
+            mesh,
+            &registration,
+            &run_dir,
+            &mut timings,
+        )?;
+        d.leave_out_untrusted(&contours.iter().map(trim_geom::Contour::id).collect());
+        println!("{}", d.line());
+        let keep = d.trimmed();
+        contours.retain(|c| keep.contains(&c.id()));
+        Some(d)
+    } else {
+        None
+    };
+    let mut notes = RunNotes {
+        detection: detection.as_ref(),
+        beam_block: None,
+    };
+    if contours.is_empty() && inputs.hatch.is_empty() {
+        return nothing_to_trim(&run_dir, &config, &inputs.description, &timings, &notes);
+    }
+    let to_plan = with_hatch_tracks(contours, &inputs, &registration, &run_dir, &mut timings)?;
+    let passes = detection.as_ref().map(detect::Detection::passes);
     let plan = plan_part(
         &to_plan,
         &registration.path,
+        passes.as_ref(),
         &config,
         &run_dir,
         &mut timings,
@@ -334,6 +396,7 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
             None,
             None,
             None,
+            &notes,
         )?;
         println!(
             "dry run: nothing executed; run folder {}",
@@ -345,10 +408,18 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     let t = Instant::now();
     let record = Some((&inputs, &registration));
     let twin = twin_link(&config, &run_dir)?;
+    notes.beam_block = args
+        .sim_block_beam
+        .map(|key| block_beam(&plan.job, key, &twin))
+        .transpose()?;
     let outcome = execute(
         &config, args, &run_dir, &plan.job, record, false, live, &twin,
     );
     timings.execute_s = t.elapsed().as_secs_f64();
+    if let Some(b) = &mut notes.beam_block {
+        b.marks_blocked = crate::simulated::marks_blocked(twin.twin.as_ref());
+        println!("{}", b.line());
+    }
     finish(
         &run_dir,
         &config,
@@ -357,11 +428,78 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
         &plan,
         &timings,
         outcome,
+        &notes,
     )?;
     if args.verify {
         verify_part(&config, args, &run_dir, &inputs, &registration, &twin)?;
     }
     Ok(())
+}
+
+/// No contour to trim and no region to hatch: nothing is planned and the machine is not
+/// moved; report.md and summary.json say so.
+fn nothing_to_trim(
+    run_dir: &Path,
+    config: &JobConfig,
+    description: &str,
+    timings: &Timings,
+    notes: &RunNotes<'_>,
+) -> anyhow::Result<()> {
+    let why = if config.plan.trim.only_detected {
+        "the first scan's inspection found no contour to trim ([trim] only_detected)"
+    } else {
+        "no contour is left to plan"
+    };
+    report::write_nothing_to_trim(run_dir, description, why, timings, notes)?;
+    println!(
+        "nothing to trim: {why}; nothing was planned and the machine was not moved; run folder {}",
+        run_dir.display()
+    );
+    Ok(())
+}
+
+/// `--sim-block-beam`: blocks the twin's beam during `key`'s list (its place in the job's
+/// execution order); refused, before anything moves, without the twin or for a layer the job
+/// does not have.
+fn block_beam(job: &Job, key: LayerKey, twin: &TwinLink) -> anyhow::Result<BeamBlock> {
+    let Some(t) = &twin.twin else {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "--sim-block-beam: needs the digital twin in the simulated galvo (cell.galvo = \"sim\" with the demo part or [sim.truth] path); a real cell's beam is not blocked by trimctl"
+            ),
+        ));
+    };
+    let Some((i, (_, _, layer))) = job.layers().enumerate().find(|(_, (k, _, _))| *k == key) else {
+        let keys: Vec<String> = job
+            .layers()
+            .map(|(k, _, _)| format!("{}:{}", k.zone, k.layer))
+            .collect();
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "--sim-block-beam {}:{}: the plan has no such layer (its layers: {})",
+                key.zone,
+                key.layer,
+                keys.join(", ")
+            ),
+        ));
+    };
+    let nth_list = u32::try_from(i + 1).context("--sim-block-beam: too many layers")?;
+    crate::simulated::block_beam(t, nth_list);
+    let contours: std::collections::BTreeSet<i64> =
+        layer.polylines.iter().map(|p| p.contour).collect();
+    let block = BeamBlock {
+        layer: key,
+        nth_list,
+        contours: contours.into_iter().collect(),
+        marks_blocked: 0,
+    };
+    eprintln!(
+        "trimctl run: FAULT INJECTED (simulation): the twin's beam is blocked while {key} marks (contours {:?})",
+        block.contours
+    );
+    Ok(block)
 }
 
 /// `--verify`: the rounds of inspection and retrim, added to report.md; a part that still
@@ -546,14 +684,14 @@ fn trusted_contours(
 
 /// The hatch regions' tracks, hatched on the registered scan, beside the contours.
 fn with_hatch_tracks(
-    to_plan: TrimPath,
+    contours: Vec<trim_geom::Contour>,
     inputs: &inputs::Inputs,
     registration: &Registration,
     run_dir: &Path,
     timings: &mut Timings,
 ) -> anyhow::Result<TrimPath> {
     if inputs.hatch.is_empty() {
-        return Ok(to_plan);
+        return Ok(TrimPath::new(contours)?);
     }
     let t = Instant::now();
     let spinner = stage("hatching regions on the registered scan");
@@ -565,7 +703,7 @@ fn with_hatch_tracks(
     )?;
     drop(spinner);
     timings.hatch_s = t.elapsed().as_secs_f64();
-    let mut contours = to_plan.contours().to_vec();
+    let mut contours = contours;
     for r in regions {
         println!("{}", r.summary);
         contours.extend(r.tracks);
@@ -575,10 +713,12 @@ fn with_hatch_tracks(
 
 /// Zones and layers planned, written and summarised. Kerf compensation takes the material
 /// sides from the whole `registered` path (an untrusted contour left out may be a hole's
-/// outline).
+/// outline). With `passes` (contour id → passes; contours not named, such as hatch tracks, 1),
+/// each polyline gets its contour's count and the time estimate follows.
 fn plan_part(
     to_plan: &TrimPath,
     registered: &TrimPath,
+    passes: Option<&std::collections::BTreeMap<i64, u32>>,
     config: &JobConfig,
     run_dir: &Path,
     timings: &mut Timings,
@@ -590,7 +730,12 @@ fn plan_part(
         .trim
         .kerf_compensation
         .then(|| trim_plan::kerf::material_sides(registered));
-    let plan = plan_with_sides(to_plan, &config.plan, sides.as_ref()).context("planning")?;
+    let mut plan =
+        plan_with_sides(to_plan, &config.plan, sides.as_ref()).context("planning")?;
+    if let Some(passes) = passes {
+        plan.job
+            .set_passes(|id| passes.get(&id).copied().unwrap_or(1));
+    }
     drop(spinner);
     timings.plan_s = t.elapsed().as_secs_f64();
     write_plan(run_dir, &plan)?;
@@ -635,6 +780,10 @@ fn write_plan(run_dir: &Path, plan: &PlanOutput) -> anyhow::Result<()> {
     Ok(())
 }
 
+#[expect(
+    clippy::too_many_arguments,
+    reason = "the report gathers every stage's result"
+)]
 fn finish(
     run_dir: &Path,
     config: &JobConfig,
@@ -643,6 +792,7 @@ fn finish(
     plan: &PlanOutput,
     timings: &Timings,
     outcome: anyhow::Result<Executed>,
+    notes: &RunNotes<'_>,
 ) -> anyhow::Result<()> {
     let (outcome, spots) = outcome?;
     let stopped = outcome.as_ref().err().map(ToString::to_string);
@@ -656,6 +806,7 @@ fn finish(
         outcome.as_ref().ok(),
         stopped.as_deref().map(|s| (s, shutdown_of(&outcome))),
         spots.as_ref(),
+        notes,
     )?;
     if let Some(r) = &spots {
         print!("{}", r.line());

@@ -14,6 +14,7 @@ use trim_register::regional::Registration;
 #[cfg(feature = "sim")]
 use trim_sim::twin::{Spot, SpotStats};
 
+use super::detect::Detection;
 use super::{Timings, files};
 use crate::config::JobConfig;
 use crate::summary;
@@ -145,6 +146,85 @@ impl SpotReport {
     fn markdown(&self) -> String {
         match *self {}
     }
+}
+
+/// What a fresh run adds to its report beyond the stages: what detection called each contour
+/// (`[trim] only_detected`) and an injected fault (`--sim-block-beam`).
+#[derive(Debug, Default)]
+pub(super) struct RunNotes<'a> {
+    /// The first scan's calls.
+    pub(super) detection: Option<&'a Detection>,
+    /// The twin's beam blocked during one layer.
+    pub(super) beam_block: Option<BeamBlock>,
+}
+
+/// `--sim-block-beam`: the layer whose beam the twin blocked.
+#[derive(Debug, Clone, Serialize)]
+pub(super) struct BeamBlock {
+    /// The layer.
+    pub(super) layer: trim_cell::LayerKey,
+    /// Its place in the job's execution order (1 = the first layer).
+    pub(super) nth_list: u32,
+    /// The contours of its polylines.
+    pub(super) contours: Vec<i64>,
+    /// Mark vectors that landed nothing (every pass counted).
+    pub(super) marks_blocked: u64,
+}
+
+impl BeamBlock {
+    /// One line for stdout and report.md.
+    pub(super) fn line(&self) -> String {
+        format!(
+            "FAULT INJECTED (simulation, --sim-block-beam): the twin's beam was blocked while {} marked ({} mark vectors landed nothing on the part; contours {:?}); the journal records the layer as marked",
+            self.layer, self.marks_blocked, self.contours
+        )
+    }
+}
+
+impl RunNotes<'_> {
+    fn markdown(&self) -> String {
+        let mut md = String::new();
+        if let Some(b) = &self.beam_block {
+            md.push_str(&format!("\n## Injected fault\n\n{}.\n", b.line()));
+        }
+        if let Some(d) = self.detection {
+            md.push_str(&d.markdown());
+        }
+        md
+    }
+
+    fn json(&self) -> (serde_json::Value, serde_json::Value) {
+        (
+            serde_json::to_value(self.detection).unwrap_or_default(),
+            serde_json::to_value(&self.beam_block).unwrap_or_default(),
+        )
+    }
+}
+
+/// report.md and summary.json of a run with nothing to trim (nothing planned, nothing moved).
+pub(super) fn write_nothing_to_trim(
+    run_dir: &Path,
+    description: &str,
+    why: &str,
+    timings: &Timings,
+    notes: &RunNotes<'_>,
+) -> anyhow::Result<()> {
+    let mut report = format!(
+        "# trimctl run\n\nPart: {description}\n\n**Nothing to trim**: {why}. Nothing was planned and the machine was not moved.\n"
+    );
+    report.push_str(&notes.markdown());
+    std::fs::write(run_dir.join(files::REPORT), report)?;
+    let (detection, _) = notes.json();
+    let json = serde_json::json!({
+        "timings_s": timings,
+        "nothing_to_trim": why,
+        "detection": detection,
+    });
+    std::fs::write(
+        run_dir.join(files::SUMMARY),
+        serde_json::to_string_pretty(&json)?,
+    )?;
+    Ok(())
 }
 
 /// What the operator must do when a step of the way down was not acknowledged.
@@ -297,6 +377,7 @@ pub(super) fn write_report(
     run: Option<&RunSummary>,
     stopped: Option<(&str, Option<&ShutdownReport>)>,
     spots: Option<&SpotReport>,
+    notes: &RunNotes<'_>,
 ) -> anyhow::Result<()> {
     let (stopped, shutdown) = stopped.map_or((None, None), |(s, r)| (Some(s), r));
     let mut report = summary::report_markdown(
@@ -309,6 +390,7 @@ pub(super) fn write_report(
         &[
             ("load", timings.load_s),
             ("register", timings.register_s),
+            ("detect", timings.detect_s),
             ("hatch", timings.hatch_s),
             ("plan", timings.plan_s),
             ("execute", timings.execute_s),
@@ -320,8 +402,12 @@ pub(super) fn write_report(
     if let Some(s) = spots {
         report.push_str(&s.markdown());
     }
+    report.push_str(&notes.markdown());
     std::fs::write(run_dir.join(files::REPORT), report)?;
+    let (detection, injected_fault) = notes.json();
     let json = serde_json::json!({
+        "detection": detection,
+        "injected_fault": injected_fault,
         "timings_s": timings,
         "run": run,
         "stopped": stopped,

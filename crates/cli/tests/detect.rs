@@ -1,0 +1,524 @@
+//! Detect before trimming and the skipped layer, at the CLI (issue 23): `[trim] only_detected`
+//! plans only what the first scan's inspection finds, with passes from the measured height; and
+//! a layer whose beam the simulated cell blocks on purpose (`--sim-block-beam`) leaves its
+//! contours' burrs standing, which `--verify`'s inspection fails and its retrim fixes.
+//!
+//! The first two run the built-in demo part (seed 1, burrs on 30 % of its 52 contours) on the
+//! built-in simulated cell, in a debug build; the third a job of `trimctl synth`'s files, clean
+//! (nothing to trim: nothing planned, nothing moved) and burred.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+use std::process::Command;
+
+use serde_json::Value;
+
+const TRIMCTL: &str = env!("CARGO_BIN_EXE_trimctl");
+
+/// The product's tolerance on residual web and gouge, µm (inspection's default).
+const TOLERANCE_UM: f64 = 30.0;
+/// `[process] depth_per_pass_um`'s default, µm.
+const DEPTH_PER_PASS_UM: f64 = 40.0;
+/// `[process]`'s most passes.
+const MAX_PASSES: u64 = 20;
+/// `min_coverage`'s default.
+const MIN_COVERAGE: f64 = 0.9;
+
+fn read_json(file: &Path) -> Value {
+    let text = std::fs::read_to_string(file)
+        .unwrap_or_else(|e| panic!("cannot read {}: {e}", file.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", file.display()))
+}
+
+/// `trimctl run JOB ARGS --out OUT` on the simulated cell: exit code, stdout, stderr.
+fn trimctl(args: &[&str], job: &Path, out: &Path) -> (Option<i32>, String, String) {
+    let result = Command::new(TRIMCTL)
+        .arg("run")
+        .arg(job)
+        .args(args)
+        .args(["--sim-time-scale", "0.01", "--out"])
+        .arg(out)
+        .output()
+        .expect("trimctl runs");
+    (
+        result.status.code(),
+        String::from_utf8_lossy(&result.stdout).into_owned(),
+        String::from_utf8_lossy(&result.stderr).into_owned(),
+    )
+}
+
+/// Contour id → the passes of its polylines (every polyline of a contour alike), over the
+/// plan's layers; hatch tracks (negative ids) left out.
+fn planned_passes(plan: &Value) -> BTreeMap<i64, BTreeSet<u64>> {
+    let mut out: BTreeMap<i64, BTreeSet<u64>> = BTreeMap::new();
+    for z in plan["zones"].as_array().expect("zones") {
+        for l in z["layers"].as_array().expect("layers") {
+            for p in l["polylines"].as_array().expect("polylines") {
+                let id = p["contour"].as_i64().expect("contour id");
+                if id >= 0 {
+                    out.entry(id)
+                        .or_default()
+                        .insert(p["passes"].as_u64().unwrap_or(1));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// (zone, layer) → contour ids (hatch tracks left out), in plan order.
+fn layers(plan: &Value) -> Vec<((u64, u64), BTreeSet<i64>)> {
+    let mut out = Vec::new();
+    for z in plan["zones"].as_array().expect("zones") {
+        for l in z["layers"].as_array().expect("layers") {
+            let ids = l["polylines"]
+                .as_array()
+                .expect("polylines")
+                .iter()
+                .map(|p| p["contour"].as_i64().expect("contour id"))
+                .filter(|id| *id >= 0)
+                .collect();
+            out.push((
+                (
+                    z["id"].as_u64().expect("zone id"),
+                    l["index"].as_u64().expect("layer index"),
+                ),
+                ids,
+            ));
+        }
+    }
+    out
+}
+
+/// The inspection's contours by id.
+fn inspection(dir: &Path) -> BTreeMap<i64, Value> {
+    read_json(&dir.join("inspection.json"))["contours"]
+        .as_array()
+        .expect("contours")
+        .iter()
+        .map(|c| (c["id"].as_i64().expect("id"), c.clone()))
+        .collect()
+}
+
+fn num(c: &Value, key: &str) -> f64 {
+    c[key]
+        .as_f64()
+        .unwrap_or_else(|| panic!("{key} missing: {c}"))
+}
+
+/// The ids whose first-scan inspection fails on excess: excess − U > tolerance (computed here
+/// from inspection.json, independently of the run's own calls).
+fn burrs_seen(first: &BTreeMap<i64, Value>) -> BTreeSet<i64> {
+    first
+        .iter()
+        .filter(|(_, c)| num(c, "excess_height_um") - num(c, "uncertainty_um") > TOLERANCE_UM)
+        .map(|(id, _)| *id)
+        .collect()
+}
+
+#[test]
+fn only_detected_trims_the_burred_contours_with_passes_from_their_height_and_skips_the_clean() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let job = tmp.path().join("job.toml");
+    std::fs::write(&job, "[trim]\nonly_detected = true\n").expect("job file");
+    let full_job = tmp.path().join("full.toml");
+    std::fs::write(&full_job, "").expect("job file");
+
+    // The full job (the default: every contour, one pass), planned only.
+    let full = tmp.path().join("full");
+    let (ok, stdout, stderr) = trimctl(&["--dry-run"], &full_job, &full);
+    assert_eq!(ok, Some(0), "stdout:\n{stdout}\nstderr:\n{stderr}");
+    let full_contours = planned_passes(&read_json(&full.join("plan.json")));
+    assert!(
+        full_contours.values().all(|p| p == &BTreeSet::from([1])),
+        "{full_contours:?}"
+    );
+    assert!(!full.join("detect").exists());
+
+    // A job whose CAD is a point cloud cannot be inspected: refused before registration,
+    // naming the key, nothing planned or moved.
+    let inputs = full.join("inputs");
+    let cloud_job = tmp.path().join("cloud.toml");
+    std::fs::write(
+        &cloud_job,
+        format!(
+            "[trim]\nonly_detected = true\n[part]\ncad = {:?}\npath = {:?}\nscan = {:?}\n",
+            inputs.join("cad_points.ply"),
+            inputs.join("path.csv"),
+            inputs.join("scan.ply")
+        ),
+    )
+    .expect("job file");
+    let refused = tmp.path().join("refused");
+    let (code, _, stderr) = trimctl(&[], &cloud_job, &refused);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains("trim.only_detected: part.cad") && stderr.contains("holds no mesh"),
+        "{stderr}"
+    );
+    assert!(!refused.join("registration.json").exists());
+    assert!(!refused.join("plan.json").exists() && !refused.join("journal.jsonl").exists());
+
+    let out = tmp.path().join("detected");
+    let (ok, stdout, stderr) = trimctl(&[], &job, &out);
+    assert_eq!(ok, Some(0), "stdout:\n{stdout}\nstderr:\n{stderr}");
+    assert!(stdout.contains("detect: "), "{stdout}");
+    let first = inspection(&out.join("detect"));
+    assert_eq!(first.len(), full_contours.len(), "one call per contour");
+    let plan = read_json(&out.join("plan.json"));
+    let planned = planned_passes(&plan);
+    let burrs = burrs_seen(&first);
+    eprintln!(
+        "full job: {} contours; only_detected: {} planned, {} failing on excess in the first scan",
+        full_contours.len(),
+        planned.len(),
+        burrs.len()
+    );
+    assert!(!burrs.is_empty());
+    assert!(
+        planned.len() < full_contours.len(),
+        "{} of {} planned",
+        planned.len(),
+        full_contours.len()
+    );
+    for (id, c) in &first {
+        let (h, u, coverage) = (
+            num(c, "excess_height_um"),
+            num(c, "uncertainty_um"),
+            num(c, "coverage"),
+        );
+        if burrs.contains(id) {
+            // Every detected burr is planned, each polyline with ⌈h / 40 µm⌉ passes (≤ 20).
+            let want = ((h / DEPTH_PER_PASS_UM - 1e-9).ceil() as u64).clamp(1, MAX_PASSES);
+            assert_eq!(
+                planned.get(id),
+                Some(&BTreeSet::from([want])),
+                "burr on contour {id} ({h:.0} µm)"
+            );
+        } else if coverage < MIN_COVERAGE {
+            // Not covered enough to tell: trimmed too (and reported as such).
+            assert!(
+                planned.contains_key(id),
+                "contour {id}: coverage {coverage}"
+            );
+        } else if h + u <= TOLERANCE_UM || h == 0.0 {
+            // Clean (shown within the tolerance, or covered with no excess): not trimmed.
+            assert!(!planned.contains_key(id), "clean contour {id} planned: {c}");
+        }
+    }
+    // Every planned layer was marked (journaled done once), counting every pass.
+    let mut done = BTreeMap::new();
+    for line in std::fs::read_to_string(out.join("journal.jsonl"))
+        .expect("journal")
+        .lines()
+    {
+        let e: Value = serde_json::from_str(line).expect("journal line");
+        if e["kind"] == "layer_done" {
+            let key = (
+                e["key"]["zone"].as_u64().expect("zone"),
+                e["key"]["layer"].as_u64().expect("layer"),
+            );
+            assert!(
+                done.insert(key, e["vectors"].as_u64().expect("vectors"))
+                    .is_none(),
+                "{key:?} done twice"
+            );
+        }
+    }
+    for z in plan["zones"].as_array().expect("zones") {
+        for l in z["layers"].as_array().expect("layers") {
+            let key = (
+                z["id"].as_u64().expect("id"),
+                l["index"].as_u64().expect("index"),
+            );
+            let vectors: u64 = l["polylines"]
+                .as_array()
+                .expect("polylines")
+                .iter()
+                .map(|p| {
+                    let n = p["commands"]
+                        .as_array()
+                        .map_or_else(|| p["points"].as_array().expect("points").len(), Vec::len)
+                        as u64;
+                    (n - 1) * p["passes"].as_u64().unwrap_or(1)
+                })
+                .sum();
+            assert_eq!(done.get(&key), Some(&vectors), "layer {key:?}");
+        }
+    }
+    // The report and summary.json say what was detected, skipped and how many passes.
+    let summary = read_json(&out.join("summary.json"));
+    let calls = summary["detection"]["contours"]
+        .as_array()
+        .expect("detection.contours");
+    assert_eq!(calls.len(), first.len());
+    for c in calls {
+        let id = c["id"].as_i64().expect("id");
+        assert_eq!(
+            c["trimmed"].as_bool().expect("trimmed"),
+            planned.contains_key(&id),
+            "{c}"
+        );
+        if let Some(p) = c["passes"].as_u64() {
+            assert_eq!(planned[&id], BTreeSet::from([p]), "{c}");
+        }
+    }
+    let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    assert!(
+        report.contains("## Detection before trimming") && report.contains("Skipped as clean:"),
+        "{report}"
+    );
+}
+
+#[test]
+fn a_layer_whose_beam_is_blocked_fails_its_burred_contours_and_the_retrim_fixes_them() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let job = tmp.path().join("job.toml");
+    std::fs::write(&job, "[trim]\nonly_detected = true\n").expect("job file");
+
+    // The plan, to choose the layer: the first holding the whole of a contour (no polyline of
+    // it in another layer) with a burr of at least 100 µm seen on the first scan, which cannot
+    // pass untrimmed.
+    let dry = tmp.path().join("dry");
+    let (ok, stdout, stderr) = trimctl(&["--dry-run"], &job, &dry);
+    assert_eq!(ok, Some(0), "stdout:\n{stdout}\nstderr:\n{stderr}");
+    let first = inspection(&dry.join("detect"));
+    let burrs = burrs_seen(&first);
+    let tall: BTreeSet<i64> = burrs
+        .iter()
+        .copied()
+        .filter(|id| num(&first[id], "excess_height_um") >= 100.0)
+        .collect();
+    let plan_layers = layers(&read_json(&dry.join("plan.json")));
+    let only_in = |i: usize| -> BTreeSet<i64> {
+        let others: BTreeSet<i64> = plan_layers
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| *j != i)
+            .flat_map(|(_, (_, ids))| ids.iter().copied())
+            .collect();
+        plan_layers[i].1.difference(&others).copied().collect()
+    };
+    let (i, ((zone, layer), in_layer)) = plan_layers
+        .iter()
+        .enumerate()
+        .find(|(i, _)| !only_in(*i).is_disjoint(&tall))
+        .expect("a layer holding the whole of a contour with a tall burr");
+    let (zone, layer, in_layer, whole) = (*zone, *layer, in_layer.clone(), only_in(i));
+    let key = format!("{zone}:{layer}");
+
+    let out = tmp.path().join("run");
+    let (ok, stdout, stderr) = trimctl(&["--verify", "--sim-block-beam", &key], &job, &out);
+    assert_eq!(ok, Some(0), "stdout:\n{stdout}\nstderr:\n{stderr}");
+    assert!(stdout.contains("FAULT INJECTED"), "{stdout}");
+    // The same plan (same seed, same registration), and the fault recorded.
+    assert_eq!(layers(&read_json(&out.join("plan.json"))), plan_layers);
+    let summary = read_json(&out.join("summary.json"));
+    let fault = &summary["injected_fault"];
+    // Every mark vector of the layer, every pass, and no other: what the journal says the
+    // layer marked.
+    let journaled = std::fs::read_to_string(out.join("journal.jsonl"))
+        .expect("journal")
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).expect("journal line"))
+        .find(|e| {
+            e["kind"] == "layer_done" && e["key"]["zone"] == zone && e["key"]["layer"] == layer
+        })
+        .expect("the blocked layer journaled as done");
+    assert!(journaled["vectors"].as_u64().expect("vectors") > 0);
+    assert_eq!(fault["marks_blocked"], journaled["vectors"], "{fault}");
+    let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    assert!(report.contains("## Injected fault"), "{report}");
+
+    // The burred contours the blocked layer holds whole: none of their edge was trimmed.
+    let skipped_burrs: BTreeSet<i64> = whole.intersection(&burrs).copied().collect();
+    let rounds = read_json(&out.join("verify.json"));
+    let rounds = rounds.as_array().expect("rounds");
+    let failing = |r: &Value| -> BTreeSet<i64> {
+        r["failing"]
+            .as_array()
+            .expect("failing")
+            .iter()
+            .map(|v| v.as_i64().expect("id"))
+            .collect()
+    };
+    let f1 = failing(&rounds[0]);
+    let clean: BTreeSet<i64> = first
+        .iter()
+        .filter(|(_, c)| {
+            num(c, "excess_height_um") + num(c, "uncertainty_um") <= TOLERANCE_UM
+                && num(c, "coverage") >= MIN_COVERAGE
+        })
+        .map(|(id, _)| *id)
+        .collect();
+    eprintln!(
+        "blocked {key} (contours {in_layer:?}, burrs {skipped_burrs:?}); inspection 1 fails {f1:?} \
+         ({} outside the layer); true residual after round 1 {:.1} µm; rounds {}",
+        f1.difference(&in_layer).count(),
+        num(&rounds[0], "true_residual_max_um"),
+        rounds.len()
+    );
+    // 1. Every burr of the blocked layer still stands and fails the first rescan's inspection;
+    //    the twin's truth agrees that a web taller than the tolerance stands.
+    assert!(!skipped_burrs.is_empty());
+    assert!(
+        skipped_burrs.is_subset(&f1),
+        "{skipped_burrs:?} not all in {f1:?}"
+    );
+    assert!(
+        num(&rounds[0], "true_residual_max_um") > 100.0,
+        "{:?}",
+        rounds[0]
+    );
+    // 2. Nothing the first scan showed clean fails (it was not trimmed, so nothing changed
+    //    there); a failure outside the blocked layer is a contour the first scan saw excess on
+    //    or could not see whole (a web thicker than its height's passes cut, or hidden).
+    assert!(
+        f1.is_disjoint(&clean),
+        "clean contours fail: {:?}",
+        f1.intersection(&clean)
+    );
+    // 3. The retrim covers every failing contour.
+    assert_eq!(rounds[0]["retrimmed"], true);
+    let retrimmed = planned_passes(&read_json(&out.join("retrim_1/plan.json")));
+    assert!(
+        f1.iter().all(|id| retrimmed.contains_key(id)),
+        "{f1:?} vs {:?}",
+        retrimmed.keys()
+    );
+    // 4. The last inspection fails nothing and passes the blocked layer's burrs; the twin's
+    //    truth: no web taller than the tolerance and no deeper gouge anywhere.
+    let last = rounds.last().expect("a round");
+    assert_eq!(last["fail"], 0, "{last}");
+    let final_inspection = inspection(&out.join(format!(
+        "verify_{}",
+        last["inspection"].as_u64().expect("inspection")
+    )));
+    for id in &skipped_burrs {
+        let c = &final_inspection[id];
+        assert_eq!(c["verdict"], "pass", "contour {id}: {c}");
+        assert!(
+            num(c, "excess_height_um") + num(c, "uncertainty_um") <= TOLERANCE_UM,
+            "{c}"
+        );
+    }
+    assert!(num(last, "true_residual_max_um") <= TOLERANCE_UM, "{last}");
+    assert!(num(last, "true_gouge_max_um") <= TOLERANCE_UM, "{last}");
+}
+
+/// A synthetic core (`trimctl synth`, seed 2, four views, no dropouts) scanned clean, and the
+/// same core with burrs on 30 % of its contours, each as a job of its own files.
+fn synth_job(dir: &Path, burrs: &str) -> std::path::PathBuf {
+    let core = dir.join("core");
+    let result = Command::new(TRIMCTL)
+        .args([
+            "synth",
+            "--seed",
+            "2",
+            "--views",
+            "4",
+            "--dropouts",
+            "0",
+            "--burrs",
+            burrs,
+            "--out",
+        ])
+        .arg(&core)
+        .output()
+        .expect("trimctl synth runs");
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let job = dir.join("job.toml");
+    std::fs::write(
+        &job,
+        format!(
+            "[trim]\nonly_detected = true\n[part]\ncad = {:?}\npath = {:?}\nscan = {:?}\n",
+            core.join("cad.stl"),
+            core.join("path.csv"),
+            core.join("scan.ply")
+        ),
+    )
+    .expect("job file");
+    job
+}
+
+#[test]
+fn a_part_with_nothing_detected_is_not_moved_and_the_report_says_so() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let clean_dir = tmp.path().join("clean");
+    std::fs::create_dir_all(&clean_dir).expect("dir");
+    let job = synth_job(&clean_dir, "0");
+    let out = clean_dir.join("run");
+    let (code, stdout, stderr) = trimctl(&[], &job, &out);
+    assert_eq!(code, Some(0), "stdout:\n{stdout}\nstderr:\n{stderr}");
+    assert!(stdout.contains("nothing to trim:"), "{stdout}");
+    // Nothing planned, nothing executed: no plan, no journal, no record.
+    for file in ["plan.json", "journal.jsonl", "run.mcap"] {
+        assert!(!out.join(file).exists(), "{file} written");
+    }
+    let summary = read_json(&out.join("summary.json"));
+    assert!(summary["nothing_to_trim"].is_string(), "{summary}");
+    let calls = summary["detection"]["contours"]
+        .as_array()
+        .expect("detection.contours");
+    assert_eq!(calls.len(), 52);
+    assert!(calls.iter().all(|c| c["trimmed"] == false), "{calls:?}");
+    let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    assert!(report.contains("**Nothing to trim**"), "{report}");
+
+    // The same core with burrs: the same job plans and trims them.
+    let burred_dir = tmp.path().join("burred");
+    std::fs::create_dir_all(&burred_dir).expect("dir");
+    let job = synth_job(&burred_dir, "0.3");
+    let out = burred_dir.join("run");
+    let (code, stdout, stderr) = trimctl(&[], &job, &out);
+    assert_eq!(code, Some(0), "stdout:\n{stdout}\nstderr:\n{stderr}");
+    assert!(!stdout.contains("nothing to trim"), "{stdout}");
+    let first = inspection(&out.join("detect"));
+    let burrs = burrs_seen(&first);
+    let planned = planned_passes(&read_json(&out.join("plan.json")));
+    eprintln!(
+        "clean core: nothing to trim; burred core: {} burrs seen, {} contours planned",
+        burrs.len(),
+        planned.len()
+    );
+    assert!(!burrs.is_empty());
+    assert!(burrs.iter().all(|id| planned.contains_key(id)), "{burrs:?}");
+    assert!(out.join("journal.jsonl").is_file());
+}
+
+#[test]
+fn sim_block_beam_is_refused_on_a_real_galvo_for_a_layer_the_plan_lacks_and_when_malformed() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let job = tmp.path().join("job.toml");
+    std::fs::write(&job, "").expect("job file");
+    // Not ZONE:LAYER: a usage error.
+    let (code, _, stderr) = trimctl(&["--sim-block-beam", "3-0"], &job, &tmp.path().join("a"));
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(stderr.contains("expected ZONE:LAYER"), "{stderr}");
+    // A layer the plan does not have: refused after planning, before anything moves.
+    let out = tmp.path().join("b");
+    let (code, _, stderr) = trimctl(&["--sim-block-beam", "999:0"], &job, &out);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains("--sim-block-beam 999:0: the plan has no such layer"),
+        "{stderr}"
+    );
+    assert!(out.join("plan.json").is_file() && !out.join("journal.jsonl").exists());
+    // A real galvo (an address, nothing listening): no twin, refused before connecting.
+    let out = tmp.path().join("c");
+    let (code, _, stderr) = trimctl(
+        &["--sim-block-beam", "0:0", "--galvo", "127.0.0.1:9"],
+        &job,
+        &out,
+    );
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains("--sim-block-beam: needs the digital twin"),
+        "{stderr}"
+    );
+    assert!(!out.join("journal.jsonl").exists());
+}
