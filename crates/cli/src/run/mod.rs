@@ -730,8 +730,7 @@ fn plan_part(
         .trim
         .kerf_compensation
         .then(|| trim_plan::kerf::material_sides(registered));
-    let mut plan =
-        plan_with_sides(to_plan, &config.plan, sides.as_ref()).context("planning")?;
+    let mut plan = plan_with_sides(to_plan, &config.plan, sides.as_ref()).context("planning")?;
     if let Some(passes) = passes {
         plan.job
             .set_passes(|id| passes.get(&id).copied().unwrap_or(1));
