@@ -117,6 +117,10 @@ def test_plan_invariants(registration):
     assert p.validation["passed"], p.validation["violations"][:5]
     assert p.automatic_k is True and p.k >= 1
     planned = set()
+    # Kerf compensation (on by default) moves each line this far out of the material.
+    kerf = p.job["kerf"]
+    offset = kerf["offset_mm"] if kerf else 0.0
+    assert 0.0 < offset < 0.05
     for z in p.zones:
         assert z.max_incidence_deg <= 5.0 + 1e-9
         # Right-handed orthonormal frame.
@@ -129,10 +133,11 @@ def test_plan_invariants(registration):
                 assert np.all(np.abs(xy) <= 50.0 + 1e-9)
                 back = p.workpiece_from_galvo(z, layer, xy)
                 pts, _ = registration.path.contour(contour)
-                # Every galvo point maps back onto the focal plane within ΔH/2 of the contour.
+                # Every galvo point maps back onto the focal plane within ΔH/2 of the contour,
+                # plus the kerf offset beside it.
                 for q in back:
                     seg = _distance_to_polyline(q, pts)
-                    assert seg <= p.layer_step_mm / 2 + 1e-6
+                    assert seg <= p.layer_step_mm / 2 + offset + 1e-6
     assert planned == set(registration.path.contour_ids)
     back = trimctl.Plan.from_json(p.to_json())
     assert back.job == p.job
