@@ -66,6 +66,10 @@ pub struct Args {
     /// to this, degrees (0–30).
     #[arg(long = "pressing-tilt", default_value_t = SynthParams::default().pressing_tilt_deg)]
     pub pressing_tilt_deg: f64,
+    /// The bend's direction turned from the part's thickness axis toward its chord, degrees
+    /// (0–60): a core bends in its own plane too.
+    #[arg(long = "bend-tilt", default_value_t = SynthParams::default().bend_tilt_deg)]
+    pub bend_tilt_deg: f64,
     /// Share of contours with burrs (flash webs off the edge, 0–1); recorded in case.json.
     #[arg(long = "burrs", default_value_t = SynthParams::default().burr_fraction)]
     pub burr_fraction: f64,
@@ -134,6 +138,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         twist_deg: args.twist_deg,
         scale_range: args.scale_range,
         pressing_tilt_deg: args.pressing_tilt_deg,
+        bend_tilt_deg: args.bend_tilt_deg,
         noise_mm: args.noise_mm,
         scan_points: args.scan_points,
         cad_points: args.cad_points,

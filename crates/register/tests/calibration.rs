@@ -213,3 +213,86 @@ fn contours_in_a_region_the_scanner_cannot_see_are_flagged_when_they_err() {
         "none flagged by the bound alone: {over:?}"
     );
 }
+
+/// The in-plane bend case: the bend turned this far from the thickness axis toward the chord.
+const IN_PLANE_BEND_TILT_DEG: f64 = 60.0;
+
+/// The largest true cross-edge error over the trusted contours and over all, and the contours
+/// over the tolerance left trusted, µm.
+fn trusted_and_all_max_um(
+    reg: &trim_register::regional::Registration,
+    truth: &trim_geom::Path,
+    tolerance_um: f64,
+) -> (f64, f64, Vec<(i64, f64)>) {
+    let (mut trusted, mut all, mut silent) = (0.0_f64, 0.0_f64, Vec::new());
+    for q in &reg.report.contours {
+        // A contour that cannot be scored counts as infinitely wrong.
+        let e = path_errors(&reg.path, truth, |id| id == q.id)
+            .map_or(f64::INFINITY, |e| e.cross_edge_max_mm * 1e3);
+        all = all.max(e);
+        if q.trustworthy {
+            trusted = trusted.max(e);
+            if e > tolerance_um {
+                silent.push((q.id, e));
+            }
+        }
+    }
+    (trusted, all, silent)
+}
+
+#[test]
+fn a_core_bent_in_its_own_plane_keeps_its_edges_on_the_line_under_the_beam_prior() {
+    // The hardest seeded core with its bend turned toward the chord: the bend moves the
+    // leading and trailing edges along the span (its cross-sections turn), which the faces and
+    // edges, all running along the span, do not show. On this core the slots and holes near
+    // the edges and the three views fix that motion well without the beam prior too
+    // (measured: largest error 11.5 µm with it, 13.1 µm without); the outside generator's
+    // blade, whose edge strips run the whole span with nothing beside them, is where the
+    // prior mattered (docs/DESIGN.md). So this asserts the targets with the prior and that it
+    // costs nothing here, not a gain.
+    let c = generate(&SynthParams {
+        bend_tilt_deg: IN_PLANE_BEND_TILT_DEG,
+        ..cases::case_params(4, 150_000, 200_000)
+    })
+    .unwrap();
+    let mut measured = Vec::new();
+    for beam in [true, false] {
+        let mut settings = RegisterSettings {
+            scanner_viewpoint_mm: Some(c.scanner_in_scan.coords.into()),
+            ..RegisterSettings::default()
+        };
+        settings.field.beam_kinematics = beam;
+        let reg = register(
+            &c.cad_points,
+            &c.scan,
+            &c.path,
+            &c.scan_from_cad_nominal,
+            &settings,
+        )
+        .unwrap();
+        let (trusted, all, silent) =
+            trusted_and_all_max_um(&reg, &c.truth, settings.quality.tolerance_um);
+        eprintln!(
+            "beam prior {beam}: max over trusted {trusted:.1} µm, over all {all:.1} µm, {} flagged, silent {silent:?}",
+            reg.report.global.untrustworthy
+        );
+        measured.push((trusted, all, silent));
+    }
+    let (on, off) = (&measured[0], &measured[1]);
+    assert!(
+        on.2.is_empty(),
+        "silent misses with the beam prior: {:?}",
+        on.2
+    );
+    assert!(
+        on.0 <= CROSS_EDGE_MAX_MM * 1e3,
+        "max over trusted {} µm",
+        on.0
+    );
+    assert!(
+        on.1 <= off.1 + 2.0,
+        "the beam prior made it worse: {} µm with it, {} µm without",
+        on.1,
+        off.1
+    );
+}

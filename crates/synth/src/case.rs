@@ -40,6 +40,10 @@ pub struct SynthParams {
     pub seed: u64,
     /// Bend: the deformed mid-length rises this much over the ends, mm.
     pub sag_mm: f64,
+    /// The bend's direction, tilted this far from the thickness axis toward the chord, degrees
+    /// (`Deformation::bend_tilt_rad`; 0–60, as given, no draw): a core bends in its own plane
+    /// too, and then the leading and trailing edges slide along the span with the bend.
+    pub bend_tilt_deg: f64,
     /// Twist about the long axis, end to end, degrees.
     pub twist_deg: f64,
     /// Curl of the part's free `+Y` end along its thickness, mm (`Deformation::tip_curl_mm`;
@@ -122,6 +126,7 @@ impl Default for SynthParams {
         SynthParams {
             seed: 1,
             sag_mm: 0.3,
+            bend_tilt_deg: 0.0,
             tip_curl_mm: 0.0,
             twist_deg: 0.6,
             scale_range: 0.01,
@@ -217,6 +222,11 @@ impl SynthParams {
             "outlier_fraction",
             (0.0..=0.5).contains(&self.outlier_fraction),
             "must be in [0, 0.5]",
+        )?;
+        check(
+            "bend_tilt_deg",
+            (0.0..=60.0).contains(&self.bend_tilt_deg),
+            "must be in [0, 60]°",
         )?;
         check(
             "pressing_tilt_deg",
@@ -447,6 +457,7 @@ pub fn generate(params: &SynthParams) -> Result<SynthCase> {
         sag_mm: params.sag_mm * if rng.random_bool(0.5) { 1.0 } else { -1.0 },
         pressing_axes: pressing_axes(params.pressing_tilt_deg, params.seed),
         tip_curl_mm: params.tip_curl_mm,
+        bend_tilt_rad: params.bend_tilt_deg.to_radians(),
     };
     let axis: [f64; 3] = UnitSphere.sample(&mut rng);
     let dir: [f64; 3] = UnitSphere.sample(&mut rng);

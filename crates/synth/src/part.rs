@@ -54,6 +54,11 @@ pub struct Deformation {
     /// before it existed.
     #[serde(default)]
     pub tip_curl_mm: f64,
+    /// The bend's (and the curl's) direction, turned this far from Z toward X, radians: the
+    /// mid-plane moves by `w(y)·(sin, 0, cos)` and the sections turn with it. 0 in cases written
+    /// before it existed.
+    #[serde(default)]
+    pub bend_tilt_rad: f64,
 }
 
 /// Where the tip curl starts, as a share of the half length from the middle.
@@ -69,6 +74,7 @@ impl Deformation {
             twist_rad: 0.0,
             sag_mm: 0.0,
             tip_curl_mm: 0.0,
+            bend_tilt_rad: 0.0,
         }
     }
 
@@ -93,17 +99,20 @@ impl Deformation {
         let (sin, cos) = phi.sin_cos();
         let x = cos * s.x - sin * s.z;
         let z = sin * s.x + cos * s.z;
-        // The bend and the curl as a beam bends (Euler–Bernoulli): the mid-plane rises by
-        // `w(y)` and each cross-section turns with it, so a point `z` off the mid-plane moves
-        // back along the length by `z·w′(y)` (shifting the sections up without turning them
-        // would shear the material by the slope, over 1 % at the ends of a 0.3 mm sag).
+        // The bend and the curl as a beam bends (Euler–Bernoulli): the mid-plane moves by
+        // `w(y)` along the bend direction `b` and each cross-section turns with it, so a point
+        // `p·b` off the mid-plane moves back along the length by `(p·b)·w′(y)` (shifting the
+        // sections without turning them would shear the material by the slope, over 1 % at the
+        // ends of a 0.3 mm sag).
         let t = 2.0 * s.y / LENGTH_MM;
         let dt_dy = 2.0 / LENGTH_MM;
         let span = 1.0 - TIP_CURL_START;
         let curl = ((t - TIP_CURL_START) / span).max(0.0);
         let w = self.sag_mm * (1.0 - t * t) + self.tip_curl_mm * curl.powi(3);
         let slope = (self.sag_mm * -2.0 * t + self.tip_curl_mm * 3.0 * curl * curl / span) * dt_dy;
-        Point3::new(x, s.y - z * slope, z + w)
+        let (sin_b, cos_b) = self.bend_tilt_rad.sin_cos();
+        let lever = x * sin_b + z * cos_b;
+        Point3::new(x + w * sin_b, s.y - lever * slope, z + w * cos_b)
     }
 }
 
