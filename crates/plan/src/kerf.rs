@@ -489,29 +489,7 @@ pub fn intended_line(path: &Path, offset_mm: Option<f64>) -> Result<Path, PlanEr
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A square loop of side `s` centred at the origin in the plane z = 0, counter-clockwise
-    /// seen from +z (feature +z), `n` points a side; closed (last point = first).
-    fn square(id: ContourId, s: f64, n: usize, clockwise: bool) -> Contour {
-        let h = s / 2.0;
-        let corners = [[-h, -h], [h, -h], [h, h], [-h, h], [-h, -h]];
-        let mut points = Vec::new();
-        for w in corners.windows(2) {
-            for k in 0..n {
-                let t = k as f64 / n as f64;
-                points.push(Point3::new(
-                    w[0][0] + t * (w[1][0] - w[0][0]),
-                    w[0][1] + t * (w[1][1] - w[0][1]),
-                    0.0,
-                ));
-            }
-        }
-        points.push(points[0]);
-        if clockwise {
-            points.reverse();
-        }
-        Contour::new(id, points, Vector3::z()).unwrap()
-    }
+    use crate::test_shapes::square;
 
     /// The distance of `q` from the square's rim (positive outside the square).
     fn outside_square(q: &Point3, s: f64) -> f64 {

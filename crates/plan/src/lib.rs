@@ -23,6 +23,8 @@ pub mod piece;
 pub mod planner;
 pub mod scan_field;
 pub mod svg;
+#[cfg(test)]
+pub(crate) mod test_shapes;
 pub mod zoning;
 
 pub use error::PlanError;

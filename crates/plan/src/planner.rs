@@ -987,6 +987,7 @@ impl Checks<'_> {
 mod tests {
     use super::*;
     use crate::scan_field::LensSettings;
+    use crate::test_shapes::square;
     use crate::zoning::ZoningSettings;
     use trim_synth::testing::synthetic_core_path;
 
@@ -1113,25 +1114,6 @@ mod tests {
         }
     }
 
-    /// A square loop of side `s` about (cx, 0, 0) in the plane z = 0, feature +z, closed.
-    fn square(id: ContourId, cx: f64, s: f64, n: usize) -> trim_geom::Contour {
-        let h = s / 2.0;
-        let corners = [[-h, -h], [h, -h], [h, h], [-h, h], [-h, -h]];
-        let mut points = Vec::new();
-        for w in corners.windows(2) {
-            for k in 0..n {
-                let t = k as f64 / n as f64;
-                points.push(Point3::new(
-                    cx + w[0][0] + t * (w[1][0] - w[0][0]),
-                    w[0][1] + t * (w[1][1] - w[0][1]),
-                    0.0,
-                ));
-            }
-        }
-        points.push(points[0]);
-        trim_geom::Contour::new(id, points, Vector3::z()).unwrap()
-    }
-
     /// Every galvo point of contour `id`, back in the work-piece frame (its height kept).
     fn landed(job: &Job, id: ContourId) -> Vec<Point3> {
         job.layers()
@@ -1153,7 +1135,7 @@ mod tests {
     fn the_planned_line_stands_half_a_kerf_out_of_the_material_a_hole_inward_an_outline_outward() {
         // A 20 mm square outline (material inside) holding a 4 mm square hole (material
         // outside), on the plane z = 0.
-        let path = Path::new(vec![square(1, 0.0, 20.0, 20), square(2, 0.0, 4.0, 8)]).unwrap();
+        let path = Path::new(vec![square(1, 20.0, 20, false), square(2, 4.0, 8, false)]).unwrap();
         let settings = PlanSettings::default();
         let d = settings.kerf_offset_mm().unwrap();
         assert!((d - 0.5 * 2.0 * settings.beam.waist_radius_mm()).abs() < 1e-15);
@@ -1200,7 +1182,7 @@ mod tests {
         }
         // Sides from a fuller path: the hole alone says nothing, the path with its outline
         // does.
-        let hole_only = Path::new(vec![square(2, 0.0, 4.0, 8)]).unwrap();
+        let hole_only = Path::new(vec![square(2, 4.0, 8, false)]).unwrap();
         let alone = plan_with_report(&hole_only, &settings).unwrap();
         let rec = alone.job.kerf.as_ref().unwrap();
         assert!(rec.compensated.is_empty());
