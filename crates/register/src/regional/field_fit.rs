@@ -434,6 +434,14 @@ impl PriorTerm {
                 .collect(),
         }
     }
+
+    /// The term's value `e` for the control displacements `coefficients`.
+    fn value(&self, coefficients: &[Vector3]) -> f64 {
+        self.entries
+            .iter()
+            .map(|(k, a)| a.dot(&coefficients[*k]))
+            .sum()
+    }
 }
 
 /// The part's thin and long axes, CAD frame: the least principal axis of the CAD points (a
@@ -520,12 +528,15 @@ pub(crate) fn prior_terms(
 /// (`d_l = c a l` alone) costs as a bend of the same size would. Axes that coincide give none.
 fn beam_terms(field: &BSplineField, l: usize, across: [usize; 2]) -> Vec<PriorTerm> {
     let d = field.dims();
-    let unit = |axis: usize| Vector3::ith(axis, 1.0);
+    let el = Vector3::ith(l, 1.0);
     let mut out = Vec::new();
-    for a in across {
-        if a == l {
+    for (n, &a) in across.iter().enumerate() {
+        // A part turned so that its chord and thin axis lie nearest the same grid axis gets
+        // that axis's terms once.
+        if a == l || across[..n].contains(&a) {
             continue;
         }
+        let ea = Vector3::ith(a, 1.0);
         for k in 0..d[2] {
             for j in 0..d[1] {
                 for i in 0..d[0] {
@@ -539,7 +550,6 @@ fn beam_terms(field: &BSplineField, l: usize, across: [usize; 2]) -> Vec<PriorTe
                         p[l] = p[l].wrapping_add_signed(dl);
                         field.flat(p[0], p[1], p[2])
                     };
-                    let (ea, el) = (unit(a), unit(l));
                     out.push(PriorTerm {
                         entries: vec![
                             (at(0, -1), ea),
@@ -568,7 +578,7 @@ pub(crate) fn add_prior(
 ) {
     let coeffs = field.coefficients();
     for t in prior {
-        let e: f64 = t.entries.iter().map(|(k, a)| a.dot(&coeffs[*k])).sum();
+        let e = t.value(coeffs);
         for (ia, a) in &t.entries {
             for x in 0..3 {
                 g[3 * ia + x] += lambda * a[x] * e;
@@ -691,14 +701,7 @@ mod tests {
         assert!(!terms.is_empty());
         terms
             .iter()
-            .map(|t| {
-                let e: f64 = t
-                    .entries
-                    .iter()
-                    .map(|(k, a)| a.dot(&field.coefficients()[*k]))
-                    .sum();
-                e * e
-            })
+            .map(|t| t.value(field.coefficients()).powi(2))
             .sum()
     }
 
