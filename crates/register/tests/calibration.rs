@@ -5,9 +5,10 @@
 #[path = "common/cases.rs"]
 mod cases;
 
+use trim_geom::PointCloud;
 use trim_register::eval::path_errors;
 use trim_register::regional::{Flag, RegisterSettings, register};
-use trim_synth::{SynthParams, generate};
+use trim_synth::{SynthCase, SynthParams, generate};
 
 /// Test seeds (4 and 8 take the far end of every range).
 const SEEDS: [u64; 8] = [1, 2, 3, 4, 5, 6, 7, 8];
@@ -21,6 +22,31 @@ const CROSS_EDGE_P95_MM: f64 = 0.012;
 const CROSS_EDGE_MAX_MM: f64 = 0.030;
 const POINTWISE_P95_MM: f64 = 0.020;
 
+/// The registration of `scan` (the case's own, or part of it) onto the case's path, from the
+/// case's scanner viewpoint with `settings` otherwise.
+fn register_case(
+    c: &SynthCase,
+    scan: &PointCloud,
+    settings: &RegisterSettings,
+) -> trim_register::regional::Registration {
+    register(
+        &c.cad_points,
+        scan,
+        &c.path,
+        &c.scan_from_cad_nominal,
+        settings,
+    )
+    .expect("registered")
+}
+
+/// The default settings, looking from the case's first scanner view.
+fn settings_for(c: &SynthCase) -> RegisterSettings {
+    RegisterSettings {
+        scanner_viewpoint_mm: Some(c.scanner_in_scan.coords.into()),
+        ..RegisterSettings::default()
+    }
+}
+
 #[test]
 fn the_predicted_bound_covers_the_actual_error() {
     let (mut contours, mut covered, mut good, mut good_flagged) = (0, 0, 0, 0);
@@ -28,18 +54,8 @@ fn the_predicted_bound_covers_the_actual_error() {
     let mut cases_report = Vec::new();
     for seed in SEEDS {
         let c = generate(&cases::case_params(seed, 150_000, 200_000)).unwrap();
-        let settings = RegisterSettings {
-            scanner_viewpoint_mm: Some(c.scanner_in_scan.coords.into()),
-            ..RegisterSettings::default()
-        };
-        let reg = register(
-            &c.cad_points,
-            &c.scan,
-            &c.path,
-            &c.scan_from_cad_nominal,
-            &settings,
-        )
-        .unwrap();
+        let settings = settings_for(&c);
+        let reg = register_case(&c, &c.scan, &settings);
         // The accuracy targets, every case.
         let all = path_errors(&reg.path, &c.truth, |_| true).unwrap();
         assert!(
@@ -150,18 +166,8 @@ fn contours_in_a_region_the_scanner_cannot_see_are_flagged_when_they_err() {
         })
         .collect();
     let scan = c.scan.select(&keep).unwrap();
-    let settings = RegisterSettings {
-        scanner_viewpoint_mm: Some(c.scanner_in_scan.coords.into()),
-        ..RegisterSettings::default()
-    };
-    let reg = register(
-        &c.cad_points,
-        &scan,
-        &c.path,
-        &c.scan_from_cad_nominal,
-        &settings,
-    )
-    .unwrap();
+    let settings = settings_for(&c);
+    let reg = register_case(&c, &scan, &settings);
     let tolerance_um = settings.quality.tolerance_um;
     let mut over = Vec::new();
     // The model check's disagreement (µm) on the contours over the tolerance and on those
@@ -257,19 +263,9 @@ fn a_core_bent_in_its_own_plane_keeps_its_edges_on_the_line_under_the_beam_prior
     .unwrap();
     let mut measured = Vec::new();
     for beam in [true, false] {
-        let mut settings = RegisterSettings {
-            scanner_viewpoint_mm: Some(c.scanner_in_scan.coords.into()),
-            ..RegisterSettings::default()
-        };
+        let mut settings = settings_for(&c);
         settings.field.beam_kinematics = beam;
-        let reg = register(
-            &c.cad_points,
-            &c.scan,
-            &c.path,
-            &c.scan_from_cad_nominal,
-            &settings,
-        )
-        .unwrap();
+        let reg = register_case(&c, &c.scan, &settings);
         let (trusted, all, silent) =
             trusted_and_all_max_um(&reg, &c.truth, settings.quality.tolerance_um);
         eprintln!(
