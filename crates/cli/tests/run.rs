@@ -854,6 +854,12 @@ fn verify_inspects_the_rescanned_demo_and_retrims_what_failed() {
         last["true_gouge_max_um"].as_f64().unwrap() <= SPOT_TOLERANCE_UM,
         "{last:?}"
     );
+    for key in ["true_residual_p95_um", "true_gouge_p95_um"] {
+        assert!(
+            last[key].as_f64().unwrap() <= SPOT_TOLERANCE_UM,
+            "{key}: {last:?}"
+        );
+    }
     for (k, r) in rounds.iter().enumerate() {
         let dir = out.join(format!("verify_{}", k + 1));
         for file in [

@@ -516,18 +516,20 @@ fn verify_part(
     use std::fmt::Write as _;
     let rounds = verify::verify(config, args, run_dir, inputs, registration, twin)?;
     let mut md = String::from(
-        "\n## Verify and retrim\n\nEach inspection of the rescanned part (`verify_<k>/report.html`), and the digital twin's truth.\n\n| inspection | pass | fail | undecided | failing contours | true residual web max (µm) | true gouge max (µm) | retrimmed |\n|---|---|---|---|---|---|---|---|\n",
+        "\n## Verify and retrim\n\nEach inspection of the rescanned part (`verify_<k>/report.html`), and the digital twin's truth.\n\n| inspection | pass | fail | undecided | failing contours | true residual web P95 / max (µm) | true gouge P95 / max (µm) | retrimmed |\n|---|---|---|---|---|---|---|---|\n",
     );
     for r in &rounds {
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {:?} | {:.1} | {:.1} | {} |",
+            "| {} | {} | {} | {} | {:?} | {:.1} / {:.1} | {:.1} / {:.1} | {} |",
             r.inspection,
             r.pass,
             r.fail,
             r.undecided,
             r.failing,
+            r.true_residual_p95_um,
             r.true_residual_max_um,
+            r.true_gouge_p95_um,
             r.true_gouge_max_um,
             if r.retrimmed { "yes" } else { "no" }
         );

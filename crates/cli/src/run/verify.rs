@@ -17,6 +17,7 @@ use serde::Serialize;
 use trim_geom::{Path as TrimPath, PointCloud, Similarity3};
 use trim_inspect::{InspectSettings, Inspection, Placement, Verdict, inspect};
 use trim_plan::planner::plan_with_sides;
+use trim_register::eval::quantile;
 use trim_register::regional::Registration;
 use trim_sim::twin_part::TwinPart;
 
@@ -45,6 +46,10 @@ pub(super) struct Round {
     pub(super) true_residual_max_um: f64,
     /// See `true_residual_max_um`.
     pub(super) true_gouge_max_um: f64,
+    /// The 95th percentile over the contours of each contour's tallest standing web, µm.
+    pub(super) true_residual_p95_um: f64,
+    /// The 95th percentile over the contours of each contour's deepest gouge, µm.
+    pub(super) true_gouge_p95_um: f64,
     /// Whether the failing contours were trimmed again after it.
     pub(super) retrimmed: bool,
 }
@@ -87,18 +92,22 @@ pub(super) fn verify(
         drop(spinner);
         let failing = ids(&result, Verdict::Fail);
         let state = part.state();
+        let residual: Vec<f64> = state.iter().map(|c| c.residual_um).collect();
+        let gouge: Vec<f64> = state.iter().map(|c| c.gouge_um).collect();
         let round = Round {
             inspection: k,
             pass: ids(&result, Verdict::Pass).len(),
             fail: failing.len(),
             undecided: ids(&result, Verdict::Undecided).len(),
             failing: failing.iter().copied().collect(),
-            true_residual_max_um: state.iter().map(|c| c.residual_um).fold(0.0, f64::max),
-            true_gouge_max_um: state.iter().map(|c| c.gouge_um).fold(0.0, f64::max),
+            true_residual_max_um: residual.iter().copied().fold(0.0, f64::max),
+            true_gouge_max_um: gouge.iter().copied().fold(0.0, f64::max),
+            true_residual_p95_um: quantile(&residual, 0.95),
+            true_gouge_p95_um: quantile(&gouge, 0.95),
             retrimmed: !failing.is_empty() && k <= args.rounds,
         };
         println!(
-            "verify {k}: {} pass, {} fail, {} undecided{} (twin truth: residual web max {:.1} µm, gouge max {:.1} µm); {}",
+            "verify {k}: {} pass, {} fail, {} undecided{} (twin truth over the contours: residual web P95 {:.1} / max {:.1} µm, gouge P95 {:.1} / max {:.1} µm); {}",
             round.pass,
             round.fail,
             round.undecided,
@@ -107,7 +116,9 @@ pub(super) fn verify(
             } else {
                 format!(" {:?}", round.failing)
             },
+            round.true_residual_p95_um,
             round.true_residual_max_um,
+            round.true_gouge_p95_um,
             round.true_gouge_max_um,
             dir.display()
         );
