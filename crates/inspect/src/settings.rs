@@ -10,8 +10,8 @@ pub struct InspectSettings {
     pub band_mm: f64,
     /// The tolerance on excess and gouge, µm (the product's ±30 µm).
     pub tolerance_um: f64,
-    /// Bins along each contour's arc length, mm: excess is found, and its length counted, per
-    /// bin.
+    /// The longest bin along each contour's arc length, mm (a contour is cut into equal bins of
+    /// at most this): excess is found, and its length counted, per bin.
     pub bin_length_mm: f64,
     /// A bin has excess (or gouge) when at least this many of its points stand clearly above
     /// the noise outside (inside) the material; its height is the `min_points`-th largest
