@@ -36,6 +36,8 @@ pub struct JobConfig {
     pub sim: SimConfig,
     /// Where runs are recorded.
     pub output: OutputConfig,
+    /// `run --verify` on a part of the job's own files: where each rescan comes from.
+    pub verify: VerifyConfig,
     /// Regions to hatch beside the contours, each a [[hatch]] table: boundary = a path CSV with one
     /// closed contour on the part's surface, CAD frame (registration carries it onto the scan),
     /// plus the hatching keys pitch_mm (default 0.05), angle_deg (0), method ("geodesic" or
@@ -213,6 +215,56 @@ impl Default for OutputConfig {
     }
 }
 
+/// `run --verify` on a real cell: after the job (and each retrim) the part is rescanned where
+/// it stands, in the scanner frame at `[part.scan_pose]` like `part.scan`. The run waits for
+/// the file `scan_file`, or runs `scan_command` to make it. (The built-in demo part is rescanned
+/// by the digital twin; this table is not read then.)
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct VerifyConfig {
+    /// Where inspection k's rescan appears (PLY, PCD or XYZ); `{round}` becomes k. Relative to
+    /// the run folder.
+    pub scan_file: String,
+    /// A command that scans the part and writes `scan_file` (the program, then its arguments;
+    /// `{scan}` becomes the file's path and `{round}` k). Left out, the run waits for the file.
+    pub scan_command: Vec<String>,
+    /// The longest wait for a rescan (the command's run, or the file's arrival), s.
+    pub scan_timeout_s: f64,
+}
+
+impl Default for VerifyConfig {
+    fn default() -> Self {
+        VerifyConfig {
+            scan_file: "rescan_{round}.ply".to_owned(),
+            scan_command: Vec::new(),
+            scan_timeout_s: 600.0,
+        }
+    }
+}
+
+impl VerifyConfig {
+    /// Refuses out-of-range values, naming the key.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        if !(self.scan_timeout_s.is_finite() && (0.1..=86_400.0).contains(&self.scan_timeout_s)) {
+            bail!(
+                "verify.scan_timeout_s: expected 0.1–86400 s, got {}",
+                self.scan_timeout_s
+            );
+        }
+        if self.scan_file.trim().is_empty() {
+            bail!("verify.scan_file: empty");
+        }
+        if self
+            .scan_command
+            .first()
+            .is_some_and(|program| program.trim().is_empty())
+        {
+            bail!("verify.scan_command: the program (its first word) is empty");
+        }
+        Ok(())
+    }
+}
+
 impl JobConfig {
     /// Reads and checks a job file. Relative part paths are resolved against its folder.
     pub fn load(path: &Path) -> anyhow::Result<JobConfig> {
@@ -283,6 +335,7 @@ impl JobConfig {
         self.register
             .validate()
             .map_err(|e| anyhow::anyhow!("register.{e}"))?;
+        self.verify.validate()?;
         for (key, value) in [
             ("cell.cnc", &self.cell.cnc),
             ("cell.galvo", &self.cell.galvo),

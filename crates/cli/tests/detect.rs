@@ -153,7 +153,9 @@ fn only_detected_trims_the_burred_contours_with_passes_from_their_height_and_ski
     let (code, _, stderr) = trimctl(&[], &cloud_job, &refused);
     assert_eq!(code, Some(1), "{stderr}");
     assert!(
-        stderr.contains("trim.only_detected: part.cad") && stderr.contains("holds no mesh"),
+        stderr.contains("part.cad")
+            && stderr.contains("holds no mesh")
+            && stderr.contains("trim.only_detected"),
         "{stderr}"
     );
     assert!(!refused.join("registration.json").exists());

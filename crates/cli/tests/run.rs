@@ -885,8 +885,9 @@ fn verify_inspects_the_rescanned_demo_and_retrims_what_failed() {
         stdout.contains("verify 1:") && stdout.contains("verified:"),
         "{stdout}"
     );
-    // A job naming its own part files is refused before anything moves: there is no twin to
-    // rescan a real part.
+    // A job naming its own part files whose CAD is a point cloud is refused before anything
+    // moves: inspection measures distances to the CAD's surface (a real part's rescan itself is
+    // tested in tests/rescan.rs).
     let inputs = out.join("inputs");
     let job = tmp.path().join("job.toml");
     std::fs::write(
@@ -910,7 +911,7 @@ fn verify_inspects_the_rescanned_demo_and_retrims_what_failed() {
     let stderr = String::from_utf8_lossy(&refused.stderr);
     assert_eq!(refused.status.code(), Some(1), "{stderr}");
     assert!(
-        stderr.contains("only the built-in demo part can be rescanned"),
+        stderr.contains("holds no mesh") && stderr.contains("--verify"),
         "{stderr}"
     );
     assert!(!real.join("journal.jsonl").exists());

@@ -338,15 +338,11 @@ pub(super) fn cad_mesh(config: &JobConfig, inputs: &Inputs) -> anyhow::Result<Me
     if let Some(demo) = &inputs.demo {
         return demo.case.cad_mesh().context("the demo part's CAD mesh");
     }
-    let file = config
-        .part
-        .cad
-        .as_ref()
-        .context("trim.only_detected: part.cad is not given")?;
+    let file = config.part.cad.as_ref().context("part.cad is not given")?;
     match read_geometry(file).with_context(|| format!("part.cad {}", file.display()))? {
         Geometry::Mesh(m) => Ok(*m),
         _ => anyhow::bail!(
-            "trim.only_detected: part.cad {} holds no mesh; detecting burrs measures distances to the CAD's surface: give the STL or PLY mesh",
+            "part.cad {} holds no mesh; detecting burrs (trim.only_detected) and inspecting the part (--verify) measure distances to the CAD's surface: give the STL or PLY mesh",
             file.display()
         ),
     }

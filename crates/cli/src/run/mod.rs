@@ -16,6 +16,7 @@ use serde::Serialize;
 use trim_cell::{Job, LayerKey};
 use trim_geom::Path as TrimPath;
 use trim_geom::formats;
+use trim_geom::mesh::Mesh;
 use trim_io::executor::{ExecError, RunSummary, StopCause};
 use trim_io::journal::CutLayer;
 use trim_io::live::{DEFAULT_LIVE_ADDR, LiveAddr, LiveServer};
@@ -40,6 +41,8 @@ mod execute;
 mod inputs;
 mod record;
 mod report;
+#[cfg(feature = "sim")]
+mod rescan;
 #[cfg(feature = "sim")]
 mod verify;
 
@@ -332,17 +335,10 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     drop(spinner);
     timings.load_s = t0.elapsed().as_secs_f64();
     println!("part: {}", inputs.description);
-    if args.verify && inputs.demo.is_none() {
-        return Err(Failure::with_exit(
-            Exit::Refused,
-            anyhow::anyhow!(
-                "--verify: only the built-in demo part can be rescanned (by the digital twin); rescanning a real part is not supported yet"
-            ),
-        ));
-    }
-
-    let mesh = if config.plan.trim.only_detected {
-        Some(detect::cad_mesh(&config, &inputs)?)
+    // Detection and --verify measure against the CAD's surface: a job without a mesh is
+    // refused before anything moves.
+    let mesh = if config.plan.trim.only_detected || args.verify {
+        Some(detect::cad_mesh(&config, &inputs).map_err(|e| Failure::with_exit(Exit::Refused, e))?)
     } else {
         None
     };
@@ -350,7 +346,7 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     let mut contours = trusted_contours(&registration, args, &run_dir)?
         .contours()
         .to_vec();
-    let detection = if let Some(mesh) = &mesh {
+    let detection = if let Some(mesh) = mesh.as_ref().filter(|_| config.plan.trim.only_detected) {
         let mut d = detect::detect(
             &config,
             &inputs,
@@ -430,8 +426,8 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
         outcome,
         &notes,
     )?;
-    if args.verify {
-        verify_part(&config, args, &run_dir, &inputs, &registration, &twin)?;
+    if let Some(mesh) = mesh.as_ref().filter(|_| args.verify) {
+        verify_part(&config, args, &run_dir, &inputs, mesh, &registration, &twin)?;
     }
     Ok(())
 }
@@ -510,27 +506,26 @@ fn verify_part(
     args: &Args,
     run_dir: &Path,
     inputs: &inputs::Inputs,
+    mesh: &Mesh,
     registration: &Registration,
     twin: &TwinLink,
 ) -> anyhow::Result<()> {
     use std::fmt::Write as _;
-    let rounds = verify::verify(config, args, run_dir, inputs, registration, twin)?;
+    let rounds = verify::verify(config, args, run_dir, inputs, mesh, registration, twin)?;
     let mut md = String::from(
         "\n## Verify and retrim\n\nEach inspection of the rescanned part (`verify_<k>/report.html`), and the digital twin's truth.\n\n| inspection | pass | fail | undecided | failing contours | true residual web P95 / max (µm) | true gouge P95 / max (µm) | retrimmed |\n|---|---|---|---|---|---|---|---|\n",
     );
     for r in &rounds {
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {:?} | {:.1} / {:.1} | {:.1} / {:.1} | {} |",
+            "| {} | {} | {} | {} | {:?} | {} | {} | {} |",
             r.inspection,
             r.pass,
             r.fail,
             r.undecided,
             r.failing,
-            r.true_residual_p95_um,
-            r.true_residual_max_um,
-            r.true_gouge_p95_um,
-            r.true_gouge_max_um,
+            pair(r.true_residual_p95_um, r.true_residual_max_um),
+            pair(r.true_gouge_p95_um, r.true_gouge_max_um),
             if r.retrimmed { "yes" } else { "no" }
         );
     }
@@ -560,6 +555,15 @@ fn verify_part(
     }
 }
 
+/// `P95 / max` of the twin's truth, or a dash where there is none (a real part).
+#[cfg(feature = "sim")]
+fn pair(p95: Option<f64>, max: Option<f64>) -> String {
+    match (p95, max) {
+        (Some(p), Some(m)) => format!("{p:.1} / {m:.1}"),
+        _ => "—".to_owned(),
+    }
+}
+
 /// Without the simulators there is no twin to rescan the part.
 #[cfg(not(feature = "sim"))]
 fn verify_part(
@@ -567,6 +571,7 @@ fn verify_part(
     _args: &Args,
     _run_dir: &Path,
     _inputs: &inputs::Inputs,
+    _mesh: &Mesh,
     _registration: &Registration,
     _twin: &TwinLink,
 ) -> anyhow::Result<()> {

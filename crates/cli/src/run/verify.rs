@@ -3,9 +3,10 @@
 //! contours that fail are planned again, each with the passes its measured excess needs, and
 //! trimmed, up to `--rounds` times (DESIGN.md "Inspection", "Ablation and the twin's part").
 //!
-//! On the built-in cell the digital twin does the physics: it trims its true part by the
+//! On the built-in demo part the digital twin does the physics: it trims its true part by the
 //! landed cuts of each round and rescans it, through the true scanner and `[calibration]` as
-//! the first scan was made. Each inspection is written to `verify_<k>/` (inspection.json/csv,
+//! the first scan was made. A part of the job's own files is rescanned by the cell's scanner
+//! (`rescan`: a file the run waits for, or a configured scan command); there is no truth then. Each inspection is written to `verify_<k>/` (inspection.json/csv,
 //! deviation.png, report.html) and each retrim is a run of its own in `retrim_<k>/` (plan,
 //! journal, record); `verify.json` lists the rounds.
 
@@ -14,15 +15,17 @@ use std::path::Path;
 
 use anyhow::Context;
 use serde::Serialize;
+use trim_geom::mesh::Mesh;
 use trim_geom::{Path as TrimPath, PointCloud, Similarity3};
 use trim_inspect::{InspectSettings, Inspection, Placement, Verdict, inspect};
 use trim_plan::planner::plan_with_sides;
 use trim_register::eval::quantile;
 use trim_register::regional::Registration;
-use trim_sim::twin_part::TwinPart;
+use trim_sim::twin_part::{ContourTrim, TwinPart};
 
 use super::execute::{TwinLink, execute, twin_link};
 use super::inputs::Inputs;
+use super::rescan;
 use super::{Args, exec_failure, files, write_plan};
 use crate::config::JobConfig;
 use crate::exit::{Exit, Failure};
@@ -42,47 +45,57 @@ pub(super) struct Round {
     /// The failing contours' ids.
     pub(super) failing: Vec<i64>,
     /// The digital twin's truth: the tallest web still standing and the deepest gouge over all
-    /// contours, µm.
-    pub(super) true_residual_max_um: f64,
+    /// contours, µm (null on a real part: nothing knows the truth).
+    pub(super) true_residual_max_um: Option<f64>,
     /// See `true_residual_max_um`.
-    pub(super) true_gouge_max_um: f64,
+    pub(super) true_gouge_max_um: Option<f64>,
     /// The 95th percentile over the contours of each contour's tallest standing web, µm.
-    pub(super) true_residual_p95_um: f64,
+    pub(super) true_residual_p95_um: Option<f64>,
     /// The 95th percentile over the contours of each contour's deepest gouge, µm.
-    pub(super) true_gouge_p95_um: f64,
+    pub(super) true_gouge_p95_um: Option<f64>,
     /// Whether the failing contours were trimmed again after it.
     pub(super) retrimmed: bool,
 }
 
 /// Inspects and retrims until every contour passes inspection or the rounds are spent; the
-/// rounds, in order. `twin` is the twin of the job just run.
+/// rounds, in order. `twin` is the twin of the job just run; `mesh` the part's CAD mesh.
 pub(super) fn verify(
     config: &JobConfig,
     args: &Args,
     run_dir: &Path,
     inputs: &Inputs,
+    mesh: &Mesh,
     registration: &Registration,
     twin: &TwinLink,
 ) -> anyhow::Result<Vec<Round>> {
-    let demo = inputs.demo.as_ref().context(
-        "--verify: only the built-in demo part can be rescanned (by the digital twin); rescanning a real part is not supported yet",
-    )?;
-    let mut part = TwinPart::new(demo.case.clone(), demo.workpiece_from_case);
-    let mesh = demo.case.cad_mesh()?;
+    // The demo part is the twin's: it trims the part by the landed cuts and rescans it.
+    let mut part = inputs
+        .demo
+        .as_ref()
+        .map(|demo| TwinPart::new(demo.case.clone(), demo.workpiece_from_case));
     let kerf_mm = config.plan.process.kerf_width_mm(&config.plan.beam);
     let settings = InspectSettings::default();
     let placement = Placement::from_registration(registration);
-    let mut cuts = landed_cuts(twin)?;
+    let mut cuts = match part {
+        Some(_) => landed_cuts(twin)?,
+        None => Vec::new(),
+    };
     let mut rounds: Vec<Round> = Vec::new();
     for k in 1..=args.rounds + 1 {
-        part.trim(&cuts, &config.plan.process, kerf_mm)?;
-        let spinner = stage("rescanning and inspecting the part");
-        let scan = rescan(config, &part, args.demo_seed ^ u64::from(k) << 32)?;
-        let result = inspect(&mesh, &inputs.path, scan.points(), &placement, &settings)?;
+        let scan = match part.as_mut() {
+            Some(part) => {
+                part.trim(&cuts, &config.plan.process, kerf_mm)?;
+                let _spinner = stage("rescanning the part");
+                twin_rescan(config, part, args.demo_seed ^ u64::from(k) << 32)?
+            }
+            None => rescan::rescan(config, run_dir, k)?,
+        };
+        let spinner = stage("inspecting the part");
+        let result = inspect(mesh, &inputs.path, scan.points(), &placement, &settings)?;
         let dir = run_dir.join(format!("verify_{k}"));
         crate::inspect::write_inspection(
             &dir,
-            &mesh,
+            mesh,
             &inputs.path,
             &scan,
             &placement,
@@ -91,23 +104,30 @@ pub(super) fn verify(
         )?;
         drop(spinner);
         let failing = ids(&result, Verdict::Fail);
-        let state = part.state();
-        let residual: Vec<f64> = state.iter().map(|c| c.residual_um).collect();
-        let gouge: Vec<f64> = state.iter().map(|c| c.gouge_um).collect();
+        let state = part.as_ref().map(TwinPart::state);
+        let truth = |of: fn(&ContourTrim) -> f64, stat: fn(&[f64]) -> f64| {
+            state
+                .as_ref()
+                .map(|s| stat(&s.iter().map(of).collect::<Vec<f64>>()))
+        };
+        let max = |v: &[f64]| v.iter().copied().fold(0.0, f64::max);
+        let p95 = |v: &[f64]| quantile(v, 0.95);
+        let residual = |c: &ContourTrim| c.residual_um;
+        let gouge = |c: &ContourTrim| c.gouge_um;
         let round = Round {
             inspection: k,
             pass: ids(&result, Verdict::Pass).len(),
             fail: failing.len(),
             undecided: ids(&result, Verdict::Undecided).len(),
             failing: failing.iter().copied().collect(),
-            true_residual_max_um: residual.iter().copied().fold(0.0, f64::max),
-            true_gouge_max_um: gouge.iter().copied().fold(0.0, f64::max),
-            true_residual_p95_um: quantile(&residual, 0.95),
-            true_gouge_p95_um: quantile(&gouge, 0.95),
+            true_residual_max_um: truth(residual, max),
+            true_gouge_max_um: truth(gouge, max),
+            true_residual_p95_um: truth(residual, p95),
+            true_gouge_p95_um: truth(gouge, p95),
             retrimmed: !failing.is_empty() && k <= args.rounds,
         };
         println!(
-            "verify {k}: {} pass, {} fail, {} undecided{} (twin truth over the contours: residual web P95 {:.1} / max {:.1} µm, gouge P95 {:.1} / max {:.1} µm); {}",
+            "verify {k}: {} pass, {} fail, {} undecided{}{}; {}",
             round.pass,
             round.fail,
             round.undecided,
@@ -116,10 +136,7 @@ pub(super) fn verify(
             } else {
                 format!(" {:?}", round.failing)
             },
-            round.true_residual_p95_um,
-            round.true_residual_max_um,
-            round.true_gouge_p95_um,
-            round.true_gouge_max_um,
+            round.truth_words(),
             dir.display()
         );
         let retrim = round.retrimmed;
@@ -127,13 +144,33 @@ pub(super) fn verify(
         if !retrim {
             break;
         }
-        cuts = retrim_round(config, args, run_dir, registration, &result, &failing, k)?;
+        let landed = retrim_round(config, args, run_dir, registration, &result, &failing, k)?;
+        if part.is_some() {
+            cuts = landed_cuts(&landed)?;
+        }
     }
     std::fs::write(
         run_dir.join(files::VERIFY),
         serde_json::to_string_pretty(&rounds)?,
     )?;
     Ok(rounds)
+}
+
+impl Round {
+    /// The twin's truth, as the round's line prints it (nothing on a real part).
+    pub(super) fn truth_words(&self) -> String {
+        match (
+            self.true_residual_p95_um,
+            self.true_residual_max_um,
+            self.true_gouge_p95_um,
+            self.true_gouge_max_um,
+        ) {
+            (Some(rp), Some(rm), Some(gp), Some(gm)) => format!(
+                " (twin truth over the contours: residual web P95 {rp:.1} / max {rm:.1} µm, gouge P95 {gp:.1} / max {gm:.1} µm)"
+            ),
+            _ => String::new(),
+        }
+    }
 }
 
 /// The ids of the contours with verdict `v`.
@@ -156,7 +193,7 @@ fn landed_cuts(twin: &TwinLink) -> anyhow::Result<Vec<trim_sim::ablation::Landed
 
 /// The part as it stands, scanned through the true cell's scanner and carried into the
 /// work-piece frame through `[calibration]`, as the first scan.
-fn rescan(config: &JobConfig, part: &TwinPart, seed: u64) -> anyhow::Result<PointCloud> {
+fn twin_rescan(config: &JobConfig, part: &TwinPart, seed: u64) -> anyhow::Result<PointCloud> {
     let scanner_from_workpiece =
         Similarity3::from_isometry(crate::simulated::true_scanner_from_workpiece(config)?, 1.0);
     let in_scanner = part
@@ -167,8 +204,8 @@ fn rescan(config: &JobConfig, part: &TwinPart, seed: u64) -> anyhow::Result<Poin
 }
 
 /// Plans the failing contours (each polyline with the passes its measured excess height
-/// needs: a web is no thicker than it is tall) and runs them in `retrim_<k>/`; the cuts the
-/// twin saw land.
+/// needs: a web is no thicker than it is tall) and runs them in `retrim_<k>/`; the run's twin
+/// link (what the simulated galvo landed).
 fn retrim_round(
     config: &JobConfig,
     args: &Args,
@@ -177,7 +214,7 @@ fn retrim_round(
     found: &Inspection,
     failing: &BTreeSet<i64>,
     k: u32,
-) -> anyhow::Result<Vec<trim_sim::ablation::LandedCut>> {
+) -> anyhow::Result<TwinLink> {
     let path = TrimPath::new(
         registration
             .path
@@ -225,5 +262,5 @@ fn retrim_round(
     let twin = twin_link(config, run_dir)?;
     let (outcome, _) = execute(config, args, &dir, &plan.job, None, false, None, &twin)?;
     outcome.map_err(|e| exec_failure(e, &dir))?;
-    landed_cuts(&twin)
+    Ok(twin)
 }

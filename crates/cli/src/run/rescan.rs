@@ -1,0 +1,209 @@
+//! `run --verify` on a part of the job's own files: each inspection's rescan comes from the
+//! cell's scanner, as a file the run waits for or one a configured command writes (job.toml
+//! `[verify]`). The part has not moved: the rescan is taken in the scanner frame at
+//! `[part.scan_pose]`, as `part.scan` was, and carried into the work-piece frame the same way.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use trim_geom::PointCloud;
+
+use crate::config::{JobConfig, VerifyConfig};
+use trim_geom::formats;
+
+/// How often a wait looks again.
+const POLL: Duration = Duration::from_millis(100);
+
+/// A file counts as written when its size has not changed for this long (a scanner writing it
+/// may still be at it when it first appears).
+const SETTLED: Duration = Duration::from_millis(500);
+
+/// Where inspection `round`'s rescan appears: `[verify] scan_file` with `{round}` filled in,
+/// relative to the run folder.
+pub(super) fn scan_file(verify: &VerifyConfig, run_dir: &Path, round: u32) -> PathBuf {
+    let file = PathBuf::from(verify.scan_file.replace("{round}", &round.to_string()));
+    if file.is_relative() {
+        run_dir.join(file)
+    } else {
+        file
+    }
+}
+
+/// Inspection `round`'s rescan, work-piece frame: `[verify] scan_command` run to write it, or
+/// the file waited for; either within `[verify] scan_timeout_s`.
+pub(super) fn rescan(config: &JobConfig, run_dir: &Path, round: u32) -> anyhow::Result<PointCloud> {
+    let verify = &config.verify;
+    let file = scan_file(verify, run_dir, round);
+    if file.exists() {
+        bail!(
+            "verify {round}: the rescan file {} is there before the part was rescanned (a scan of the part before this round?); move it away and run again",
+            file.display()
+        );
+    }
+    let timeout = Duration::from_secs_f64(verify.scan_timeout_s);
+    if verify.scan_command.is_empty() {
+        println!(
+            "verify {round}: waiting for the rescan of the part at {} (timeout {} s)",
+            file.display(),
+            verify.scan_timeout_s
+        );
+        wait_for_file(&file, timeout)
+            .with_context(|| format!("verify {round}: no rescan (job.toml [verify])"))?;
+    } else {
+        run_scan_command(&verify.scan_command, &file, round, timeout)?;
+        if !file.exists() {
+            bail!(
+                "verify {round}: [verify] scan_command {:?} succeeded but wrote no {}",
+                verify.scan_command,
+                file.display()
+            );
+        }
+    }
+    let cloud =
+        formats::read_points(&file).with_context(|| format!("verify {round}: the rescan"))?;
+    config
+        .workpiece_from_scan(&cloud)
+        .with_context(|| format!("verify {round}: the rescan {}", file.display()))
+}
+
+/// Waits until `file` exists and its size has settled, or `timeout` has passed.
+fn wait_for_file(file: &Path, timeout: Duration) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let mut last: Option<(u64, Instant)> = None;
+    loop {
+        trim_geom::cancel::check()?;
+        if let Ok(meta) = std::fs::metadata(file) {
+            let size = meta.len();
+            match last {
+                Some((s, since)) if s == size && size > 0 && since.elapsed() >= SETTLED => {
+                    return Ok(());
+                }
+                Some((s, _)) if s == size => {}
+                _ => last = Some((size, Instant::now())),
+            }
+        }
+        if start.elapsed() >= timeout {
+            bail!(
+                "timed out after {:.1} s waiting for {}",
+                timeout.as_secs_f64(),
+                file.display()
+            );
+        }
+        std::thread::sleep(POLL);
+    }
+}
+
+/// Runs the scan command (`{scan}` → `file`, `{round}` → `round` in every word), killing it
+/// when it outlasts `timeout`; a failure names the command and the end of what it printed.
+fn run_scan_command(
+    command: &[String],
+    file: &Path,
+    round: u32,
+    timeout: Duration,
+) -> anyhow::Result<()> {
+    let words: Vec<String> = command
+        .iter()
+        .map(|w| {
+            w.replace("{scan}", &file.to_string_lossy())
+                .replace("{round}", &round.to_string())
+        })
+        .collect();
+    let (program, args) = words
+        .split_first()
+        .context("verify.scan_command is empty")?;
+    println!("verify {round}: rescanning the part: {}", words.join(" "));
+    let stderr_file = file.with_extension("scan_command.log");
+    if let Some(dir) = file.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    let log = std::fs::File::create(&stderr_file)
+        .with_context(|| format!("cannot create {}", stderr_file.display()))?;
+    let mut child = Command::new(program)
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(log.try_clone()?)
+        .stderr(log)
+        .spawn()
+        .with_context(|| {
+            format!("verify {round}: cannot start [verify] scan_command {program:?}")
+        })?;
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait()? {
+            break status;
+        }
+        let stop = if start.elapsed() >= timeout {
+            Some(format!("timed out after {:.1} s", timeout.as_secs_f64()))
+        } else {
+            trim_geom::cancel::check().err().map(|e| e.to_string())
+        };
+        if let Some(why) = stop {
+            let _ = child.kill();
+            let _ = child.wait();
+            bail!("verify {round}: [verify] scan_command {words:?} {why}; it was stopped");
+        }
+        std::thread::sleep(POLL);
+    };
+    if !status.success() {
+        let printed = std::fs::read_to_string(&stderr_file).unwrap_or_default();
+        let tail: Vec<&str> = printed.lines().rev().take(5).collect();
+        let tail: Vec<&str> = tail.into_iter().rev().collect();
+        bail!(
+            "verify {round}: [verify] scan_command {words:?} failed ({status}); it printed:\n  {}",
+            tail.join("\n  ")
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_scan_file_fills_in_the_round_and_lies_in_the_run_folder_unless_absolute() {
+        let mut v = VerifyConfig::default();
+        assert_eq!(
+            scan_file(&v, Path::new("/runs/a"), 2),
+            PathBuf::from("/runs/a/rescan_2.ply")
+        );
+        v.scan_file = "/scans/part_{round}.xyz".to_owned();
+        assert_eq!(
+            scan_file(&v, Path::new("/runs/a"), 3),
+            PathBuf::from("/scans/part_3.xyz")
+        );
+    }
+
+    #[test]
+    fn a_file_that_never_comes_times_out_naming_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("never.ply");
+        let err = wait_for_file(&file, Duration::from_millis(300)).unwrap_err();
+        assert!(err.to_string().contains("never.ply"), "{err}");
+        assert!(err.to_string().contains("timed out"), "{err}");
+    }
+
+    #[test]
+    fn a_command_that_hangs_is_stopped_at_the_timeout_and_one_that_fails_is_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("scan.ply");
+        let hang = ["sleep".to_owned(), "30".to_owned()];
+        let start = Instant::now();
+        let err = run_scan_command(&hang, &file, 1, Duration::from_millis(300)).unwrap_err();
+        assert!(start.elapsed() < Duration::from_secs(10), "not stopped");
+        assert!(err.to_string().contains("timed out"), "{err}");
+        let fail = [
+            "sh".to_owned(),
+            "-c".to_owned(),
+            "echo scanner offline >&2; exit 3".to_owned(),
+        ];
+        let err = run_scan_command(&fail, &file, 2, Duration::from_secs(10)).unwrap_err();
+        let text = err.to_string();
+        assert!(
+            text.contains("scanner offline") && text.contains("verify 2"),
+            "{text}"
+        );
+    }
+}
