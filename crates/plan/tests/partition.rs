@@ -168,10 +168,14 @@ fn check(name: &str, path: &Path, settings: &PlanSettings) {
     let out = plan_with_report(path, settings).expect("plans");
     let v = &out.job.validation;
     assert!(v.passed, "{name}: {:?}", v.violations);
-    // The line planned: the path offset out of the material by kerf compensation (by its
-    // own material sides, as `plan_with_report` takes them).
+    assert_partitioned(name, path, settings, &out.job);
+}
+
+/// The spatial check on the line planned along `path`: the path offset out of the material by
+/// kerf compensation (by its own material sides, as `plan_with_report` takes them).
+fn assert_partitioned(name: &str, path: &Path, settings: &PlanSettings, job: &Job) {
     let line = trim_plan::kerf::intended_line(path, settings.kerf_offset_mm()).expect("offsets");
-    let bad = partition_violations(&line, &out.job);
+    let bad = partition_violations(&line, job);
     assert!(
         bad.is_empty(),
         "{name}: {} points not in exactly one layer, e.g. {:?}",
@@ -474,15 +478,7 @@ fn check_adversarial(name: &str, path: &Path) {
             "{name}, {what}: round trip {}",
             v.max_round_trip_error_mm
         );
-        let line =
-            trim_plan::kerf::intended_line(path, settings.kerf_offset_mm()).expect("offsets");
-        let bad = partition_violations(&line, &out.job);
-        assert!(
-            bad.is_empty(),
-            "{name}, {what}: {} points not in exactly one layer, e.g. {:?}",
-            bad.len(),
-            &bad[..bad.len().min(5)]
-        );
+        assert_partitioned(&format!("{name}, {what}"), path, &settings, &out.job);
     }
 }
 
