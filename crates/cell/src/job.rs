@@ -351,6 +351,10 @@ pub struct ValidationReport {
     /// The zones no machine pose within the axis limits reaches (ids).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub unreachable_zones: Vec<usize>,
+    /// The contours a stretch of which two polylines (or one, running back) would mark twice
+    /// (ids): double ablation gouges the part, so no override starts such a job.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub double_marked_contours: Vec<ContourId>,
     /// One line per violation, naming zone, layer and contour.
     pub violations: Vec<String>,
 }

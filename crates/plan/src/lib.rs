@@ -9,6 +9,7 @@
 //! - [`layer`]: layers by paper Eq. 14 and the galvo projection.
 //! - [`field`]: scan-field sections and the lens ray angle.
 //! - [`order`]: zone ordering (nearest neighbour + 2-opt).
+//! - [`partition`]: validation's check that a Job's polylines mark each contour once.
 //! - [`planner`]: [`plan`], validation and the time estimate.
 //! - [`svg`]: SVG plots of a job.
 //! - [`error`]: the error type, [`PlanError`].
@@ -19,6 +20,7 @@ pub mod hatch;
 pub mod kerf;
 pub mod layer;
 pub mod order;
+pub mod partition;
 pub mod piece;
 pub mod planner;
 pub mod scan_field;

@@ -28,15 +28,18 @@
 //! `|workpiece_from_galvo(x, y) + h·Z − P| ≤ 1 µm` for every galvo point, with h kept from the
 //! planning. Equivalently: in the focal plane, the galvo point is P's projection to 1 µm, and
 //! along the beam the point is within ΔH/2 of the focus — which the Job JSON alone (without h)
-//! can state but not undo. It also checks that every contour is covered exactly once: the
-//! polylines of a contour, ordered along it, start at its first point, meet end to start, and
-//! end at its last point (no gap, no overlap).
+//! can state but not undo. It also checks that every contour is marked exactly once: the
+//! polylines of a contour partition it along its arc length, no stretch marked twice (by two
+//! polylines, or by one running back) and none left out ([`crate::partition`], issue 24 point
+//! 12); a contour marked twice anywhere is listed in `double_marked_contours`, which no
+//! override starts.
 
 use serde::{Deserialize, Serialize};
 use trim_geom::{ContourId, Path, Point3, UnitVector3, Vector3};
 
 use crate::error::PlanError;
 use crate::layer::{ZoneLayers, layer_pieces, project};
+use crate::partition::{At, Span};
 use crate::piece::{Piece, angle_rad, pieces_of};
 use crate::scan_field::{Lens, Section, sections};
 use crate::zoning::{ZoneGroup, Zoning, ZoningMethod, make_group, zone_pieces};
@@ -58,9 +61,6 @@ pub const ROUND_TRIP_TOLERANCE_MM: f64 = 1e-3;
 
 /// Slack (mm or radians) on the focus, field and incidence checks for rounding.
 pub const CHECK_SLACK: f64 = 1e-9;
-
-/// Slack on contour-coverage checks (in units of the vertex index).
-pub const COVERAGE_SLACK: f64 = 1e-9;
 
 /// How close `forward(pose)` must come to the focus point (mm) and zone axis (radians).
 pub const POSE_TOLERANCE: f64 = 1e-6;
@@ -238,6 +238,17 @@ fn check_kerf(
 /// Plans `path` as given: the line the beam is to draw (the registered path, or its
 /// kerf-compensated offset).
 fn plan_line(path: &Path, settings: &PlanSettings) -> Result<PlanOutput, PlanError> {
+    Ok(plan_line_traced(path, settings)?.0)
+}
+
+/// Per job zone, per layer, per polyline: where its points came from.
+type Traces = Vec<Vec<Vec<Trace>>>;
+
+/// [`plan_line`], also returning the traces validation checked the Job by.
+fn plan_line_traced(
+    path: &Path,
+    settings: &PlanSettings,
+) -> Result<(PlanOutput, Traces), PlanError> {
     settings.validate()?;
     let limit_rad = settings.max_incidence_deg.to_radians();
     let zoning_limit_rad = settings.field.zoning_limit_rad(limit_rad);
@@ -367,13 +378,13 @@ fn finish_plan(
     zoning: &Zoning,
     (clusters, pieces): (usize, usize),
     cover: Option<crate::cover::CoverReport>,
-) -> Result<PlanOutput, PlanError> {
+) -> Result<(PlanOutput, Traces), PlanError> {
     let focus_half_length_mm = settings.beam.focus_half_length_mm();
     let step_mm = settings.layers.step_for(focus_half_length_mm)?;
     // (5) order and poses.
     let order = zone_order(&planned, &settings.machine, &settings.table());
     let mut zones = Vec::with_capacity(planned.len());
-    let mut traces: Vec<Vec<Vec<Trace>>> = Vec::with_capacity(planned.len());
+    let mut traces: Traces = Vec::with_capacity(planned.len());
     let mut table = Vec::with_capacity(planned.len());
     let mut previous = AxisPose::HOME;
     let mut estimate = TimeEstimate::default();
@@ -414,7 +425,7 @@ fn finish_plan(
         kerf: None,
     };
     job.validation = validate(&job, &traces, path, settings, &lens_model);
-    Ok(PlanOutput {
+    let out = PlanOutput {
         job,
         k: zoning.k,
         automatic_k: zoning.automatic,
@@ -424,7 +435,8 @@ fn finish_plan(
         pieces,
         table,
         cover,
-    })
+    };
+    Ok((out, traces))
 }
 
 /// One zone in execution order: its poses from the `previous` pose (the nearest outside the
@@ -780,7 +792,7 @@ fn validate(
         lines: Vec::new(),
         more: 0,
     };
-    let mut coverage: std::collections::BTreeMap<ContourId, Vec<(f64, f64)>> = Default::default();
+    let mut spans: std::collections::BTreeMap<ContourId, Vec<Span>> = Default::default();
     for (zone, zone_traces) in job.zones.iter().zip(traces) {
         if let Some(why) = &zone.unreachable {
             checks.report.unreachable_zones.push(zone.id);
@@ -792,7 +804,7 @@ fn validate(
         for (layer, layer_traces) in zone.layers.iter().zip(zone_traces) {
             let at = format!("zone {} layer {}", zone.id, layer.index);
             checks.pose(zone, layer, &at);
-            for (pl, t) in layer.polylines.iter().zip(layer_traces) {
+            for (k, (pl, t)) in layer.polylines.iter().zip(layer_traces).enumerate() {
                 let Some(contour) = path.get(pl.contour) else {
                     checks.violation(format!("{at}: contour {} is not in the path", pl.contour));
                     continue;
@@ -803,17 +815,21 @@ fn validate(
                         pl.contour
                     ));
                 }
-                coverage
-                    .entry(pl.contour)
-                    .or_default()
-                    .push((t.source[0], *t.source.last().unwrap_or(&t.source[0])));
+                spans.entry(pl.contour).or_default().push(Span {
+                    at: At {
+                        zone: zone.id,
+                        layer: layer.index,
+                        polyline: k,
+                    },
+                    source: t.source.clone(),
+                });
                 for i in 0..pl.points.len().min(t.height_mm.len()).min(t.features.len()) {
                     checks.point(zone, layer, pl, t, i, contour.points(), &at);
                 }
             }
         }
     }
-    checks.coverage(path, coverage);
+    checks.partition(path, spans);
     checks.finish()
 }
 
@@ -943,30 +959,25 @@ impl Checks<'_> {
         }
     }
 
-    /// Every contour covered exactly once: its polylines' spans, ordered along it, start at
-    /// its first point, meet end to start and end at its last point.
-    fn coverage(
+    /// Every contour marked once: its polylines partition it along its arc length (no stretch
+    /// marked twice, none left out; [`crate::partition`]). A contour a stretch of which would
+    /// be marked twice is recorded in `double_marked_contours`.
+    fn partition(
         &mut self,
         path: &Path,
-        mut coverage: std::collections::BTreeMap<ContourId, Vec<(f64, f64)>>,
+        mut spans: std::collections::BTreeMap<ContourId, Vec<Span>>,
     ) {
         for c in path.contours() {
-            let last = (c.points().len() - 1) as f64;
-            let mut spans = coverage.remove(&c.id()).unwrap_or_default();
-            spans.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let mut reach = 0.0;
-            let mut ok = !spans.is_empty();
-            for (s, e) in &spans {
-                if (s - reach).abs() > COVERAGE_SLACK {
-                    ok = false;
-                }
-                reach = *e;
+            let found = crate::partition::violations(
+                c.id(),
+                c.points(),
+                &spans.remove(&c.id()).unwrap_or_default(),
+            );
+            if found.iter().any(|f| f.marked_twice) {
+                self.report.double_marked_contours.push(c.id());
             }
-            if !ok || (reach - last).abs() > COVERAGE_SLACK {
-                self.violation(format!(
-                    "contour {}: not covered exactly once (gap or overlap along it)",
-                    c.id()
-                ));
+            for f in found {
+                self.violation(f.line);
             }
         }
     }
@@ -1193,6 +1204,114 @@ mod tests {
         for q in &landed(&given.job, 2) {
             assert!((out_of(q, 4.0) + d).abs() < 1e-3, "{q}");
         }
+    }
+
+    /// Validation refuses a Job whose polylines mark a stretch of a contour twice (issue 24
+    /// point 12), naming the contour, both zones and both layers: a planted overlap of a
+    /// sub-segment at a junction between two zones, and a polyline planted to run back.
+    #[test]
+    fn a_planted_sub_segment_overlap_between_two_zones_is_refused() {
+        let path = synthetic_core_path(8, 1);
+        let mut settings = PlanSettings::default();
+        settings.trim.kerf_compensation = false;
+        let lens_model = settings.lens_model().unwrap().0;
+        let (out, planned) = plan_line_traced(&path, &settings).unwrap();
+        assert!(
+            out.job.validation.passed,
+            "{:?}",
+            out.job.validation.violations
+        );
+        assert!(out.job.validation.double_marked_contours.is_empty());
+        // A junction between two zones: polyline A's last source is polyline B's first.
+        let mut index = Vec::new();
+        for (z, zone) in out.job.zones.iter().enumerate() {
+            for (l, layer) in zone.layers.iter().enumerate() {
+                for (k, pl) in layer.polylines.iter().enumerate() {
+                    index.push((z, l, k, pl.contour));
+                }
+            }
+        }
+        let trace = |(z, l, k): (usize, usize, usize)| &planned[z][l][k];
+        let (a, b) = index
+            .iter()
+            .flat_map(|a| index.iter().map(move |b| (a, b)))
+            .find(|(a, b)| {
+                a.0 != b.0
+                    && a.3 == b.3
+                    && trace((a.0, a.1, a.2)).source.last() == trace((b.0, b.1, b.2)).source.first()
+            })
+            .map(|(a, b)| ((a.0, a.1, a.2), (b.0, b.1, b.2)))
+            .expect("a contour split between two zones");
+        let contour = out.job.zones[a.0].layers[a.1].polylines[a.2].contour;
+        let (mut job, mut traces) = (out.job.clone(), planned.clone());
+        // A runs on over half of B's first segment: its new point is B's, in A's frame.
+        let (b0, b1) = (trace(b).source[0], trace(b).source[1]);
+        let on = 0.5 * (b0 + b1);
+        let p = point_on_contour(path.get(contour).unwrap().points(), on);
+        let zone = &mut job.zones[a.0];
+        let frame = zone.frame;
+        let layer = &mut zone.layers[a.1];
+        let (xy, h) = project(&frame, &Point3::from(layer.focus_point), &p);
+        let pl = &mut layer.polylines[a.2];
+        pl.points.push(xy);
+        pl.commands.push(lens_model.command_for(xy, h).unwrap());
+        pl.heights_mm.push(h);
+        let t = &mut traces[a.0][a.1][a.2];
+        t.source.push(on);
+        t.features.push(*t.features.last().unwrap());
+        t.height_mm.push(h);
+        let v = validate(&job, &traces, &path, &settings, &lens_model);
+        assert!(!v.passed);
+        assert_eq!(v.double_marked_contours, vec![contour]);
+        let name = |(z, l, _): (usize, usize, usize)| {
+            format!(
+                "zone {} layer {}",
+                job.zones[z].id, job.zones[z].layers[l].index
+            )
+        };
+        assert!(
+            v.violations
+                .iter()
+                .any(|l| l.contains(&format!("contour {contour}:"))
+                    && l.contains("marked twice")
+                    && l.contains(&name(a))
+                    && l.contains(&name(b))),
+            "{:?}",
+            v.violations
+        );
+        // The round trip of the planted point holds: only the partition refuses it.
+        assert!(v.max_round_trip_error_mm <= ROUND_TRIP_TOLERANCE_MM);
+
+        // A polyline planted to run back along its contour over its last segment (every point
+        // on it): its one-but-last point once more at its end.
+        let (mut job, mut traces) = (out.job.clone(), planned.clone());
+        let (z, l, k) = index
+            .iter()
+            .map(|i| (i.0, i.1, i.2))
+            .find(|&i| trace(i).source.len() >= 3)
+            .expect("a polyline of three points");
+        let pl = &mut job.zones[z].layers[l].polylines[k];
+        let back = pl.points.len() - 2;
+        pl.points.push(pl.points[back]);
+        pl.commands.push(pl.commands[back]);
+        pl.heights_mm.push(pl.heights_mm[back]);
+        let t = &mut traces[z][l][k];
+        t.source.push(t.source[back]);
+        t.features.push(t.features[back]);
+        t.height_mm.push(t.height_mm[back]);
+        let v = validate(&job, &traces, &path, &settings, &lens_model);
+        assert!(!v.passed);
+        assert_eq!(
+            v.double_marked_contours,
+            vec![job.zones[z].layers[l].polylines[k].contour]
+        );
+        assert!(
+            v.violations
+                .iter()
+                .any(|line| line.contains("runs back") && line.contains(&name((z, l, k)))),
+            "{:?}",
+            v.violations
+        );
     }
 
     #[test]

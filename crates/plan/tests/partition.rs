@@ -6,7 +6,11 @@
 //! polyline's end lies strictly inside another (which catches an overlap shorter than the
 //! sample spacing).
 //! Issue 24 point 12: a plan put one point strictly inside two layers. With kerf compensation
-//! the line partitioned is the path offset out of the material (`trim_plan::kerf`).
+//! the line partitioned is the path offset out of the material (`trim_plan::kerf`). The
+//! adversarial shapes below (layer-boundary ties, seams at zone changes, cuts on repeated
+//! vertices, random contours under both zonings, both lenses, small fields, kerf on and off)
+//! are also checked against the planner's own arc-length partition check
+//! (`trim_plan::partition`).
 
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -164,10 +168,14 @@ fn check(name: &str, path: &Path, settings: &PlanSettings) {
     let out = plan_with_report(path, settings).expect("plans");
     let v = &out.job.validation;
     assert!(v.passed, "{name}: {:?}", v.violations);
-    // The line planned: the path offset out of the material by kerf compensation (by its
-    // own material sides, as `plan_with_report` takes them).
+    assert_partitioned(name, path, settings, &out.job);
+}
+
+/// The spatial check on the line planned along `path`: the path offset out of the material by
+/// kerf compensation (by its own material sides, as `plan_with_report` takes them).
+fn assert_partitioned(name: &str, path: &Path, settings: &PlanSettings, job: &Job) {
     let line = trim_plan::kerf::intended_line(path, settings.kerf_offset_mm()).expect("offsets");
-    let bad = partition_violations(&line, &out.job);
+    let bad = partition_violations(&line, job);
     assert!(
         bad.is_empty(),
         "{name}: {} points not in exactly one layer, e.g. {:?}",
@@ -385,4 +393,278 @@ fn an_overlap_between_two_layers_is_caught() {
     let bad = partition_violations(&path, &job);
     assert!(!bad.is_empty(), "an overlap went unseen");
     eprintln!("caught: {:?}", &bad[..bad.len().min(3)]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Adversarial inputs for the mechanisms a junction overlap could come from (issue 24 point 12):
+// points exactly on layer boundaries (ties), segments lying in a boundary plane, closed
+// contours whose seam falls at a zone change, repeated points and cut points on vertices (the
+// covering's equal-length atoms, the sectioning's halving), features that turn fast enough to
+// make the k-means pieces split, small fields (sections), both zonings, both lenses, kerf on
+// and off. Each plan must pass its own partition check (arc length, from the sources its
+// round trip confirms) and the spatial check above.
+// ---------------------------------------------------------------------------------------------
+
+/// The planner's own partition findings of a plan: every line about a stretch marked twice or
+/// not at all.
+fn partition_findings(job: &Job) -> Vec<String> {
+    const WORDS: [&str; 6] = [
+        "marked twice",
+        "not marked",
+        "runs back",
+        "skips its vertex",
+        "off the contour",
+        "not planned",
+    ];
+    job.validation
+        .violations
+        .iter()
+        .filter(|l| WORDS.iter().any(|w| l.contains(w)))
+        .cloned()
+        .collect()
+}
+
+/// A ΔH that is a power of two (mm), within the beam's focus length, so heights that are
+/// multiples of it sit exactly on layer boundaries.
+fn exact_step_mm(settings: &PlanSettings) -> f64 {
+    let step = settings
+        .layers
+        .step_for(settings.beam.focus_half_length_mm())
+        .expect("a step");
+    2f64.powi(step.log2().floor() as i32)
+}
+
+/// The settings the adversarial shapes are planned with: both zonings, both lenses, the
+/// default and a small field (so zones are sectioned and pieces halved), kerf on and off.
+fn adversarial_settings() -> Vec<(String, PlanSettings)> {
+    let mut out = Vec::new();
+    for method in [ZoningMethod::Cover, ZoningMethod::Kmeans] {
+        for telecentric in [false, true] {
+            for field_mm in [None, Some(6.0)] {
+                for kerf in [true, false] {
+                    let mut s = settings_for(method);
+                    s.field.telecentric = telecentric;
+                    if let Some(f) = field_mm {
+                        s.galvo.field_mm = [f, f];
+                    }
+                    s.trim.kerf_compensation = kerf;
+                    s.layers.step_mm = Some(exact_step_mm(&s));
+                    out.push((
+                        format!(
+                            "{method:?}, telecentric {telecentric}, field {field_mm:?}, kerf {kerf}"
+                        ),
+                        s,
+                    ));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Plans `path` with every adversarial setting; the plan's own partition findings and the
+/// spatial check must both be empty.
+fn check_adversarial(name: &str, path: &Path) {
+    for (what, settings) in adversarial_settings() {
+        let out = plan_with_report(path, &settings).expect("plans");
+        let v = &out.job.validation;
+        let own = partition_findings(&out.job);
+        assert!(
+            own.is_empty() && v.double_marked_contours.is_empty(),
+            "{name}, {what}: {own:?}"
+        );
+        assert!(
+            v.max_round_trip_error_mm <= 1e-3,
+            "{name}, {what}: round trip {}",
+            v.max_round_trip_error_mm
+        );
+        assert_partitioned(&format!("{name}, {what}"), path, &settings, &out.job);
+    }
+}
+
+/// A staircase along x whose heights are multiples of half of ΔH: vertices on layer
+/// boundaries, treads lying in boundary planes, risers crossing several boundaries at once.
+fn staircase(step_mm: f64) -> Path {
+    let heights = [0.0, 0.0, 1.0, 1.0, 3.0, 2.0, 2.0, 0.5, 4.0, 4.0, 1.5, 0.0];
+    let mut points = Vec::new();
+    for (i, h) in heights.iter().enumerate() {
+        points.push(Point3::new(
+            i as f64 * 0.7,
+            0.3 * i as f64,
+            h * 0.5 * step_mm,
+        ));
+        // A repeated point on the boundary.
+        if i % 3 == 1 {
+            points.push(*points.last().expect("a point"));
+        }
+    }
+    let c = Contour::new(1, points, Vector3::z()).expect("a staircase");
+    Path::new(vec![c]).expect("a path")
+}
+
+#[test]
+fn points_and_segments_on_layer_boundaries_mark_each_point_once() {
+    for (_, settings) in adversarial_settings().into_iter().take(1) {
+        let step = settings.layers.step_mm.expect("exact");
+        check_adversarial("staircase on the boundaries", &staircase(step));
+    }
+}
+
+/// A closed ring of radius `r` (mm) whose feature vectors lean `tilt_deg` outward (a hole's rim
+/// on a cone), starting at angle `start_deg`: the features turn a full circle, so the ring is
+/// split into zones, and the seam (last point = first) falls wherever `start_deg` puts it. The
+/// ring rises and falls `wave_mm` so the layers cut it near the seam too.
+fn tilted_ring(id: i64, r: f64, tilt_deg: f64, start_deg: f64, wave_mm: f64, n: usize) -> Contour {
+    let tilt = tilt_deg.to_radians();
+    let mut points = Vec::with_capacity(n + 1);
+    let mut features = Vec::with_capacity(n + 1);
+    for k in 0..=n {
+        let a = start_deg.to_radians() + std::f64::consts::TAU * (k % n) as f64 / n as f64;
+        points.push(Point3::new(
+            r * a.cos(),
+            r * a.sin(),
+            wave_mm * (2.0 * a).sin(),
+        ));
+        features.push(Vector3::new(
+            tilt.sin() * a.cos(),
+            tilt.sin() * a.sin(),
+            tilt.cos(),
+        ));
+    }
+    Contour::with_features(id, points, features).expect("a ring")
+}
+
+#[test]
+fn closed_rings_whose_seam_falls_at_a_zone_change_mark_each_point_once() {
+    for start_deg in [0.0, 7.5, 22.5, 45.0, 90.0, 133.0] {
+        let path = Path::new(vec![
+            tilted_ring(1, 3.0, 20.0, start_deg, 0.05, 48),
+            tilted_ring(2, 1.0, 12.0, -start_deg, 0.0, 24),
+        ])
+        .expect("rings");
+        check_adversarial(&format!("tilted rings from {start_deg}°"), &path);
+    }
+}
+
+/// Straight contours of exactly two atoms' length whose vertices sit on the covering's cut
+/// points and at their halves (the sectioning's cut), some repeated there; features that
+/// turn by more than the limit along them, so the k-means pieces split between vertices.
+#[test]
+fn cuts_that_fall_on_vertices_and_repeated_points_mark_each_point_once() {
+    let atom = trim_plan::cover::ATOM_MAX_LENGTH_MM;
+    let mut contours = Vec::new();
+    for (id, turn_deg) in [(1i64, 0.0), (2, 12.0), (3, 31.0)] {
+        let xs = [
+            0.0,
+            0.25 * atom,
+            0.5 * atom,
+            0.5 * atom,
+            atom,
+            atom,
+            atom,
+            1.5 * atom,
+            2.0 * atom,
+        ];
+        let points: Vec<Point3> = xs
+            .iter()
+            .map(|x| Point3::new(*x, 3.0 * id as f64, 0.001 * x))
+            .collect();
+        let features = xs
+            .iter()
+            .map(|x| {
+                let a = (turn_deg * x / (2.0 * atom)).to_radians();
+                Vector3::new(a.sin(), 0.0, a.cos())
+            })
+            .collect();
+        contours.push(Contour::with_features(id, points, features).expect("a contour"));
+    }
+    check_adversarial("cuts on vertices", &Path::new(contours).expect("a path"));
+}
+
+mod property {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// A contour from proptest's draws: steps (some zero, some tiny), heights snapped to
+    /// quarters of ΔH or free, features drifting by up to `turn` per point; closed when asked.
+    /// It never retraces itself (that one would be marked twice by definition): x never goes
+    /// back, the height changes only over a full step, and a closed one comes back above
+    /// every point it passed.
+    fn contour_from(
+        id: i64,
+        steps: &[(f64, f64, f64, u8)],
+        turn_rad: f64,
+        closed: bool,
+        step_mm: f64,
+    ) -> Option<Contour> {
+        let mut p = Point3::new(0.0, 3.0 * id as f64, 0.0);
+        let (mut a, mut b) = (0.0f64, 0.0f64);
+        let (mut points, mut features) = (Vec::new(), Vec::new());
+        for (i, &(dx, dy, dz, kind)) in steps.iter().enumerate() {
+            points.push(p);
+            features.push(Vector3::new(a.sin(), b.sin(), 1.0).normalize());
+            let scale = match kind % 8 {
+                0 => 0.0,
+                1 => 1e-10,
+                2 => 2.5,
+                _ => 0.6,
+            };
+            p += Vector3::new(dx.abs() + 0.05, dy, 0.0) * scale;
+            // Heights on quarter steps (layer boundaries and their middles) or anywhere.
+            if scale >= 0.6 {
+                p.z = if kind % 2 == 0 {
+                    (dz / (0.25 * step_mm)).round() * 0.25 * step_mm
+                } else {
+                    dz
+                };
+            }
+            a += turn_rad * ((i % 5) as f64 - 2.0) / 2.0;
+            b += turn_rad * dy.signum() * 0.5;
+        }
+        if closed && points.len() >= 6 {
+            let above = points.iter().map(|q| q.y).fold(f64::NEG_INFINITY, f64::max) + 1.0;
+            let (first, last) = (points[0], points[points.len() - 1]);
+            let (f_first, f_last) = (features[0], features[features.len() - 1]);
+            points.extend([
+                Point3::new(last.x, above, last.z),
+                Point3::new(first.x, above, first.z),
+                first,
+            ]);
+            features.extend([f_last, f_first, f_first]);
+        }
+        Contour::with_features(id, points, features).ok()
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+        /// Random contours under every adversarial setting: the plan's own partition check
+        /// and the spatial check find nothing.
+        #[test]
+        fn random_contours_mark_each_point_once(
+            contours in proptest::collection::vec(
+                (
+                    proptest::collection::vec(
+                        (0.0..1.0f64, -0.3..0.3f64, -0.4..0.4f64, any::<u8>()),
+                        2..40,
+                    ),
+                    0.0..0.15f64,
+                    any::<bool>(),
+                ),
+                1..4,
+            ),
+        ) {
+            let step_mm = exact_step_mm(&settings_for(ZoningMethod::Cover));
+            let built: Vec<Contour> = contours
+                .iter()
+                .enumerate()
+                .filter_map(|(i, (steps, turn, closed))| {
+                    contour_from(i as i64 + 1, steps, *turn, *closed, step_mm)
+                })
+                .collect();
+            prop_assume!(!built.is_empty());
+            let path = Path::new(built).expect("distinct ids");
+            check_adversarial("random", &path);
+        }
+    }
 }

@@ -152,7 +152,8 @@ pub struct Args {
     cut_layer: Option<CutLayerArg>,
     #[command(flatten)]
     cell: CellOverrides,
-    /// Start even if the plan fails validation (the violations are printed and recorded).
+    /// Start even if the plan fails validation (the violations are printed and recorded);
+    /// never with an unreachable zone or a stretch of a contour marked twice.
     #[arg(long)]
     allow_invalid: bool,
     /// Plan without the contours registration flags untrustworthy (they are listed in the
@@ -749,19 +750,35 @@ fn plan_part(
     Ok(plan)
 }
 
-/// Refuses a plan that fails validation: always with an unreachable zone, otherwise unless
-/// `--allow-invalid` (then a warning).
+/// Refuses a plan that fails validation: always with an unreachable zone or a stretch of a
+/// contour marked twice, otherwise unless `--allow-invalid` (then a warning).
 fn check_plan(plan: &PlanOutput, args: &Args) -> anyhow::Result<()> {
     if plan.job.validation.passed {
         return Ok(());
     }
     let lines = plan.job.validation.violations.join("\n  ");
-    let unreachable = &plan.job.validation.unreachable_zones;
+    // What no override starts.
+    let (unreachable, twice) = (
+        &plan.job.validation.unreachable_zones,
+        &plan.job.validation.double_marked_contours,
+    );
+    let mut never = Vec::new();
     if !unreachable.is_empty() {
+        never.push(format!(
+            "zone(s) {unreachable:?} cannot be reached within the axis limits"
+        ));
+    }
+    if !twice.is_empty() {
+        never.push(format!(
+            "contour(s) {twice:?} would be marked twice along a stretch (double ablation gouges the part)"
+        ));
+    }
+    if !never.is_empty() {
         return Err(Failure::with_exit(
             Exit::Refused,
             anyhow::anyhow!(
-                "zone(s) {unreachable:?} cannot be reached within the axis limits; refusing to start (--allow-invalid does not override this):\n  {lines}"
+                "{}; refusing to start (--allow-invalid does not override this):\n  {lines}",
+                never.join("; ")
             ),
         ));
     }
@@ -902,3 +919,61 @@ fn resume(run_dir: &Path, args: &Args, live: Option<&LiveServer>) -> anyhow::Res
 /// What an execution gave: the executor's outcome and, with the digital twin, the spot
 /// errors on the true part.
 pub(super) type Executed = (Result<RunSummary, ExecError>, Option<SpotReport>);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        run: Args,
+    }
+
+    /// A plan of one straight contour, its validation as given.
+    fn plan_with(validation: impl FnOnce(&mut trim_cell::job::ValidationReport)) -> PlanOutput {
+        let c = trim_geom::Contour::new(
+            3,
+            vec![
+                trim_geom::Point3::origin(),
+                trim_geom::Point3::new(1.0, 0.0, 0.0),
+            ],
+            trim_geom::Vector3::z(),
+        )
+        .expect("a contour");
+        let path = TrimPath::new(vec![c]).expect("a path");
+        let mut settings = trim_plan::PlanSettings::default();
+        settings.trim.kerf_compensation = false;
+        let mut plan = plan_with_sides(&path, &settings, None).expect("plans");
+        validation(&mut plan.job.validation);
+        plan
+    }
+
+    /// A stretch marked twice is refused with or without `--allow-invalid` (issue 24 point
+    /// 12); another failed check only without it.
+    #[test]
+    fn a_contour_marked_twice_is_refused_even_with_allow_invalid() {
+        let allow = Cli::parse_from(["run", "--allow-invalid"]).run;
+        let strict = Cli::parse_from(["run"]).run;
+        let twice = plan_with(|v| {
+            v.passed = false;
+            v.double_marked_contours = vec![3];
+            v.violations = vec!["contour 3: 0.4–0.5 mm of its 1 mm marked twice".to_owned()];
+        });
+        for args in [&allow, &strict] {
+            let e = check_plan(&twice, args).expect_err("refused");
+            assert!(e.to_string().contains("marked twice"), "{e}");
+            assert_eq!(
+                e.downcast_ref::<Failure>().map(|f| f.exit),
+                Some(Exit::Refused)
+            );
+        }
+        let other = plan_with(|v| {
+            v.passed = false;
+            v.violations = vec!["zone 0 layer 0 contour 3 point 0: outside the field".to_owned()];
+        });
+        assert!(check_plan(&other, &allow).is_ok());
+        assert!(check_plan(&other, &strict).is_err());
+    }
+}
