@@ -314,7 +314,13 @@ mod tests {
     fn tracks_whose_kerfs_meet_with_enough_passes_clear_the_film() {
         // 100 µm thick, 40 µm a pass: three passes; pitch 30 µm under a 41 µm kerf.
         let mut films = vec![film(0.1)];
-        let out = clear_films(&mut films, &flat, &hatch(0.03, 3, 1.0), &process(40.0), 0.041);
+        let out = clear_films(
+            &mut films,
+            &flat,
+            &hatch(0.03, 3, 1.0),
+            &process(40.0),
+            0.041,
+        );
         assert!(out[0].standing_share < 1e-9, "{out:?}");
         assert!(out[0].covered_share < 1e-9, "{out:?}");
         assert!(out[0].cells_cut > 60_000, "{out:?}");
@@ -323,7 +329,13 @@ mod tests {
     #[test]
     fn too_few_passes_thin_the_film_but_leave_it_standing() {
         let mut films = vec![film(0.1)];
-        let out = clear_films(&mut films, &flat, &hatch(0.03, 2, 1.0), &process(40.0), 0.041);
+        let out = clear_films(
+            &mut films,
+            &flat,
+            &hatch(0.03, 2, 1.0),
+            &process(40.0),
+            0.041,
+        );
         // Where two kerfs overlap a cell gets 2 × 2 passes = 160 µm: cleared; where one
         // reaches it, 80 µm of 100: standing, 20 µm thin. Kerf 41 on pitch 30: overlaps of
         // 11 µm in every 30 µm, about a third.
@@ -332,7 +344,13 @@ mod tests {
         // A single pass clears nothing of a 100 µm film... and one of two passes of a 60 µm
         // film clears only the overlaps.
         let mut films = vec![film(0.1)];
-        let out = clear_films(&mut films, &flat, &hatch(0.03, 1, 1.0), &process(40.0), 0.041);
+        let out = clear_films(
+            &mut films,
+            &flat,
+            &hatch(0.03, 1, 1.0),
+            &process(40.0),
+            0.041,
+        );
         assert!((out[0].standing_share - 1.0).abs() < 1e-12, "{out:?}");
         assert!((films[0].remaining_at(-16.0, -30.0) - 0.06).abs() < 1e-9);
     }
@@ -342,7 +360,13 @@ mod tests {
         // Pitch 50 µm on a 41 µm kerf: a 9 µm strip between every two tracks, about 18 % of
         // the film (on a 10 µm grid: 0 or 1 cell of every 5).
         let mut films = vec![film(0.05)];
-        let out = clear_films(&mut films, &flat, &hatch(0.05, 10, 1.0), &process(40.0), 0.041);
+        let out = clear_films(
+            &mut films,
+            &flat,
+            &hatch(0.05, 10, 1.0),
+            &process(40.0),
+            0.041,
+        );
         assert!(
             (0.1..0.3).contains(&out[0].standing_share),
             "standing {out:?}"
@@ -354,8 +378,18 @@ mod tests {
     fn cuts_off_the_film_or_over_part_of_it_clear_only_what_they_reach() {
         // 2 mm above the face: off the film, nothing.
         let mut films = vec![film(0.05)];
-        let out = clear_films(&mut films, &flat, &hatch(0.03, 3, 3.0), &process(40.0), 0.041);
-        assert_eq!((out[0].cells_cut, out[0].standing_share), (0, 1.0), "{out:?}");
+        let out = clear_films(
+            &mut films,
+            &flat,
+            &hatch(0.03, 3, 3.0),
+            &process(40.0),
+            0.041,
+        );
+        assert_eq!(
+            (out[0].cells_cut, out[0].standing_share),
+            (0, 1.0),
+            "{out:?}"
+        );
         // Tracks over the half v < centre only: about half cleared, the other half whole.
         let half: Vec<LandedCut> = hatch(0.03, 3, 1.0)
             .into_iter()
@@ -374,7 +408,13 @@ mod tests {
     #[test]
     fn a_sweep_counts_once_at_its_joints_and_a_closed_loop_once_a_pass() {
         let p = |x: f64, y: f64| Point3::new(x, y, 0.0);
-        let square = [p(0.0, 0.0), p(1.0, 0.0), p(1.0, 1.0), p(0.0, 1.0), p(0.0, 0.0)];
+        let square = [
+            p(0.0, 0.0),
+            p(1.0, 0.0),
+            p(1.0, 1.0),
+            p(0.0, 1.0),
+            p(0.0, 0.0),
+        ];
         let loop_once: Vec<LandedCut> = square
             .windows(2)
             .map(|w| LandedCut {

@@ -237,8 +237,13 @@ impl Film {
             let k = ((x - lo) / FILM_GRID_MM).floor();
             (k >= 0.0 && k < n as f64).then_some(k as usize)
         };
-        match (cell(u, self.lo[0], self.cols), cell(v, self.lo[1], self.rows)) {
-            (Some(i), Some(j)) => self.removed_mm[j * self.cols + i].min(self.blockage.thickness_mm),
+        match (
+            cell(u, self.lo[0], self.cols),
+            cell(v, self.lo[1], self.rows),
+        ) {
+            (Some(i), Some(j)) => {
+                self.removed_mm[j * self.cols + i].min(self.blockage.thickness_mm)
+            }
             _ => 0.0,
         }
     }

@@ -673,7 +673,9 @@ fn a_film_scans_only_where_it_stands_thinned_where_cut_and_untouched_as_before()
     assert_eq!(films.len(), case.blockages.len());
     assert_eq!(
         case.rescan_films(&case.burrs, &films, 5).unwrap().points(),
-        case.rescan(&case.burrs, &case.blockages, 5).unwrap().points()
+        case.rescan(&case.burrs, &case.blockages, 5)
+            .unwrap()
+            .points()
     );
     assert!(films.iter().all(|f| f.standing_share() == 1.0));
     // The first film: its u < centre half cleared through, its other half thinned by a third.
@@ -688,7 +690,11 @@ fn a_film_scans_only_where_it_stands_thinned_where_cut_and_untouched_as_before()
             f.remove(i, j, if u < c.u_mm { t } else { t / 3.0 });
         }
     }
-    assert!((f.standing_share() - 0.5).abs() < 0.02, "{}", f.standing_share());
+    assert!(
+        (f.standing_share() - 0.5).abs() < 0.02,
+        "{}",
+        f.standing_share()
+    );
     assert!((f.covered_share() - 0.5 * f.blockage.covered_share).abs() < 0.02);
     assert!(f.remaining_at(c.u_mm - 0.5, c.v_mm) == 0.0);
     assert!((f.remaining_at(c.u_mm + 0.5, c.v_mm) - 2.0 * t / 3.0).abs() < 1e-12);

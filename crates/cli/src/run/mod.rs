@@ -35,6 +35,7 @@ use report::{
     BeamBlock, RunNotes, append_resume_report, shutdown_of, shutdown_sentence, write_report,
 };
 
+mod blocked;
 mod detect;
 mod execute;
 mod inputs;
@@ -188,6 +189,12 @@ pub struct Args {
     /// The demo part's seed.
     #[arg(long, default_value_t = 1)]
     demo_seed: u64,
+    /// The share of the demo part's holes and slots (0-1) that carry a blockage, a film 50-200
+    /// µm thick over part of the opening (the synthetic part's `--blockages`). With `[trim]
+    /// only_detected` or --verify the inspection finds them and `[trim] hatch_blocked` hatches
+    /// them. Ignored with a job naming its own part.
+    #[arg(long, default_value_t = 0.0, value_parser = parse_share)]
+    demo_blockages: f64,
     /// Simulated devices: real seconds per simulated second (1 = real time).
     #[arg(long, default_value_t = DEFAULT_SIM_TIME_SCALE)]
     sim_time_scale: f64,
@@ -215,6 +222,19 @@ fn parse_live_addr(s: &str) -> Result<LiveAddr, String> {
             e.to_string()
         }
     })
+}
+
+/// A share in [0, 1].
+fn parse_share(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("expected a number in [0, 1], got {s:?}"))?;
+    if (0.0..=1.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("expected a number in [0, 1], got {v}"))
+    }
 }
 
 /// `--sim-block-beam`'s value: ZONE:LAYER.
@@ -350,7 +370,9 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     let mut contours = trusted_contours(&registration, args, &run_dir)?
         .contours()
         .to_vec();
-    let detection = if let Some(mesh) = &mesh {
+    let trusted: std::collections::BTreeSet<i64> =
+        contours.iter().map(trim_geom::Contour::id).collect();
+    let mut detection = if let Some(mesh) = &mesh {
         let mut d = detect::detect(
             &config,
             &inputs,
@@ -367,15 +389,40 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     } else {
         None
     };
+    let blocked = match &mut detection {
+        Some(d) => {
+            let b = blocked::hatch_blocked(
+                &d.inspected,
+                &trim_inspect::InspectSettings::default(),
+                &registration.path,
+                &trusted,
+                inputs.hatch.len(),
+                &config,
+                &run_dir,
+            )?;
+            d.blocked_hatched.clone_from(&b.openings);
+            b
+        }
+        None => blocked::BlockedHatches::default(),
+    };
+    if let Some(line) = blocked.line() {
+        println!("{line}");
+    }
     let mut notes = RunNotes {
         detection: detection.as_ref(),
         beam_block: None,
     };
-    if contours.is_empty() && inputs.hatch.is_empty() {
+    if contours.is_empty() && inputs.hatch.is_empty() && blocked.tracks.is_empty() {
         return nothing_to_trim(&run_dir, &config, &inputs.description, &timings, &notes);
     }
+    let mut contours = contours;
+    contours.extend(blocked.tracks.iter().cloned());
     let to_plan = with_hatch_tracks(contours, &inputs, &registration, &run_dir, &mut timings)?;
-    let passes = detection.as_ref().map(detect::Detection::passes);
+    let passes = detection.as_ref().map(|d| {
+        let mut p = d.passes();
+        p.extend(&blocked.passes);
+        p
+    });
     let plan = plan_part(
         &to_plan,
         &registration.path,
@@ -516,12 +563,12 @@ fn verify_part(
     use std::fmt::Write as _;
     let rounds = verify::verify(config, args, run_dir, inputs, registration, twin)?;
     let mut md = String::from(
-        "\n## Verify and retrim\n\nEach inspection of the rescanned part (`verify_<k>/report.html`), and the digital twin's truth.\n\n| inspection | pass | fail | undecided | failing contours | true residual web max (µm) | true gouge max (µm) | retrimmed |\n|---|---|---|---|---|---|---|---|\n",
+        "\n## Verify and retrim\n\nEach inspection of the rescanned part (`verify_<k>/report.html`), and the digital twin's truth.\n\n| inspection | pass | fail | undecided | failing contours | true residual web max (µm) | true gouge max (µm) | true film cover max (%) | retrimmed | blocked openings hatched |\n|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in &rounds {
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {:?} | {:.1} | {:.1} | {} |",
+            "| {} | {} | {} | {} | {:?} | {:.1} | {:.1} | {:.0} | {} | {:?} |",
             r.inspection,
             r.pass,
             r.fail,
@@ -529,7 +576,9 @@ fn verify_part(
             r.failing,
             r.true_residual_max_um,
             r.true_gouge_max_um,
-            if r.retrimmed { "yes" } else { "no" }
+            100.0 * r.true_film_covered_max,
+            if r.retrimmed { "yes" } else { "no" },
+            r.hatched
         );
     }
     let report = run_dir.join(files::REPORT);

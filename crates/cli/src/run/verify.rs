@@ -20,6 +20,7 @@ use trim_plan::planner::plan_with_sides;
 use trim_register::regional::Registration;
 use trim_sim::twin_part::TwinPart;
 
+use super::blocked;
 use super::execute::{TwinLink, execute, twin_link};
 use super::inputs::Inputs;
 use super::{Args, exec_failure, files, write_plan};
@@ -45,6 +46,11 @@ pub(super) struct Round {
     pub(super) true_residual_max_um: f64,
     /// See `true_residual_max_um`.
     pub(super) true_gouge_max_um: f64,
+    /// The twin's truth: the largest share of an opening a film still covers (0: every film
+    /// cleared, or none was there).
+    pub(super) true_film_covered_max: f64,
+    /// The blocked openings hatched in the retrim after it (`[trim] hatch_blocked`).
+    pub(super) hatched: Vec<i64>,
     /// Whether the failing contours were trimmed again after it.
     pub(super) retrimmed: bool,
 }
@@ -95,10 +101,15 @@ pub(super) fn verify(
             failing: failing.iter().copied().collect(),
             true_residual_max_um: state.iter().map(|c| c.residual_um).fold(0.0, f64::max),
             true_gouge_max_um: state.iter().map(|c| c.gouge_um).fold(0.0, f64::max),
+            true_film_covered_max: state
+                .iter()
+                .filter_map(|c| c.film_covered_share)
+                .fold(0.0, f64::max),
+            hatched: Vec::new(),
             retrimmed: !failing.is_empty() && k <= args.rounds,
         };
         println!(
-            "verify {k}: {} pass, {} fail, {} undecided{} (twin truth: residual web max {:.1} µm, gouge max {:.1} µm); {}",
+            "verify {k}: {} pass, {} fail, {} undecided{} (twin truth: residual web max {:.1} µm, gouge max {:.1} µm, films cover at most {:.0} % of an opening); {}",
             round.pass,
             round.fail,
             round.undecided,
@@ -109,6 +120,7 @@ pub(super) fn verify(
             },
             round.true_residual_max_um,
             round.true_gouge_max_um,
+            100.0 * round.true_film_covered_max,
             dir.display()
         );
         let retrim = round.retrimmed;
@@ -116,7 +128,12 @@ pub(super) fn verify(
         if !retrim {
             break;
         }
-        cuts = retrim_round(config, args, run_dir, registration, &result, &failing, k)?;
+        let (landed, hatched) =
+            retrim_round(config, args, run_dir, registration, &result, &failing, k)?;
+        cuts = landed;
+        if let Some(r) = rounds.last_mut() {
+            r.hatched = hatched;
+        }
     }
     std::fs::write(
         run_dir.join(files::VERIFY),
@@ -156,8 +173,10 @@ fn rescan(config: &JobConfig, part: &TwinPart, seed: u64) -> anyhow::Result<Poin
 }
 
 /// Plans the failing contours (each polyline with the passes its measured excess height
-/// needs: a web is no thicker than it is tall) and runs them in `retrim_<k>/`; the cuts the
-/// twin saw land.
+/// needs: a web is no thicker than it is tall) and, with `[trim] hatch_blocked`, hatches the
+/// blocked openings among them (`blocked`: each track with the passes of `[trim]
+/// film_thickness_um`; a rim blocked but with no excess is hatched, not trimmed again), and
+/// runs them in `retrim_<k>/`; the cuts the twin saw land, and the rims hatched.
 fn retrim_round(
     config: &JobConfig,
     args: &Args,
@@ -166,14 +185,34 @@ fn retrim_round(
     found: &Inspection,
     failing: &BTreeSet<i64>,
     k: u32,
-) -> anyhow::Result<Vec<trim_sim::ablation::LandedCut>> {
+) -> anyhow::Result<(Vec<trim_sim::ablation::LandedCut>, Vec<i64>)> {
+    let dir = run_dir.join(format!("retrim_{k}"));
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let settings = InspectSettings::default();
+    let hatches = blocked::hatch_blocked(
+        &found.contours,
+        &settings,
+        &registration.path,
+        failing,
+        0,
+        config,
+        &dir,
+    )?;
+    let hatched = hatches.contours();
+    let only_hatched: BTreeSet<i64> = found
+        .contours
+        .iter()
+        .filter(|c| hatched.contains(&c.id) && c.excess_height_um <= 0.0)
+        .map(|c| c.id)
+        .collect();
     let path = TrimPath::new(
         registration
             .path
             .contours()
             .iter()
-            .filter(|c| failing.contains(&c.id()))
+            .filter(|c| failing.contains(&c.id()) && !only_hatched.contains(&c.id()))
             .cloned()
+            .chain(hatches.tracks.iter().cloned())
             .collect(),
     )?;
     // The failing contours alone may not say where their material is (a hole without its
@@ -182,6 +221,9 @@ fn retrim_round(
     let mut plan =
         plan_with_sides(&path, &config.plan, Some(&sides)).context("planning the retrim")?;
     plan.job.set_passes(|id| {
+        if let Some(p) = hatches.passes.get(&id) {
+            return *p;
+        }
         found
             .contours
             .iter()
@@ -203,16 +245,18 @@ fn retrim_round(
             ),
         ));
     }
-    let dir = run_dir.join(format!("retrim_{k}"));
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     write_plan(&dir, &plan)?;
     println!(
-        "retrim {k}: contours {failing:?}, {} layers, passes from the measured excess; {}",
+        "retrim {k}: contours {:?}, {} layers, passes from the measured excess; {}",
+        failing.difference(&only_hatched).collect::<Vec<_>>(),
         plan.job.layers().count(),
         dir.display()
     );
+    if let Some(line) = hatches.line() {
+        println!("retrim {k}: {line}");
+    }
     let twin = twin_link(config, run_dir)?;
     let (outcome, _) = execute(config, args, &dir, &plan.job, None, false, None, &twin)?;
     outcome.map_err(|e| exec_failure(e, &dir))?;
-    landed_cuts(&twin)
+    Ok((landed_cuts(&twin)?, hatched.into_iter().collect()))
 }

@@ -317,10 +317,7 @@ mod tests {
         }
         // A hole narrower than twice the inset is refused, naming it.
         let e = inset_rim(&rim(0.01, 0.0, 0.0, false), 0.02).unwrap_err();
-        assert!(
-            matches!(e, HatchError::OpeningTooNarrow { .. }),
-            "{e:?}"
-        );
+        assert!(matches!(e, HatchError::OpeningTooNarrow { .. }), "{e:?}");
         assert!(e.to_string().contains("too narrow"), "{e}");
         assert!(inset_rim(&rim(1.0, 0.0, 0.0, false), f64::NAN).is_err());
     }
@@ -346,7 +343,11 @@ mod tests {
                 let d = p - centre;
                 assert!(d.dot(&normal).abs() < 1e-3, "{p} off the face");
                 let (a, b) = (d.dot(&Vector3::x()), d.dot(&e2));
-                let axis = if b.abs() <= 3.0 { a.abs() } else { a.hypot(b.abs() - 3.0) };
+                let axis = if b.abs() <= 3.0 {
+                    a.abs()
+                } else {
+                    a.hypot(b.abs() - 3.0)
+                };
                 assert!(axis <= 1.0 - kerf / 2.0 + 2e-3, "{p}: {axis}");
             }
         }
