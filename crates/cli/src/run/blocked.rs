@@ -2,7 +2,8 @@
 //! hatch_blocked`). Where the first scan is inspected (`[trim] only_detected`) and in `run
 //! --verify`'s retrims, every contour rimming an opening that is blocked — its
 //! `blocked_fraction` above the inspection's `max_blocked_fraction`, the share that fails it —
-//! is hatched: the registered rim, moved half a kerf into the opening, bounds a region of tracks
+//! is hatched: the registered rim, moved half a kerf (less its chords' sagitta) into the
+//! opening, bounds a region of tracks
 //! a pitch of 3/4 of the kerf apart along the opening's long axis, on the face continued over
 //! the opening (`trim_plan::hatch::opening`). Trimming the rim alone removes nothing over the
 //! opening.
@@ -23,7 +24,7 @@ use trim_cell::process::MAX_PASSES;
 use trim_geom::formats::write_path;
 use trim_geom::{Contour, Path as TrimPath};
 use trim_inspect::{ContourInspection, InspectSettings};
-use trim_plan::hatch::opening::{film_settings, hatch_opening};
+use trim_plan::hatch::opening::{chord_sagitta_mm, film_settings, hatch_opening};
 
 use crate::config::JobConfig;
 use crate::hatch::as_region_tracks;
@@ -145,7 +146,7 @@ pub(super) fn hatch_blocked<'a>(
     }
     let kerf_mm = config.plan.process.kerf_width_mm(&config.plan.beam);
     let hatching = film_settings(kerf_mm).context("trim.hatch_blocked: the film's hatch")?;
-    let inset_mm = config.plan.kerf_offset_mm().unwrap_or(0.0);
+    let half_kerf_mm = config.plan.kerf_offset_mm().unwrap_or(0.0);
     let passes = film_passes(config);
     for c in inspected
         .into_iter()
@@ -155,6 +156,8 @@ pub(super) fn hatch_blocked<'a>(
             continue;
         };
         let region = first_region + out.openings.len();
+        // The kerf reaches the rim's arcs between its points, not only its chords.
+        let inset_mm = (half_kerf_mm - chord_sagitta_mm(rim)).max(0.0);
         let hatch = hatch_opening(rim, inset_mm, &hatching).with_context(|| {
             format!(
                 "trim.hatch_blocked: hatching the film over contour {}'s opening",

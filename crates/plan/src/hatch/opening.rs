@@ -4,7 +4,12 @@
 //! - *The region* is the rim contour (registered, work-piece frame) moved into the opening by
 //!   half a kerf ([`inset_rim`]), so the outline track's kerf reaches the rim and no further:
 //!   a track on the rim itself would cut the wall back by half a kerf, as an uncompensated
-//!   trimming line does (`crate::kerf`).
+//!   trimming line does (`crate::kerf`). A round rim's chords lie inside the arc by up to
+//!   their sagitta ([`chord_sagitta_mm`]; 5–8 µm on the synthetic core's 0.25 mm spacing), and
+//!   a film sliver that wide left on the rim reads as a covered ring in the inspection (its
+//!   nodes see points 0.15 mm across), so the caller takes the sagitta off the inset: the kerf
+//!   then reaches the arc between the rim's points and cuts at most the sagitta into the wall
+//!   at them.
 //! - *The surface* the tracks are planned on is the face continued over the opening
 //!   ([`face_over_opening`]): a film forms in the parting plane, flush with the face, so its
 //!   top is where the face would be. It is interpolated from the rim's own heights (weights
@@ -227,6 +232,35 @@ pub fn face_over_opening(rim: &Contour) -> Result<PointCloud, HatchError> {
     Ok(PointCloud::with_normals(points, normals)?)
 }
 
+/// The largest sagitta of the rim's chords, mm: how far inside the round rim it samples a
+/// chord between two of its points lies (`L²/8R`, `R` the circle through each point and its
+/// neighbours; 0 along straight stretches). A film is cut to the chords, so an outline on the
+/// chord polygon moved a half kerf in leaves a sliver this wide on the rim itself; the caller
+/// takes it off the inset (`crate::hatch::opening` module docs).
+#[must_use]
+pub fn chord_sagitta_mm(rim: &Contour) -> f64 {
+    let Ok(f) = RimFrame::new(rim) else {
+        return 0.0;
+    };
+    let n = f.rim.len();
+    if n < 3 {
+        return 0.0;
+    }
+    (0..n)
+        .map(|i| {
+            let (p, q, r) = (f.rim[(i + n - 1) % n], f.rim[i], f.rim[(i + 1) % n]);
+            let d = |a: [f64; 3], b: [f64; 3]| (a[0] - b[0]).hypot(a[1] - b[1]);
+            let (a, b, c) = (d(p, q), d(q, r), d(p, r));
+            let area2 = ((q[0] - p[0]) * (r[1] - p[1]) - (r[0] - p[0]) * (q[1] - p[1])).abs();
+            if area2 < 1e-15 {
+                return 0.0;
+            }
+            let radius = a * b * c / (2.0 * area2);
+            b * b / (8.0 * radius)
+        })
+        .fold(0.0, f64::max)
+}
+
 /// The opening's long axis as a hatch direction: degrees from the hatch plane's first axis
 /// (world X projected onto the face), counter-clockwise about the face normal.
 fn long_axis_deg(f: &RimFrame) -> f64 {
@@ -355,6 +389,16 @@ mod tests {
         assert!(along * 10 >= n * 9, "{along} of {n} along the slot");
         // 2 mm across less the inset at 30.75 µm: about 64 tracks.
         assert!((60..=68).contains(&n), "{n}");
+    }
+
+    #[test]
+    fn the_chord_sagitta_is_that_of_the_rims_spacing_on_its_radius() {
+        // 160 chords on a circle of 1.2 mm: L = 2π·1.2/160, sagitta L²/(8·1.2).
+        let l = 2.0 * std::f64::consts::PI * 1.2 / 160.0;
+        let s = chord_sagitta_mm(&rim(1.2, 0.0, 0.2, true));
+        assert!((s - l * l / 9.6).abs() < 1e-6, "{s}");
+        // A slot's arcs set it, not its straight sides.
+        assert!(chord_sagitta_mm(&rim(1.0, 3.0, 0.0, false)) > 0.0);
     }
 
     #[test]
