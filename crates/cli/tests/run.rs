@@ -915,14 +915,13 @@ const DEMO_BLOCKAGES: &str = "0.15";
 
 /// An inspection's contours by id (`dir/inspection.json`).
 fn inspected(dir: &Path) -> BTreeMap<i64, serde_json::Value> {
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("inspection.json")).unwrap())
-            .unwrap();
+    let text = std::fs::read_to_string(dir.join("inspection.json")).expect("inspection.json");
+    let v: serde_json::Value = serde_json::from_str(&text).expect("inspection.json is JSON");
     v["contours"]
         .as_array()
-        .unwrap()
+        .expect("inspection.json: contours")
         .iter()
-        .map(|c| (c["id"].as_i64().unwrap(), c.clone()))
+        .map(|c| (c["id"].as_i64().expect("a contour id"), c.clone()))
         .collect()
 }
 
@@ -930,9 +929,9 @@ fn inspected(dir: &Path) -> BTreeMap<i64, serde_json::Value> {
 /// them, `max_blocked_fraction`).
 fn blocked_in(contours: &BTreeMap<i64, serde_json::Value>) -> Vec<i64> {
     contours
-        .values()
-        .filter(|c| c["blocked_fraction"].as_f64().is_some_and(|b| b > 0.1))
-        .map(|c| c["id"].as_i64().unwrap())
+        .iter()
+        .filter(|(_, c)| c["blocked_fraction"].as_f64().is_some_and(|b| b > 0.1))
+        .map(|(id, _)| *id)
         .collect()
 }
 

@@ -138,7 +138,7 @@ impl<'a> FilmMap<'a> {
             // Least squares in the tangent plane: [ju jv]ᵀ[ju jv] δ = [ju jv]ᵀ r.
             let (a, b, c) = (ju.dot(&ju), ju.dot(&jv), jv.dot(&jv));
             let det = a * c - b * b;
-            if !(det.abs() > 1e-12) {
+            if det.is_nan() || det.abs() <= 1e-12 {
                 return None;
             }
             let (ru, rv) = (ju.dot(&r), jv.dot(&r));

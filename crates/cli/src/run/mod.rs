@@ -415,7 +415,6 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     if contours.is_empty() && inputs.hatch.is_empty() && blocked.tracks.is_empty() {
         return nothing_to_trim(&run_dir, &config, &inputs.description, &timings, &notes);
     }
-    let mut contours = contours;
     contours.extend(blocked.tracks.iter().cloned());
     let to_plan = with_hatch_tracks(contours, &inputs, &registration, &run_dir, &mut timings)?;
     let passes = detection.as_ref().map(|d| {
