@@ -823,23 +823,36 @@ fn sim_stops_cleanly_on_each_stop_signal() {
 /// the twin rescans the part, inspection fails the contours whose webs the single pass did not
 /// cut through, and the retrims (passes from the measured excess) leave no web and no gouge
 /// over the tolerance; every round is in verify.json, report.md and its own folders.
-#[test]
-fn verify_inspects_the_rescanned_demo_and_retrims_what_failed() {
-    let tmp = tempfile::tempdir().unwrap();
-    let out = tmp.path().join("run");
+/// `trimctl run --verify` on the built-in cell with `args` (before `--out out`, at a time
+/// scale of 0.01): its stdout, once it succeeded, and its rounds (verify.json).
+fn run_verify(args: &[&str], out: &Path) -> (String, Vec<serde_json::Value>) {
     let result = Command::new(TRIMCTL)
-        .args(["run", "--verify", "--sim-time-scale", "0.01", "--out"])
-        .arg(&out)
+        .args(["run", "--verify", "--sim-time-scale", "0.01"])
+        .args(args)
+        .arg("--out")
+        .arg(out)
         .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&result.stdout);
+        .expect("trimctl runs");
+    let stdout = String::from_utf8_lossy(&result.stdout).into_owned();
     let stderr = String::from_utf8_lossy(&result.stderr);
     assert!(
         result.status.success(),
         "stdout:\n{stdout}\nstderr:\n{stderr}"
     );
-    let rounds: Vec<serde_json::Value> =
-        serde_json::from_str(&std::fs::read_to_string(out.join("verify.json")).unwrap()).unwrap();
+    (stdout, verify_rounds(out))
+}
+
+/// The rounds of a `--verify` run (`out/verify.json`).
+fn verify_rounds(out: &Path) -> Vec<serde_json::Value> {
+    let text = std::fs::read_to_string(out.join("verify.json")).expect("verify.json");
+    serde_json::from_str(&text).expect("verify.json is JSON")
+}
+
+#[test]
+fn verify_inspects_the_rescanned_demo_and_retrims_what_failed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let (stdout, rounds) = run_verify(&[], &out);
     assert!(rounds.len() >= 2, "{rounds:?}");
     // After the one pass of the job, webs thicker than a pass stand and inspection fails them.
     assert!(rounds[0]["fail"].as_u64().unwrap() > 0, "{:?}", rounds[0]);
@@ -947,27 +960,7 @@ fn blocked_in(contours: &BTreeMap<i64, serde_json::Value>) -> Vec<i64> {
 fn blocked_openings_are_hatched_in_the_retrim_and_the_rescan_sees_them_cleared() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
-    let result = Command::new(TRIMCTL)
-        .args([
-            "run",
-            "--verify",
-            "--demo-blockages",
-            DEMO_BLOCKAGES,
-            "--sim-time-scale",
-            "0.01",
-            "--out",
-        ])
-        .arg(&out)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&result.stdout);
-    let stderr = String::from_utf8_lossy(&result.stderr);
-    assert!(
-        result.status.success(),
-        "stdout:\n{stdout}\nstderr:\n{stderr}"
-    );
-    let rounds: Vec<serde_json::Value> =
-        serde_json::from_str(&std::fs::read_to_string(out.join("verify.json")).unwrap()).unwrap();
+    let (_, rounds) = run_verify(&["--demo-blockages", DEMO_BLOCKAGES], &out);
     let first = inspected(&out.join("verify_1"));
     let blocked = blocked_in(&first);
     eprintln!(
@@ -1045,8 +1038,7 @@ fn blocked_openings_are_hatched_in_the_retrim_and_the_rescan_sees_them_cleared()
     let stderr = String::from_utf8_lossy(&result.stderr);
     assert_eq!(result.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains("still fails inspection"), "{stderr}");
-    let rounds: Vec<serde_json::Value> =
-        serde_json::from_str(&std::fs::read_to_string(off.join("verify.json")).unwrap()).unwrap();
+    let rounds = verify_rounds(&off);
     let last = rounds.last().unwrap();
     assert!(
         last["true_film_covered_max"].as_f64().unwrap() > 0.2,

@@ -306,6 +306,11 @@ mod tests {
         }
     }
 
+    /// [`clear_films`] on the flat face, 40 µm a pass, a 41 µm kerf.
+    fn clear(films: &mut [Film], cuts: &[LandedCut]) -> Vec<FilmOutcome> {
+        clear_films(films, &flat, cuts, &process(40.0), 0.041)
+    }
+
     fn cleared(f: &Film) -> f64 {
         1.0 - f.standing_share()
     }
@@ -314,13 +319,7 @@ mod tests {
     fn tracks_whose_kerfs_meet_with_enough_passes_clear_the_film() {
         // 100 µm thick, 40 µm a pass: three passes; pitch 30 µm under a 41 µm kerf.
         let mut films = vec![film(0.1)];
-        let out = clear_films(
-            &mut films,
-            &flat,
-            &hatch(0.03, 3, 1.0),
-            &process(40.0),
-            0.041,
-        );
+        let out = clear(&mut films, &hatch(0.03, 3, 1.0));
         assert!(out[0].standing_share < 1e-9, "{out:?}");
         assert!(out[0].covered_share < 1e-9, "{out:?}");
         assert!(out[0].cells_cut > 60_000, "{out:?}");
@@ -329,13 +328,7 @@ mod tests {
     #[test]
     fn too_few_passes_thin_the_film_but_leave_it_standing() {
         let mut films = vec![film(0.1)];
-        let out = clear_films(
-            &mut films,
-            &flat,
-            &hatch(0.03, 2, 1.0),
-            &process(40.0),
-            0.041,
-        );
+        let out = clear(&mut films, &hatch(0.03, 2, 1.0));
         // Where two kerfs overlap a cell gets 2 × 2 passes = 160 µm: cleared; where one
         // reaches it, 80 µm of 100: standing, 20 µm thin. Kerf 41 on pitch 30: overlaps of
         // 11 µm in every 30 µm, about a third.
@@ -344,13 +337,7 @@ mod tests {
         // A single pass clears nothing of a 100 µm film... and one of two passes of a 60 µm
         // film clears only the overlaps.
         let mut films = vec![film(0.1)];
-        let out = clear_films(
-            &mut films,
-            &flat,
-            &hatch(0.03, 1, 1.0),
-            &process(40.0),
-            0.041,
-        );
+        let out = clear(&mut films, &hatch(0.03, 1, 1.0));
         assert!((out[0].standing_share - 1.0).abs() < 1e-12, "{out:?}");
         assert!((films[0].remaining_at(-16.0, -30.0) - 0.06).abs() < 1e-9);
     }
@@ -360,13 +347,7 @@ mod tests {
         // Pitch 50 µm on a 41 µm kerf: a 9 µm strip between every two tracks, about 18 % of
         // the film (on a 10 µm grid: 0 or 1 cell of every 5).
         let mut films = vec![film(0.05)];
-        let out = clear_films(
-            &mut films,
-            &flat,
-            &hatch(0.05, 10, 1.0),
-            &process(40.0),
-            0.041,
-        );
+        let out = clear(&mut films, &hatch(0.05, 10, 1.0));
         assert!(
             (0.1..0.3).contains(&out[0].standing_share),
             "standing {out:?}"
@@ -378,13 +359,7 @@ mod tests {
     fn cuts_off_the_film_or_over_part_of_it_clear_only_what_they_reach() {
         // 2 mm above the face: off the film, nothing.
         let mut films = vec![film(0.05)];
-        let out = clear_films(
-            &mut films,
-            &flat,
-            &hatch(0.03, 3, 3.0),
-            &process(40.0),
-            0.041,
-        );
+        let out = clear(&mut films, &hatch(0.03, 3, 3.0));
         assert_eq!(
             (out[0].cells_cut, out[0].standing_share),
             (0, 1.0),
@@ -395,13 +370,13 @@ mod tests {
             .into_iter()
             .filter(|c| c.from.y < -30.0 - 0.0205)
             .collect();
-        let out = clear_films(&mut films, &flat, &half, &process(40.0), 0.041);
+        let out = clear(&mut films, &half);
         assert!((out[0].standing_share - 0.5).abs() < 0.05, "{out:?}");
         assert!(films[0].remaining_at(-16.0, -29.5) > 0.049);
         assert_eq!(films[0].remaining_at(-16.0, -30.5), 0.0);
         // No cuts, no films: nothing happens, nothing panics.
-        assert!(clear_films(&mut [], &flat, &half, &process(40.0), 0.041).is_empty());
-        let out = clear_films(&mut films, &flat, &[], &process(40.0), 0.041);
+        assert!(clear(&mut [], &half).is_empty());
+        let out = clear(&mut films, &[]);
         assert_eq!(out[0].cells_cut, 0);
     }
 
@@ -443,7 +418,7 @@ mod tests {
         })
         .collect();
         let marked: Vec<LandedCut> = corner.iter().chain(&corner).copied().collect();
-        clear_films(&mut films, &flat, &marked, &process(40.0), 0.041);
+        clear(&mut films, &marked);
         assert!((films[0].removed_at(-15.5, -30.5) - 0.08).abs() < 1e-9);
         assert!((films[0].removed_at(-16.0, -30.5) - 0.08).abs() < 1e-9);
     }
