@@ -280,7 +280,22 @@ pub struct TrimSettings {
     /// contours are skipped and listed. Needs part.cad to be a mesh (STL or PLY faces). false:
     /// trim every contour, one pass each.
     pub only_detected: bool,
+    /// true: where the first scan is inspected (only_detected) and in `run --verify`'s
+    /// retrims, every contour rimming an opening whose blocked_fraction exceeds the
+    /// inspection's max_blocked_fraction (0.1: the share that fails it) becomes a hatch region:
+    /// the film is hatched inside the rim moved half a kerf inward, at a pitch of 3/4 of the
+    /// kerf, each track with the passes film_thickness_um needs. false: blocked openings are
+    /// left as they are (and fail inspection).
+    pub hatch_blocked: bool,
+    /// The film thickness a blocked opening's hatch passes are set for, µm (1-2000): the scan
+    /// does not measure it (the inspection sees whether an opening is covered, not how thick
+    /// the cover is), so give the thickest film expected; the default is the thickest the
+    /// synthetic part makes (200 µm: 5 passes at 40 µm per pass).
+    pub film_thickness_um: f64,
 }
+
+/// The largest `trim.film_thickness_um`, µm.
+pub const MAX_FILM_THICKNESS_UM: f64 = 2000.0;
 
 impl Default for TrimSettings {
     fn default() -> Self {
@@ -288,6 +303,8 @@ impl Default for TrimSettings {
             kerf_compensation: true,
             kerf_clearance_um: 0.0,
             only_detected: false,
+            hatch_blocked: true,
+            film_thickness_um: 200.0,
         }
     }
 }
@@ -300,6 +317,12 @@ impl TrimSettings {
             self.kerf_clearance_um,
             0.0,
             MAX_KERF_CLEARANCE_UM,
+        )?;
+        require_range(
+            "trim.film_thickness_um",
+            self.film_thickness_um,
+            1.0,
+            MAX_FILM_THICKNESS_UM,
         )
     }
 }
@@ -503,5 +526,22 @@ mod tests {
             };
             s.validate().unwrap();
         }
+    }
+
+    #[test]
+    fn an_out_of_range_film_thickness_is_refused_by_its_key() {
+        let with = |t: f64| PlanSettings {
+            trim: TrimSettings {
+                film_thickness_um: t,
+                ..TrimSettings::default()
+            },
+            ..PlanSettings::default()
+        };
+        for bad in [0.0, -5.0, 2000.5, f64::NAN] {
+            let e = with(bad).validate().unwrap_err().to_string();
+            assert!(e.contains("trim.film_thickness_um"), "{bad}: {e}");
+        }
+        with(50.0).validate().unwrap();
+        assert!(TrimSettings::default().hatch_blocked);
     }
 }

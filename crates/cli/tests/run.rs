@@ -823,23 +823,36 @@ fn sim_stops_cleanly_on_each_stop_signal() {
 /// the twin rescans the part, inspection fails the contours whose webs the single pass did not
 /// cut through, and the retrims (passes from the measured excess) leave no web and no gouge
 /// over the tolerance; every round is in verify.json, report.md and its own folders.
-#[test]
-fn verify_inspects_the_rescanned_demo_and_retrims_what_failed() {
-    let tmp = tempfile::tempdir().unwrap();
-    let out = tmp.path().join("run");
+/// `trimctl run --verify` on the built-in cell with `args` (before `--out out`, at a time
+/// scale of 0.01): its stdout, once it succeeded, and its rounds (verify.json).
+fn run_verify(args: &[&str], out: &Path) -> (String, Vec<serde_json::Value>) {
     let result = Command::new(TRIMCTL)
-        .args(["run", "--verify", "--sim-time-scale", "0.01", "--out"])
-        .arg(&out)
+        .args(["run", "--verify", "--sim-time-scale", "0.01"])
+        .args(args)
+        .arg("--out")
+        .arg(out)
         .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&result.stdout);
+        .expect("trimctl runs");
+    let stdout = String::from_utf8_lossy(&result.stdout).into_owned();
     let stderr = String::from_utf8_lossy(&result.stderr);
     assert!(
         result.status.success(),
         "stdout:\n{stdout}\nstderr:\n{stderr}"
     );
-    let rounds: Vec<serde_json::Value> =
-        serde_json::from_str(&std::fs::read_to_string(out.join("verify.json")).unwrap()).unwrap();
+    (stdout, verify_rounds(out))
+}
+
+/// The rounds of a `--verify` run (`out/verify.json`).
+fn verify_rounds(out: &Path) -> Vec<serde_json::Value> {
+    let text = std::fs::read_to_string(out.join("verify.json")).expect("verify.json");
+    serde_json::from_str(&text).expect("verify.json is JSON")
+}
+
+#[test]
+fn verify_inspects_the_rescanned_demo_and_retrims_what_failed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let (stdout, rounds) = run_verify(&[], &out);
     assert!(rounds.len() >= 2, "{rounds:?}");
     // After the one pass of the job, webs thicker than a pass stand and inspection fails them.
     assert!(rounds[0]["fail"].as_u64().unwrap() > 0, "{:?}", rounds[0]);
@@ -915,4 +928,139 @@ fn verify_inspects_the_rescanned_demo_and_retrims_what_failed() {
         "{stderr}"
     );
     assert!(!real.join("journal.jsonl").exists());
+}
+
+/// The share of the demo's holes and slots given a film in the blockage tests.
+const DEMO_BLOCKAGES: &str = "0.15";
+
+/// An inspection's contours by id (`dir/inspection.json`).
+fn inspected(dir: &Path) -> BTreeMap<i64, serde_json::Value> {
+    let text = std::fs::read_to_string(dir.join("inspection.json")).expect("inspection.json");
+    let v: serde_json::Value = serde_json::from_str(&text).expect("inspection.json is JSON");
+    v["contours"]
+        .as_array()
+        .expect("inspection.json: contours")
+        .iter()
+        .map(|c| (c["id"].as_i64().expect("a contour id"), c.clone()))
+        .collect()
+}
+
+/// The contours whose opening an inspection reads more than 10 % covered (the share that fails
+/// them, `max_blocked_fraction`).
+fn blocked_in(contours: &BTreeMap<i64, serde_json::Value>) -> Vec<i64> {
+    contours
+        .iter()
+        .filter(|(_, c)| c["blocked_fraction"].as_f64().is_some_and(|b| b > 0.1))
+        .map(|(id, _)| *id)
+        .collect()
+}
+
+/// `run --verify --demo-blockages 0.15`: films 50–200 µm thick over part of 15 % of the demo's
+/// openings. The job (every contour trimmed once) leaves them; inspection 1 fails each on its
+/// blocked opening; the retrim hatches each blocked opening (`[trim] hatch_blocked`, on by
+/// default) with the passes through 200 µm, the twin clears the films where the landed kerfs
+/// sweep them, and the last inspection passes every one of those contours with its opening
+/// read at most 10 % covered (the fail line; the reading of a clean hole is 0–4 %), and the
+/// twin's truth has at most 0.5 % of any opening still covered. With `hatch_blocked = false`
+/// the films stay: the part fails, exit 1.
+#[test]
+fn blocked_openings_are_hatched_in_the_retrim_and_the_rescan_sees_them_cleared() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let (_, rounds) = run_verify(&["--demo-blockages", DEMO_BLOCKAGES], &out);
+    let first = inspected(&out.join("verify_1"));
+    let blocked = blocked_in(&first);
+    eprintln!(
+        "blocked after the job: {:?}",
+        blocked
+            .iter()
+            .map(|id| (id, first[id]["blocked_fraction"].as_f64().unwrap()))
+            .collect::<Vec<_>>()
+    );
+    assert!(blocked.len() >= 3, "{blocked:?}");
+    for id in &blocked {
+        assert_eq!(first[id]["verdict"], "fail", "contour {id}");
+    }
+    assert!(rounds[0]["true_film_covered_max"].as_f64().unwrap() > 0.2);
+    let hatched: Vec<i64> = rounds[0]["hatched"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_i64().unwrap())
+        .collect();
+    assert_eq!(hatched, blocked, "{:?}", rounds[0]);
+    assert!(
+        out.join("retrim_1")
+            .join(format!("blocked_{}.csv", blocked[0]))
+            .is_file()
+    );
+    let last = rounds.last().unwrap();
+    let k = rounds.len();
+    let end = inspected(&out.join(format!("verify_{k}")));
+    for id in &blocked {
+        let b = end[id]["blocked_fraction"].as_f64().unwrap();
+        eprintln!(
+            "contour {id}: blocked {:.3} → {b:.3}, verdict {}",
+            first[id]["blocked_fraction"].as_f64().unwrap(),
+            end[id]["verdict"]
+        );
+        assert!(b <= 0.1, "contour {id}: {b}");
+        assert_eq!(end[id]["verdict"], "pass", "contour {id}: {:?}", end[id]);
+    }
+    assert_eq!(last["fail"], 0, "{last:?}");
+    let film = last["true_film_covered_max"].as_f64().unwrap();
+    eprintln!(
+        "after {} retrim(s): twin's film cover max {:.2} %, residual web {:.1} µm, gouge {:.1} µm",
+        k - 1,
+        100.0 * film,
+        last["true_residual_max_um"],
+        last["true_gouge_max_um"]
+    );
+    assert!(film <= 0.005, "{last:?}");
+    assert!(last["true_gouge_max_um"].as_f64().unwrap() <= SPOT_TOLERANCE_UM);
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("blocked openings hatched"), "{report}");
+
+    // Hatching off: the films stand, the retrim trims the rims again to no avail, and the part
+    // still fails (exit 1) on the blocked openings.
+    let job = tmp.path().join("job.toml");
+    std::fs::write(&job, "[trim]\nhatch_blocked = false\n").unwrap();
+    let off = tmp.path().join("off");
+    let result = Command::new(TRIMCTL)
+        .arg("run")
+        .arg(&job)
+        .args([
+            "--verify",
+            "--rounds",
+            "1",
+            "--demo-blockages",
+            DEMO_BLOCKAGES,
+            "--sim-time-scale",
+            "0.01",
+            "--out",
+        ])
+        .arg(&off)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert_eq!(result.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("still fails inspection"), "{stderr}");
+    let rounds = verify_rounds(&off);
+    let last = rounds.last().unwrap();
+    assert!(
+        last["true_film_covered_max"].as_f64().unwrap() > 0.2,
+        "{last:?}"
+    );
+    assert!(
+        rounds
+            .iter()
+            .all(|r| r["hatched"].as_array().unwrap().is_empty())
+    );
+    let end = inspected(&off.join(format!("verify_{}", rounds.len())));
+    let still = blocked_in(&end);
+    eprintln!("hatching off: still blocked {still:?}");
+    assert!(!still.is_empty());
+    for id in &still {
+        assert_eq!(end[id]["verdict"], "fail", "contour {id}");
+    }
 }

@@ -30,6 +30,7 @@
 
 mod geodesic;
 mod measure;
+pub mod opening;
 mod polygon;
 mod sample;
 mod slab;
@@ -323,6 +324,17 @@ pub enum HatchError {
     NotAHeightField {
         /// The steepest slope found, degrees.
         slope_deg: f64,
+    },
+    /// An opening's rim moved inward by the inset turns over: the opening is too narrow.
+    #[error(
+        "the opening ({area_mm2:.4} mm²) is too narrow to hatch inside its rim moved {inset_mm} mm \
+         inward"
+    )]
+    OpeningTooNarrow {
+        /// The inset, mm.
+        inset_mm: f64,
+        /// The opening's area, mm².
+        area_mm2: f64,
     },
     /// Part of the region has no scan support.
     #[error("no scan support at plane coordinates ({s:.3}, {t:.3}) mm inside the boundary")]

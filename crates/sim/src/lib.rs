@@ -12,6 +12,8 @@
 //!   part.
 //! - [`ablation`]: what the twin's landed lines remove from the true part: burr webs cut or
 //!   left standing, gouges.
+//! - [`film_ablation`]: what the landed lines remove from the films over blocked openings:
+//!   cleared where the kerfs sweep the film's thickness away, thinner or standing elsewhere.
 //! - [`twin_part`]: the twin's true part through a run: a synthetic core with burrs, trimmed by
 //!   each round's cuts and rescanned.
 //! - [`sim_cell`]: [`sim_cell::SimCell`], the three simulators started in-process.
@@ -19,6 +21,7 @@
 pub mod ablation;
 pub mod cnc;
 pub mod fault;
+pub mod film_ablation;
 pub mod galvo;
 pub mod laser;
 pub mod safety;

@@ -4,16 +4,18 @@
 //!
 //! The part is a [`SynthCase`] (its own frame: the synthetic scene) carried into the true
 //! work-piece frame by `workpiece_from_case`. After a round's cuts ([`TwinPart::trim`]) the burr
-//! webs that stand are the stubs the ablation left, the gouges add up over the rounds, and
-//! [`TwinPart::rescan`] scans the part as it now is.
+//! webs that stand are the stubs the ablation left, the gouges add up over the rounds, the films
+//! over blocked openings are thinner or cleared where the cuts swept them
+//! ([`crate::film_ablation`]), and [`TwinPart::rescan`] scans the part as it now is.
 
 use std::collections::BTreeMap;
 
 use trim_cell::ProcessSettings;
 use trim_geom::{GeomError, PointCloud, Similarity3};
-use trim_synth::{Burr, SynthCase, stubs};
+use trim_synth::{Burr, Film, SynthCase, stubs};
 
 use crate::ablation::{LandedCut, TrueEdge, ablate};
+use crate::film_ablation::clear_films;
 
 /// One contour's state after the rounds so far, µm.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -24,6 +26,9 @@ pub struct ContourTrim {
     pub residual_um: f64,
     /// How far the cuts have cut the edge back into the material, at most.
     pub gouge_um: f64,
+    /// For a contour rimming a blocked opening: the share of the opening its film still covers
+    /// (0: cleared); none where no film was.
+    pub film_covered_share: Option<f64>,
 }
 
 /// The true part as the twin carries it.
@@ -32,6 +37,8 @@ pub struct TwinPart {
     case: SynthCase,
     workpiece_from_case: Similarity3,
     burrs: Vec<Burr>,
+    /// The films over blocked openings as they stand.
+    films: Vec<Film>,
     /// Per contour, per point: the deepest cut back into the material so far, mm.
     gouge_mm: BTreeMap<i64, Vec<f64>>,
 }
@@ -42,12 +49,20 @@ impl TwinPart {
     #[must_use]
     pub fn new(case: SynthCase, workpiece_from_case: Similarity3) -> TwinPart {
         let burrs = case.burrs.clone();
+        let films = Film::of(&case.blockages);
         TwinPart {
             case,
             workpiece_from_case,
             burrs,
+            films,
             gouge_mm: BTreeMap::new(),
         }
+    }
+
+    /// The films over blocked openings as they stand.
+    #[must_use]
+    pub fn films(&self) -> &[Film] {
+        &self.films
     }
 
     /// The burrs standing now (domain measures, as [`SynthCase::burrs`]).
@@ -76,7 +91,8 @@ impl TwinPart {
     }
 
     /// Applies a round's landed cuts: the webs they sever fall away, the stubs stay, the gouges
-    /// add to those of earlier rounds. Returns every contour's state after it.
+    /// add to those of earlier rounds, the films lose what the cuts' kerfs swept. Returns every
+    /// contour's state after it.
     pub fn trim(
         &mut self,
         cuts: &[LandedCut],
@@ -97,6 +113,15 @@ impl TwinPart {
                 .copied()
                 .unwrap_or(0.0)
         });
+        let workpiece_from_case = self.workpiece_from_case;
+        let case = &self.case;
+        clear_films(
+            &mut self.films,
+            &|_, u, v| workpiece_from_case * case.top_face_point(u, v),
+            cuts,
+            process,
+            kerf_mm,
+        );
         for (id, pts) in &outcome.edges {
             let g = self
                 .gouge_mm
@@ -123,6 +148,11 @@ impl TwinPart {
                         .gouge_mm
                         .get(&e.contour)
                         .map_or(0.0, |g| g.iter().copied().fold(0.0, f64::max)),
+                film_covered_share: self
+                    .films
+                    .iter()
+                    .find(|f| f.contour() == e.contour)
+                    .map(Film::covered_share),
             })
             .collect()
     }
@@ -130,7 +160,7 @@ impl TwinPart {
     /// A fresh scan of the part as it stands (noise drawn from `seed`), work-piece frame.
     pub fn rescan(&self, seed: u64) -> Result<PointCloud, GeomError> {
         self.case
-            .rescan(&self.burrs, &self.case.blockages, seed)?
+            .rescan_films(&self.burrs, &self.films, seed)?
             .transformed(&self.workpiece_from_case)
     }
 }

@@ -116,32 +116,213 @@ fn edge_for_share(c: &Cutout, direction: [f64; 2], share: f64) -> (f64, f64) {
 /// A straight segment in the domain plane: its two ends, mm.
 type Segment2 = ([f64; 2], [f64; 2]);
 
-/// Samples the films' surfaces: upper side and underside uniformly over the covered area, the
-/// free edge uniformly in (length, thickness).
+/// The grid step (domain plane, mm) on which a film's remains are kept ([`Film`]): a quarter
+/// of the paper's kerf (41 µm), so a strip two kerfs leave between them shows from about 10 µm
+/// wide; a narrower strip may be missed or read a cell wide.
+pub const FILM_GRID_MM: f64 = 0.01;
+
+/// A blockage film as it stands: the blockage's truth and, on a grid of [`FILM_GRID_MM`] over
+/// its opening's box (domain plane), the depth removed from its top so far. Where the depth
+/// removed reaches the film's thickness the film is cleared there; elsewhere it stands, thinned
+/// from the top. An untouched film keeps no grid.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Film {
+    /// The film's truth as drawn.
+    pub blockage: Blockage,
+    cutout: Cutout,
+    /// The grid's lower corner, domain mm.
+    lo: [f64; 2],
+    cols: usize,
+    rows: usize,
+    /// Per cell (row-major, `j·cols + i`), the depth removed from the top, mm; empty while
+    /// untouched.
+    removed_mm: Vec<f64>,
+}
+
+impl Film {
+    /// The film of `blockage` as drawn (nothing removed), or `None` when its contour rims no
+    /// opening of the part.
+    #[must_use]
+    pub fn new(blockage: &Blockage) -> Option<Film> {
+        let cutout = usize::try_from(blockage.contour - 1)
+            .ok()
+            .and_then(|i| crate::part::cutouts().get(i).copied())?;
+        let (hu, hv) = (cutout.radius_mm, cutout.radius_mm + cutout.half_length_mm);
+        let cols = (2.0 * hu / FILM_GRID_MM).ceil() as usize;
+        let rows = (2.0 * hv / FILM_GRID_MM).ceil() as usize;
+        Some(Film {
+            blockage: *blockage,
+            cutout,
+            lo: [cutout.u_mm - hu, cutout.v_mm - hv],
+            cols,
+            rows,
+            removed_mm: Vec::new(),
+        })
+    }
+
+    /// The films of `blockages` as drawn (a blockage whose contour rims no opening is left out).
+    #[must_use]
+    pub fn of(blockages: &[Blockage]) -> Vec<Film> {
+        blockages.iter().filter_map(Film::new).collect()
+    }
+
+    /// The contour id that rims the film's opening.
+    #[must_use]
+    pub fn contour(&self) -> i64 {
+        self.blockage.contour
+    }
+
+    /// The grid's columns (along `u`) and rows (along `v`).
+    #[must_use]
+    pub fn grid(&self) -> (usize, usize) {
+        (self.cols, self.rows)
+    }
+
+    /// The centre of cell `(i, j)`, domain mm.
+    #[must_use]
+    pub fn cell_centre(&self, i: usize, j: usize) -> [f64; 2] {
+        [
+            self.lo[0] + (i as f64 + 0.5) * FILM_GRID_MM,
+            self.lo[1] + (j as f64 + 0.5) * FILM_GRID_MM,
+        ]
+    }
+
+    /// The cells whose centres may lie within `[u0, u1] × [v0, v1]` (domain mm), as column and
+    /// row ranges (empty where the box misses the grid).
+    #[must_use]
+    pub fn cells_in(
+        &self,
+        [u0, u1]: [f64; 2],
+        [v0, v1]: [f64; 2],
+    ) -> (std::ops::Range<usize>, std::ops::Range<usize>) {
+        let range = |lo: f64, a: f64, b: f64, n: usize| {
+            let first = ((a - lo) / FILM_GRID_MM - 0.5).ceil().max(0.0);
+            let last = ((b - lo) / FILM_GRID_MM - 0.5).floor();
+            if !(first.is_finite() && last.is_finite()) || last < first {
+                return 0..0;
+            }
+            (first as usize).min(n)..((last as usize).saturating_add(1)).min(n)
+        };
+        (
+            range(self.lo[0], u0, u1, self.cols),
+            range(self.lo[1], v0, v1, self.rows),
+        )
+    }
+
+    /// Whether the film as drawn covers cell `(i, j)` (at its centre).
+    #[must_use]
+    pub fn covers_cell(&self, i: usize, j: usize) -> bool {
+        let [u, v] = self.cell_centre(i, j);
+        self.blockage.covers(&self.cutout, u, v)
+    }
+
+    /// Removes `depth_mm` more from the top of cell `(i, j)`.
+    pub fn remove(&mut self, i: usize, j: usize, depth_mm: f64) {
+        if i >= self.cols || j >= self.rows || depth_mm <= 0.0 {
+            return;
+        }
+        if self.removed_mm.is_empty() {
+            self.removed_mm = vec![0.0; self.cols * self.rows];
+        }
+        self.removed_mm[j * self.cols + i] += depth_mm;
+    }
+
+    /// The depth removed from the top at the domain point `(u, v)`, mm (at most the thickness).
+    #[must_use]
+    pub fn removed_at(&self, u: f64, v: f64) -> f64 {
+        if self.removed_mm.is_empty() {
+            return 0.0;
+        }
+        let cell = |x: f64, lo: f64, n: usize| {
+            let k = ((x - lo) / FILM_GRID_MM).floor();
+            (k >= 0.0 && k < n as f64).then_some(k as usize)
+        };
+        match (
+            cell(u, self.lo[0], self.cols),
+            cell(v, self.lo[1], self.rows),
+        ) {
+            (Some(i), Some(j)) => {
+                self.removed_mm[j * self.cols + i].min(self.blockage.thickness_mm)
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// The thickness left at the domain point `(u, v)`, mm (0 where the film never was or is
+    /// cleared).
+    #[must_use]
+    pub fn remaining_at(&self, u: f64, v: f64) -> f64 {
+        if !self.blockage.covers(&self.cutout, u, v) {
+            return 0.0;
+        }
+        let left = self.blockage.thickness_mm - self.removed_at(u, v);
+        if left > CLEARED_BELOW_MM { left } else { 0.0 }
+    }
+
+    /// The share of the film as drawn that still stands (cells by their centres; exactly 1 while
+    /// untouched).
+    #[must_use]
+    pub fn standing_share(&self) -> f64 {
+        if self.removed_mm.is_empty() {
+            return 1.0;
+        }
+        let (mut drawn, mut standing) = (0usize, 0usize);
+        for j in 0..self.rows {
+            for i in 0..self.cols {
+                if self.covers_cell(i, j) {
+                    drawn += 1;
+                    let [u, v] = self.cell_centre(i, j);
+                    if self.remaining_at(u, v) > 0.0 {
+                        standing += 1;
+                    }
+                }
+            }
+        }
+        if drawn == 0 {
+            0.0
+        } else {
+            standing as f64 / drawn as f64
+        }
+    }
+
+    /// The share of the opening the film still covers (its drawn share times the share standing).
+    #[must_use]
+    pub fn covered_share(&self) -> f64 {
+        self.blockage.covered_share * self.standing_share()
+    }
+}
+
+/// A film thinner than this (mm) is gone: the depths removed add up in floating point.
+const CLEARED_BELOW_MM: f64 = 1e-9;
+
+/// Samples the films' surfaces where they stand: upper side (thinned where a cut took some of
+/// it) and underside uniformly over the area standing, the free edge uniformly in (length,
+/// thickness) where it stands. The walls a cut leaves inside a film are not sampled (they are a
+/// film's thickness tall, 50–200 µm, and inspection reads a film by its faces). An untouched
+/// film is sampled with exactly the draws it was before films could be cut.
 pub(crate) struct BlockageSampler {
-    films: Vec<(Cutout, Blockage, f64, Option<Segment2>)>,
+    films: Vec<(Film, f64, Option<Segment2>)>,
     areas: AreaTable,
 }
 
 impl BlockageSampler {
-    /// The films of `blockages` over `cutouts` (contour id = index + 1).
-    pub(crate) fn new(cutouts: &[Cutout], blockages: &[Blockage]) -> Self {
-        let mut films = Vec::with_capacity(blockages.len());
+    /// The films as they stand.
+    pub(crate) fn new(films: &[Film]) -> Self {
+        let mut kept = Vec::with_capacity(films.len());
         let mut areas = AreaTable::default();
-        for b in blockages {
-            let Some(c) = usize::try_from(b.contour - 1)
-                .ok()
-                .and_then(|i| cutouts.get(i))
-            else {
-                continue;
-            };
-            let face = b.covered_share * opening_area(c);
+        for f in films {
+            let (c, b) = (&f.cutout, &f.blockage);
+            let face = b.covered_share * opening_area(c) * f.standing_share();
             let edge = free_edge(c, b);
             let edge_len = edge.map_or(0.0, |(a, e)| (e[0] - a[0]).hypot(e[1] - a[1]));
-            areas.push(2.0 * face + edge_len * b.thickness_mm);
-            films.push((*c, *b, face, edge));
+            let area = 2.0 * face + edge_len * b.thickness_mm * edge_standing_share(f, edge);
+            if area <= 0.0 {
+                continue;
+            }
+            areas.push(area);
+            kept.push((f.clone(), face, edge));
         }
-        BlockageSampler { films, areas }
+        BlockageSampler { films: kept, areas }
     }
 
     /// The sampled area (upper side, underside, free edge), mm².
@@ -152,27 +333,34 @@ impl BlockageSampler {
     /// One sample (domain point and normal). Only called when [`Self::area`] is positive.
     pub(crate) fn sample(&self, rng: &mut impl Rng) -> DomainSample {
         let i = self.areas.pick(rng);
-        let (c, b, face, edge) = &self.films[i];
+        let (f, face, edge) = &self.films[i];
+        let (c, b) = (&f.cutout, &f.blockage);
         let top = THICKNESS_MM / 2.0;
         let piece = rng.random_range(0.0..self.areas.area_of(i));
         if let Some((a, e)) = edge.filter(|_| piece >= 2.0 * face) {
-            let s = rng.random_range(0.0..1.0);
-            let w = top - b.thickness_mm * rng.random_range(0.0..1.0);
-            return DomainSample {
-                point: Point3::new(a[0] + s * (e[0] - a[0]), a[1] + s * (e[1] - a[1]), w),
-                normal: Vector3::new(b.direction[0], b.direction[1], 0.0),
-            };
+            loop {
+                let s = rng.random_range(0.0..1.0);
+                let (u, v) = (a[0] + s * (e[0] - a[0]), a[1] + s * (e[1] - a[1]));
+                let removed = f.removed_at(u, v);
+                let w = top - removed - (b.thickness_mm - removed) * rng.random_range(0.0..1.0);
+                if f.removed_mm.is_empty() || edge_stands(f, u, v) {
+                    return DomainSample {
+                        point: Point3::new(u, v, w),
+                        normal: Vector3::new(b.direction[0], b.direction[1], 0.0),
+                    };
+                }
+            }
         }
         let (hu, hv) = (c.radius_mm, c.radius_mm + c.half_length_mm);
         let (u, v) = loop {
             let u = c.u_mm + rng.random_range(-hu..hu);
             let v = c.v_mm + rng.random_range(-hv..hv);
-            if b.covers(c, u, v) {
+            if b.covers(c, u, v) && f.remaining_at(u, v) > 0.0 {
                 break (u, v);
             }
         };
         let (w, normal) = if piece < *face {
-            (top, 1.0)
+            (top - f.removed_at(u, v), 1.0)
         } else {
             (top - b.thickness_mm, -1.0)
         };
@@ -181,6 +369,34 @@ impl BlockageSampler {
             normal: Vector3::new(0.0, 0.0, normal),
         }
     }
+}
+
+/// The share of a film's free edge that still stands (exactly 1 while untouched; 0 without a
+/// free edge), at points a grid step apart.
+fn edge_standing_share(f: &Film, edge: Option<Segment2>) -> f64 {
+    let Some((a, e)) = edge else {
+        return 0.0;
+    };
+    if f.removed_mm.is_empty() {
+        return 1.0;
+    }
+    let len = (e[0] - a[0]).hypot(e[1] - a[1]);
+    let n = ((len / FILM_GRID_MM).ceil() as usize).max(1);
+    let standing = (0..n)
+        .filter(|k| {
+            let s = (*k as f64 + 0.5) / n as f64;
+            edge_stands(f, a[0] + s * (e[0] - a[0]), a[1] + s * (e[1] - a[1]))
+        })
+        .count();
+    standing as f64 / n as f64
+}
+
+/// Whether the film stands at the free-edge point `(u, v)`: read a hair inside the film, since
+/// the point lies on the edge itself.
+fn edge_stands(f: &Film, u: f64, v: f64) -> bool {
+    const INSIDE_MM: f64 = 1e-6;
+    let [du, dv] = f.blockage.direction;
+    f.remaining_at(u - INSIDE_MM * du, v - INSIDE_MM * dv) > 0.0
 }
 
 /// The opening's area, mm².

@@ -8,7 +8,7 @@ use rand_distr::{Distribution, UnitSphere};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use trim_geom::{GeomError, Path, Point3, PointCloud, Result, Similarity3, Vector3};
 
-use crate::blockage::{Blockage, BlockageRanges, BlockageSampler, draw_blockages};
+use crate::blockage::{Blockage, BlockageRanges, BlockageSampler, Film, draw_blockages};
 use crate::burr::{Burr, BurrRanges, BurrSampler, draw_burrs};
 use crate::mesh::{DEFAULT_MESH_STEP_MM, domain_mesh};
 use crate::part::{
@@ -503,7 +503,7 @@ pub fn generate(params: &SynthParams) -> Result<SynthCase> {
         &sampler,
         (
             &BurrSampler::new(&edges, &burrs),
-            &BlockageSampler::new(&cutouts, &blockages),
+            &BlockageSampler::new(&Film::of(&blockages)),
         ),
         &mesh,
         &scan_from_domain,

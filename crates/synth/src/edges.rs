@@ -10,7 +10,7 @@ use rand::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use trim_geom::{Point3, PointCloud, Result, Vector3};
 
-use crate::blockage::{Blockage, BlockageSampler};
+use crate::blockage::{Blockage, BlockageSampler, Film};
 use crate::burr::{Burr, BurrSampler};
 use crate::case::SynthCase;
 use crate::mesh::domain_mesh;
@@ -78,10 +78,22 @@ impl SynthCase {
             .collect()
     }
 
+    /// The true scan-frame point of the top face (the parting plane, which a film is flush with)
+    /// over the domain point `(u, v)`, mm: where a film's upper side stands over an opening.
+    #[must_use]
+    pub fn top_face_point(&self, u: f64, v: f64) -> Point3 {
+        self.scan_from_cad_point(&design_point(u, v, THICKNESS_MM / 2.0))
+    }
+
     /// A fresh scan (noise, outliers and dropouts drawn from `seed`) of the same part, at the
-    /// same pose and under the same views, carrying `burrs` and `blockages` instead of the
-    /// case's.
+    /// same pose and under the same views, carrying `burrs` and `blockages` (untouched films)
+    /// instead of the case's.
     pub fn rescan(&self, burrs: &[Burr], blockages: &[Blockage], seed: u64) -> Result<PointCloud> {
+        self.rescan_films(burrs, &Film::of(blockages), seed)
+    }
+
+    /// [`SynthCase::rescan`] with the films as they stand (what hatching left of them).
+    pub fn rescan_films(&self, burrs: &[Burr], films: &[Film], seed: u64) -> Result<PointCloud> {
         let cutouts = cutouts();
         let edges = contour_edges(&cutouts);
         let mesh = domain_mesh(&cutouts, self.params.mesh_step_mm)?;
@@ -93,7 +105,7 @@ impl SynthCase {
             &sampler,
             (
                 &BurrSampler::new(&edges, burrs),
-                &BlockageSampler::new(&cutouts, blockages),
+                &BlockageSampler::new(films),
             ),
             &mesh,
             &scan_from_domain,

@@ -33,7 +33,7 @@ pub mod part;
 pub mod scanner;
 pub mod testing;
 
-pub use blockage::Blockage;
+pub use blockage::{Blockage, FILM_GRID_MM, Film};
 pub use burr::Burr;
 pub use case::{CaseInfo, SynthCase, SynthParams, generate};
 pub use edges::{EdgeTruth, stubs};

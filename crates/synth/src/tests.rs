@@ -1,5 +1,6 @@
 //! The generator's own tests: determinism, shape, normals, files, the mesh and visibility.
 
+use crate::blockage::Film;
 use crate::case::*;
 use crate::part::*;
 use nalgebra::Matrix3;
@@ -652,6 +653,77 @@ fn blockage_points_lie_on_their_films_and_the_truth_says_how_much_is_covered() {
     clean.write_case(dir.path()).unwrap();
     let text = std::fs::read_to_string(dir.path().join("case.json")).unwrap();
     assert!(!text.contains("blockage"), "{text}");
+}
+
+#[test]
+fn a_film_scans_only_where_it_stands_thinned_where_cut_and_untouched_as_before() {
+    let params = SynthParams {
+        noise_mm: 0.0,
+        outlier_fraction: 0.0,
+        dropouts: 0,
+        blockage_fraction: 0.25,
+        blockage_share: [1.0, 1.0],
+        scanner_views: 2,
+        scan_points: 60_000,
+        ..undeformed(12)
+    };
+    let case = generate(&params).unwrap();
+    // Untouched films scan with the draws of the blockages they are.
+    let films = Film::of(&case.blockages);
+    assert_eq!(films.len(), case.blockages.len());
+    assert_eq!(
+        case.rescan_films(&case.burrs, &films, 5).unwrap().points(),
+        case.rescan(&case.burrs, &case.blockages, 5)
+            .unwrap()
+            .points()
+    );
+    assert!(films.iter().all(|f| f.standing_share() == 1.0));
+    // The first film: its u < centre half cleared through, its other half thinned by a third.
+    let mut films = films;
+    let f = &mut films[0];
+    let c = cutouts()[usize::try_from(f.contour() - 1).unwrap()];
+    let t = f.blockage.thickness_mm;
+    let (cols, rows) = f.grid();
+    for j in 0..rows {
+        for i in 0..cols {
+            let [u, _] = f.cell_centre(i, j);
+            f.remove(i, j, if u < c.u_mm { t } else { t / 3.0 });
+        }
+    }
+    assert!(
+        (f.standing_share() - 0.5).abs() < 0.02,
+        "{}",
+        f.standing_share()
+    );
+    assert!((f.covered_share() - 0.5 * f.blockage.covered_share).abs() < 0.02);
+    assert!(f.remaining_at(c.u_mm - 0.5, c.v_mm) == 0.0);
+    assert!((f.remaining_at(c.u_mm + 0.5, c.v_mm) - 2.0 * t / 3.0).abs() < 1e-12);
+    // Out of the grid or outside the opening: nothing stands, nothing is removed.
+    assert_eq!(f.remaining_at(c.u_mm + 10.0, c.v_mm), 0.0);
+    assert_eq!(f.removed_at(c.u_mm + 10.0, c.v_mm), 0.0);
+    let (is, js) = f.cells_in([c.u_mm - 0.05, c.u_mm + 0.05], [c.v_mm, c.v_mm + 0.02]);
+    assert_eq!((is.len(), js.len()), (10, 2), "{is:?} {js:?}");
+    let (is, _) = f.cells_in([c.u_mm + 50.0, c.u_mm + 51.0], [c.v_mm, c.v_mm]);
+    assert!(is.is_empty());
+    let rescan = case.rescan_films(&case.burrs, &films, 5).unwrap();
+    let top = THICKNESS_MM / 2.0;
+    let (mut cleared_side, mut upper, mut thinned_upper) = (0usize, 0usize, 0usize);
+    for p in rescan.points() {
+        let d = domain_of(&case, p);
+        if c.distance_to_axis(d.x, d.y) > c.radius_mm - 1e-3 {
+            continue;
+        }
+        if d.x < c.u_mm - 1e-6 {
+            cleared_side += 1;
+        } else if (d.z - (top - t / 3.0)).abs() < 1e-6 {
+            thinned_upper += 1;
+        } else if (d.z - top).abs() < 1e-6 {
+            upper += 1;
+        }
+    }
+    assert_eq!(cleared_side, 0, "points scanned where the film is cleared");
+    assert!(thinned_upper > 10, "{thinned_upper}");
+    assert_eq!(upper, 0, "the thinned half's top is lower");
 }
 
 #[test]

@@ -118,6 +118,13 @@ pub(super) struct Detection {
     pub(super) depth_per_pass_um: f64,
     /// Per contour, in path order.
     pub(super) contours: Vec<ContourCall>,
+    /// The blocked openings hatched (`[trim] hatch_blocked`; filled once planned).
+    pub(super) blocked_hatched: Vec<super::blocked::BlockedHatch>,
+    /// The film thickness their passes are set for, µm (`[trim] film_thickness_um`).
+    pub(super) film_thickness_um: f64,
+    /// The inspection of the first scan, per contour.
+    #[serde(skip)]
+    pub(super) inspected: Vec<ContourInspection>,
 }
 
 /// Calls one contour (rules in order, the first that holds):
@@ -270,6 +277,11 @@ impl Detection {
                 }
             );
         }
+        md.push_str(&super::blocked::markdown(
+            &self.blocked_hatched,
+            self.film_thickness_um,
+            self.depth_per_pass_um,
+        ));
         md
     }
 }
@@ -316,6 +328,9 @@ pub(super) fn detect(
             .iter()
             .map(|c| call(c, &settings, &config.plan.process))
             .collect(),
+        blocked_hatched: Vec::new(),
+        film_thickness_um: config.plan.trim.film_thickness_um,
+        inspected: result.contours,
     };
     timings.detect_s = t.elapsed().as_secs_f64();
     for c in detection
@@ -457,6 +472,9 @@ mod tests {
             noise_um: 10.0,
             depth_per_pass_um: 40.0,
             contours: cases.iter().map(|(c, _, _)| call(c, &s, &p)).collect(),
+            blocked_hatched: Vec::new(),
+            film_thickness_um: 200.0,
+            inspected: Vec::new(),
         };
         assert_eq!(d.trimmed(), BTreeSet::from([1, 2, 3, 4, 5, 9]));
         assert_eq!(d.with_call(Call::Clean), BTreeSet::from([6, 7, 8]));

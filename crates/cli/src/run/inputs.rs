@@ -63,6 +63,7 @@ pub(super) fn load_inputs(
             // by the field alone and registration flags them.
             scanner_views: DEMO_SCANNER_VIEWS,
             burr_fraction: if burred { DEMO_VERIFY_BURRS } else { 0.0 },
+            blockage_fraction: args.demo_blockages,
             ..SynthParams::default()
         };
         let mut case = generate(&params).context("building the demo part")?;

@@ -36,6 +36,7 @@ use report::{
     BeamBlock, RunNotes, append_resume_report, shutdown_of, shutdown_sentence, write_report,
 };
 
+mod blocked;
 mod detect;
 mod execute;
 mod inputs;
@@ -192,6 +193,12 @@ pub struct Args {
     /// The demo part's seed.
     #[arg(long, default_value_t = 1)]
     demo_seed: u64,
+    /// The share of the demo part's holes and slots (0-1) that carry a blockage, a film 50-200
+    /// µm thick over part of the opening (the synthetic part's `--blockages`). With `[trim]
+    /// only_detected` or --verify the inspection finds them and `[trim] hatch_blocked` hatches
+    /// them. Ignored with a job naming its own part.
+    #[arg(long, default_value_t = 0.0, value_parser = parse_share)]
+    demo_blockages: f64,
     /// Simulated devices: real seconds per simulated second (1 = real time).
     #[arg(long, default_value_t = DEFAULT_SIM_TIME_SCALE)]
     sim_time_scale: f64,
@@ -219,6 +226,19 @@ fn parse_live_addr(s: &str) -> Result<LiveAddr, String> {
             e.to_string()
         }
     })
+}
+
+/// A share in [0, 1].
+fn parse_share(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("expected a number in [0, 1], got {s:?}"))?;
+    if (0.0..=1.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("expected a number in [0, 1], got {v}"))
+    }
 }
 
 /// `--sim-block-beam`'s value: ZONE:LAYER.
@@ -347,7 +367,10 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     let mut contours = trusted_contours(&registration, args, &run_dir)?
         .contours()
         .to_vec();
-    let detection = if let Some(mesh) = mesh.as_ref().filter(|_| config.plan.trim.only_detected) {
+    let trusted: std::collections::BTreeSet<i64> =
+        contours.iter().map(trim_geom::Contour::id).collect();
+    let mut detection = if let Some(mesh) = mesh.as_ref().filter(|_| config.plan.trim.only_detected)
+    {
         let mut d = detect::detect(
             &config,
             &inputs,
@@ -364,15 +387,39 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     } else {
         None
     };
+    let blocked = match &mut detection {
+        Some(d) => {
+            let b = blocked::hatch_blocked(
+                &d.inspected,
+                &trim_inspect::InspectSettings::default(),
+                &registration.path,
+                &trusted,
+                inputs.hatch.len(),
+                &config,
+                &run_dir,
+            )?;
+            d.blocked_hatched.clone_from(&b.openings);
+            b
+        }
+        None => blocked::BlockedHatches::default(),
+    };
+    if let Some(line) = blocked.line() {
+        println!("{line}");
+    }
     let mut notes = RunNotes {
         detection: detection.as_ref(),
         beam_block: None,
     };
-    if contours.is_empty() && inputs.hatch.is_empty() {
+    if contours.is_empty() && inputs.hatch.is_empty() && blocked.tracks.is_empty() {
         return nothing_to_trim(&run_dir, &config, &inputs.description, &timings, &notes);
     }
+    contours.extend(blocked.tracks.iter().cloned());
     let to_plan = with_hatch_tracks(contours, &inputs, &registration, &run_dir, &mut timings)?;
-    let passes = detection.as_ref().map(detect::Detection::passes);
+    let passes = detection.as_ref().map(|d| {
+        let mut p = d.passes();
+        p.extend(&blocked.passes);
+        p
+    });
     let plan = plan_part(
         &to_plan,
         &registration.path,
@@ -514,12 +561,12 @@ fn verify_part(
     use std::fmt::Write as _;
     let rounds = verify::verify(config, args, run_dir, inputs, mesh, registration, twin)?;
     let mut md = String::from(
-        "\n## Verify and retrim\n\nEach inspection of the rescanned part (`verify_<k>/report.html`), and the digital twin's truth.\n\n| inspection | pass | fail | undecided | failing contours | true residual web P95 / max (µm) | true gouge P95 / max (µm) | retrimmed |\n|---|---|---|---|---|---|---|---|\n",
+        "\n## Verify and retrim\n\nEach inspection of the rescanned part (`verify_<k>/report.html`), and the digital twin's truth.\n\n| inspection | pass | fail | undecided | failing contours | true residual web P95 / max (µm) | true gouge P95 / max (µm) | true film cover max (%) | retrimmed | blocked openings hatched |\n|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in &rounds {
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {:?} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {:?} | {} | {} | {} | {} | {:?} |",
             r.inspection,
             r.pass,
             r.fail,
@@ -527,7 +574,10 @@ fn verify_part(
             r.failing,
             pair(r.true_residual_p95_um, r.true_residual_max_um),
             pair(r.true_gouge_p95_um, r.true_gouge_max_um),
-            if r.retrimmed { "yes" } else { "no" }
+            r.true_film_covered_max
+                .map_or_else(|| "—".to_owned(), |f| format!("{:.0}", 100.0 * f)),
+            if r.retrimmed { "yes" } else { "no" },
+            r.hatched
         );
     }
     let report = run_dir.join(files::REPORT);

@@ -23,6 +23,7 @@ use trim_register::eval::quantile;
 use trim_register::regional::Registration;
 use trim_sim::twin_part::{ContourTrim, TwinPart};
 
+use super::blocked;
 use super::execute::{TwinLink, execute, twin_link};
 use super::inputs::Inputs;
 use super::rescan;
@@ -53,6 +54,11 @@ pub(super) struct Round {
     pub(super) true_residual_p95_um: Option<f64>,
     /// The 95th percentile over the contours of each contour's deepest gouge, µm.
     pub(super) true_gouge_p95_um: Option<f64>,
+    /// The twin's truth: the largest share of an opening a film still covers (0: every film
+    /// cleared, or none was there; null on a real part).
+    pub(super) true_film_covered_max: Option<f64>,
+    /// The blocked openings hatched in the retrim after it (`[trim] hatch_blocked`).
+    pub(super) hatched: Vec<i64>,
     /// Whether the failing contours were trimmed again after it.
     pub(super) retrimmed: bool,
 }
@@ -124,6 +130,12 @@ pub(super) fn verify(
             true_gouge_max_um: truth(gouge, max),
             true_residual_p95_um: truth(residual, p95),
             true_gouge_p95_um: truth(gouge, p95),
+            true_film_covered_max: state.as_ref().map(|s| {
+                s.iter()
+                    .filter_map(|c| c.film_covered_share)
+                    .fold(0.0, f64::max)
+            }),
+            hatched: Vec::new(),
             retrimmed: !failing.is_empty() && k <= args.rounds,
         };
         println!(
@@ -144,9 +156,13 @@ pub(super) fn verify(
         if !retrim {
             break;
         }
-        let landed = retrim_round(config, args, run_dir, registration, &result, &failing, k)?;
+        let (landed, hatched) =
+            retrim_round(config, args, run_dir, registration, &result, &failing, k)?;
         if part.is_some() {
             cuts = landed_cuts(&landed)?;
+        }
+        if let Some(r) = rounds.last_mut() {
+            r.hatched = hatched;
         }
     }
     std::fs::write(
@@ -166,7 +182,8 @@ impl Round {
             self.true_gouge_max_um,
         ) {
             (Some(rp), Some(rm), Some(gp), Some(gm)) => format!(
-                " (twin truth over the contours: residual web P95 {rp:.1} / max {rm:.1} µm, gouge P95 {gp:.1} / max {gm:.1} µm)"
+                " (twin truth over the contours: residual web P95 {rp:.1} / max {rm:.1} µm, gouge P95 {gp:.1} / max {gm:.1} µm, films cover at most {:.0} % of an opening)",
+                100.0 * self.true_film_covered_max.unwrap_or(0.0)
             ),
             _ => String::new(),
         }
@@ -204,8 +221,11 @@ fn twin_rescan(config: &JobConfig, part: &TwinPart, seed: u64) -> anyhow::Result
 }
 
 /// Plans the failing contours (each polyline with the passes its measured excess height
-/// needs: a web is no thicker than it is tall) and runs them in `retrim_<k>/`; the run's twin
-/// link (what the simulated galvo landed).
+/// needs: a web is no thicker than it is tall) and, with `[trim] hatch_blocked`, hatches the
+/// blocked openings among them (`blocked`: each track with the passes of `[trim]
+/// film_thickness_um`; a rim blocked but with no excess is hatched, not trimmed again), and
+/// runs them in `retrim_<k>/`; the run's twin link (what the simulated galvo landed) and the
+/// rims hatched.
 fn retrim_round(
     config: &JobConfig,
     args: &Args,
@@ -214,14 +234,34 @@ fn retrim_round(
     found: &Inspection,
     failing: &BTreeSet<i64>,
     k: u32,
-) -> anyhow::Result<TwinLink> {
+) -> anyhow::Result<(TwinLink, Vec<i64>)> {
+    let dir = run_dir.join(format!("retrim_{k}"));
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let settings = InspectSettings::default();
+    let hatches = blocked::hatch_blocked(
+        &found.contours,
+        &settings,
+        &registration.path,
+        failing,
+        0,
+        config,
+        &dir,
+    )?;
+    let hatched = hatches.contours();
+    let only_hatched: BTreeSet<i64> = found
+        .contours
+        .iter()
+        .filter(|c| hatched.contains(&c.id) && c.excess_height_um <= 0.0)
+        .map(|c| c.id)
+        .collect();
     let path = TrimPath::new(
         registration
             .path
             .contours()
             .iter()
-            .filter(|c| failing.contains(&c.id()))
+            .filter(|c| failing.contains(&c.id()) && !only_hatched.contains(&c.id()))
             .cloned()
+            .chain(hatches.tracks.iter().cloned())
             .collect(),
     )?;
     // The failing contours alone may not say where their material is (a hole without its
@@ -230,6 +270,9 @@ fn retrim_round(
     let mut plan =
         plan_with_sides(&path, &config.plan, Some(&sides)).context("planning the retrim")?;
     plan.job.set_passes(|id| {
+        if let Some(p) = hatches.passes.get(&id) {
+            return *p;
+        }
         found
             .contours
             .iter()
@@ -251,16 +294,18 @@ fn retrim_round(
             ),
         ));
     }
-    let dir = run_dir.join(format!("retrim_{k}"));
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     write_plan(&dir, &plan)?;
     println!(
-        "retrim {k}: contours {failing:?}, {} layers, passes from the measured excess; {}",
+        "retrim {k}: contours {:?}, {} layers, passes from the measured excess; {}",
+        failing.difference(&only_hatched).collect::<Vec<_>>(),
         plan.job.layers().count(),
         dir.display()
     );
+    if let Some(line) = hatches.line() {
+        println!("retrim {k}: {line}");
+    }
     let twin = twin_link(config, run_dir)?;
     let (outcome, _) = execute(config, args, &dir, &plan.job, None, false, None, &twin)?;
     outcome.map_err(|e| exec_failure(e, &dir))?;
-    Ok(twin)
+    Ok((twin, hatched.into_iter().collect()))
 }
