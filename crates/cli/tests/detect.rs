@@ -524,3 +524,56 @@ fn sim_block_beam_is_refused_on_a_real_galvo_for_a_layer_the_plan_lacks_and_when
     );
     assert!(!out.join("journal.jsonl").exists());
 }
+
+#[test]
+fn only_detected_hatches_the_blocked_openings_in_the_job_itself_and_the_rescan_sees_them_cleared() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let job = tmp.path().join("job.toml");
+    std::fs::write(&job, "[trim]\nonly_detected = true\n").expect("job file");
+    let out = tmp.path().join("run");
+    let (code, stdout, stderr) = trimctl(
+        &["--demo-blockages", "0.15", "--verify", "--rounds", "1"],
+        &job,
+        &out,
+    );
+    assert!(
+        code == Some(0) || code == Some(1),
+        "stdout:\n{stdout}\nstderr:\n{stderr}"
+    );
+    // The first scan's inspection found the films and the job itself hatched them.
+    let summary = read_json(&out.join("summary.json"));
+    let hatched: BTreeSet<i64> = summary["detection"]["blocked_hatched"]
+        .as_array()
+        .expect("detection.blocked_hatched")
+        .iter()
+        .map(|o| o["contour"].as_i64().expect("contour"))
+        .collect();
+    let first = inspection(&out.join("detect"));
+    let blocked: BTreeSet<i64> = first
+        .iter()
+        .filter(|(_, c)| c["blocked_fraction"].as_f64().is_some_and(|b| b > 0.1))
+        .map(|(id, _)| *id)
+        .collect();
+    assert!(!blocked.is_empty(), "no blocked opening seen: {stdout}");
+    assert!(
+        blocked.is_subset(&hatched),
+        "blocked {blocked:?}, hatched {hatched:?}"
+    );
+    // After the job (before any retrim) the rescan reads every hatched opening cleared.
+    let after = inspection(&out.join("verify_1"));
+    for id in &hatched {
+        let c = &after[id];
+        assert!(
+            num(c, "blocked_fraction") <= 0.1,
+            "contour {id} still covered after the job's hatching: {c}"
+        );
+    }
+    let rounds = read_json(&out.join("verify.json"));
+    let film = rounds[0]["true_film_covered_max"]
+        .as_f64()
+        .expect("film cover");
+    assert!(
+        film <= 0.05,
+        "the twin's films still cover {film} of an opening"
+    );
+}
