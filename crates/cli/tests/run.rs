@@ -873,6 +873,10 @@ fn verify_inspects_the_rescanned_demo_and_retrims_what_failed() {
             "{key}: {last:?}"
         );
     }
+    // summary.json carries the same rounds.
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["verify"], serde_json::Value::Array(rounds.clone()));
     for (k, r) in rounds.iter().enumerate() {
         let dir = out.join(format!("verify_{}", k + 1));
         for file in [

@@ -584,6 +584,17 @@ fn verify_part(
     let mut text = std::fs::read_to_string(&report).unwrap_or_default();
     text.push_str(&md);
     std::fs::write(&report, text)?;
+    // summary.json carries the rounds too (`verify`), as verify.json has them.
+    let summary_path = run_dir.join(files::SUMMARY);
+    let mut json: serde_json::Value = std::fs::read_to_string(&summary_path)
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
+        .unwrap_or_else(|| serde_json::json!({}));
+    json.as_object_mut()
+        .context("summary.json is not a JSON object")?
+        .insert("verify".to_owned(), serde_json::to_value(&rounds)?);
+    std::fs::write(&summary_path, serde_json::to_string_pretty(&json)?)
+        .with_context(|| format!("cannot write {}", summary_path.display()))?;
     match rounds.last() {
         Some(last) if last.fail > 0 => Err(Failure::with_exit(
             Exit::Refused,
