@@ -5,7 +5,9 @@
 //!
 //! The first two run the built-in demo part (seed 1, burrs on 30 % of its 52 contours) on the
 //! built-in simulated cell, in a debug build; the third a job of `trimctl synth`'s files, clean
-//! (nothing to trim: nothing planned, nothing moved) and burred.
+//! (nothing to trim: nothing planned, nothing moved) and burred. The last two run `--verify` on
+//! such a job (a real part to the run): its rescan comes from `[verify] scan_command`, or a
+//! file the run waits for until its timeout.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
@@ -408,9 +410,14 @@ fn a_layer_whose_beam_is_blocked_fails_its_burred_contours_and_the_retrim_fixes_
     assert!(num(last, "true_gouge_max_um") <= TOLERANCE_UM, "{last}");
 }
 
-/// A synthetic core (`trimctl synth`, seed 2, four views, no dropouts) scanned clean, and the
-/// same core with burrs on 30 % of its contours, each as a job of its own files.
+/// A synthetic core (`trimctl synth`, seed 2, four views, no dropouts) with `burrs` of its
+/// contours burred, in `dir/core`, as a job of its own files with `[trim] only_detected`.
 fn synth_job(dir: &Path, burrs: &str) -> std::path::PathBuf {
+    synth_job_with(dir, burrs, "[trim]\nonly_detected = true\n")
+}
+
+/// [`synth_job`] with `tables` (job.toml text) in place of `[trim] only_detected`.
+fn synth_job_with(dir: &Path, burrs: &str, tables: &str) -> std::path::PathBuf {
     let core = dir.join("core");
     let result = Command::new(TRIMCTL)
         .args([
@@ -437,7 +444,7 @@ fn synth_job(dir: &Path, burrs: &str) -> std::path::PathBuf {
     std::fs::write(
         &job,
         format!(
-            "[trim]\nonly_detected = true\n[part]\ncad = {:?}\npath = {:?}\nscan = {:?}\n",
+            "{tables}\n[part]\ncad = {:?}\npath = {:?}\nscan = {:?}\n",
             core.join("cad.stl"),
             core.join("path.csv"),
             core.join("scan.ply")
@@ -576,4 +583,73 @@ fn only_detected_hatches_the_blocked_openings_in_the_job_itself_and_the_rescan_s
         film <= 0.05,
         "the twin's films still cover {film} of an opening"
     );
+}
+
+/// `trimctl run JOB --verify --rounds 1` on the simulated cell: exit code, stdout, stderr.
+fn run_verify_once(job: &Path, out: &Path) -> (Option<i32>, String, String) {
+    trimctl(&["--verify", "--rounds", "1"], job, out)
+}
+
+#[test]
+fn a_real_parts_rescan_comes_from_the_scan_command_and_is_inspected_without_a_truth() {
+    // `--verify` on a part of the job's own files: the cell's scanner is a `[verify]
+    // scan_command` that delivers a scan of the part as it stands after trimming (the same
+    // core scanned without its burrs).
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let clean = tmp.path().join("clean");
+    synth_job_with(&clean, "0", "");
+    let clean_scan = clean.join("core").join("scan.ply");
+    let burred = tmp.path().join("burred");
+    let job = synth_job_with(
+        &burred,
+        "0.3",
+        &format!(
+            "[verify]\nscan_command = [\"cp\", {clean_scan:?}, \"{{scan}}\"]\nscan_timeout_s = 60\n"
+        ),
+    );
+    let out = tmp.path().join("run");
+    let (code, stdout, stderr) = run_verify_once(&job, &out);
+    assert_eq!(code, Some(0), "stdout:\n{stdout}\nstderr:\n{stderr}");
+    // The command ran with {scan} filled in, and wrote the round's file in the run folder.
+    assert!(
+        stdout.contains("verify 1: rescanning the part: cp"),
+        "{stdout}"
+    );
+    assert!(out.join("rescan_1.ply").exists());
+    let rounds = read_json(&out.join("verify.json"));
+    let rounds = rounds.as_array().expect("rounds");
+    assert_eq!(rounds.len(), 1, "{rounds:?}");
+    let first = &rounds[0];
+    // The part as delivered carries no burr: nothing fails, and there is no truth to report.
+    assert_eq!(first["fail"], 0, "{first}");
+    assert!(first["pass"].as_u64().unwrap() >= 40, "{first}");
+    for key in [
+        "true_residual_max_um",
+        "true_gouge_p95_um",
+        "true_film_covered_max",
+    ] {
+        assert!(first[key].is_null(), "{key}: {first}");
+    }
+    assert!(inspection(&out.join("verify_1")).len() >= 40);
+    let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    assert!(report.contains("## Verify and retrim"), "{report}");
+}
+
+#[test]
+fn a_rescan_that_never_comes_stops_the_run_at_the_timeout_naming_the_file() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let job = synth_job_with(tmp.path(), "0.3", "[verify]\nscan_timeout_s = 1\n");
+    let out = tmp.path().join("run");
+    let (code, stdout, stderr) = run_verify_once(&job, &out);
+    assert_eq!(code, Some(1), "stdout:\n{stdout}\nstderr:\n{stderr}");
+    assert!(
+        stdout.contains("verify 1: waiting for the rescan of the part at"),
+        "{stdout}"
+    );
+    assert!(
+        stderr.contains("timed out after 1.0 s waiting for") && stderr.contains("rescan_1.ply"),
+        "{stderr}"
+    );
+    // The job itself ran and was journaled before the wait.
+    assert!(out.join("journal.jsonl").exists());
 }

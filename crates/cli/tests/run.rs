@@ -904,7 +904,7 @@ fn verify_inspects_the_rescanned_demo_and_retrims_what_failed() {
     );
     // A job naming its own part files whose CAD is a point cloud is refused before anything
     // moves: inspection measures distances to the CAD's surface (a real part's rescan itself is
-    // tested in tests/rescan.rs).
+    // tested in tests/detect.rs).
     let inputs = out.join("inputs");
     let job = tmp.path().join("job.toml");
     std::fs::write(
