@@ -276,6 +276,64 @@ fn killed_run_resumes_without_marking_a_layer_twice() {
 }
 
 #[test]
+fn a_retrim_killed_midway_resumes_from_its_own_folder_without_marking_a_layer_twice() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let retrim = out.join("retrim_1");
+    // Real-time devices, so the kill lands inside the first retrim.
+    let mut child = Command::new(TRIMCTL)
+        .args(["run", "--verify", "--sim-time-scale", "1.0", "--out"])
+        .arg(&out)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    loop {
+        if retrim.join("journal.jsonl").exists() && !layers_done(&retrim).is_empty() {
+            break;
+        }
+        if let Some(status) = child.try_wait().unwrap() {
+            panic!("the run ended ({status}) before its retrim could be killed midway");
+        }
+        assert!(
+            start.elapsed() < 3 * RUN_TIMEOUT,
+            "no retrim layer finished in time"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    child.kill().unwrap(); // SIGKILL: no clean shutdown.
+    child.wait().unwrap();
+    let planned = planned_layers(&retrim);
+    assert!(
+        layers_done(&retrim).len() < planned.len(),
+        "the kill came after the retrim's last layer"
+    );
+    let result = Command::new(TRIMCTL)
+        .args([
+            "run",
+            "--sim-time-scale",
+            "0.01",
+            "--cut-layer",
+            "redo",
+            "--resume",
+        ])
+        .arg(&retrim)
+        .output()
+        .unwrap();
+    assert!(
+        result.status.success(),
+        "resume failed:\n{}\n{}",
+        String::from_utf8_lossy(&result.stdout),
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let after = layers_done(&retrim);
+    for key in &planned {
+        assert_eq!(after.get(key), Some(&1), "retrim layer {key:?}: {after:?}");
+    }
+}
+
+#[test]
 fn bad_job_files_get_one_line_naming_the_key() {
     let tmp = tempfile::tempdir().unwrap();
     let cases = [

@@ -237,6 +237,15 @@ fn retrim_round(
 ) -> anyhow::Result<(TwinLink, Vec<i64>)> {
     let dir = run_dir.join(format!("retrim_{k}"));
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    // The retrim's folder is a run folder of its own: a stopped retrim resumes with `trimctl
+    // run --resume RUN/retrim_<k>` (its effective job file and field correction beside it).
+    for file in [files::JOB, files::FIELD] {
+        let src = run_dir.join(file);
+        if src.exists() {
+            std::fs::copy(&src, dir.join(file))
+                .with_context(|| format!("cannot copy {} into {}", src.display(), dir.display()))?;
+        }
+    }
     let settings = InspectSettings::default();
     let hatches = blocked::hatch_blocked(
         &found.contours,
