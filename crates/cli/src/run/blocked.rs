@@ -63,6 +63,13 @@ pub(super) struct BlockedHatches {
 
 impl BlockedHatches {
     /// The rims hatched.
+    #[cfg_attr(
+        not(feature = "sim"),
+        expect(
+            dead_code,
+            reason = "used by --verify's retrims, which need the simulators"
+        )
+    )]
     pub(super) fn contours(&self) -> BTreeSet<i64> {
         self.openings.iter().map(|o| o.contour).collect()
     }
