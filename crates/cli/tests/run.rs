@@ -217,26 +217,19 @@ fn killed_run_resumes_without_marking_a_layer_twice() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
     // Slow enough (real-time devices) that the kill lands midway.
-    let mut child = Command::new(TRIMCTL)
+    let child = Command::new(TRIMCTL)
         .args(["run", "--sim-time-scale", "1.0", "--out"])
         .arg(&out)
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    let start = Instant::now();
-    loop {
-        if layers_done(&out).len() >= 2 {
-            break;
-        }
-        if let Some(status) = child.try_wait().unwrap() {
-            panic!("the run ended ({status}) before it could be killed midway");
-        }
-        assert!(start.elapsed() < RUN_TIMEOUT, "no layer finished in time");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    child.kill().unwrap(); // SIGKILL: no clean shutdown, as a crash or a power cut.
-    child.wait().unwrap();
+    kill_when(
+        child,
+        || layers_done(&out).len() >= 2,
+        RUN_TIMEOUT,
+        "it could be killed midway",
+    );
     let before = layers_done(&out);
     let planned = planned_layers(&out);
     assert!(
@@ -246,33 +239,7 @@ fn killed_run_resumes_without_marking_a_layer_twice() {
 
     // The in-process simulators died with the run: when the kill landed mid-layer, nobody can
     // tell how far that layer got, and `redo` marks it again (between layers it is not used).
-    let result = Command::new(TRIMCTL)
-        .args([
-            "run",
-            "--sim-time-scale",
-            "0.01",
-            "--cut-layer",
-            "redo",
-            "--resume",
-        ])
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        result.status.success(),
-        "resume failed:\n{}\n{}",
-        String::from_utf8_lossy(&result.stdout),
-        String::from_utf8_lossy(&result.stderr)
-    );
-    let after = layers_done(&out);
-    for key in &planned {
-        assert_eq!(
-            after.get(key),
-            Some(&1),
-            "layer {key:?} finished {:?} times",
-            after.get(key)
-        );
-    }
+    resume_marks_each_layer_once(&out, &planned);
 }
 
 #[test]
@@ -281,34 +248,50 @@ fn a_retrim_killed_midway_resumes_from_its_own_folder_without_marking_a_layer_tw
     let out = tmp.path().join("run");
     let retrim = out.join("retrim_1");
     // Real-time devices, so the kill lands inside the first retrim.
-    let mut child = Command::new(TRIMCTL)
+    let child = Command::new(TRIMCTL)
         .args(["run", "--verify", "--sim-time-scale", "1.0", "--out"])
         .arg(&out)
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    let start = Instant::now();
-    loop {
-        if retrim.join("journal.jsonl").exists() && !layers_done(&retrim).is_empty() {
-            break;
-        }
-        if let Some(status) = child.try_wait().unwrap() {
-            panic!("the run ended ({status}) before its retrim could be killed midway");
-        }
-        assert!(
-            start.elapsed() < 3 * RUN_TIMEOUT,
-            "no retrim layer finished in time"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    child.kill().unwrap(); // SIGKILL: no clean shutdown.
-    child.wait().unwrap();
+    kill_when(
+        child,
+        || retrim.join("journal.jsonl").exists() && !layers_done(&retrim).is_empty(),
+        3 * RUN_TIMEOUT,
+        "its retrim could be killed midway",
+    );
     let planned = planned_layers(&retrim);
     assert!(
         layers_done(&retrim).len() < planned.len(),
         "the kill came after the retrim's last layer"
     );
+    resume_marks_each_layer_once(&retrim, &planned);
+}
+
+/// Waits until `ready()` holds, then kills `child` with SIGKILL (no clean shutdown, as a crash
+/// or a power cut); fails when the run ends first (`what` says before what) or `limit` passes.
+fn kill_when(
+    mut child: std::process::Child,
+    ready: impl Fn() -> bool,
+    limit: Duration,
+    what: &str,
+) {
+    let start = Instant::now();
+    while !ready() {
+        if let Some(status) = child.try_wait().expect("the run's status") {
+            panic!("the run ended ({status}) before {what}");
+        }
+        assert!(start.elapsed() < limit, "nothing to kill in time: {what}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    child.kill().expect("the run is killed");
+    child.wait().expect("the killed run is reaped");
+}
+
+/// `trimctl run --resume DIR --cut-layer redo` on fast devices succeeds, and then every layer in
+/// `planned` has finished exactly once in DIR's journal.
+fn resume_marks_each_layer_once(dir: &Path, planned: &[(u64, u64)]) {
     let result = Command::new(TRIMCTL)
         .args([
             "run",
@@ -318,18 +301,25 @@ fn a_retrim_killed_midway_resumes_from_its_own_folder_without_marking_a_layer_tw
             "redo",
             "--resume",
         ])
-        .arg(&retrim)
+        .arg(dir)
         .output()
-        .unwrap();
+        .expect("trimctl run --resume runs");
     assert!(
         result.status.success(),
-        "resume failed:\n{}\n{}",
+        "resume of {} failed:\n{}\n{}",
+        dir.display(),
         String::from_utf8_lossy(&result.stdout),
         String::from_utf8_lossy(&result.stderr)
     );
-    let after = layers_done(&retrim);
-    for key in &planned {
-        assert_eq!(after.get(key), Some(&1), "retrim layer {key:?}: {after:?}");
+    let after = layers_done(dir);
+    for key in planned {
+        assert_eq!(
+            after.get(key),
+            Some(&1),
+            "layer {key:?} of {} finished {:?} times",
+            dir.display(),
+            after.get(key)
+        );
     }
 }
 
