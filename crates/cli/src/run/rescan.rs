@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime};
 
 use anyhow::{Context, bail};
 use trim_geom::PointCloud;
@@ -19,6 +19,10 @@ const POLL: Duration = Duration::from_millis(100);
 /// A file counts as written when its size has not changed for this long (a scanner writing it
 /// may still be at it when it first appears).
 const SETTLED: Duration = Duration::from_millis(500);
+
+/// A file's modification time may read this much before the clock at its writing (coarse file
+/// system timestamps); a rescan counts when written at most this long before the round began.
+const MTIME_SLACK: Duration = Duration::from_secs(1);
 
 /// Where inspection `round`'s rescan appears: `[verify] scan_file` with `{round}` filled in,
 /// relative to the run folder.
@@ -36,12 +40,11 @@ pub(super) fn scan_file(verify: &VerifyConfig, run_dir: &Path, round: u32) -> Pa
 pub(super) fn rescan(config: &JobConfig, run_dir: &Path, round: u32) -> anyhow::Result<PointCloud> {
     let verify = &config.verify;
     let file = scan_file(verify, run_dir, round);
-    if file.exists() {
-        bail!(
-            "verify {round}: the rescan file {} is there before the part was rescanned (a scan of the part before this round?); move it away and run again",
-            file.display()
-        );
-    }
+    // Only a file written from now on is this round's rescan (one already there is an older
+    // scan, e.g. the last round's when `scan_file` names no `{round}`).
+    let since = SystemTime::now()
+        .checked_sub(MTIME_SLACK)
+        .unwrap_or(SystemTime::UNIX_EPOCH);
     let timeout = Duration::from_secs_f64(verify.scan_timeout_s);
     if verify.scan_command.is_empty() {
         println!(
@@ -49,11 +52,11 @@ pub(super) fn rescan(config: &JobConfig, run_dir: &Path, round: u32) -> anyhow::
             file.display(),
             verify.scan_timeout_s
         );
-        wait_for_file(&file, timeout)
+        wait_for_file(&file, since, timeout)
             .with_context(|| format!("verify {round}: no rescan (job.toml [verify])"))?;
     } else {
         run_scan_command(&verify.scan_command, &file, round, timeout)?;
-        if !file.exists() {
+        if !written_since(&file, since) {
             bail!(
                 "verify {round}: [verify] scan_command {:?} succeeded but wrote no {}",
                 verify.scan_command,
@@ -68,13 +71,24 @@ pub(super) fn rescan(config: &JobConfig, run_dir: &Path, round: u32) -> anyhow::
         .with_context(|| format!("verify {round}: the rescan {}", file.display()))
 }
 
-/// Waits until `file` exists and its size has settled, or `timeout` has passed.
-fn wait_for_file(file: &Path, timeout: Duration) -> anyhow::Result<()> {
+/// Whether `file` exists and was written at or after `since`.
+fn written_since(file: &Path, since: SystemTime) -> bool {
+    std::fs::metadata(file)
+        .and_then(|m| m.modified())
+        .is_ok_and(|t| t >= since)
+}
+
+/// Waits until `file` has been written at or after `since` and its size has settled, or
+/// `timeout` has passed.
+fn wait_for_file(file: &Path, since: SystemTime, timeout: Duration) -> anyhow::Result<()> {
     let start = Instant::now();
     let mut last: Option<(u64, Instant)> = None;
     loop {
         trim_geom::cancel::check()?;
-        if let Ok(meta) = std::fs::metadata(file) {
+        if let Some(meta) = std::fs::metadata(file)
+            .ok()
+            .filter(|_| written_since(file, since))
+        {
             let size = meta.len();
             match last {
                 Some((s, since)) if s == size && size > 0 && since.elapsed() >= SETTLED => {
@@ -177,12 +191,19 @@ mod tests {
     }
 
     #[test]
-    fn a_file_that_never_comes_times_out_naming_it() {
+    fn a_file_that_never_comes_times_out_naming_it_and_an_older_one_is_not_taken() {
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("never.ply");
-        let err = wait_for_file(&file, Duration::from_millis(300)).unwrap_err();
+        let err = wait_for_file(&file, SystemTime::now(), Duration::from_millis(300)).unwrap_err();
         assert!(err.to_string().contains("never.ply"), "{err}");
         assert!(err.to_string().contains("timed out"), "{err}");
+        // A scan written before the wait began (the last round's) is not this round's.
+        let old = dir.path().join("old.ply");
+        std::fs::write(&old, "ply").unwrap();
+        let since = SystemTime::now() + Duration::from_secs(1);
+        assert!(wait_for_file(&old, since, Duration::from_millis(300)).is_err());
+        // Written now, it is taken once its size has settled.
+        assert!(wait_for_file(&old, SystemTime::UNIX_EPOCH, Duration::from_secs(5)).is_ok());
     }
 
     #[test]
