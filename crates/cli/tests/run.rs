@@ -217,13 +217,7 @@ fn killed_run_resumes_without_marking_a_layer_twice() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
     // Slow enough (real-time devices) that the kill lands midway.
-    let child = Command::new(TRIMCTL)
-        .args(["run", "--sim-time-scale", "1.0", "--out"])
-        .arg(&out)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+    let child = spawn_real_time_run(&[], &out);
     kill_when(
         child,
         || layers_done(&out).len() >= 2,
@@ -248,13 +242,7 @@ fn a_retrim_killed_midway_resumes_from_its_own_folder_without_marking_a_layer_tw
     let out = tmp.path().join("run");
     let retrim = out.join("retrim_1");
     // Real-time devices, so the kill lands inside the first retrim.
-    let child = Command::new(TRIMCTL)
-        .args(["run", "--verify", "--sim-time-scale", "1.0", "--out"])
-        .arg(&out)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+    let child = spawn_real_time_run(&["--verify"], &out);
     kill_when(
         child,
         || retrim.join("journal.jsonl").exists() && !layers_done(&retrim).is_empty(),
@@ -267,6 +255,20 @@ fn a_retrim_killed_midway_resumes_from_its_own_folder_without_marking_a_layer_tw
         "the kill came after the retrim's last layer"
     );
     resume_marks_each_layer_once(&retrim, &planned);
+}
+
+/// `trimctl run ARGS --out OUT` on the demo with real-time simulated devices, started in the
+/// background with its output discarded.
+fn spawn_real_time_run(args: &[&str], out: &Path) -> std::process::Child {
+    Command::new(TRIMCTL)
+        .arg("run")
+        .args(args)
+        .args(["--sim-time-scale", "1.0", "--out"])
+        .arg(out)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("trimctl run starts")
 }
 
 /// Waits until `ready()` holds, then kills `child` with SIGKILL (no clean shutdown, as a crash
