@@ -207,14 +207,23 @@ pub(crate) fn final_matches(
         .collect()
 }
 
+/// The fitted field, its final matches and its posterior, and the model check's field.
+pub(crate) struct FieldFit {
+    pub(crate) field: BSplineField,
+    pub(crate) matches: Vec<Match>,
+    pub(crate) posterior: Option<FieldPosterior>,
+    pub(crate) check: Option<BSplineField>,
+}
+
 /// Fits the displacement field (CAD frame) to the scan points `q` (CAD frame), with its final
-/// matches and its posterior.
+/// matches and its posterior; with `check`, also the model check's field (see [`check_field`]).
 pub(crate) fn fit_field(
     points: &[Point3],
     target: &IcpTarget,
     shapes: &[LocalShape],
     settings: &DeformationSettings,
-) -> Result<(BSplineField, Vec<Match>, Option<FieldPosterior>)> {
+    check: Option<&DeformationSettings>,
+) -> Result<FieldFit> {
     let (field, prior) = solve_field(points, target, shapes, settings)?;
     // All final matches, edges included, for the quality report (coverage and residuals are
     // about what the scanner saw); the posterior from those the fit used.
@@ -234,19 +243,97 @@ pub(crate) fn fit_field(
             })
         })
         .collect();
+    let check = check
+        .map(|c| check_field(&field, &fitted, target, c))
+        .transpose()?;
     let posterior = field_posterior(&field, &fitted, &prior, settings);
     let matches = matched
         .into_iter()
         .zip(points)
         .filter_map(|(m, q)| m.map(|(_, _, n, _, r)| Match { q: *q, n, r }))
         .collect();
-    Ok((field, matches, posterior))
+    Ok(FieldFit {
+        field,
+        matches,
+        posterior,
+        check,
+    })
+}
+
+/// Reweighting passes of the model check's fit (the robust weights settle in two).
+pub const CHECK_PASSES: usize = 3;
+
+/// The model check's field (`quality.model_check`): the same data as the fit, the fit's final
+/// matches `fitted` (their CAD points and carried normals held fixed), fitted under `settings`
+/// (another control spacing) from zero. Where the data fix the contour, the two fields agree;
+/// where the smoothness prior decides, they differ by what the two priors make of it. The
+/// residual is linear in the field for fixed matches, so each pass is one solve, with the
+/// Huber weights of the last.
+fn check_field(
+    field: &BSplineField,
+    fitted: &[Option<Matched>],
+    target: &IcpTarget,
+    settings: &DeformationSettings,
+) -> Result<BSplineField> {
+    let bounds = target
+        .cloud()
+        .bounds()
+        .ok_or(RegisterError::EmptyCloud { which: "CAD" })?;
+    let pad = Vector3::repeat(0.25 * settings.spacing_mm);
+    let mut check = BSplineField::zero(
+        &(bounds.min - pad),
+        &(bounds.max + pad),
+        settings.spacing_mm,
+    );
+    let dim = 3 * check.len();
+    let prior = prior_terms(&check, target.cloud().points(), settings);
+    let kernel = RobustKernel::Huber {
+        k_mm: settings.huber_mm,
+    };
+    // Each match's residual with the fit's displacement taken out: `r₀ = r − n·d(c)`.
+    let base: Vec<(Point3, Vector3, f64)> = fitted
+        .par_iter()
+        .filter_map(|m| m.map(|(_, c, n, _, r)| (c, n, r - n.dot(&field.displacement(&c)))))
+        .collect();
+    for pass in 0..CHECK_PASSES {
+        trim_geom::cancel::check()?;
+        let pairs: Vec<(Point3, Vector3, f64, f64)> = base
+            .par_iter()
+            .map(|&(c, n, r0)| {
+                let r = r0 + n.dot(&check.displacement(&c));
+                (c, n, r, kernel.weight(r))
+            })
+            .collect();
+        let (mut h, mut g) = field_normal_equations(&check, &pairs);
+        let mean_diag = h.diagonal().sum() / dim as f64;
+        add_prior(
+            &mut h,
+            &mut g,
+            &check,
+            &prior,
+            settings.smoothness * mean_diag,
+        );
+        for i in 0..dim {
+            h[(i, i)] += FIELD_DAMPING * mean_diag.max(f64::MIN_POSITIVE);
+        }
+        let step = solve_banded_spd(&h, &(-&g), check.bandwidth_with_prior(PRIOR_REACH))
+            .ok_or_else(|| RegisterError::Singular {
+                stage: format!("model check, pass {pass}"),
+                eigenvalues: Vec::new(),
+            })?;
+        if step.iter().any(|v| !v.is_finite()) {
+            return Err(RegisterError::NonFinite {
+                what: format!("model check step, pass {pass}"),
+            });
+        }
+        check.add_step(step.as_slice());
+    }
+    Ok(check)
 }
 
 /// The displacement field alone (CAD frame), and the prior it was fitted under: the
-/// Gauss-Newton iterations of [`fit_field`] without its final matches and posterior (the model
-/// check's second fit needs no more).
-pub(crate) fn solve_field(
+/// Gauss-Newton iterations of [`fit_field`] without its final matches and posterior.
+fn solve_field(
     points: &[Point3],
     target: &IcpTarget,
     shapes: &[LocalShape],

@@ -39,7 +39,7 @@ pub use field_fit::{
     CURVATURE_NEIGHBOURS, EARLY_STRIDE, FIELD_DAMPING, FieldPosterior, LocalShape,
     MATCH_CANDIDATES, MIN_SAME_FACE_COS, POSTERIOR_PRIOR_SCALE, PRIOR_REACH, local_shapes,
 };
-use field_fit::{final_matches, fit_field, move_contour, solve_field};
+use field_fit::{final_matches, fit_field, move_contour};
 pub use quality::{
     BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_MODEL_FACTOR,
     BOUND_RESIDUAL_FACTOR, BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS,
@@ -315,8 +315,7 @@ pub fn register(
             None,
         ),
         Mode::Regional => {
-            // The check field (`quality.model_check`) beside the fit: the Gauss-Newton solves are
-            // serial, so the two share the cores well.
+            // The check field (`quality.model_check`), fitted to the fit's final matches.
             let check_settings = DeformationSettings {
                 spacing_mm: settings.field.spacing_mm * MODEL_CHECK_SPACING_RATIO,
                 ..settings.field
@@ -326,20 +325,16 @@ pub fn register(
             } else {
                 "deformation field"
             };
-            let ((f, m, p), check) = stage(&mut timings, name, || {
-                let cancel = trim_geom::cancel::current();
-                let (fit, check) = rayon::join(
-                    || cancel.run(|| fit_field(&field_points, &target, &shapes, &settings.field)),
-                    || {
-                        settings.quality.model_check.then(|| {
-                            cancel.run(|| {
-                                solve_field(&field_points, &target, &shapes, &check_settings)
-                            })
-                        })
-                    },
-                );
-                Ok((fit?, check.transpose()?.map(|(f, _)| f)))
+            let fit = stage(&mut timings, name, || {
+                fit_field(
+                    &field_points,
+                    &target,
+                    &shapes,
+                    &settings.field,
+                    settings.quality.model_check.then_some(&check_settings),
+                )
             })?;
+            let (f, m, p, check) = (fit.field, fit.matches, fit.posterior, fit.check);
             check_field = check;
             (Some(f), m, p)
         }
