@@ -299,7 +299,7 @@ pub fn predicted_bound_mm(
         * (1.0 + BOUND_COVERAGE_FACTOR * (1.0 - coverage.clamp(0.0, 1.0)))
 }
 
-/// `check`, when given, is the second field fit of `quality.model_check`; its disagreement
+/// `check`, when given, is the check field of `quality.model_check`; its disagreement
 /// with `field` is measured in the scan frame (× the similarity's scale).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn contour_quality(
