@@ -243,10 +243,19 @@ pub(crate) fn fit_field(
             })
         })
         .collect();
-    let check = check
-        .map(|c| check_field(&field, &fitted, target, c))
-        .transpose()?;
-    let posterior = field_posterior(&field, &fitted, &prior, settings);
+    // The check's solves and the posterior's inverse are independent: one core each.
+    let cancel = trim_geom::cancel::current();
+    let (check, posterior) = rayon::join(
+        || {
+            cancel.run(|| {
+                check
+                    .map(|c| check_field(&field, &fitted, target, c))
+                    .transpose()
+            })
+        },
+        || field_posterior(&field, &fitted, &prior, settings),
+    );
+    let check = check?;
     let matches = matched
         .into_iter()
         .zip(points)
