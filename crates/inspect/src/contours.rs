@@ -1,7 +1,7 @@
 //! Where a point lies relative to the path's contours, CAD frame: the nearest contour, the arc
 //! length of its foot on it and its distance from it.
 
-use trim_geom::{Contour, ContourId, KdTree, Path, Point3, UnitVector3};
+use trim_geom::{Contour, ContourId, KdTree, Path, Point3, UnitVector3, Vector3};
 
 use crate::error::{InspectError, Result};
 
@@ -21,6 +21,8 @@ pub struct ContourGeometry {
     pub closed: bool,
     /// The mean feature vector (the face's normal where the contour follows a face's edge).
     pub feature: UnitVector3,
+    /// Each point's unit feature vector.
+    pub features: Vec<Vector3>,
 }
 
 impl ContourGeometry {
@@ -64,6 +66,7 @@ impl ContourGeometry {
             arc_mm,
             closed,
             feature: contour.feature(),
+            features: contour.features().to_vec(),
         })
     }
 
@@ -73,8 +76,9 @@ impl ContourGeometry {
         self.arc_mm.last().copied().unwrap_or(0.0)
     }
 
-    /// The foot of `p` on segment `k` (points `k`, `k + 1`): arc length and distance, mm.
-    fn foot_on(&self, k: usize, p: &Point3) -> (f64, f64) {
+    /// The foot of `p` on segment `k` (points `k`, `k + 1`): arc length, distance and rise (the
+    /// offset of `p` from the foot along the feature vector there, interpolated), mm.
+    fn foot_on(&self, k: usize, p: &Point3) -> (f64, f64, f64) {
         let (a, b) = (self.points[k], self.points[k + 1]);
         let ab = b - a;
         let len2 = ab.norm_squared();
@@ -84,7 +88,14 @@ impl ContourGeometry {
             0.0
         };
         let foot = a + ab * t;
-        (self.arc_mm[k] + t * len2.sqrt(), (p - foot).norm())
+        let feature = (self.features[k] * (1.0 - t) + self.features[k + 1] * t)
+            .try_normalize(1e-12)
+            .unwrap_or(*self.feature);
+        (
+            self.arc_mm[k] + t * len2.sqrt(),
+            (p - foot).norm(),
+            (p - foot).dot(&feature),
+        )
     }
 }
 
@@ -98,6 +109,9 @@ pub struct Location {
     pub arc_mm: f64,
     /// Distance from the contour (its nearest segment), mm.
     pub distance_mm: f64,
+    /// Offset from the foot along the contour's feature vector there, mm (positive: above the
+    /// face whose edge the contour follows).
+    pub rise_mm: f64,
 }
 
 /// The path's contours with a kd-tree over their points.
@@ -151,7 +165,7 @@ impl PathIndex {
         let (c, k) = (c as usize, k as usize);
         let g = &self.contours[c];
         let segments = g.points.len() - 1;
-        let mut best = (f64::NAN, f64::INFINITY);
+        let mut best = (f64::NAN, f64::INFINITY, 0.0);
         for s in [k.wrapping_sub(1), k, k + 1] {
             if s < segments {
                 let f = g.foot_on(s, p);
@@ -164,6 +178,7 @@ impl PathIndex {
             contour: c,
             arc_mm: best.0,
             distance_mm: best.1,
+            rise_mm: best.2,
         })
     }
 }
@@ -206,5 +221,11 @@ mod tests {
             .locate(&Point3::new(5.0, 0.2, 0.1), 0.5)
             .unwrap_or_else(|| panic!("not located"));
         assert!((l.arc_mm - 5.0).abs() < 1e-12, "{l:?}");
+        // Above the face (the feature is +Z) by 0.1 mm.
+        assert!((l.rise_mm - 0.1).abs() < 1e-12, "{l:?}");
+        let below = index
+            .locate(&Point3::new(10.2, 3.0, -0.05), 0.5)
+            .unwrap_or_else(|| panic!("not located"));
+        assert!((below.rise_mm + 0.05).abs() < 1e-12, "{below:?}");
     }
 }

@@ -12,7 +12,8 @@
 //! - [`contours`]: where a point lies relative to the path's contours (nearest contour, arc
 //!   length, lateral distance).
 //! - [`crop`]: the scan points near the registered contours and openings.
-//! - [`height`]: a bin's excess height, the web's free edge fitted to its noisy readings.
+//! - [`height`]: the height of excess along a contour, each web's free edge fitted to the
+//!   distances and rises of its points (one height per web).
 //! - [`measure`]: the per-contour measurement (excess, gouge, coverage) and [`inspect`].
 //! - [`opening`]: the share of a hole or slot still covered.
 //! - [`verdict`]: the uncertainty and the decision rule.

@@ -5,12 +5,14 @@
 //! 2. *Map* them into the CAD frame through the fit ([`Placement::cad_from_scan_point`]).
 //! 3. *Distance*: each mapped point within `band_mm` of a contour gets its signed distance to
 //!    the CAD mesh (parry's closest point, inside or outside by the pseudo-normal there:
-//!    [`SignedMesh`]; positive outside the material).
+//!    [`SignedMesh`]; positive outside the material), and its rise above the face along the
+//!    contour's feature vector.
 //! 4. *Noise* σ: given, or 1.4826 × the median absolute deviation of the distances within
 //!    0.1 mm of the surface.
 //! 5. *Bins*, equal and at most `bin_length_mm` long, along each contour. A bin has *excess* when at least
 //!    `min_points` points stand more than `noise_factor·σ` outside the material; its height is
-//!    the web's free edge fitted to those readings and its neighbours' ([`crate::height`]).
+//!    that of the web it belongs to, whose free edge is fitted to the readings (distance and
+//!    rise above the face) of all its bins ([`crate::height::web_heights_mm`]).
 //!    *Gouge* alike inside, its depth the `min_points`-th largest reading. A bin is *covered*
 //!    when it holds `min_bin_points` points.
 //! 6. Per contour: `excess_height_um` the largest bin height (0 when no bin has excess),
@@ -29,7 +31,7 @@ use trim_geom::{ContourId, KdTree, Path, Point3};
 use crate::contours::PathIndex;
 use crate::crop::Crop;
 use crate::error::{InspectError, Result};
-use crate::height::edge_height_mm;
+use crate::height::{Reading, web_heights_mm};
 use crate::opening::{Opening, covered_share, opening_of};
 use crate::placement::Placement;
 use crate::settings::InspectSettings;
@@ -42,12 +44,6 @@ pub const NOISE_WINDOW_MM: f64 = 0.1;
 /// rounding error excess).
 pub const MIN_NOISE_UM: f64 = 0.5;
 
-/// A bin's excess height is fitted on its readings and those of this many bins either side.
-const POOL_BINS: usize = 1;
-
-/// …when their robust tops (the `min_points`-th largest reading) differ by at most this many σ.
-const POOL_SIMILAR_SIGMA: f64 = 4.0;
-
 /// Spacing of the crop's points along the registered contours, mm.
 const CROP_STEP_MM: f64 = 0.1;
 
@@ -58,9 +54,9 @@ pub struct ExcessBin {
     pub start_mm: f64,
     /// End along the contour, mm.
     pub end_mm: f64,
-    /// The bin's height, µm: for excess the fitted free edge of the web ([`crate::height`],
-    /// on the bin's readings and those of its neighbours with a similar top); for gouge the
-    /// `min_points`-th largest depth.
+    /// The bin's height, µm: for excess the fitted free edge of the web the bin belongs to
+    /// ([`crate::height::web_heights_mm`], on the readings of all of that web's bins); for
+    /// gouge the `min_points`-th largest depth.
     pub height_um: f64,
     /// Points clearly above the noise in the bin.
     pub points: usize,
@@ -122,6 +118,7 @@ struct Sample {
     contour: u32,
     arc_mm: f64,
     distance_mm: f64,
+    rise_mm: f64,
 }
 
 /// The CAD surface for signed distances: parry's mesh with pseudo-normals (the angle-weighted
@@ -271,6 +268,7 @@ pub fn inspect(
                 contour: u32::try_from(l.contour).unwrap_or(u32::MAX),
                 arc_mm: l.arc_mm,
                 distance_mm: signed.distance(p),
+                rise_mm: l.rise_mm,
             })
         })
         .collect();
@@ -321,55 +319,36 @@ pub fn inspect(
             }
             let above = beyond(samples, threshold_mm, 1.0, n_bins, &bin_of);
             let below = beyond(samples, threshold_mm, -1.0, n_bins, &bin_of);
-            let (mut above, mut below) = (above, below);
-            let pool = above.clone();
-            let bins =
-                |lists: &mut [Vec<f64>], height: &dyn Fn(usize, &[f64]) -> f64| -> Vec<ExcessBin> {
-                    lists
-                        .iter_mut()
-                        .enumerate()
-                        .filter(|(_, l)| l.len() >= settings.min_points)
-                        .map(|(b, l)| {
-                            l.sort_by(|x, y| y.total_cmp(x));
-                            ExcessBin {
-                                start_mm: b as f64 * bin_mm,
-                                end_mm: ((b + 1) as f64 * bin_mm).min(length_mm),
-                                height_um: height(b, l) * 1e3,
-                                points: l.len(),
-                            }
-                        })
-                        .collect()
-                };
-            // Excess: the web's free edge fitted (crate::height); gouge: the robust top.
-            // A neighbour's readings join only when its own robust top is within
-            // POOL_SIMILAR_SIGMA·σ of the bin's (the same web, not the next burr).
-            let rank_top = |l: &[f64]| {
-                let mut v = l.to_vec();
-                v.sort_by(|x, y| y.total_cmp(x));
-                v.get(settings.min_points - 1).copied()
-            };
-            let tops: Vec<Option<f64>> = pool.iter().map(|l| rank_top(l)).collect();
-            let edge = |b: usize, l: &[f64]| {
-                let own = tops[b];
-                let near: Vec<f64> = (b.saturating_sub(POOL_BINS)..(b + POOL_BINS + 1).min(n_bins))
-                    .filter(|&k| {
-                        k == b
-                            || matches!((own, tops[k]), (Some(o), Some(t))
-                                if (o - t).abs() <= POOL_SIMILAR_SIGMA * noise_um * 1e-3)
+            // Excess: the webs' free edges fitted along the contour (crate::height), one
+            // height per web; gouge: the robust top.
+            let heights = web_heights_mm(
+                &above,
+                g.closed,
+                noise_um * 1e-3,
+                threshold_mm,
+                settings.band_mm,
+                settings.min_points,
+            );
+            let bins = |lists: &[Vec<Reading>], height: &dyn Fn(usize, &[f64]) -> f64| {
+                lists
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, l)| l.len() >= settings.min_points)
+                    .map(|(b, l)| {
+                        let mut distances: Vec<f64> = l.iter().map(|r| r.distance_mm).collect();
+                        distances.sort_by(|x, y| y.total_cmp(x));
+                        ExcessBin {
+                            start_mm: b as f64 * bin_mm,
+                            end_mm: ((b + 1) as f64 * bin_mm).min(length_mm),
+                            height_um: height(b, &distances) * 1e3,
+                            points: l.len(),
+                        }
                     })
-                    .flat_map(|k| pool[k].iter().copied())
-                    .collect();
-                edge_height_mm(
-                    &near,
-                    noise_um * 1e-3,
-                    threshold_mm,
-                    settings.band_mm,
-                    settings.min_points,
-                )
-                .unwrap_or(l[settings.min_points - 1])
+                    .collect::<Vec<ExcessBin>>()
             };
-            let excess_bins = bins(&mut above, &edge);
-            let gouge_bins = bins(&mut below, &|_, l: &[f64]| l[settings.min_points - 1]);
+            let robust_top = |_: usize, l: &[f64]| l[settings.min_points - 1];
+            let excess_bins = bins(&above, &|b, l| heights[b].unwrap_or(robust_top(b, l)));
+            let gouge_bins = bins(&below, &robust_top);
             let top = |b: &[ExcessBin]| b.iter().map(|x| x.height_um).fold(0.0, f64::max);
             // Summed from +0 (an empty f64 sum is −0).
             let span = |b: &[ExcessBin]| b.iter().fold(0.0, |acc, x| acc + (x.end_mm - x.start_mm));
@@ -418,22 +397,25 @@ pub fn inspect(
     })
 }
 
-/// The distances (`side` +1: outside the material, −1: inside, read positive) of the points
-/// standing beyond the noise threshold on that side, binned along the contour. Each point reads
-/// its own distance: a neighbourhood median was tried to take the noise off a web's top and read
-/// the tops 15–40 µm low (DESIGN.md "Inspection").
+/// The readings (`side` +1: outside the material, −1: inside, distances read positive) of the
+/// points standing beyond the noise threshold on that side, binned along the contour. Each
+/// point reads its own distance: a neighbourhood median was tried to take the noise off a web's
+/// top and read the tops 15–40 µm low (DESIGN.md "Inspection").
 fn beyond(
     samples: &[Sample],
     threshold_mm: f64,
     side: f64,
     n_bins: usize,
     bin_of: &dyn Fn(f64) -> usize,
-) -> Vec<Vec<f64>> {
-    let mut bins: Vec<Vec<f64>> = vec![Vec::new(); n_bins];
+) -> Vec<Vec<Reading>> {
+    let mut bins: Vec<Vec<Reading>> = vec![Vec::new(); n_bins];
     for s in samples {
         let d = side * s.distance_mm;
         if d > threshold_mm {
-            bins[bin_of(s.arc_mm)].push(d);
+            bins[bin_of(s.arc_mm)].push(Reading {
+                distance_mm: d,
+                rise_mm: s.rise_mm,
+            });
         }
     }
     bins
@@ -525,14 +507,15 @@ mod tests {
     fn a_web_off_the_edge_is_excess_as_tall_as_its_reach() {
         let (mesh, path) = case();
         let mut scan = clean_scan();
-        // A web 0.2 mm out of the front wall from x = 4 to 6, flush with the top face.
+        // A web 0.2 mm out of the front wall from x = 4 to 6, flush with the top face and
+        // 0.05 mm thick: its upper side and its free edge.
         for i in 0..40 {
+            let x = 4.0 + 0.05 * f64::from(i);
             for j in 1..=8 {
-                scan.push(Point3::new(
-                    4.0 + 0.05 * f64::from(i),
-                    -0.025 * f64::from(j),
-                    0.0,
-                ));
+                scan.push(Point3::new(x, -0.025 * f64::from(j), 0.0));
+            }
+            for k in 1..=5 {
+                scan.push(Point3::new(x, -0.2, -0.01 * f64::from(k)));
             }
         }
         let settings = InspectSettings {
