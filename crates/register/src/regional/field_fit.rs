@@ -294,7 +294,6 @@ fn check_field(
         &(bounds.max + pad),
         settings.spacing_mm,
     );
-    let dim = 3 * check.len();
     let prior = prior_terms(&check, target.cloud().points(), settings);
     let kernel = RobustKernel::Huber {
         k_mm: settings.huber_mm,
@@ -313,29 +312,13 @@ fn check_field(
                 (c, n, r, kernel.weight(r))
             })
             .collect();
-        let (mut h, mut g) = field_normal_equations(&check, &pairs);
-        let mean_diag = h.diagonal().sum() / dim as f64;
-        add_prior(
-            &mut h,
-            &mut g,
-            &check,
+        damped_step(
+            &mut check,
+            &pairs,
             &prior,
-            settings.smoothness * mean_diag,
-        );
-        for i in 0..dim {
-            h[(i, i)] += FIELD_DAMPING * mean_diag.max(f64::MIN_POSITIVE);
-        }
-        let step = solve_banded_spd(&h, &(-&g), check.bandwidth_with_prior(PRIOR_REACH))
-            .ok_or_else(|| RegisterError::Singular {
-                stage: format!("model check, pass {pass}"),
-                eigenvalues: Vec::new(),
-            })?;
-        if step.iter().any(|v| !v.is_finite()) {
-            return Err(RegisterError::NonFinite {
-                what: format!("model check step, pass {pass}"),
-            });
-        }
-        check.add_step(step.as_slice());
+            settings.smoothness,
+            &format!("model check, pass {pass}"),
+        )?;
     }
     Ok(check)
 }
@@ -358,7 +341,6 @@ fn solve_field(
         &(bounds.max + pad),
         settings.spacing_mm,
     );
-    let dim = 3 * field.len();
     let prior = prior_terms(&field, target.cloud().points(), settings);
     let kernel = RobustKernel::Huber {
         k_mm: settings.huber_mm,
@@ -397,33 +379,50 @@ fn solve_field(
                 max_distance_mm: max_d,
             });
         }
-        let (mut h, mut g) = field_normal_equations(&field, &pairs);
-        let mean_diag = h.diagonal().sum() / dim as f64;
-        add_prior(
-            &mut h,
-            &mut g,
-            &field,
+        damped_step(
+            &mut field,
+            &pairs,
             &prior,
-            settings.smoothness * mean_diag,
-        );
-        // Levenberg-Marquardt damping: directions neither the data nor the prior fix (control
-        // points far from the scan) take no step instead of an arbitrary one.
-        for i in 0..dim {
-            h[(i, i)] += FIELD_DAMPING * mean_diag.max(f64::MIN_POSITIVE);
-        }
-        let step = solve_banded_spd(&h, &(-&g), field.bandwidth_with_prior(PRIOR_REACH))
-            .ok_or_else(|| RegisterError::Singular {
-                stage: format!("deformation field, iteration {it}"),
-                eigenvalues: Vec::new(),
-            })?;
-        if step.iter().any(|v| !v.is_finite()) {
-            return Err(RegisterError::NonFinite {
-                what: format!("deformation field step, iteration {it}"),
-            });
-        }
-        field.add_step(step.as_slice());
+            settings.smoothness,
+            &format!("deformation field, iteration {it}"),
+        )?;
     }
     Ok((field, prior))
+}
+
+/// One damped Gauss-Newton step of `field` on the weighted point-to-plane `pairs` under the
+/// smoothness `prior` (weight `smoothness` × the mean data weight per unknown), applied to it.
+/// Levenberg-Marquardt damping: directions neither the data nor the prior fix (control points
+/// far from the scan) take no step instead of an arbitrary one. `stage` names the step in an
+/// error.
+fn damped_step(
+    field: &mut BSplineField,
+    pairs: &[(Point3, Vector3, f64, f64)],
+    prior: &[PriorTerm],
+    smoothness: f64,
+    stage: &str,
+) -> Result<()> {
+    let dim = 3 * field.len();
+    let (mut h, mut g) = field_normal_equations(field, pairs);
+    let mean_diag = h.diagonal().sum() / dim as f64;
+    add_prior(&mut h, &mut g, field, prior, smoothness * mean_diag);
+    for i in 0..dim {
+        h[(i, i)] += FIELD_DAMPING * mean_diag.max(f64::MIN_POSITIVE);
+    }
+    let step =
+        solve_banded_spd(&h, &(-&g), field.bandwidth_with_prior(PRIOR_REACH)).ok_or_else(|| {
+            RegisterError::Singular {
+                stage: stage.to_string(),
+                eigenvalues: Vec::new(),
+            }
+        })?;
+    if step.iter().any(|v| !v.is_finite()) {
+        return Err(RegisterError::NonFinite {
+            what: format!("{stage}: step"),
+        });
+    }
+    field.add_step(step.as_slice());
+    Ok(())
 }
 
 /// The posterior that bounds a contour's error is taken under this fraction of the fit's prior
