@@ -284,17 +284,7 @@ fn check_field(
     target: &IcpTarget,
     settings: &DeformationSettings,
 ) -> Result<BSplineField> {
-    let bounds = target
-        .cloud()
-        .bounds()
-        .ok_or(RegisterError::EmptyCloud { which: "CAD" })?;
-    let pad = Vector3::repeat(0.25 * settings.spacing_mm);
-    let mut check = BSplineField::zero(
-        &(bounds.min - pad),
-        &(bounds.max + pad),
-        settings.spacing_mm,
-    );
-    let prior = prior_terms(&check, target.cloud().points(), settings);
+    let (mut check, prior) = zero_field(target, settings)?;
     let kernel = RobustKernel::Huber {
         k_mm: settings.huber_mm,
     };
@@ -331,17 +321,7 @@ fn solve_field(
     shapes: &[LocalShape],
     settings: &DeformationSettings,
 ) -> Result<(BSplineField, Vec<PriorTerm>)> {
-    let bounds = target
-        .cloud()
-        .bounds()
-        .ok_or(RegisterError::EmptyCloud { which: "CAD" })?;
-    let pad = Vector3::repeat(0.25 * settings.spacing_mm);
-    let mut field = BSplineField::zero(
-        &(bounds.min - pad),
-        &(bounds.max + pad),
-        settings.spacing_mm,
-    );
-    let prior = prior_terms(&field, target.cloud().points(), settings);
+    let (mut field, prior) = zero_field(target, settings)?;
     let kernel = RobustKernel::Huber {
         k_mm: settings.huber_mm,
     };
@@ -387,6 +367,26 @@ fn solve_field(
             &format!("deformation field, iteration {it}"),
         )?;
     }
+    Ok((field, prior))
+}
+
+/// The zero field over the CAD (its bounds padded by a quarter of the control spacing) and
+/// its smoothness prior: where the fit and the model check start.
+fn zero_field(
+    target: &IcpTarget,
+    settings: &DeformationSettings,
+) -> Result<(BSplineField, Vec<PriorTerm>)> {
+    let bounds = target
+        .cloud()
+        .bounds()
+        .ok_or(RegisterError::EmptyCloud { which: "CAD" })?;
+    let pad = Vector3::repeat(0.25 * settings.spacing_mm);
+    let field = BSplineField::zero(
+        &(bounds.min - pad),
+        &(bounds.max + pad),
+        settings.spacing_mm,
+    );
+    let prior = prior_terms(&field, target.cloud().points(), settings);
     Ok((field, prior))
 }
 

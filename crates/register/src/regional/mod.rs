@@ -334,9 +334,8 @@ pub fn register(
                     settings.quality.model_check.then_some(&check_settings),
                 )
             })?;
-            let (f, m, p, check) = (fit.field, fit.matches, fit.posterior, fit.check);
-            check_field = check;
-            (Some(f), m, p)
+            check_field = fit.check;
+            (Some(fit.field), fit.matches, fit.posterior)
         }
     };
 

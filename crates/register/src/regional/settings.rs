@@ -219,7 +219,8 @@ pub struct QualitySettings {
     /// Fit the field a second time with its control points at 0.75× the spacing and widen each
     /// contour's bound by how far the two fits disagree on it (`model_disagreement_mm`): where
     /// the data fix the contour they agree; where the smoothness prior decides (a corner with
-    /// little data, an end the scanner barely saw) they do not. Costs three linear solves (to the fit's final matches).
+    /// little data, an end the scanner barely saw) they do not. The second fit holds the first
+    /// one's final matches fixed: one linear solve per Gauss-Newton step of the first.
     pub model_check: bool,
 }
 
