@@ -1,8 +1,8 @@
 //! The coarse similarity (DESIGN.md "Registration", steps 2–3). The *capture* fits starts from
 //! the fixture's nominal pose at the pyramid's top level, scores each by how much of the scan it
 //! lays on the CAD, keeps the best and refuses it when it puts the part beyond the capture range;
-//! the *refinement* then runs scan → CAD point-to-plane ICP with scale down the rest of the voxel
-//! pyramid.
+//! the *refinement* then runs scan → CAD point-to-plane ICP with scale down the whole voxel
+//! pyramid again, against the CAD culled at the captured pose.
 
 use super::settings::{CoarseInit, CoarseSettings};
 use crate::error::{RegisterError, Result};
@@ -238,8 +238,12 @@ pub fn capture(
     })
 }
 
-/// The refinement: the pyramid's levels below the top, from the capture's fit (scale freed at
-/// the finest level). The result's `iterations` count the top level's too.
+/// The refinement: every level of the pyramid against `target` (the CAD the scanner saw, culled
+/// at the captured pose), from the capture's fit (scale freed at the finest level). The top
+/// level is fitted again: the capture's CAD was culled at the *nominal* pose, and on a one-view
+/// scan that culling alone decided which pose along the span the top level settled in (seed
+/// 202 of the project's core slid 2.1 mm, beyond the finer levels' reach). The result's
+/// `iterations` count the capture's too.
 pub fn refine(
     scan: &VoxelPyramid<'_>,
     target: &IcpTarget,
@@ -248,7 +252,7 @@ pub fn refine(
 ) -> Result<IcpResult> {
     let mut result = captured.fit.clone();
     let mut iterations = result.iterations;
-    for (k, level) in settings.levels.iter().enumerate().skip(1) {
+    for (k, level) in settings.levels.iter().enumerate() {
         let source =
             PointCloud::new(scan.dense_centroids(level.voxel_mm, settings.min_voxel_points)?)?;
         let last = k + 1 == settings.levels.len();
