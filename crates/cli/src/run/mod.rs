@@ -30,7 +30,7 @@ use crate::summary;
 
 use execute::{TwinLink, execute, twin_link};
 pub(crate) use execute::{connect, start_simulators};
-use inputs::load_inputs;
+use inputs::{DemoSpec, load_inputs};
 pub(crate) use report::SpotReport;
 use report::{
     BeamBlock, RunNotes, append_resume_report, shutdown_of, shutdown_sentence, write_report,
@@ -352,7 +352,12 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let (config, run_dir) = open_run(args)?;
     let spinner = stage("loading the part");
-    let inputs = load_inputs(&config, args, &run_dir)?;
+    let demo = DemoSpec {
+        seed: args.demo_seed,
+        blockages: args.demo_blockages,
+        burred: args.verify || config.plan.trim.only_detected,
+    };
+    let inputs = load_inputs(&config, &demo, &run_dir, true)?;
     drop(spinner);
     timings.load_s = t0.elapsed().as_secs_f64();
     println!("part: {}", inputs.description);
