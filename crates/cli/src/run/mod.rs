@@ -776,7 +776,8 @@ fn pair(p95: Option<f64>, max: Option<f64>) -> String {
 
 /// The job read (overrides applied) and the run folder made, with the run's own copy of the
 /// field correction it uses (the Job records its checksum), so the folder alone can be resumed
-/// and audited, and the effective job file naming that copy relative to itself.
+/// and audited, and the effective job file naming that copy relative to itself and the part's
+/// other files absolutely.
 fn open_run(args: &Args) -> anyhow::Result<(JobConfig, PathBuf)> {
     let mut config = match &args.job {
         Some(p) => JobConfig::load(p)?,
@@ -797,6 +798,29 @@ fn open_run(args: &Args) -> anyhow::Result<(JobConfig, PathBuf)> {
     let mut effective = config.clone();
     if effective.plan.calibration.field_correction.is_some() {
         effective.plan.calibration.field_correction = Some(PathBuf::from(files::FIELD));
+    }
+    // The files the job names are read relative to the job file, and the run folder's copy
+    // lies elsewhere: it names them absolutely, so a resume finds them (a `--verify` run's
+    // loop loads the part again, the twin reads `[sim.truth] path`).
+    let part = &mut effective.part;
+    for (key, file) in [
+        ("part.cad", &mut part.cad),
+        ("part.path", &mut part.path),
+        ("part.scan", &mut part.scan),
+        ("sim.truth.path", &mut effective.sim.truth.path),
+    ] {
+        if let Some(f) = file {
+            *f = std::path::absolute(&*f)
+                .with_context(|| format!("{key}: cannot make {} absolute", f.display()))?;
+        }
+    }
+    for (i, h) in effective.hatch.iter_mut().enumerate() {
+        h.boundary = std::path::absolute(&h.boundary).with_context(|| {
+            format!(
+                "hatch[{i}].boundary: cannot make {} absolute",
+                h.boundary.display()
+            )
+        })?;
     }
     std::fs::write(
         run_dir.join(files::JOB),
