@@ -236,6 +236,9 @@ fn killed_run_resumes_without_marking_a_layer_twice() {
     resume_marks_each_layer_once(&out, &planned);
 }
 
+/// A `--verify` run killed (SIGKILL) inside its first retrim, resumed from the retrim's folder:
+/// the resume names the run it continues, finishes the retrim from its journal and goes on
+/// with the loop to the end, as an uninterrupted run does.
 #[test]
 fn a_retrim_killed_midway_resumes_from_its_own_folder_without_marking_a_layer_twice() {
     let tmp = tempfile::tempdir().unwrap();
@@ -254,7 +257,148 @@ fn a_retrim_killed_midway_resumes_from_its_own_folder_without_marking_a_layer_tw
         layers_done(&retrim).len() < planned.len(),
         "the kill came after the retrim's last layer"
     );
-    resume_marks_each_layer_once(&retrim, &planned);
+    // Inspection 1 is recorded (its retrim was planned before it was), nothing after it.
+    assert_eq!(verify_rounds(&out).len(), 1);
+    let stderr = resume_marks_each_layer_once(&retrim, &planned);
+    assert!(
+        stderr.contains("is retrim 1 of the --verify run"),
+        "{stderr}"
+    );
+    verify_loop_ended_once(&out);
+    // The retrim's resume is its own folder's: report, summary and record.
+    let report = std::fs::read_to_string(retrim.join("report.md")).expect("retrim_1/report.md");
+    assert!(report.contains("## Resume 1"), "{report}");
+    assert!(retrim.join("run.resume-1.mcap").is_file());
+}
+
+/// A `--verify` run killed (SIGKILL) inside its job, resumed with `--resume RUN`: the job is
+/// finished from its journal, then the loop runs from inspection 1 to the end, as an
+/// uninterrupted run does.
+#[test]
+fn a_verify_run_killed_in_its_job_resumes_to_the_end_of_its_loop() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let child = spawn_real_time_run(&["--verify"], &out);
+    kill_when(
+        child,
+        || layers_done(&out).len() >= 2,
+        RUN_TIMEOUT,
+        "its job could be killed midway",
+    );
+    let planned = planned_layers(&out);
+    assert!(
+        layers_done(&out).len() < planned.len(),
+        "the kill came after the job's last layer"
+    );
+    assert!(!out.join("verify.json").exists() && !out.join("verify_1").exists());
+    let state: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("verify_state.json")).expect("verify_state.json"),
+    )
+    .expect("verify_state.json is JSON");
+    assert_eq!(state["rounds"], 2, "{state}");
+    assert_eq!(state["demo"]["seed"], 1, "{state}");
+    resume_marks_each_layer_once(&out, &planned);
+    verify_loop_ended_once(&out);
+    assert!(out.join("run.resume-1.mcap").is_file());
+    assert!(out.join("retrim_1").join("run.mcap").is_file());
+
+    // A corrupt state, or landed cuts gone, is refused naming the file, before anything moves.
+    for (name, spoil, says) in [
+        (
+            "corrupt-state",
+            "verify_state.json",
+            "verify_state.json: not the state of a --verify run",
+        ),
+        (
+            "no-cuts",
+            "retrim_1/twin_cuts.jsonl",
+            "retrim_1/twin_cuts.jsonl is missing",
+        ),
+    ] {
+        let copy = tmp.path().join(name);
+        copy_dir(&out, &copy);
+        if spoil.ends_with(".jsonl") {
+            std::fs::remove_file(copy.join(spoil)).unwrap();
+        } else {
+            std::fs::write(copy.join(spoil), "{\"version\": 1, \"rou").unwrap();
+        }
+        let journal = std::fs::read_to_string(copy.join("journal.jsonl")).unwrap();
+        let result = Command::new(TRIMCTL)
+            .args(["run", "--sim-time-scale", "0.01", "--resume"])
+            .arg(&copy)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&result.stderr);
+        assert_eq!(result.status.code(), Some(1), "{name}: {stderr}");
+        assert!(stderr.contains(says), "{name}: {says:?} missing: {stderr}");
+        assert_eq!(
+            std::fs::read_to_string(copy.join("journal.jsonl")).unwrap(),
+            journal
+        );
+    }
+}
+
+/// The end of a `--verify` run on the demo, after a kill and a resume, is the uninterrupted
+/// run's: after one retrim every contour passes inspection; verify.json lists inspections 1, 2
+/// once each and summary.json's `verify` is the same; report.md holds the loop's section once,
+/// a row per round; every planned layer of the job and of each retrim finished exactly once.
+fn verify_loop_ended_once(out: &Path) {
+    let rounds = verify_rounds(out);
+    let inspections: Vec<u64> = rounds
+        .iter()
+        .map(|r| r["inspection"].as_u64().expect("an inspection number"))
+        .collect();
+    assert_eq!(inspections, [1, 2], "{rounds:?}");
+    assert_eq!(rounds[0]["retrimmed"], true, "{:?}", rounds[0]);
+    let last = rounds.last().expect("a round");
+    let contours = inspected(&out.join("verify_2"));
+    assert_eq!(contours.len(), 52);
+    assert_eq!(last["pass"], 52, "{last:?}");
+    assert_eq!(
+        (last["fail"].as_u64(), last["undecided"].as_u64()),
+        (Some(0), Some(0))
+    );
+    assert!(contours.values().all(|c| c["verdict"] == "pass"));
+    assert!(
+        last["true_residual_max_um"]
+            .as_f64()
+            .expect("the twin's truth")
+            <= SPOT_TOLERANCE_UM,
+        "{last:?}"
+    );
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("summary.json")).expect("summary.json"),
+    )
+    .expect("summary.json is JSON");
+    assert_eq!(summary["verify"], serde_json::Value::Array(rounds.clone()));
+    let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    assert_eq!(
+        report.matches("## Verify and retrim").count(),
+        1,
+        "{report}"
+    );
+    let section = &report[report
+        .find("## Verify and retrim")
+        .expect("the loop's section")..];
+    for k in [1, 2] {
+        assert_eq!(
+            section
+                .lines()
+                .filter(|l| l.starts_with(&format!("| {k} |")))
+                .count(),
+            1,
+            "{section}"
+        );
+    }
+    assert!(!out.join("retrim_2").exists() && !out.join("verify_3").exists());
+    for dir in [out.to_path_buf(), out.join("retrim_1")] {
+        let done = layers_done(&dir);
+        let planned = planned_layers(&dir);
+        assert_eq!(done.len(), planned.len(), "{}: {done:?}", dir.display());
+        for key in &planned {
+            assert_eq!(done.get(key), Some(&1), "{}: layer {key:?}", dir.display());
+        }
+    }
 }
 
 /// `trimctl run ARGS --out OUT` on the demo with real-time simulated devices, started in the
@@ -292,8 +436,8 @@ fn kill_when(
 }
 
 /// `trimctl run --resume DIR --cut-layer redo` on fast devices succeeds, and then every layer in
-/// `planned` has finished exactly once in DIR's journal.
-fn resume_marks_each_layer_once(dir: &Path, planned: &[(u64, u64)]) {
+/// `planned` has finished exactly once in DIR's journal; its stderr.
+fn resume_marks_each_layer_once(dir: &Path, planned: &[(u64, u64)]) -> String {
     let result = Command::new(TRIMCTL)
         .args([
             "run",
@@ -323,6 +467,7 @@ fn resume_marks_each_layer_once(dir: &Path, planned: &[(u64, u64)]) {
             after.get(key)
         );
     }
+    String::from_utf8_lossy(&result.stderr).into_owned()
 }
 
 #[test]

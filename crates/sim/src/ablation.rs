@@ -55,8 +55,10 @@ pub struct TrueEdge {
     pub burr_thickness_mm: Vec<f64>,
 }
 
-/// A landed mark vector: the segment the beam drew on the part (work-piece frame).
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// A landed mark vector: the segment the beam drew on the part (work-piece frame). Its serde
+/// form (`{"from": [x, y, z], "to": [x, y, z]}`, mm) is what `trimctl run --verify` keeps of
+/// a run's cuts, so a resumed run can trim a fresh part by them again.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct LandedCut {
     /// Where the vector started.
     pub from: Point3,

@@ -220,6 +220,9 @@ pub struct Spot {
 /// Where the machine is: the CNC position `[X, Y, Z, A, B, C]` and whether it is in TCP mode.
 pub type PoseSource = Box<dyn Fn() -> ([f64; 6], bool) + Send + Sync>;
 
+/// Where each landed cut goes as it lands, besides the twin's own list ([`Twin::on_cut`]).
+pub type CutSink = Box<dyn FnMut(&LandedCut) + Send>;
+
 /// The twin: the true cell, the true part and the spots landed so far.
 pub struct Twin {
     cell: TrueCell,
@@ -227,6 +230,7 @@ pub struct Twin {
     pose: Mutex<Option<PoseSource>>,
     spots: Mutex<Vec<Spot>>,
     cuts: Mutex<Vec<LandedCut>>,
+    cut_sink: Mutex<Option<CutSink>>,
     blocked: Mutex<BeamBlock>,
 }
 
@@ -260,6 +264,7 @@ impl Twin {
             pose: Mutex::new(None),
             spots: Mutex::new(Vec::new()),
             cuts: Mutex::new(Vec::new()),
+            cut_sink: Mutex::new(None),
             blocked: Mutex::new(BeamBlock::default()),
         })
     }
@@ -357,18 +362,38 @@ impl Twin {
             }
         }
         if let [from, to] = out.as_slice() {
+            let cut = LandedCut {
+                from: Point3::from(from.landed_mm),
+                to: Point3::from(to.landed_mm),
+            };
             self.cuts
                 .lock()
                 .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .push(LandedCut {
-                    from: Point3::from(from.landed_mm),
-                    to: Point3::from(to.landed_mm),
-                });
+                .push(cut);
+            if let Some(sink) = self
+                .cut_sink
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .as_mut()
+            {
+                sink(&cut);
+            }
         }
         self.spots
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
             .extend(out);
+    }
+
+    /// Hands every cut landed from now on to `sink` as it lands (replacing an earlier sink),
+    /// before the galvo's list goes on: the sink has seen a layer's cuts before the galvo
+    /// reports the layer done. `trimctl run --verify` keeps them in the run folder this way,
+    /// so a run killed midway loses none of what landed.
+    pub fn on_cut(&self, sink: CutSink) {
+        *self
+            .cut_sink
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(sink);
     }
 
     /// Every mark vector landed so far, as the segment it drew on the true part (a vector
@@ -498,6 +523,36 @@ mod tests {
         clear.attach_cnc(Box::new(|| ([0.0, 2.0, 1.0, 0.0, 0.0, 0.0], true)));
         clear.on_mark(1, 0, bits(0.0), bits(0.5));
         assert_eq!((clear.cuts().len(), clear.marks_blocked()), (1, 0));
+    }
+
+    /// The sink sees every landed cut, in order, as the twin's own list has it (a blocked
+    /// beam's vectors neither), and its serde form reads back the same cut.
+    #[test]
+    fn the_cut_sink_sees_every_landed_cut_as_it_lands() {
+        let plan = PlanSettings::default();
+        let twin = Twin::new(
+            TrueCell::new(&TruthSettings::default(), &plan),
+            TruePart::new(&line_part()),
+        );
+        twin.attach_cnc(Box::new(|| ([0.0, 2.0, 1.0, 0.0, 0.0, 0.0], true)));
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let into = Arc::clone(&seen);
+        twin.on_cut(Box::new(move |c| {
+            into.lock().expect("the test's lock").push(*c);
+        }));
+        twin.block_beam(2);
+        let bits = |x_mm: f64| [(x_mm * twin.cell().bits_per_mm).round() as i32, 0];
+        for (tag, vectors) in [(1, 2), (2, 3), (3, 1)] {
+            for v in 0..vectors {
+                twin.on_mark(tag, v, bits(f64::from(v)), bits(f64::from(v) + 0.5));
+            }
+        }
+        let seen = seen.lock().expect("the test's lock").clone();
+        assert_eq!(seen, twin.cuts());
+        assert_eq!(seen.len(), 3);
+        let text = serde_json::to_string(&seen[1]).expect("a cut serialises");
+        let back: LandedCut = serde_json::from_str(&text).expect("and reads back");
+        assert_eq!(back, seen[1]);
     }
 
     #[test]

@@ -9,7 +9,7 @@ use trim_geom::math::Similarity3;
 use trim_geom::{Path as TrimPath, PointCloud};
 use trim_synth::{SynthParams, generate};
 
-use super::{Args, files};
+use super::files;
 use crate::cad::load_cad;
 use crate::config::{HatchRegion, JobConfig};
 
@@ -43,27 +43,44 @@ pub(super) struct DemoPart {
 /// The share of the demo's contours that carry burrs under `--verify` or `[trim] only_detected`.
 pub const DEMO_VERIFY_BURRS: f64 = 0.3;
 
+/// What makes the built-in demo part: `--demo-seed`, `--demo-blockages`, and whether it carries
+/// burrs (something looks for them: `--verify`'s inspections or `[trim] only_detected`'s). The
+/// generator is deterministic, so the same spec makes the same part again (a resumed
+/// `--verify` run recreates the twin's part from it, `verify_state.json`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct DemoSpec {
+    /// `--demo-seed`.
+    pub(super) seed: u64,
+    /// `--demo-blockages`: the share of the openings that carry a film.
+    pub(super) blockages: f64,
+    /// Whether 30 % of the contours carry burrs ([`DEMO_VERIFY_BURRS`]).
+    pub(super) burred: bool,
+}
+
+/// The part's inputs. The demo part (`config.is_demo()`) is made from `spec`; its files (the
+/// path, the true line, the scan as the scanner saw it, the CAD points, the hatch boundary) are
+/// written into `run_dir/inputs/` when `write` (a resume finds them there).
 pub(super) fn load_inputs(
     config: &JobConfig,
-    args: &Args,
+    spec: &DemoSpec,
     run_dir: &Path,
+    write: bool,
 ) -> anyhow::Result<Inputs> {
     let fixture = config
         .part
         .scan_from_cad
         .scan_from_cad("part.scan_from_cad")?;
     if config.is_demo() {
-        // The demo part carries burrs when something looks for them: `--verify`'s inspections
-        // or `[trim] only_detected`'s.
-        let burred = args.verify || config.plan.trim.only_detected;
+        let burred = spec.burred;
         let params = SynthParams {
-            seed: args.demo_seed,
+            seed: spec.seed,
             // A cell's scanner fixed to the machine, looking from three directions (two on the
             // top side, one below): with one view the ends of the demo's long strips are fixed
             // by the field alone and registration flags them.
             scanner_views: DEMO_SCANNER_VIEWS,
             burr_fraction: if burred { DEMO_VERIFY_BURRS } else { 0.0 },
-            blockage_fraction: args.demo_blockages,
+            blockage_fraction: spec.blockages,
             ..SynthParams::default()
         };
         let mut case = generate(&params).context("building the demo part")?;
@@ -83,8 +100,6 @@ pub(super) fn load_inputs(
             .context("part.scan_from_cad")?;
         case.scan_from_cad_nominal = fixture * case.scan_from_cad_nominal;
         let dir = run_dir.join(files::INPUTS);
-        std::fs::create_dir_all(&dir)
-            .with_context(|| format!("cannot create {}", dir.display()))?;
         // The synthetic part lives in the true work-piece frame; the scanner sees it through
         // the true cell ([sim.truth]) at the scan pose.
         let scanner_from_workpiece =
@@ -93,25 +108,31 @@ pub(super) fn load_inputs(
             .scan
             .transformed(&scanner_from_workpiece)
             .context("sim.truth at part.scan_pose")?;
-        formats::write_path(&dir.join("path.csv"), &case.path)?;
-        formats::write_path(&dir.join(files::TRUTH), &case.truth)?;
-        formats::write_ply(
-            &dir.join("scan.ply"),
-            &scan_in_scanner,
-            formats::PlyEncoding::BinaryLittleEndian,
-        )?;
-        formats::write_ply(
-            &dir.join("cad_points.ply"),
-            &case.cad_points,
-            formats::PlyEncoding::BinaryLittleEndian,
-        )?;
+        if write {
+            std::fs::create_dir_all(&dir)
+                .with_context(|| format!("cannot create {}", dir.display()))?;
+            formats::write_path(&dir.join("path.csv"), &case.path)?;
+            formats::write_path(&dir.join(files::TRUTH), &case.truth)?;
+            formats::write_ply(
+                &dir.join("scan.ply"),
+                &scan_in_scanner,
+                formats::PlyEncoding::BinaryLittleEndian,
+            )?;
+            formats::write_ply(
+                &dir.join("cad_points.ply"),
+                &case.cad_points,
+                formats::PlyEncoding::BinaryLittleEndian,
+            )?;
+        }
         // The demo hatches a flash film on its top face unless the job names its own regions.
         let hatch = if config.hatch.is_empty() {
             let boundary = dir.join(DEMO_HATCH_BOUNDARY);
-            formats::write_path(
-                &boundary,
-                &TrimPath::new(vec![trim_synth::demo_hatch_boundary()?])?,
-            )?;
+            if write {
+                formats::write_path(
+                    &boundary,
+                    &TrimPath::new(vec![trim_synth::demo_hatch_boundary()?])?,
+                )?;
+            }
             vec![HatchRegion {
                 boundary,
                 settings: demo_hatch_settings(),
@@ -123,7 +144,7 @@ pub(super) fn load_inputs(
             hatch,
             description: format!(
                 "built-in demo part (synthetic ceramic core, seed {}, {} contours, {} scan points)",
-                args.demo_seed,
+                spec.seed,
                 case.path.len(),
                 case.scan.len()
             ),

@@ -30,7 +30,7 @@ use crate::summary;
 
 use execute::{TwinLink, execute, twin_link};
 pub(crate) use execute::{connect, start_simulators};
-use inputs::load_inputs;
+use inputs::{DemoSpec, load_inputs};
 pub(crate) use report::SpotReport;
 use report::{
     BeamBlock, RunNotes, append_resume_report, shutdown_of, shutdown_sentence, write_report,
@@ -45,7 +45,25 @@ mod report;
 #[cfg(feature = "sim")]
 mod rescan;
 #[cfg(feature = "sim")]
+mod twin_cuts;
+#[cfg(feature = "sim")]
 mod verify;
+#[cfg(feature = "sim")]
+mod verify_state;
+
+#[cfg(feature = "sim")]
+use twin_cuts::CutsLog;
+
+/// No twin, so no landed cuts to keep, in a build without the simulators.
+#[cfg(not(feature = "sim"))]
+enum CutsLog {}
+
+#[cfg(not(feature = "sim"))]
+impl CutsLog {
+    fn finish(self) -> anyhow::Result<()> {
+        match self {}
+    }
+}
 
 /// Files of a run folder.
 pub mod files {
@@ -76,12 +94,20 @@ pub mod files {
     /// The first scan's inspection under `[trim] only_detected`.
     pub const DETECT: &str = "detect";
     /// `--verify`'s rounds.
+    pub const VERIFY: &str = "verify.json";
+    /// What `--verify` needs to go on after a stop: `--rounds` and the demo part's spec.
+    pub const VERIFY_STATE: &str = "verify_state.json";
+    /// The digital twin's landed cuts of a `--verify` run's executions, in each run folder
+    /// (the job's and every `retrim_<k>/`).
     #[cfg_attr(
         not(feature = "sim"),
         expect(dead_code, reason = "written by --verify, which needs the simulators")
     )]
-    pub const VERIFY: &str = "verify.json";
+    pub const TWIN_CUTS: &str = "twin_cuts.jsonl";
 }
+
+/// The most retrim rounds `--verify --rounds` allows.
+pub const MAX_VERIFY_ROUNDS: u32 = 5;
 
 /// The simulated cell's default speed: real seconds per simulated second. The demo runs the
 /// galvo and the CNC 20× faster than real time so it ends in seconds, not minutes.
@@ -142,8 +168,12 @@ pub struct Args {
     /// The run folder (default: a new time-stamped folder under `output.runs_dir`).
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
-    /// Continue the interrupted run in RUN_DIR at its first unfinished layer.
-    #[arg(long, value_name = "RUN_DIR", conflicts_with_all = ["job", "out"])]
+    /// Continue the interrupted run in RUN_DIR at its first unfinished layer. A run started with
+    /// --verify is carried to the end: its job finished, then its verify loop from where it
+    /// stopped (the unfinished retrim finished, the next inspection, further retrims), with
+    /// the outputs and exit code of a run never stopped. RUN_DIR/retrim_<k> of such a run
+    /// resumes the whole run (RUN_DIR).
+    #[arg(long, value_name = "RUN_DIR", conflicts_with_all = ["job", "out", "verify"])]
     resume: Option<PathBuf>,
     /// With --resume: what to do with a layer cut at a point nobody can tell (the galvo lost
     /// its list to a restart, or trimctl was killed mid-layer): `redo` marks it again (the
@@ -181,7 +211,7 @@ pub struct Args {
     #[arg(long, conflicts_with = "dry_run")]
     verify: bool,
     /// With --verify: the most retrim rounds.
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=5), requires = "verify")]
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_VERIFY_ROUNDS)), requires = "verify")]
     rounds: u32,
     /// Fault injection on the simulated cell, to show that inspection catches an under-trimmed
     /// part: the digital twin's beam is blocked while layer ZONE:LAYER of the job (plan.json's
@@ -352,7 +382,12 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let (config, run_dir) = open_run(args)?;
     let spinner = stage("loading the part");
-    let inputs = load_inputs(&config, args, &run_dir)?;
+    let demo = DemoSpec {
+        seed: args.demo_seed,
+        blockages: args.demo_blockages,
+        burred: args.verify || config.plan.trim.only_detected,
+    };
+    let inputs = load_inputs(&config, &demo, &run_dir, true)?;
     drop(spinner);
     timings.load_s = t0.elapsed().as_secs_f64();
     println!("part: {}", inputs.description);
@@ -456,9 +491,15 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
         .sim_block_beam
         .map(|key| block_beam(&plan.job, key, &twin))
         .transpose()?;
+    let cuts_log = if args.verify {
+        start_verify(args, &run_dir, &inputs, &demo, &twin)?
+    } else {
+        None
+    };
     let outcome = execute(
         &config, args, &run_dir, &plan.job, record, false, live, &twin,
     );
+    let logged = cuts_log.map_or(Ok(()), CutsLog::finish);
     timings.execute_s = t.elapsed().as_secs_f64();
     if let Some(b) = &mut notes.beam_block {
         b.marks_blocked = crate::simulated::marks_blocked(twin.twin.as_ref());
@@ -474,8 +515,9 @@ fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
         outcome,
         &notes,
     )?;
+    logged?;
     if let Some(mesh) = mesh.as_ref().filter(|_| args.verify) {
-        verify_part(&config, args, &run_dir, &inputs, mesh, &registration, &twin)?;
+        continue_verify(&config, args, &run_dir, &inputs, mesh, &registration)?;
     }
     Ok(())
 }
@@ -546,55 +588,85 @@ fn block_beam(job: &Job, key: LayerKey, twin: &TwinLink) -> anyhow::Result<BeamB
     Ok(block)
 }
 
-/// `--verify`: the rounds of inspection and retrim, added to report.md; a part that still
-/// fails is exit 1.
+/// `--verify`, before the job's first layer: `verify_state.json` written (`--rounds`, the demo
+/// part's spec) and, on the demo part, the twin's landed cuts kept in the run folder as they
+/// land, so a stop anywhere can be continued (`--resume`). The demo part needs the twin
+/// (the simulated galvo): refused, before anything moves, without it.
 #[cfg(feature = "sim")]
-fn verify_part(
+fn start_verify(
+    args: &Args,
+    run_dir: &Path,
+    inputs: &inputs::Inputs,
+    demo: &DemoSpec,
+    twin: &TwinLink,
+) -> anyhow::Result<Option<CutsLog>> {
+    if inputs.demo.is_some() && twin.twin.is_none() {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "--verify on the demo part: the galvo is not simulated (cell.galvo), so nothing tells what the laser removed; the digital twin in the simulated galvo trims and rescans the demo part"
+            ),
+        ));
+    }
+    verify_state::VerifyState {
+        version: verify_state::VERIFY_STATE_VERSION,
+        rounds: args.rounds,
+        demo: inputs.demo.as_ref().map(|_| *demo),
+    }
+    .save(run_dir)?;
+    if inputs.demo.is_some() {
+        twin_cuts::attach(twin, run_dir)
+    } else {
+        Ok(None)
+    }
+}
+
+/// Without the simulators there is no twin to rescan the part: refused before anything moves.
+#[cfg(not(feature = "sim"))]
+fn start_verify(
+    _args: &Args,
+    _run_dir: &Path,
+    _inputs: &inputs::Inputs,
+    _demo: &DemoSpec,
+    _twin: &TwinLink,
+) -> anyhow::Result<Option<CutsLog>> {
+    Err(Failure::with_exit(
+        Exit::Refused,
+        anyhow::anyhow!(
+            "--verify: this trimctl was built without the simulators (cargo feature `sim`)"
+        ),
+    ))
+}
+
+/// `--verify` after the job: the rounds of inspection and retrim from where `run_dir` says the
+/// loop stands (`verify_state.json`, `verify.json`, the retrims' folders; none yet in a fresh
+/// run), then report.md's section and summary.json's `verify` written over any earlier ones;
+/// a part that still fails is exit 1.
+#[cfg(feature = "sim")]
+fn continue_verify(
     config: &JobConfig,
     args: &Args,
     run_dir: &Path,
     inputs: &inputs::Inputs,
     mesh: &Mesh,
     registration: &Registration,
-    twin: &TwinLink,
 ) -> anyhow::Result<()> {
-    use std::fmt::Write as _;
-    let rounds = verify::verify(config, args, run_dir, inputs, mesh, registration, twin)?;
-    let mut md = String::from(
-        "\n## Verify and retrim\n\nEach inspection of the rescanned part (`verify_<k>/report.html`), and the digital twin's truth.\n\n| inspection | pass | fail | undecided | failing contours | true residual web P95 / max (µm) | true gouge P95 / max (µm) | true film cover max (%) | retrimmed | blocked openings hatched |\n|---|---|---|---|---|---|---|---|---|---|\n",
-    );
-    for r in &rounds {
-        let _ = writeln!(
-            md,
-            "| {} | {} | {} | {} | {:?} | {} | {} | {} | {} | {:?} |",
-            r.inspection,
-            r.pass,
-            r.fail,
-            r.undecided,
-            r.failing,
-            pair(r.true_residual_p95_um, r.true_residual_max_um),
-            pair(r.true_gouge_p95_um, r.true_gouge_max_um),
-            r.true_film_covered_max
-                .map_or_else(|| "—".to_owned(), |f| format!("{:.0}", 100.0 * f)),
-            if r.retrimmed { "yes" } else { "no" },
-            r.hatched
-        );
-    }
-    let report = run_dir.join(files::REPORT);
-    let mut text = std::fs::read_to_string(&report).unwrap_or_default();
-    text.push_str(&md);
-    std::fs::write(&report, text)?;
-    // summary.json carries the rounds too (`verify`), as verify.json has them.
-    let summary_path = run_dir.join(files::SUMMARY);
-    let mut json: serde_json::Value = std::fs::read_to_string(&summary_path)
-        .ok()
-        .and_then(|t| serde_json::from_str(&t).ok())
-        .unwrap_or_else(|| serde_json::json!({}));
-    json.as_object_mut()
-        .context("summary.json is not a JSON object")?
-        .insert("verify".to_owned(), serde_json::to_value(&rounds)?);
-    std::fs::write(&summary_path, serde_json::to_string_pretty(&json)?)
-        .with_context(|| format!("cannot write {}", summary_path.display()))?;
+    let state = verify_state::VerifyState::load(run_dir)?.with_context(|| {
+        format!(
+            "{} is missing: the verify loop cannot go on",
+            run_dir.join(files::VERIFY_STATE).display()
+        )
+    })?;
+    let rounds = verify::verify(&verify::VerifyRun {
+        config,
+        args,
+        run_dir,
+        inputs,
+        mesh,
+        registration,
+        state: &state,
+    })?;
+    write_verify_report(run_dir, &rounds)?;
     match rounds.last() {
         Some(last) if last.fail > 0 => Err(Failure::with_exit(
             Exit::Refused,
@@ -617,6 +689,82 @@ fn verify_part(
     }
 }
 
+/// Without the simulators there is no twin to rescan the part.
+#[cfg(not(feature = "sim"))]
+fn continue_verify(
+    _config: &JobConfig,
+    _args: &Args,
+    _run_dir: &Path,
+    _inputs: &inputs::Inputs,
+    _mesh: &Mesh,
+    _registration: &Registration,
+) -> anyhow::Result<()> {
+    bail!("--verify: this trimctl was built without the simulators (cargo feature `sim`)")
+}
+
+/// The rounds in report.md ("Verify and retrim", replacing the section an earlier, stopped
+/// attempt wrote) and in summary.json (`verify`, as verify.json has them).
+#[cfg(feature = "sim")]
+fn write_verify_report(run_dir: &Path, rounds: &[verify::Round]) -> anyhow::Result<()> {
+    use std::fmt::Write as _;
+    let mut md = String::from(
+        "\n## Verify and retrim\n\nEach inspection of the rescanned part (`verify_<k>/report.html`), and the digital twin's truth.\n\n| inspection | pass | fail | undecided | failing contours | true residual web P95 / max (µm) | true gouge P95 / max (µm) | true film cover max (%) | retrimmed | blocked openings hatched |\n|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in rounds {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {:?} | {} | {} | {} | {} | {:?} |",
+            r.inspection,
+            r.pass,
+            r.fail,
+            r.undecided,
+            r.failing,
+            pair(r.true_residual_p95_um, r.true_residual_max_um),
+            pair(r.true_gouge_p95_um, r.true_gouge_max_um),
+            r.true_film_covered_max
+                .map_or_else(|| "—".to_owned(), |f| format!("{:.0}", 100.0 * f)),
+            if r.retrimmed { "yes" } else { "no" },
+            r.hatched
+        );
+    }
+    let report = run_dir.join(files::REPORT);
+    let text = std::fs::read_to_string(&report).unwrap_or_default();
+    std::fs::write(&report, with_section(&text, "## Verify and retrim", &md))
+        .with_context(|| format!("cannot write {}", report.display()))?;
+    let summary_path = run_dir.join(files::SUMMARY);
+    let mut json: serde_json::Value = std::fs::read_to_string(&summary_path)
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
+        .unwrap_or_else(|| serde_json::json!({}));
+    json.as_object_mut()
+        .context("summary.json is not a JSON object")?
+        .insert("verify".to_owned(), serde_json::to_value(rounds)?);
+    std::fs::write(&summary_path, serde_json::to_string_pretty(&json)?)
+        .with_context(|| format!("cannot write {}", summary_path.display()))?;
+    Ok(())
+}
+
+/// `text` with its section under `heading` (a line of its own, up to the next `## ` heading
+/// or the end) replaced by `section` (which begins with a blank line and `heading`), or with
+/// `section` appended when it has none.
+#[cfg_attr(
+    all(not(feature = "sim"), not(test)),
+    expect(dead_code, reason = "used by --verify, which needs the simulators")
+)]
+fn with_section(text: &str, heading: &str, section: &str) -> String {
+    let marker = format!("\n{heading}\n");
+    match text.find(&marker) {
+        Some(start) => {
+            let after = start + marker.len();
+            let end = text[after..]
+                .find("\n## ")
+                .map_or(text.len(), |i| after + i);
+            format!("{}{section}{}", &text[..start], &text[end..])
+        }
+        None => format!("{text}{section}"),
+    }
+}
+
 /// `P95 / max` of the twin's truth, or a dash where there is none (a real part).
 #[cfg(feature = "sim")]
 fn pair(p95: Option<f64>, max: Option<f64>) -> String {
@@ -626,23 +774,10 @@ fn pair(p95: Option<f64>, max: Option<f64>) -> String {
     }
 }
 
-/// Without the simulators there is no twin to rescan the part.
-#[cfg(not(feature = "sim"))]
-fn verify_part(
-    _config: &JobConfig,
-    _args: &Args,
-    _run_dir: &Path,
-    _inputs: &inputs::Inputs,
-    _mesh: &Mesh,
-    _registration: &Registration,
-    _twin: &TwinLink,
-) -> anyhow::Result<()> {
-    bail!("--verify: this trimctl was built without the simulators (cargo feature `sim`)")
-}
-
 /// The job read (overrides applied) and the run folder made, with the run's own copy of the
 /// field correction it uses (the Job records its checksum), so the folder alone can be resumed
-/// and audited, and the effective job file naming that copy relative to itself.
+/// and audited, and the effective job file naming that copy relative to itself and the part's
+/// other files absolutely.
 fn open_run(args: &Args) -> anyhow::Result<(JobConfig, PathBuf)> {
     let mut config = match &args.job {
         Some(p) => JobConfig::load(p)?,
@@ -663,6 +798,29 @@ fn open_run(args: &Args) -> anyhow::Result<(JobConfig, PathBuf)> {
     let mut effective = config.clone();
     if effective.plan.calibration.field_correction.is_some() {
         effective.plan.calibration.field_correction = Some(PathBuf::from(files::FIELD));
+    }
+    // The files the job names are read relative to the job file, and the run folder's copy
+    // lies elsewhere: it names them absolutely, so a resume finds them (a `--verify` run's
+    // loop loads the part again, the twin reads `[sim.truth] path`).
+    let part = &mut effective.part;
+    for (key, file) in [
+        ("part.cad", &mut part.cad),
+        ("part.path", &mut part.path),
+        ("part.scan", &mut part.scan),
+        ("sim.truth.path", &mut effective.sim.truth.path),
+    ] {
+        if let Some(f) = file {
+            *f = std::path::absolute(&*f)
+                .with_context(|| format!("{key}: cannot make {} absolute", f.display()))?;
+        }
+    }
+    for (i, h) in effective.hatch.iter_mut().enumerate() {
+        h.boundary = std::path::absolute(&h.boundary).with_context(|| {
+            format!(
+                "hatch[{i}].boundary: cannot make {} absolute",
+                h.boundary.display()
+            )
+        })?;
     }
     std::fs::write(
         run_dir.join(files::JOB),
@@ -938,7 +1096,11 @@ fn exec_failure(e: ExecError, run_dir: &Path) -> anyhow::Error {
     }
 }
 
-fn resume(run_dir: &Path, args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
+/// `--resume`: the job finished from its journal (no finished layer marked again), and a run
+/// started with `--verify` carried to the end from where it stopped. `dir` may be a retrim's
+/// folder of such a run: the whole run is resumed.
+fn resume(dir: &Path, args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
+    let run_dir = &resume_target(dir)?;
     let mut config = JobConfig::load(&run_dir.join(files::JOB))
         .with_context(|| format!("{} is not a run folder", run_dir.display()))?;
     apply_overrides(&mut config, args)?;
@@ -946,35 +1108,271 @@ fn resume(run_dir: &Path, args: &Args, live: Option<&LiveServer>) -> anyhow::Res
         .with_context(|| format!("cannot read {}", run_dir.join(files::PLAN).display()))?;
     let job = Job::from_json(&text)
         .with_context(|| format!("{}", run_dir.join(files::PLAN).display()))?;
-    if !run_dir.join(files::JOURNAL).exists() {
+    let journal = run_dir.join(files::JOURNAL);
+    if !journal.exists() {
         bail!(
             "{}: no journal: the run never started executing; start a new run instead",
             run_dir.display()
         );
     }
+    // The verify loop's state is read before anything moves: a corrupt one is refused.
+    #[cfg(feature = "sim")]
+    let state = verify_state::VerifyState::load(run_dir)?;
+    #[cfg(not(feature = "sim"))]
+    let state: Option<std::convert::Infallible> = if run_dir.join(files::VERIFY_STATE).exists() {
+        bail!(
+            "{}: a --verify run; continuing its verify loop needs the simulators (cargo feature `sim`), which this trimctl was built without",
+            run_dir.display()
+        );
+    } else {
+        None
+    };
+    match &state {
+        None => refuse_verify_without_state(run_dir)?,
+        #[cfg(feature = "sim")]
+        Some(state) => verify::check_resumable(run_dir, state)?,
+        #[cfg(not(feature = "sim"))]
+        Some(never) => match *never {},
+    }
+    if state.is_some() && job_finished(&job, &journal)? {
+        println!(
+            "resume: the job in {} is finished; its --verify loop goes on",
+            run_dir.display()
+        );
+    } else {
+        #[cfg(feature = "sim")]
+        let keep_cuts = state.as_ref().is_some_and(|s| s.demo.is_some());
+        #[cfg(not(feature = "sim"))]
+        let keep_cuts = false;
+        resume_job(&config, args, run_dir, &job, live, keep_cuts)?;
+    }
+    #[cfg(feature = "sim")]
+    if let Some(state) = state {
+        return resume_verify(&config, args, run_dir, &state);
+    }
+    Ok(())
+}
+
+/// The run folder `--resume DIR` continues: DIR, or for `RUN/retrim_<k>` of a `--verify` run
+/// (RUN holds a journal), RUN, whose loop finishes the retrim and goes on. Refused, naming the
+/// file, when such a RUN has no `verify_state.json`.
+fn resume_target(dir: &Path) -> anyhow::Result<PathBuf> {
+    let retrim = dir
+        .file_name()
+        .and_then(|n| n.to_str())
+        .and_then(|n| n.strip_prefix("retrim_"))
+        .and_then(|k| k.parse::<u32>().ok());
+    let parent = match dir.parent() {
+        Some(p) if p.as_os_str().is_empty() => Path::new("."),
+        Some(p) => p,
+        None => return Ok(dir.to_path_buf()),
+    };
+    let Some(k) = retrim.filter(|_| parent.join(files::JOURNAL).exists()) else {
+        return Ok(dir.to_path_buf());
+    };
+    if !parent.join(files::VERIFY_STATE).exists() {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "{} is retrim {k} of the --verify run {}, but {} is missing (a run started by a trimctl that did not keep it, or the file was removed): its verify loop cannot be continued",
+                dir.display(),
+                parent.display(),
+                parent.join(files::VERIFY_STATE).display()
+            ),
+        ));
+    }
+    eprintln!(
+        "trimctl run: {} is retrim {k} of the --verify run {}: resuming that run (the retrim is finished, then its verify loop goes on)",
+        dir.display(),
+        parent.display()
+    );
+    Ok(parent.to_path_buf())
+}
+
+/// Refuses a run folder that holds `--verify` rounds but no `verify_state.json`: without it the
+/// loop cannot go on, and resuming the job alone would leave the rounds unfinished silently.
+fn refuse_verify_without_state(run_dir: &Path) -> anyhow::Result<()> {
+    let round_folder = |name: &str| {
+        ["verify_", "retrim_"].iter().any(|prefix| {
+            name.strip_prefix(prefix)
+                .is_some_and(|k| k.parse::<u32>().is_ok())
+        })
+    };
+    let leftover = std::fs::read_dir(run_dir)
+        .with_context(|| format!("cannot list {}", run_dir.display()))?
+        .filter_map(Result::ok)
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|name| name == files::VERIFY || round_folder(name))
+        .min();
+    match leftover {
+        Some(f) => Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "{} holds --verify rounds ({f}) but {} is missing (a run started by a trimctl that did not keep it, or the file was removed): its verify loop cannot be continued",
+                run_dir.display(),
+                run_dir.join(files::VERIFY_STATE).display()
+            ),
+        )),
+        None => Ok(()),
+    }
+}
+
+/// Whether the journal at `journal` has every layer of `job` finished or left out
+/// (`--cut-layer skip`).
+pub(super) fn job_finished(job: &Job, journal: &Path) -> anyhow::Result<bool> {
+    let state = trim_io::journal::read(journal)?;
+    Ok(job
+        .layers()
+        .all(|(key, _, _)| state.finished.contains(&key) || state.left_out.contains(&key)))
+}
+
+/// The job of `run_dir` resumed from its journal; with `keep_cuts` the twin's landed cuts are
+/// added to the run folder's (`--verify` on the demo part). The resume is added to report.md
+/// and summary.json; a stop is the run's failure.
+fn resume_job(
+    config: &JobConfig,
+    args: &Args,
+    run_dir: &Path,
+    job: &Job,
+    live: Option<&LiveServer>,
+    keep_cuts: bool,
+) -> anyhow::Result<()> {
     eprintln!("trimctl run: resuming {}", run_dir.display());
     let t = Instant::now();
-    let twin = twin_link(&config, run_dir)?;
-    let (outcome, spots) = execute(&config, args, run_dir, &job, None, true, live, &twin)?;
+    let twin = twin_link(config, run_dir)?;
+    let log = if keep_cuts {
+        attach_cuts(&twin, run_dir)?
+    } else {
+        None
+    };
+    let executed = execute(config, args, run_dir, job, None, true, live, &twin);
+    let logged = log.map_or(Ok(()), CutsLog::finish);
+    let (outcome, spots) = executed?;
     let wall_s = t.elapsed().as_secs_f64();
     if let Some(r) = &spots {
         print!("{}", r.line());
     }
     // A refusal before anything was switched on leaves the run folder as it was.
     if !matches!(outcome, Err(ExecError::ResumeUnknown { .. })) {
-        append_resume_report(run_dir, &job, &outcome, wall_s)?;
+        append_resume_report(run_dir, job, &outcome, wall_s)?;
     }
     match outcome {
         Ok(run) => {
-            print!("{}", summary::execution(&run, &job));
+            print!("{}", summary::execution(&run, job));
             println!(
                 "done: resumed run finished in {wall_s:.1} s; run folder {}",
                 run_dir.display()
             );
-            Ok(())
+            logged
         }
         Err(e) => Err(exec_failure(e, run_dir)),
     }
+}
+
+#[cfg(feature = "sim")]
+use twin_cuts::attach as attach_cuts;
+
+/// No twin to keep cuts of without the simulators.
+#[cfg(not(feature = "sim"))]
+fn attach_cuts(_twin: &TwinLink, _dir: &Path) -> anyhow::Result<Option<CutsLog>> {
+    Ok(None)
+}
+
+/// The verify loop of a resumed `--verify` run: the part's inputs made again (the demo part
+/// from its spec in `verify_state.json`, without writing its files again), its CAD mesh, the
+/// run's registration redone and checked against `registered.csv`, then the loop from where it
+/// stopped.
+#[cfg(feature = "sim")]
+fn resume_verify(
+    config: &JobConfig,
+    args: &Args,
+    run_dir: &Path,
+    state: &verify_state::VerifyState,
+) -> anyhow::Result<()> {
+    let state_file = run_dir.join(files::VERIFY_STATE);
+    let demo = match (config.is_demo(), state.demo) {
+        (true, Some(d)) => d,
+        (false, None) => DemoSpec {
+            seed: args.demo_seed,
+            blockages: 0.0,
+            burred: false,
+        },
+        (true, None) => bail!(
+            "{}: demo is null, but {} names no part (the built-in demo part): the file does not belong to this run",
+            state_file.display(),
+            run_dir.join(files::JOB).display()
+        ),
+        (false, Some(_)) => bail!(
+            "{}: holds the demo part's spec, but {} names its own part: the file does not belong to this run",
+            state_file.display(),
+            run_dir.join(files::JOB).display()
+        ),
+    };
+    let spinner = stage("loading the part");
+    let inputs = load_inputs(config, &demo, run_dir, false)?;
+    drop(spinner);
+    let mesh =
+        detect::cad_mesh(config, &inputs).map_err(|e| Failure::with_exit(Exit::Refused, e))?;
+    let registration = reregister(&inputs, config, run_dir)?;
+    continue_verify(config, args, run_dir, &inputs, &mesh, &registration)
+}
+
+/// How far the registration redone on resume may lie from the run's own (`registered.csv`),
+/// mm. The registration is deterministic (the same inputs give the same path to the last
+/// bit); this leaves room for the text round trip only.
+#[cfg(feature = "sim")]
+const REREGISTER_TOLERANCE_MM: f64 = 1e-9;
+
+/// The run's registration, redone on its inputs (no file written), refused unless its path is
+/// the one in `registered.csv`: the rounds are inspected through the run's own fit (the part
+/// has not moved), and a retrim already planned was planned on it.
+#[cfg(feature = "sim")]
+fn reregister(
+    inputs: &inputs::Inputs,
+    config: &JobConfig,
+    run_dir: &Path,
+) -> anyhow::Result<Registration> {
+    let spinner = stage("registering the path onto the scan again");
+    let registration = register(
+        &inputs.cad,
+        &inputs.scan,
+        &inputs.path,
+        &inputs.scan_from_cad_initial,
+        &config.register,
+    )
+    .context("registration")?;
+    drop(spinner);
+    let file = run_dir.join(files::REGISTERED);
+    let stored =
+        formats::read_path(&file).with_context(|| format!("cannot read {}", file.display()))?;
+    let same_contours = stored.len() == registration.path.len()
+        && stored
+            .contours()
+            .iter()
+            .zip(registration.path.contours())
+            .all(|(a, b)| a.id() == b.id() && a.points().len() == b.points().len());
+    let off_mm = stored
+        .contours()
+        .iter()
+        .zip(registration.path.contours())
+        .flat_map(|(a, b)| a.points().iter().zip(b.points()))
+        .map(|(p, q)| (p - q).norm())
+        .fold(0.0, f64::max);
+    if !same_contours || off_mm > REREGISTER_TOLERANCE_MM {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "the registration redone to continue the verify loop differs from the run's own, {} ({}): the rounds must be inspected through the fit the run was planned on; was the part's input changed?",
+                file.display(),
+                if same_contours {
+                    format!("a point {off_mm:.3e} mm off")
+                } else {
+                    "other contours or point counts".to_owned()
+                }
+            ),
+        ));
+    }
+    Ok(registration)
 }
 
 /// What an execution gave: the executor's outcome and, with the digital twin, the spot
@@ -1009,6 +1407,47 @@ mod tests {
         let mut plan = plan_with_sides(&path, &settings, None).expect("plans");
         validation(&mut plan.job.validation);
         plan
+    }
+
+    /// report.md's verify section is written over an earlier one (a resumed run writes it
+    /// again), whatever follows it, and appended when there is none.
+    #[test]
+    fn the_verify_section_replaces_an_earlier_one() {
+        let section = "\n## Verify and retrim\n\nnew\n";
+        let fresh = with_section("# run\n", "## Verify and retrim", section);
+        assert_eq!(fresh, "# run\n\n## Verify and retrim\n\nnew\n");
+        assert_eq!(with_section(&fresh, "## Verify and retrim", section), fresh);
+        let between = "# run\n\n## Verify and retrim\n\nold\n\n## Resume 1\n\nr\n";
+        assert_eq!(
+            with_section(between, "## Verify and retrim", section),
+            "# run\n\n## Verify and retrim\n\nnew\n\n## Resume 1\n\nr\n"
+        );
+    }
+
+    /// `--resume RUN/retrim_<k>` of a `--verify` run resumes RUN; without RUN's
+    /// `verify_state.json` it is refused naming the file; any other folder is itself.
+    #[test]
+    fn a_retrim_folder_resumes_its_verify_run() {
+        let tmp = tempfile::tempdir().expect("a temporary folder");
+        let run = tmp.path().join("run");
+        let retrim = run.join("retrim_2");
+        std::fs::create_dir_all(&retrim).expect("folders");
+        std::fs::write(run.join(files::JOURNAL), "").expect("a journal");
+        let e = format!("{:#}", resume_target(&retrim).expect_err("no state"));
+        assert!(
+            e.contains("retrim 2") && e.contains(files::VERIFY_STATE),
+            "{e}"
+        );
+        std::fs::write(run.join(files::VERIFY_STATE), "{}").expect("a state");
+        assert_eq!(resume_target(&retrim).expect("the run"), run);
+        assert_eq!(resume_target(&run).expect("itself"), run);
+        let other = run.join("retrim_x");
+        assert_eq!(resume_target(&other).expect("itself"), other);
+        // A run with rounds but no state is refused too.
+        std::fs::remove_file(run.join(files::VERIFY_STATE)).expect("removed");
+        assert!(refuse_verify_without_state(&run).is_err());
+        std::fs::remove_dir(&retrim).expect("removed");
+        assert!(refuse_verify_without_state(&run).is_ok());
     }
 
     /// A stretch marked twice is refused with or without `--allow-invalid` (issue 24 point

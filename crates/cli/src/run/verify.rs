@@ -6,34 +6,45 @@
 //! On the built-in demo part the digital twin does the physics: it trims its true part by the
 //! landed cuts of each round and rescans it, through the true scanner and `[calibration]` as
 //! the first scan was made. A part of the job's own files is rescanned by the cell's scanner
-//! (`rescan`: a file the run waits for, or a configured scan command); there is no truth then. Each inspection is written to `verify_<k>/` (inspection.json/csv,
-//! deviation.png, report.html) and each retrim is a run of its own in `retrim_<k>/` (plan,
-//! journal, record); `verify.json` lists the rounds.
+//! (`rescan`: a file the run waits for, or a configured scan command); there is no truth then.
+//! Each inspection is written to `verify_<k>/` (inspection.json/csv, deviation.png,
+//! report.html) and each retrim is a run of its own in `retrim_<k>/` (plan, journal, record);
+//! `verify.json` lists the rounds.
+//!
+//! The loop goes on from wherever a stop left it (`trimctl run --resume RUN`): what it needs is
+//! in the run folder as it goes ([`super::verify_state`], [`super::twin_cuts`]).
 
 use std::collections::BTreeSet;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use anyhow::Context;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
+use trim_cell::Job;
 use trim_geom::mesh::Mesh;
 use trim_geom::{Path as TrimPath, PointCloud, Similarity3};
 use trim_inspect::{InspectSettings, Inspection, Placement, Verdict, inspect};
+use trim_io::executor::ExecError;
 use trim_plan::planner::plan_with_sides;
 use trim_register::eval::quantile;
 use trim_register::regional::Registration;
 use trim_sim::twin_part::{ContourTrim, TwinPart};
 
 use super::blocked;
-use super::execute::{TwinLink, execute, twin_link};
+use super::execute::{execute, twin_link};
 use super::inputs::Inputs;
+use super::report::append_resume_report;
 use super::rescan;
-use super::{Args, exec_failure, files, write_plan};
+use super::twin_cuts::{self, CutsLog};
+use super::verify_state::{VerifyState, load_rounds, save_rounds};
+use super::{Args, exec_failure, files, job_finished, write_plan};
 use crate::config::JobConfig;
 use crate::exit::{Exit, Failure};
 use crate::progress::stage;
 
-/// One inspection of the part and what followed it.
-#[derive(Debug, Clone, Serialize)]
+/// One inspection of the part and what followed it (a round of `verify.json`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub(super) struct Round {
     /// 1 after the job, 2 after the first retrim, …
     pub(super) inspection: u32,
@@ -63,46 +74,79 @@ pub(super) struct Round {
     pub(super) retrimmed: bool,
 }
 
+/// A `--verify` run's loop: where it works and what it works with.
+pub(super) struct VerifyRun<'a> {
+    /// The job (overrides applied).
+    pub(super) config: &'a JobConfig,
+    /// The command line: the devices' options for the retrims (`--sim-time-scale`,
+    /// `--cut-layer`, `--frame`, the cell's steps). The loop's own options are in `state`.
+    pub(super) args: &'a Args,
+    /// The run folder.
+    pub(super) run_dir: &'a Path,
+    /// The part's inputs (the demo part, as the twin carries it).
+    pub(super) inputs: &'a Inputs,
+    /// The part's CAD mesh.
+    pub(super) mesh: &'a Mesh,
+    /// The run's own registration (the part has not moved).
+    pub(super) registration: &'a Registration,
+    /// `--rounds` and the demo part's spec (`verify_state.json`).
+    pub(super) state: &'a VerifyState,
+}
+
 /// Inspects and retrims until every contour passes inspection or the rounds are spent; the
-/// rounds, in order. `twin` is the twin of the job just run; `mesh` the part's CAD mesh.
-pub(super) fn verify(
-    config: &JobConfig,
-    args: &Args,
-    run_dir: &Path,
-    inputs: &Inputs,
-    mesh: &Mesh,
-    registration: &Registration,
-    twin: &TwinLink,
-) -> anyhow::Result<Vec<Round>> {
+/// rounds, in order. Goes on from where `verify.json` and the retrims' folders say the loop
+/// stands: the twin's part (the demo's) is recreated from the landed cuts of the job and of
+/// each recorded retrim, a recorded retrim that did not finish is finished first (resumed
+/// from its journal: no layer marked twice), and the next inspection follows. A fresh run
+/// starts with no round recorded.
+pub(super) fn verify(v: &VerifyRun<'_>) -> anyhow::Result<Vec<Round>> {
+    let config = v.config;
     // The demo part is the twin's: it trims the part by the landed cuts and rescans it.
-    let mut part = inputs
+    let mut part = v
+        .inputs
         .demo
         .as_ref()
         .map(|demo| TwinPart::new(demo.case.clone(), demo.workpiece_from_case));
-    let kerf_mm = config.plan.process.kerf_width_mm(&config.plan.beam);
     let settings = InspectSettings::default();
-    let placement = Placement::from_registration(registration);
-    let mut cuts = match part {
-        Some(_) => landed_cuts(twin)?,
-        None => Vec::new(),
+    let placement = Placement::from_registration(v.registration);
+    let mut rounds = load_rounds(v.run_dir, v.state.rounds)?;
+    let recorded = match rounds.len() {
+        0 => None,
+        1 => Some("inspection 1".to_owned()),
+        n => Some(format!("inspections 1–{n}")),
     };
-    let mut rounds: Vec<Round> = Vec::new();
-    for k in 1..=args.rounds + 1 {
-        let scan = match part.as_mut() {
+    if let Some(which) = recorded {
+        println!(
+            "verify: {which} recorded in {}; going on from there",
+            v.run_dir.join(files::VERIFY).display()
+        );
+    }
+    // The loop ended at its last inspection (every retrim before it finished).
+    if rounds.last().is_some_and(|r| !r.retrimmed) {
+        return Ok(rounds);
+    }
+    replay(&mut part, v.run_dir, config)?;
+    for r in rounds.iter().filter(|r| r.retrimmed) {
+        execute_retrim(v, r.inspection)?;
+        replay(&mut part, &retrim_dir(v.run_dir, r.inspection), config)?;
+    }
+    let next = u32::try_from(rounds.len() + 1).context("too many rounds")?;
+    for k in next..=v.state.rounds + 1 {
+        let scan = match part.as_ref() {
             Some(part) => {
-                part.trim(&cuts, &config.plan.process, kerf_mm)?;
                 let _spinner = stage("rescanning the part");
-                twin_rescan(config, part, args.demo_seed ^ u64::from(k) << 32)?
+                let seed = v.state.demo.map_or(0, |d| d.seed);
+                twin_rescan(config, part, seed ^ u64::from(k) << 32)?
             }
-            None => rescan::rescan(config, run_dir, k)?,
+            None => rescan::rescan(config, v.run_dir, k)?,
         };
         let spinner = stage("inspecting the part");
-        let result = inspect(mesh, &inputs.path, scan.points(), &placement, &settings)?;
-        let dir = run_dir.join(format!("verify_{k}"));
+        let result = inspect(v.mesh, &v.inputs.path, scan.points(), &placement, &settings)?;
+        let dir = v.run_dir.join(format!("verify_{k}"));
         crate::inspect::write_inspection(
             &dir,
-            mesh,
-            &inputs.path,
+            v.mesh,
+            &v.inputs.path,
             &scan,
             &placement,
             &settings,
@@ -120,7 +164,7 @@ pub(super) fn verify(
         let p95 = |v: &[f64]| quantile(v, 0.95);
         let residual = |c: &ContourTrim| c.residual_um;
         let gouge = |c: &ContourTrim| c.gouge_um;
-        let round = Round {
+        let mut round = Round {
             inspection: k,
             pass: ids(&result, Verdict::Pass).len(),
             fail: failing.len(),
@@ -136,7 +180,7 @@ pub(super) fn verify(
                     .fold(0.0, f64::max)
             }),
             hatched: Vec::new(),
-            retrimmed: !failing.is_empty() && k <= args.rounds,
+            retrimmed: !failing.is_empty() && k <= v.state.rounds,
         };
         println!(
             "verify {k}: {} pass, {} fail, {} undecided{}{}; {}",
@@ -151,25 +195,69 @@ pub(super) fn verify(
             round.truth_words(),
             dir.display()
         );
+        // The retrim is planned before the round is recorded: a recorded round that was
+        // retrimmed always has its plan, so a resume never inspects it again.
+        if round.retrimmed {
+            round.hatched = plan_retrim(v, &result, &failing, k)?;
+        }
         let retrim = round.retrimmed;
         rounds.push(round);
+        save_rounds(v.run_dir, &rounds)?;
         if !retrim {
             break;
         }
-        let (landed, hatched) =
-            retrim_round(config, args, run_dir, registration, &result, &failing, k)?;
-        if part.is_some() {
-            cuts = landed_cuts(&landed)?;
-        }
-        if let Some(r) = rounds.last_mut() {
-            r.hatched = hatched;
+        execute_retrim(v, k)?;
+        replay(&mut part, &retrim_dir(v.run_dir, k), config)?;
+    }
+    Ok(rounds)
+}
+
+/// Refuses, before anything moves, a `--verify` run whose loop could not go on: `verify.json`
+/// unreadable or out of order, or (the demo part) a folder that executed without its landed
+/// cuts (`twin_cuts.jsonl` is created before an execution's journal).
+pub(super) fn check_resumable(run_dir: &Path, state: &VerifyState) -> anyhow::Result<()> {
+    let rounds = load_rounds(run_dir, state.rounds)?;
+    if state.demo.is_none() {
+        return Ok(());
+    }
+    let executed = std::iter::once(run_dir.to_path_buf()).chain(
+        rounds
+            .iter()
+            .filter(|r| r.retrimmed)
+            .map(|r| retrim_dir(run_dir, r.inspection)),
+    );
+    for dir in executed.filter(|d| d.join(files::JOURNAL).exists()) {
+        let cuts = dir.join(files::TWIN_CUTS);
+        if !cuts.exists() {
+            return Err(Failure::with_exit(
+                Exit::Refused,
+                anyhow::anyhow!(
+                    "{} is missing: the twin's landed cuts of {} are needed to make its part again; the verify loop cannot go on",
+                    cuts.display(),
+                    dir.display()
+                ),
+            ));
         }
     }
-    std::fs::write(
-        run_dir.join(files::VERIFY),
-        serde_json::to_string_pretty(&rounds)?,
-    )?;
-    Ok(rounds)
+    Ok(())
+}
+
+/// The folder of retrim `k`.
+fn retrim_dir(run_dir: &Path, k: u32) -> PathBuf {
+    run_dir.join(format!("retrim_{k}"))
+}
+
+/// Trims the twin's part (if there is one: the demo's) by the cuts that landed in the
+/// executions in `dir` (`twin_cuts.jsonl`), as one round.
+fn replay(part: &mut Option<TwinPart>, dir: &Path, config: &JobConfig) -> anyhow::Result<()> {
+    if let Some(part) = part {
+        let kerf_mm = config.plan.process.kerf_width_mm(&config.plan.beam);
+        part.trim(&twin_cuts::read(dir)?, &config.plan.process, kerf_mm)
+            .with_context(|| {
+                format!("trimming the twin's part by the cuts of {}", dir.display())
+            })?;
+    }
+    Ok(())
 }
 
 impl Round {
@@ -200,14 +288,6 @@ fn ids(result: &Inspection, v: Verdict) -> BTreeSet<i64> {
         .collect()
 }
 
-/// The twin's landed cuts of a run.
-fn landed_cuts(twin: &TwinLink) -> anyhow::Result<Vec<trim_sim::ablation::LandedCut>> {
-    twin.twin
-        .as_ref()
-        .map(|t| t.cuts())
-        .context("--verify: the galvo is not simulated, so nothing tells what the laser removed")
-}
-
 /// The part as it stands, scanned through the true cell's scanner and carried into the
 /// work-piece frame through `[calibration]`, as the first scan.
 fn twin_rescan(config: &JobConfig, part: &TwinPart, seed: u64) -> anyhow::Result<PointCloud> {
@@ -223,22 +303,30 @@ fn twin_rescan(config: &JobConfig, part: &TwinPart, seed: u64) -> anyhow::Result
 /// Plans the failing contours (each polyline with the passes its measured excess height
 /// needs: a web is no thicker than it is tall) and, with `[trim] hatch_blocked`, hatches the
 /// blocked openings among them (`blocked`: each track with the passes of `[trim]
-/// film_thickness_um`; a rim blocked but with no excess is hatched, not trimmed again), and
-/// runs them in `retrim_<k>/`; the run's twin link (what the simulated galvo landed) and the
-/// rims hatched.
-fn retrim_round(
-    config: &JobConfig,
-    args: &Args,
-    run_dir: &Path,
-    registration: &Registration,
+/// film_thickness_um`; a rim blocked but with no excess is hatched, not trimmed again), into
+/// `retrim_<k>/` (a run folder of its own: the effective job file and field correction copied
+/// in, plan.json); the rims hatched. Nothing is executed.
+fn plan_retrim(
+    v: &VerifyRun<'_>,
     found: &Inspection,
     failing: &BTreeSet<i64>,
     k: u32,
-) -> anyhow::Result<(TwinLink, Vec<i64>)> {
-    let dir = run_dir.join(format!("retrim_{k}"));
+) -> anyhow::Result<Vec<i64>> {
+    let (config, run_dir, registration) = (v.config, v.run_dir, v.registration);
+    let dir = retrim_dir(run_dir, k);
+    // Planned only before it runs: a retrim that began is finished from its journal, never
+    // planned again over it.
+    if dir.join(files::JOURNAL).exists() {
+        return Err(Failure::with_exit(
+            Exit::Refused,
+            anyhow::anyhow!(
+                "{} already holds a journal, but {} does not record inspection {k}: the run folder is inconsistent; refusing to plan retrim {k} again over a retrim that began",
+                dir.display(),
+                run_dir.join(files::VERIFY).display()
+            ),
+        ));
+    }
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    // The retrim's folder is a run folder of its own: a stopped retrim resumes with `trimctl
-    // run --resume RUN/retrim_<k>` (its effective job file and field correction beside it).
     for file in [files::JOB, files::FIELD] {
         let src = run_dir.join(file);
         if src.exists() {
@@ -313,8 +401,52 @@ fn retrim_round(
     if let Some(line) = hatches.line() {
         println!("retrim {k}: {line}");
     }
-    let twin = twin_link(config, run_dir)?;
-    let (outcome, _) = execute(config, args, &dir, &plan.job, None, false, None, &twin)?;
-    outcome.map_err(|e| exec_failure(e, &dir))?;
-    Ok((twin, hatched.into_iter().collect()))
+    Ok(hatched.into_iter().collect())
+}
+
+/// Runs retrim `k` from its folder's plan (`retrim_<k>/plan.json`), the twin's cuts kept in
+/// the folder: afresh when it has no journal, resumed from the journal when it began but did
+/// not finish (finished layers are not marked again; the resume is added to the folder's
+/// report.md and summary.json, as any resume), not at all when it finished. A stop is the
+/// run's failure, and names the run folder to resume.
+fn execute_retrim(v: &VerifyRun<'_>, k: u32) -> anyhow::Result<()> {
+    let dir = retrim_dir(v.run_dir, k);
+    let plan_file = dir.join(files::PLAN);
+    let text = std::fs::read_to_string(&plan_file).with_context(|| {
+        format!(
+            "cannot read {} ({} records retrim {k})",
+            plan_file.display(),
+            v.run_dir.join(files::VERIFY).display()
+        )
+    })?;
+    let job = Job::from_json(&text).with_context(|| plan_file.display().to_string())?;
+    let journal = dir.join(files::JOURNAL);
+    let resuming = journal.exists();
+    if resuming && job_finished(&job, &journal)? {
+        return Ok(());
+    }
+    if resuming {
+        println!("retrim {k}: resuming {}", dir.display());
+    }
+    let twin = twin_link(v.config, v.run_dir)?;
+    let log = twin_cuts::attach(&twin, &dir)?;
+    let t = Instant::now();
+    let executed = execute(v.config, v.args, &dir, &job, None, resuming, None, &twin);
+    let wall_s = t.elapsed().as_secs_f64();
+    let logged = log.map_or(Ok(()), CutsLog::finish);
+    let (outcome, spots) = executed?;
+    if resuming {
+        if let Some(r) = &spots {
+            print!("{}", r.line());
+        }
+        // A refusal before anything was switched on leaves the folder as it was.
+        if !matches!(outcome, Err(ExecError::ResumeUnknown { .. })) {
+            append_resume_report(&dir, &job, &outcome, wall_s)?;
+        }
+        if let Ok(run) = &outcome {
+            print!("{}", crate::summary::execution(run, &job));
+        }
+    }
+    outcome.map_err(|e| exec_failure(e, v.run_dir))?;
+    logged
 }
