@@ -832,6 +832,23 @@ fn open_run(args: &Args) -> anyhow::Result<(JobConfig, PathBuf)> {
 
 /// Registration of the path onto the scan, written and summarised; refuses a part the
 /// registration refuses as a whole.
+/// The registration of the run's inputs under its job, with a spinner saying `what`.
+fn register_inputs(
+    inputs: &inputs::Inputs,
+    config: &JobConfig,
+    what: &str,
+) -> anyhow::Result<Registration> {
+    let _spinner = stage(what);
+    register(
+        &inputs.cad,
+        &inputs.scan,
+        &inputs.path,
+        &inputs.scan_from_cad_initial,
+        &config.register,
+    )
+    .context("registration")
+}
+
 fn register_part(
     inputs: &inputs::Inputs,
     config: &JobConfig,
@@ -839,16 +856,7 @@ fn register_part(
     timings: &mut Timings,
 ) -> anyhow::Result<Registration> {
     let t = Instant::now();
-    let spinner = stage("registering the path onto the scan");
-    let registration = register(
-        &inputs.cad,
-        &inputs.scan,
-        &inputs.path,
-        &inputs.scan_from_cad_initial,
-        &config.register,
-    )
-    .context("registration")?;
-    drop(spinner);
+    let registration = register_inputs(inputs, config, "registering the path onto the scan")?;
     timings.register_s = t.elapsed().as_secs_f64();
     formats::write_path(&run_dir.join(files::REGISTERED), &registration.path)?;
     std::fs::write(
@@ -1332,16 +1340,7 @@ fn reregister(
     config: &JobConfig,
     run_dir: &Path,
 ) -> anyhow::Result<Registration> {
-    let spinner = stage("registering the path onto the scan again");
-    let registration = register(
-        &inputs.cad,
-        &inputs.scan,
-        &inputs.path,
-        &inputs.scan_from_cad_initial,
-        &config.register,
-    )
-    .context("registration")?;
-    drop(spinner);
+    let registration = register_inputs(inputs, config, "registering the path onto the scan again")?;
     let file = run_dir.join(files::REGISTERED);
     let stored =
         formats::read_path(&file).with_context(|| format!("cannot read {}", file.display()))?;
