@@ -830,8 +830,6 @@ fn open_run(args: &Args) -> anyhow::Result<(JobConfig, PathBuf)> {
     Ok((config, run_dir))
 }
 
-/// Registration of the path onto the scan, written and summarised; refuses a part the
-/// registration refuses as a whole.
 /// The registration of the run's inputs under its job, with a spinner saying `what`.
 fn register_inputs(
     inputs: &inputs::Inputs,
@@ -849,6 +847,8 @@ fn register_inputs(
     .context("registration")
 }
 
+/// Registration of the path onto the scan, written and summarised; refuses a part the
+/// registration refuses as a whole.
 fn register_part(
     inputs: &inputs::Inputs,
     config: &JobConfig,
