@@ -14,7 +14,7 @@
 
 use std::collections::BTreeSet;
 use std::fs::{File, OpenOptions};
-use std::io::{BufRead, BufReader, Write};
+use std::io::Write;
 
 use std::path::{Path, PathBuf};
 
@@ -243,38 +243,23 @@ fn io(path: &Path) -> impl Fn(std::io::Error) -> JournalError + '_ {
 
 /// Reads a journal without opening it for writing.
 pub fn read(path: &Path) -> Result<JournalState, JournalError> {
-    let file = File::open(path).map_err(io(path))?;
-    let mut lines: Vec<String> = Vec::new();
-    let mut reader = BufReader::new(file);
-    loop {
-        let mut line = String::new();
-        if reader.read_line(&mut line).map_err(io(path))? == 0 {
-            break;
-        }
-        lines.push(line);
+    let lines = crate::jsonl::read::<Entry>(path).map_err(|e| match e {
+        crate::jsonl::ReadError::Io(e) => io(path)(e),
+        crate::jsonl::ReadError::BadLine { line, what } => JournalError::BadLine {
+            path: path.to_owned(),
+            line,
+            what,
+        },
+    })?;
+    if lines.torn_tail {
+        tracing::warn!(path = %path.display(), "journal: torn last line ignored");
     }
-    let mut st = JournalState::default();
-    let n = lines.len();
-    for (i, line) in lines.iter().enumerate() {
-        if line.trim().is_empty() {
-            st.good_len += line.len() as u64;
-            continue;
-        }
-        let entry: Entry = match serde_json::from_str(line) {
-            Ok(e) => e,
-            Err(_) if i + 1 == n && !line.ends_with('\n') => {
-                tracing::warn!(path = %path.display(), "journal: torn last line ignored");
-                st.torn_tail = true;
-                continue;
-            }
-            Err(e) => {
-                return Err(JournalError::BadLine {
-                    path: path.to_owned(),
-                    line: i + 1,
-                    what: e.to_string(),
-                });
-            }
-        };
+    let mut st = JournalState {
+        torn_tail: lines.torn_tail,
+        good_len: lines.good_len,
+        ..JournalState::default()
+    };
+    for (_, entry) in lines.values {
         match &entry {
             Entry::LayerBegin { .. } => {
                 st.begins += 1;
@@ -302,7 +287,6 @@ pub fn read(path: &Path) -> Result<JournalState, JournalError> {
             }
             Entry::CutLayerChoice { .. } | Entry::Start { .. } => {}
         }
-        st.good_len += line.len() as u64;
         st.entries.push(entry);
     }
     Ok(st)
@@ -355,15 +339,8 @@ impl Journal {
                 expected: digest,
             });
         }
-        let file = OpenOptions::new()
-            .append(true)
-            .open(path)
+        let file = crate::jsonl::open_append(path, st.torn_tail.then_some(st.good_len), false)
             .map_err(io(path))?;
-        if st.torn_tail {
-            // The only change to written bytes: a torn last line (a crash mid-write) is cut off.
-            file.set_len(st.good_len).map_err(io(path))?;
-            file.sync_data().map_err(io(path))?;
-        }
         let mut j = Journal {
             path: path.to_owned(),
             sink: Box::new(file),

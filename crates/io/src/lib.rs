@@ -25,6 +25,7 @@ pub mod executor;
 pub mod framing;
 pub mod galvo;
 pub mod journal;
+pub mod jsonl;
 pub mod laser;
 pub mod limits;
 pub mod live;

@@ -11,12 +11,13 @@
 //! Like the journal the file is appended to; a torn last line (a kill mid-write) is cut off
 //! before the next execution appends, and ignored when read.
 
-use std::fs::{File, OpenOptions};
-use std::io::{Read as _, Seek as _, Write as _};
+use std::fs::File;
+use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use anyhow::{Context, bail};
+use anyhow::Context;
+use trim_io::jsonl;
 use trim_sim::ablation::LandedCut;
 
 use super::execute::TwinLink;
@@ -64,21 +65,27 @@ pub(super) fn attach(twin: &TwinLink, dir: &Path) -> anyhow::Result<Option<CutsL
     Ok(Some(CutsLog { path, shared }))
 }
 
-/// Opens `path` for appending, its torn last line (no newline) cut off first.
-fn open_for_append(path: &Path) -> std::io::Result<File> {
-    let mut file = OpenOptions::new()
-        .create(true)
-        .read(true)
-        .append(true)
-        .open(path)?;
-    let mut text = Vec::new();
-    file.read_to_end(&mut text)?;
-    if text.last().is_some_and(|b| *b != b'\n') {
-        let whole = text.iter().rposition(|b| *b == b'\n').map_or(0, |i| i + 1);
-        file.set_len(whole as u64)?;
-        file.seek(std::io::SeekFrom::End(0))?;
+/// Opens `path` for appending (created when missing), its torn last line cut off first.
+fn open_for_append(path: &Path) -> anyhow::Result<File> {
+    let torn_at = match jsonl::read::<LandedCut>(path) {
+        Ok(lines) => lines.torn_at(),
+        Err(jsonl::ReadError::Io(e)) if e.kind() == std::io::ErrorKind::NotFound => None,
+        Err(e) => return Err(read_error(path, e)),
+    };
+    Ok(jsonl::open_append(path, torn_at, true)?)
+}
+
+/// `e` as an error naming `path` (and the line).
+fn read_error(path: &Path, e: jsonl::ReadError) -> anyhow::Error {
+    match e {
+        jsonl::ReadError::Io(e) => anyhow::Error::new(e).context(format!(
+            "cannot read {}: the twin's landed cuts are needed to recreate its part",
+            path.display()
+        )),
+        jsonl::ReadError::BadLine { line, what } => {
+            anyhow::anyhow!("{} line {line}: not a landed cut: {what}", path.display())
+        }
     }
-    Ok(file)
 }
 
 impl CutsLog {
@@ -106,26 +113,8 @@ impl CutsLog {
 /// A missing file or a line that is not a cut is an error naming the file (and the line).
 pub(super) fn read(dir: &Path) -> anyhow::Result<Vec<LandedCut>> {
     let path = dir.join(files::TWIN_CUTS);
-    let text = std::fs::read_to_string(&path).with_context(|| {
-        format!(
-            "cannot read {}: the twin's landed cuts of {} are needed to recreate its part",
-            path.display(),
-            dir.display()
-        )
-    })?;
-    let mut cuts = Vec::new();
-    let lines: Vec<&str> = text.split_inclusive('\n').collect();
-    for (i, line) in lines.iter().enumerate() {
-        if line.trim().is_empty() {
-            continue;
-        }
-        match serde_json::from_str::<LandedCut>(line) {
-            Ok(c) => cuts.push(c),
-            Err(_) if i + 1 == lines.len() && !line.ends_with('\n') => {}
-            Err(e) => bail!("{} line {}: not a landed cut: {e}", path.display(), i + 1),
-        }
-    }
-    Ok(cuts)
+    let lines = jsonl::read::<LandedCut>(&path).map_err(|e| read_error(&path, e))?;
+    Ok(lines.values.into_iter().map(|(_, cut)| cut).collect())
 }
 
 #[cfg(test)]
