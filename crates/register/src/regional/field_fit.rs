@@ -107,6 +107,87 @@ pub fn local_shapes(cad: &PointCloud, tree: &kdtree::KdTree) -> Vec<LocalShape> 
         .collect()
 }
 
+/// A field point's scan normal (the least-variance direction of its nearest scan points) must
+/// agree with its CAD match's carried normal to this (cosine, 45.6°) for the fit to use the
+/// match: a burr web or a film over a hole, matched to the wall beside it, turns away from it.
+/// Chosen on the project's seeded one-view cores 201–212 (0.5, 0.7 and 0.85 alike).
+pub const SCAN_NORMAL_MIN_COS: f64 = 0.7;
+
+/// A scan point matches a CAD point only within this many CAD sample spacings of it across the
+/// CAD normal: a point beyond the surface's extent (a web standing off an edge, in the wall's
+/// plane; a film over an opening) lies on no CAD face, however near its plane, while a point
+/// on a face always has a sample within about one spacing, whatever the misalignment along
+/// it. Chosen on the project's seeded cores 201–212 (1.5 to 4 registered all; see DESIGN.md).
+pub const TANGENT_GATE_SPACINGS: f64 = 3.0;
+
+/// What a scan point must satisfy, beside the distance, to be matched.
+pub(crate) struct Gates<'a> {
+    /// Each point's scan normal (CAD frame; zero where unknown), to agree with its match's
+    /// carried normal within [`SCAN_NORMAL_MIN_COS`].
+    pub(crate) scan_normals: Option<&'a [Vector3]>,
+    /// The largest offset from the matched CAD point across its normal, mm (0: none).
+    pub(crate) tangent_mm: f64,
+}
+
+/// Whether a scan normal (zero: unknown) agrees with a CAD normal.
+fn agrees(scan_normal: &Vector3, cad_normal: &Vector3) -> bool {
+    *scan_normal == Vector3::zeros() || scan_normal.dot(cad_normal).abs() >= SCAN_NORMAL_MIN_COS
+}
+
+/// Scan points whose spread gives a field point's own normal.
+pub const SCAN_NORMAL_NEIGHBOURS: usize = 12;
+
+/// …found within this, mm (fewer than six: no normal, the point matched as before).
+pub const SCAN_NORMAL_RADIUS_MM: f64 = 0.3;
+
+/// Each field point's surface normal from the scan around it (`picked` indexes `scan`), turned
+/// by `rotation` (into the CAD frame); the zero vector where too few scan points lie near.
+pub(crate) fn scan_normals(
+    scan: &[Point3],
+    picked: &[usize],
+    rotation: &nalgebra::UnitQuaternion<f64>,
+) -> Vec<Vector3> {
+    let tree = kdtree::KdTree::build(scan);
+    let d2 = SCAN_NORMAL_RADIUS_MM * SCAN_NORMAL_RADIUS_MM;
+    picked
+        .par_iter()
+        .map_init(Scratch::default, |scratch, &i| {
+            let nb = tree.knn_within(&scan[i], SCAN_NORMAL_NEIGHBOURS, d2, scratch);
+            if nb.len() < 6 {
+                return Vector3::zeros();
+            }
+            let pts: Vec<Point3> = nb.iter().map(|n| scan[n.index]).collect();
+            let (_, cov) = super::coarse::moments(&pts);
+            let eig = SymmetricEigen::new(cov);
+            rotation * eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned()
+        })
+        .collect()
+}
+
+/// The CAD sample's typical spacing: the median distance from a point to its nearest other
+/// point, over an even subset of 512 points, mm.
+pub(crate) fn cad_spacing_mm(target: &IcpTarget) -> f64 {
+    let pts = target.cloud().points();
+    let step = (pts.len() / 512).max(1);
+    let mut scratch = Scratch::default();
+    let mut d: Vec<f64> = pts
+        .iter()
+        .step_by(step)
+        .filter_map(|p| {
+            target
+                .tree()
+                .knn_within(p, 2, f64::INFINITY, &mut scratch)
+                .get(1)
+                .map(|n| n.distance_sq.sqrt())
+        })
+        .collect();
+    if d.is_empty() {
+        return 0.0;
+    }
+    let mid = d.len() / 2;
+    *d.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
 /// Neighbours whose normals differ by more than this (cosine) lie across an edge.
 pub const MIN_SAME_FACE_COS: f64 = 0.9;
 
@@ -134,6 +215,7 @@ pub(crate) type Matched = (usize, Point3, Vector3, Matrix3<f64>, f64);
 /// 20 µm. `shapes` may be empty (no curvature, no edges known).
 pub(crate) fn match_points(
     points: &[Point3],
+    gates: &Gates<'_>,
     target: &IcpTarget,
     shapes: &[LocalShape],
     field: Option<&BSplineField>,
@@ -143,9 +225,11 @@ pub(crate) fn match_points(
     let cad = target.cloud().points();
     let normals = target.cloud().normals();
     let d2max = max_distance_mm * max_distance_mm;
+    let tangent2 = gates.tangent_mm * gates.tangent_mm;
     points
         .par_iter()
-        .map_init(Scratch::default, |scratch, q| {
+        .enumerate()
+        .map_init(Scratch::default, |scratch, (i, q)| {
             let p = field.map_or(*q, |f| f.inverse_apply(q, 2));
             // Of the nearest CAD points, the one whose surface passes closest to q: near an
             // edge the nearest sample may lie on the other face (a top-face scan point 0.1 mm
@@ -180,12 +264,24 @@ pub(crate) fn match_points(
                     .get(nb.index)
                     .map_or_else(Matrix3::zeros, |l| l.operator);
                 let r = -(n.dot(&diff) + 0.5 * (t.transpose() * s * t)[(0, 0)]);
+                // A scan point beyond the CAD surface's extent (over its edge or an opening)
+                // does not lie on it, however near its plane.
+                if tangent2 > 0.0 && t.norm_squared() > tangent2 {
+                    continue;
+                }
                 if best.is_none_or(|b| r.abs() < b.0) {
                     best = Some((r.abs(), nb.index, c, n, j, r));
                 }
             }
             let (_, index, c, n, j, r) = best?;
             if exclude_edges && shapes.get(index).is_some_and(|l| l.near_edge) {
+                return None;
+            }
+            // A scan point whose own surface turns away from its CAD face's (a burr web or a
+            // film standing over a hole, matched to the wall beside it) has no match.
+            if let Some(ns) = gates.scan_normals
+                && !agrees(&ns[i], &n)
+            {
                 return None;
             }
             Some((index, c, n, j, r))
@@ -200,11 +296,23 @@ pub(crate) fn final_matches(
     field: Option<&BSplineField>,
     max_distance_mm: f64,
 ) -> Vec<Match> {
-    match_points(points, target, shapes, field, max_distance_mm, false)
-        .into_iter()
-        .zip(points)
-        .filter_map(|(m, q)| m.map(|(_, _, n, _, r)| Match { q: *q, n, r }))
-        .collect()
+    let gates = Gates {
+        scan_normals: None,
+        tangent_mm: 0.0,
+    };
+    match_points(
+        points,
+        &gates,
+        target,
+        shapes,
+        field,
+        max_distance_mm,
+        false,
+    )
+    .into_iter()
+    .zip(points)
+    .filter_map(|(m, q)| m.map(|(_, _, n, _, r)| Match { q: *q, n, r }))
+    .collect()
 }
 
 /// The fitted field, its final matches and its posterior, and the model check's field.
@@ -219,16 +327,24 @@ pub(crate) struct FieldFit {
 /// matches and its posterior; with `check`, also the model check's field (see [`check_field`]).
 pub(crate) fn fit_field(
     points: &[Point3],
+    scan_normals: &[Vector3],
     target: &IcpTarget,
     shapes: &[LocalShape],
     settings: &DeformationSettings,
     check: Option<&DeformationSettings>,
 ) -> Result<FieldFit> {
-    let (field, prior) = solve_field(points, target, shapes, settings)?;
-    // All final matches, edges included, for the quality report (coverage and residuals are
-    // about what the scanner saw); the posterior from those the fit used.
+    let tangent_mm = TANGENT_GATE_SPACINGS * cad_spacing_mm(target);
+    let (field, prior) = solve_field(points, scan_normals, tangent_mm, target, shapes, settings)?;
+    // All final matches, edges, burrs and films included (the tangential gate only drops points
+    // that lie on no CAD face), for the quality report (coverage and residuals are about what
+    // the scanner saw); the posterior from those the fit used.
+    let gates = Gates {
+        scan_normals: None,
+        tangent_mm,
+    };
     let matched = match_points(
         points,
+        &gates,
         target,
         shapes,
         Some(&field),
@@ -237,9 +353,11 @@ pub(crate) fn fit_field(
     );
     let fitted: Vec<Option<Matched>> = matched
         .iter()
-        .map(|m| {
-            m.filter(|(index, ..)| {
+        .zip(scan_normals)
+        .map(|(m, ns)| {
+            m.filter(|(index, _, n, ..)| {
                 !(settings.exclude_edges && shapes.get(*index).is_some_and(|l| l.near_edge))
+                    && agrees(ns, n)
             })
         })
         .collect();
@@ -315,8 +433,16 @@ fn check_field(
 
 /// The displacement field alone (CAD frame), and the prior it was fitted under: the
 /// Gauss-Newton iterations of [`fit_field`] without its final matches and posterior.
+///
+/// First `field.warmup_iterations` on every [`WARMUP_STRIDE`]-th point, the maximum distance
+/// shrinking from [`WARMUP_REACH_FACTOR`] × `max_distance_start_mm` to it; then
+/// `field.iterations`, the maximum distance shrinking from `max_distance_start_mm` to
+/// `max_distance_end_mm` by iteration `iterations − 3`, the first half on every
+/// [`EARLY_STRIDE`]-th point.
 fn solve_field(
     points: &[Point3],
+    scan_normals: &[Vector3],
+    tangent_mm: f64,
     target: &IcpTarget,
     shapes: &[LocalShape],
     settings: &DeformationSettings,
@@ -327,19 +453,43 @@ fn solve_field(
     };
     let shrink_steps = settings.iterations.saturating_sub(3).max(1);
     let ratio = settings.max_distance_end_mm / settings.max_distance_start_mm;
-    // The first half of the iterations, while the maximum distance is still wide, on every
-    // EARLY_STRIDE-th point (the points are in voxel order, so that is an even thinning).
+    // The points are in voxel order, so every k-th is an even thinning.
     let early: Vec<Point3> = points.iter().step_by(EARLY_STRIDE).copied().collect();
-    for it in 0..settings.iterations {
+    let warm: Vec<Point3> = points.iter().step_by(WARMUP_STRIDE).copied().collect();
+    let early_n: Vec<Vector3> = scan_normals.iter().step_by(EARLY_STRIDE).copied().collect();
+    let warm_n: Vec<Vector3> = scan_normals
+        .iter()
+        .step_by(WARMUP_STRIDE)
+        .copied()
+        .collect();
+    let warmup = settings.warmup_iterations;
+    for it in 0..warmup + settings.iterations {
         trim_geom::cancel::check()?;
-        let t = (it as f64 / shrink_steps as f64).min(1.0);
-        let max_d = settings.max_distance_start_mm * ratio.powf(t);
-        let matched = match_points(
-            if it < settings.iterations / 2 {
-                &early
+        let (sample, sample_normals, max_d) = if it < warmup {
+            let f = it as f64 / (warmup - 1).max(1) as f64;
+            let reach = WARMUP_REACH_FACTOR.powf(1.0 - f);
+            (
+                &warm[..],
+                &warm_n[..],
+                settings.max_distance_start_mm * reach,
+            )
+        } else {
+            let k = it - warmup;
+            let t = (k as f64 / shrink_steps as f64).min(1.0);
+            let max_d = settings.max_distance_start_mm * ratio.powf(t);
+            if k < settings.iterations / 2 {
+                (&early[..], &early_n[..], max_d)
             } else {
-                points
-            },
+                (points, scan_normals, max_d)
+            }
+        };
+        let gates = Gates {
+            scan_normals: Some(sample_normals),
+            tangent_mm,
+        };
+        let matched = match_points(
+            sample,
+            &gates,
             target,
             shapes,
             Some(&field),
@@ -369,6 +519,14 @@ fn solve_field(
     }
     Ok((field, prior))
 }
+
+/// The field's warm-up iterations (`field.warmup_iterations`) use every this-many-th point:
+/// they only have to bring the field within the main iterations' reach.
+pub const WARMUP_STRIDE: usize = 8;
+
+/// The warm-up's maximum distance starts at this multiple of `field.max_distance_start_mm` and
+/// shrinks geometrically to it.
+pub const WARMUP_REACH_FACTOR: f64 = 2.0;
 
 /// The zero field over the CAD (its bounds padded by a quarter of the control spacing) and
 /// its smoothness prior: where the fit and the model check start.

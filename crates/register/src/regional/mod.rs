@@ -39,7 +39,7 @@ pub use field_fit::{
     CURVATURE_NEIGHBOURS, EARLY_STRIDE, FIELD_DAMPING, FieldPosterior, LocalShape,
     MATCH_CANDIDATES, MIN_SAME_FACE_COS, POSTERIOR_PRIOR_SCALE, PRIOR_REACH, local_shapes,
 };
-use field_fit::{final_matches, fit_field, move_contour};
+use field_fit::{final_matches, fit_field, move_contour, scan_normals};
 pub use quality::{
     BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_MODEL_FACTOR,
     BOUND_RESIDUAL_FACTOR, BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS,
@@ -325,9 +325,17 @@ pub fn register(
             } else {
                 "deformation field"
             };
+            let normals = stage(&mut timings, "scan normals", || {
+                Ok(scan_normals(
+                    scan.points(),
+                    &picked,
+                    &cad_from_scan.isometry.rotation,
+                ))
+            })?;
             let fit = stage(&mut timings, name, || {
                 fit_field(
                     &field_points,
+                    &normals,
                     &target,
                     &shapes,
                     &settings.field,
