@@ -500,6 +500,7 @@ pub fn generate(params: &SynthParams) -> Result<SynthCase> {
     let scan = scan_part(
         params,
         &mut rng,
+        None,
         &sampler,
         (
             &BurrSampler::new(&edges, &burrs),

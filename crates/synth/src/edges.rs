@@ -92,7 +92,8 @@ impl SynthCase {
         self.rescan_films(burrs, &Film::of(blockages), seed)
     }
 
-    /// [`SynthCase::rescan`] with the films as they stand (what hatching left of them).
+    /// [`SynthCase::rescan`] with the films as they stand (what hatching left of them). Its
+    /// dropout patches lie where `seed` alone puts them, whatever the burrs and films.
     pub fn rescan_films(&self, burrs: &[Burr], films: &[Film], seed: u64) -> Result<PointCloud> {
         let cutouts = cutouts();
         let edges = contour_edges(&cutouts);
@@ -102,6 +103,7 @@ impl SynthCase {
         scan_part(
             &self.params,
             &mut Xoshiro256PlusPlus::seed_from_u64(seed),
+            Some(seed ^ RESCAN_DROPOUT_STREAM),
             &sampler,
             (
                 &BurrSampler::new(&edges, burrs),
@@ -113,6 +115,9 @@ impl SynthCase {
         )
     }
 }
+
+/// Mixed into a rescan's seed for its dropout centres' own stream.
+const RESCAN_DROPOUT_STREAM: u64 = 0x6472_6f70_6f75_7473;
 
 /// What stands of `burrs` after a trim that left `residual_mm(contour, point)` of web at each
 /// contour point: one short burr per stretch between neighbouring points where either end keeps

@@ -99,15 +99,22 @@ pub(crate) fn fixed_views(
         .collect()
 }
 
+/// A rescan's dropout centre is drawn from the part's surface until a seen point comes up, at
+/// most this many times (a core's seen share is a third or more).
+const DROPOUT_CENTRE_ATTEMPTS: usize = 1000;
+
 /// What the scanner sees of the deformed, placed part (and its burrs): samples of the surface
 /// seen by at least one view (facing it within `MAX_VIEW_INCIDENCE_DEG` and not hidden by the
 /// part itself: a ray cast toward that view's scanner against the deformed mesh), with dropout
 /// patches, Gaussian noise and outliers. The part and the burrs are sampled in proportion to
 /// their areas. Returns the scan, scan frame. Draws from `rng` in a fixed order, so a seed
-/// gives the same scan.
+/// gives the same scan. With `dropout_seed` (a rescan), the dropout patches' centres are drawn
+/// from a stream of their own on the part's seen surface (see below).
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn scan_part(
     params: &SynthParams,
     rng: &mut Xoshiro256PlusPlus,
+    dropout_seed: Option<u64>,
     sampler: &SurfaceSampler,
     (burrs, films): (&BurrSampler, &BlockageSampler),
     mesh: &DomainMesh,
@@ -160,13 +167,33 @@ pub(crate) fn scan_part(
             got: visible.len(),
         });
     }
-    // Dropouts: balls around random visible points.
-    let holes: Vec<(Point3, f64)> = (0..params.dropouts)
-        .map(|_| {
-            let c = visible[rng.random_range(0..visible.len())];
-            (c, rng.random_range(1.5..3.0))
-        })
-        .collect();
+    // Dropouts: balls around random visible points. A rescan draws their centres from the
+    // part's own seen surface with a stream of their own: drawn from `visible`, they moved with
+    // whatever a trim left of the burrs and films (a cut differing by a fraction of a
+    // micrometre changed the burrs' area, hence every later draw), so where a rescan lost its
+    // patches, and which contours it left uncovered, was chance.
+    let holes: Vec<(Point3, f64)> = match dropout_seed {
+        None => (0..params.dropouts)
+            .map(|_| {
+                let c = visible[rng.random_range(0..visible.len())];
+                (c, rng.random_range(1.5..3.0))
+            })
+            .collect(),
+        Some(seed) => {
+            let mut own = <Xoshiro256PlusPlus as rand::SeedableRng>::seed_from_u64(seed);
+            (0..params.dropouts)
+                .filter_map(|_| {
+                    let radius = own.random_range(1.5..3.0);
+                    (0..DROPOUT_CENTRE_ATTEMPTS).find_map(|_| {
+                        let s = sampler.sample(&mut own);
+                        let p = scan_from_domain(&s.point);
+                        seen(&p, &mapped_normal(&scan_from_domain, &s.point, &s.normal))
+                            .then_some((p, radius))
+                    })
+                })
+                .collect()
+        }
+    };
     visible.retain(|p| holes.iter().all(|(c, r)| (p - c).norm() > *r));
     let noise = Normal::new(0.0, params.noise_mm.max(0.0))
         .map_err(|e| GeomError::invalid("noise_mm", e.to_string()))?;
