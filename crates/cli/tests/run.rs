@@ -217,13 +217,16 @@ fn killed_run_resumes_without_marking_a_layer_twice() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
     // Slow enough (real-time devices) that the kill lands midway.
-    let child = spawn_real_time_run(&[], &out);
-    kill_when(
-        child,
+    let mut child = spawn_real_time_run(&[], &out);
+    wait_until(
+        &mut child,
         || layers_done(&out).len() >= 2,
         RUN_TIMEOUT,
         "it could be killed midway",
     );
+    // While it runs the folder is its alone; killed, it holds nothing.
+    a_second_writer_is_refused(&child, &out, &out);
+    kill(child);
     let before = layers_done(&out);
     let planned = planned_layers(&out);
     assert!(
@@ -245,13 +248,17 @@ fn a_retrim_killed_midway_resumes_from_its_own_folder_without_marking_a_layer_tw
     let out = tmp.path().join("run");
     let retrim = out.join("retrim_1");
     // Real-time devices, so the kill lands inside the first retrim.
-    let child = spawn_real_time_run(&["--verify"], &out);
-    kill_when(
-        child,
+    let mut child = spawn_real_time_run(&["--verify"], &out);
+    wait_until(
+        &mut child,
         || retrim.join("journal.jsonl").exists() && !layers_done(&retrim).is_empty(),
         3 * RUN_TIMEOUT,
         "its retrim could be killed midway",
     );
+    // The retrim is written under the run's lock: resuming it while the run lives is refused,
+    // naming the run.
+    a_second_writer_is_refused(&child, &out, &retrim);
+    kill(child);
     let planned = planned_layers(&retrim);
     assert!(
         layers_done(&retrim).len() < planned.len(),
@@ -423,6 +430,24 @@ fn kill_when(
     limit: Duration,
     what: &str,
 ) {
+    wait_until(&mut child, ready, limit, what);
+    kill(child);
+}
+
+/// Kills `child` with SIGKILL and reaps it.
+fn kill(mut child: std::process::Child) {
+    child.kill().expect("the run is killed");
+    child.wait().expect("the killed run is reaped");
+}
+
+/// Waits until `ready()` holds while `child` runs; fails when the run ends first (`what` says
+/// before what) or `limit` passes.
+fn wait_until(
+    child: &mut std::process::Child,
+    ready: impl Fn() -> bool,
+    limit: Duration,
+    what: &str,
+) {
     let start = Instant::now();
     while !ready() {
         if let Some(status) = child.try_wait().expect("the run's status") {
@@ -431,8 +456,36 @@ fn kill_when(
         assert!(start.elapsed() < limit, "nothing to kill in time: {what}");
         std::thread::sleep(Duration::from_millis(50));
     }
-    child.kill().expect("the run is killed");
-    child.wait().expect("the killed run is reaped");
+}
+
+/// How long a refusal of a locked run folder may take (debug build, loaded machine): it must
+/// not wait for the lock, which the running demo holds for minutes.
+const REFUSAL_TIMEOUT: Duration = Duration::from_secs(20);
+
+/// While the run `holder` writes `folder`, a second trimctl on it is refused at once (exit 1)
+/// naming the folder and the holder's process id: `--resume TARGET` (the folder, or one of its
+/// retrims, which resumes the folder) and a fresh `run --out FOLDER`.
+fn a_second_writer_is_refused(holder: &std::process::Child, folder: &Path, target: &Path) {
+    for (what, target) in [("--resume", target), ("--out", folder)] {
+        let start = Instant::now();
+        let result = Command::new(TRIMCTL)
+            .args(["run", "--sim-time-scale", "0.01", what])
+            .arg(target)
+            .output()
+            .expect("trimctl runs");
+        let took = start.elapsed();
+        let stderr = String::from_utf8_lossy(&result.stderr);
+        assert_eq!(result.status.code(), Some(1), "{what}: {stderr}");
+        assert!(
+            stderr.contains(&format!(
+                "{} is in use by another trimctl (PID {}",
+                folder.display(),
+                holder.id()
+            )),
+            "{what}: the folder and the holder's PID not named: {stderr}"
+        );
+        assert!(took < REFUSAL_TIMEOUT, "{what}: refused after {took:?}");
+    }
 }
 
 /// `trimctl run --resume DIR --cut-layer redo` on fast devices succeeds, and then every layer in
