@@ -381,6 +381,7 @@ mod tests {
             excess_length_mm: 0.0,
             gouge_depth_um: 0.0,
             blocked_fraction: None,
+            film: None,
             uncertainty_um: u_um,
             coverage,
             reason: String::new(),
