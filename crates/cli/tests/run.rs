@@ -1210,8 +1210,9 @@ fn blocked_in(contours: &BTreeMap<i64, serde_json::Value>) -> Vec<i64> {
 /// `run --verify --demo-blockages 0.15`: films 50–200 µm thick over part of 15 % of the demo's
 /// openings. The job (every contour trimmed once) leaves them; inspection 1 fails each on its
 /// blocked opening; the retrim hatches each blocked opening (`[trim] hatch_blocked`, on by
-/// default) with the passes through 200 µm, the twin clears the films where the landed kerfs
-/// sweep them, and the last inspection passes every one of those contours with its opening
+/// default) with the passes through its film's thickness (measured where the scan sees both
+/// its sides, else 200 µm; the retrim's line says which), the twin clears the films where the
+/// landed kerfs sweep them, and the last inspection passes every one of those contours with its opening
 /// read at most 10 % covered (the fail line; the reading of a clean hole is 0–4 %), and the
 /// twin's truth has at most 0.5 % of any opening still covered. With `hatch_blocked = false`
 /// the films stay: the part fails, exit 1.
@@ -1219,7 +1220,7 @@ fn blocked_in(contours: &BTreeMap<i64, serde_json::Value>) -> Vec<i64> {
 fn blocked_openings_are_hatched_in_the_retrim_and_the_rescan_sees_them_cleared() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
-    let (_, rounds) = run_verify(&["--demo-blockages", DEMO_BLOCKAGES], &out);
+    let (stdout, rounds) = run_verify(&["--demo-blockages", DEMO_BLOCKAGES], &out);
     let first = inspected(&out.join("verify_1"));
     let blocked = blocked_in(&first);
     eprintln!(
@@ -1246,6 +1247,24 @@ fn blocked_openings_are_hatched_in_the_retrim_and_the_rescan_sees_them_cleared()
             .join(format!("blocked_{}.csv", blocked[0]))
             .is_file()
     );
+    // The retrim says, per opening, where its film's thickness came from: measured (both
+    // sides seen) or the job's `[trim] film_thickness_um`.
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("retrim 1: blocked openings hatched:"))
+        .unwrap_or_else(|| panic!("no retrim hatch line:\n{stdout}"));
+    eprintln!("{line}");
+    for id in &blocked {
+        let from = line
+            .split(&format!("contour {id} ("))
+            .nth(1)
+            .and_then(|rest| rest.split(')').next())
+            .unwrap_or_else(|| panic!("contour {id} not in {line}"));
+        assert!(
+            from.contains("µm measured,") || from.contains("film 200 µm from the job,"),
+            "contour {id}: {from}"
+        );
+    }
     let last = rounds.last().unwrap();
     let k = rounds.len();
     let end = inspected(&out.join(format!("verify_{k}")));
