@@ -284,13 +284,16 @@ pub struct TrimSettings {
     /// retrims, every contour rimming an opening whose blocked_fraction exceeds the
     /// inspection's max_blocked_fraction (0.1: the share that fails it) becomes a hatch region:
     /// the film is hatched inside the rim moved half a kerf inward, at a pitch of 3/4 of the
-    /// kerf, each track with the passes film_thickness_um needs. false: blocked openings are
+    /// kerf, each track with the passes through the film's thickness: measured where the scan
+    /// sees the film from both sides, else film_thickness_um. false: blocked openings are
     /// left as they are (and fail inspection).
     pub hatch_blocked: bool,
-    /// The film thickness a blocked opening's hatch passes are set for, µm (1-2000): the scan
-    /// does not measure it (the inspection sees whether an opening is covered, not how thick
-    /// the cover is), so give the thickest film expected; the default is the thickest the
-    /// synthetic part makes (200 µm: 5 passes at 40 µm per pass).
+    /// The film thickness a blocked opening's hatch passes are set for where the scan sees the
+    /// film from one side only, µm (1-2000): where it sees both sides (a view from below
+    /// through the opening) the inspection measures the thickness and the passes cut through
+    /// that plus twice its uncertainty instead; from above alone it sees whether an opening is
+    /// covered, not how thick the cover is, so give the thickest film expected; the default is
+    /// the thickest the synthetic part makes (200 µm: 5 passes at 40 µm per pass).
     pub film_thickness_um: f64,
 }
 

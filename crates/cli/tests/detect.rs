@@ -555,6 +555,39 @@ fn only_detected_hatches_the_blocked_openings_in_the_job_itself_and_the_rescan_s
         .iter()
         .map(|o| o["contour"].as_i64().expect("contour"))
         .collect();
+    // Each hatched film's passes cut through its thickness: measured where the scan saw both
+    // its sides (plus twice its uncertainty), else `[trim] film_thickness_um` (200 µm); the
+    // record and report.md say which.
+    let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    for o in summary["detection"]["blocked_hatched"]
+        .as_array()
+        .expect("detection.blocked_hatched")
+    {
+        let (t_um, passes) = (num(o, "film_thickness_um"), num(o, "passes"));
+        match o["thickness_from"].as_str() {
+            Some("measured") => {
+                let u_um = num(o, "film_thickness_uncertainty_um");
+                assert!((50.0 - 15.0..=200.0 + 15.0).contains(&t_um), "{o}");
+                assert!(
+                    (passes - ((t_um + 2.0 * u_um) / 40.0).ceil()).abs() < 0.5,
+                    "{o}"
+                );
+            }
+            Some("config") => {
+                assert_eq!((t_um, passes), (200.0, 5.0), "{o}");
+                assert!(o["film_thickness_uncertainty_um"].is_null(), "{o}");
+            }
+            _ => panic!("thickness_from missing: {o}"),
+        }
+        eprintln!(
+            "contour {}: film {t_um:.1} µm ({}), {passes} passes",
+            o["contour"], o["thickness_from"]
+        );
+    }
+    assert!(
+        report.contains("| film thickness (µm) | thickness from |"),
+        "{report}"
+    );
     let first = inspection(&out.join("detect"));
     let blocked: BTreeSet<i64> = first
         .iter()

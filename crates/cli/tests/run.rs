@@ -217,13 +217,16 @@ fn killed_run_resumes_without_marking_a_layer_twice() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
     // Slow enough (real-time devices) that the kill lands midway.
-    let child = spawn_real_time_run(&[], &out);
-    kill_when(
-        child,
+    let mut child = spawn_real_time_run(&[], &out);
+    wait_until(
+        &mut child,
         || layers_done(&out).len() >= 2,
         RUN_TIMEOUT,
         "it could be killed midway",
     );
+    // While it runs the folder is its alone; killed, it holds nothing.
+    a_second_writer_is_refused(&child, &out, &out);
+    kill(child);
     let before = layers_done(&out);
     let planned = planned_layers(&out);
     assert!(
@@ -245,13 +248,17 @@ fn a_retrim_killed_midway_resumes_from_its_own_folder_without_marking_a_layer_tw
     let out = tmp.path().join("run");
     let retrim = out.join("retrim_1");
     // Real-time devices, so the kill lands inside the first retrim.
-    let child = spawn_real_time_run(&["--verify"], &out);
-    kill_when(
-        child,
+    let mut child = spawn_real_time_run(&["--verify"], &out);
+    wait_until(
+        &mut child,
         || retrim.join("journal.jsonl").exists() && !layers_done(&retrim).is_empty(),
         3 * RUN_TIMEOUT,
         "its retrim could be killed midway",
     );
+    // The retrim is written under the run's lock: resuming it while the run lives is refused,
+    // naming the run.
+    a_second_writer_is_refused(&child, &out, &retrim);
+    kill(child);
     let planned = planned_layers(&retrim);
     assert!(
         layers_done(&retrim).len() < planned.len(),
@@ -423,6 +430,24 @@ fn kill_when(
     limit: Duration,
     what: &str,
 ) {
+    wait_until(&mut child, ready, limit, what);
+    kill(child);
+}
+
+/// Kills `child` with SIGKILL and reaps it.
+fn kill(mut child: std::process::Child) {
+    child.kill().expect("the run is killed");
+    child.wait().expect("the killed run is reaped");
+}
+
+/// Waits until `ready()` holds while `child` runs; fails when the run ends first (`what` says
+/// before what) or `limit` passes.
+fn wait_until(
+    child: &mut std::process::Child,
+    ready: impl Fn() -> bool,
+    limit: Duration,
+    what: &str,
+) {
     let start = Instant::now();
     while !ready() {
         if let Some(status) = child.try_wait().expect("the run's status") {
@@ -431,8 +456,36 @@ fn kill_when(
         assert!(start.elapsed() < limit, "nothing to kill in time: {what}");
         std::thread::sleep(Duration::from_millis(50));
     }
-    child.kill().expect("the run is killed");
-    child.wait().expect("the killed run is reaped");
+}
+
+/// How long a refusal of a locked run folder may take (debug build, loaded machine): it must
+/// not wait for the lock, which the running demo holds for minutes.
+const REFUSAL_TIMEOUT: Duration = Duration::from_secs(20);
+
+/// While the run `holder` writes `folder`, a second trimctl on it is refused at once (exit 1)
+/// naming the folder and the holder's process id: `--resume TARGET` (the folder, or one of its
+/// retrims, which resumes the folder) and a fresh `run --out FOLDER`.
+fn a_second_writer_is_refused(holder: &std::process::Child, folder: &Path, target: &Path) {
+    for (what, target) in [("--resume", target), ("--out", folder)] {
+        let start = Instant::now();
+        let result = Command::new(TRIMCTL)
+            .args(["run", "--sim-time-scale", "0.01", what])
+            .arg(target)
+            .output()
+            .expect("trimctl runs");
+        let took = start.elapsed();
+        let stderr = String::from_utf8_lossy(&result.stderr);
+        assert_eq!(result.status.code(), Some(1), "{what}: {stderr}");
+        assert!(
+            stderr.contains(&format!(
+                "{} is in use by another trimctl (PID {}",
+                folder.display(),
+                holder.id()
+            )),
+            "{what}: the folder and the holder's PID not named: {stderr}"
+        );
+        assert!(took < REFUSAL_TIMEOUT, "{what}: refused after {took:?}");
+    }
 }
 
 /// `trimctl run --resume DIR --cut-layer redo` on fast devices succeeds, and then every layer in
@@ -1157,8 +1210,9 @@ fn blocked_in(contours: &BTreeMap<i64, serde_json::Value>) -> Vec<i64> {
 /// `run --verify --demo-blockages 0.15`: films 50–200 µm thick over part of 15 % of the demo's
 /// openings. The job (every contour trimmed once) leaves them; inspection 1 fails each on its
 /// blocked opening; the retrim hatches each blocked opening (`[trim] hatch_blocked`, on by
-/// default) with the passes through 200 µm, the twin clears the films where the landed kerfs
-/// sweep them, and the last inspection passes every one of those contours with its opening
+/// default) with the passes through its film's thickness (measured where the scan sees both
+/// its sides, else 200 µm; the retrim's line says which), the twin clears the films where the
+/// landed kerfs sweep them, and the last inspection passes every one of those contours with its opening
 /// read at most 10 % covered (the fail line; the reading of a clean hole is 0–4 %), and the
 /// twin's truth has at most 0.5 % of any opening still covered. With `hatch_blocked = false`
 /// the films stay: the part fails, exit 1.
@@ -1166,7 +1220,7 @@ fn blocked_in(contours: &BTreeMap<i64, serde_json::Value>) -> Vec<i64> {
 fn blocked_openings_are_hatched_in_the_retrim_and_the_rescan_sees_them_cleared() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
-    let (_, rounds) = run_verify(&["--demo-blockages", DEMO_BLOCKAGES], &out);
+    let (stdout, rounds) = run_verify(&["--demo-blockages", DEMO_BLOCKAGES], &out);
     let first = inspected(&out.join("verify_1"));
     let blocked = blocked_in(&first);
     eprintln!(
@@ -1193,6 +1247,24 @@ fn blocked_openings_are_hatched_in_the_retrim_and_the_rescan_sees_them_cleared()
             .join(format!("blocked_{}.csv", blocked[0]))
             .is_file()
     );
+    // The retrim says, per opening, where its film's thickness came from: measured (both
+    // sides seen) or the job's `[trim] film_thickness_um`.
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("retrim 1: blocked openings hatched:"))
+        .unwrap_or_else(|| panic!("no retrim hatch line:\n{stdout}"));
+    eprintln!("{line}");
+    for id in &blocked {
+        let from = line
+            .split(&format!("contour {id} ("))
+            .nth(1)
+            .and_then(|rest| rest.split(')').next())
+            .unwrap_or_else(|| panic!("contour {id} not in {line}"));
+        assert!(
+            from.contains("µm measured,") || from.contains("film 200 µm from the job,"),
+            "contour {id}: {from}"
+        );
+    }
     let last = rounds.last().unwrap();
     let k = rounds.len();
     let end = inspected(&out.join(format!("verify_{k}")));

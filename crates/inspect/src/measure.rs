@@ -32,7 +32,7 @@ use crate::contours::PathIndex;
 use crate::crop::Crop;
 use crate::error::{InspectError, Result};
 use crate::height::{Reading, web_heights_mm};
-use crate::opening::{Opening, covered_share, opening_of};
+use crate::opening::{FilmThickness, Opening, opening_of, read_opening};
 use crate::placement::Placement;
 use crate::settings::InspectSettings;
 use crate::verdict::{Limits, Measured, Verdict, decide, uncertainty_um};
@@ -79,6 +79,10 @@ pub struct ContourInspection {
     /// For a contour that rims a hole or slot: the share of the opening still covered; none
     /// where there is no opening.
     pub blocked_fraction: Option<f64>,
+    /// For a blocked opening whose film the scan sees from both sides: its thickness
+    /// ([`crate::opening::read_opening`]); none where only one side (or no film) is seen.
+    #[serde(default)]
+    pub film: Option<FilmThickness>,
     /// The expanded uncertainty U, µm.
     pub uncertainty_um: f64,
     /// Share of the contour's bins the scan covers.
@@ -357,9 +361,10 @@ pub fn inspect(
                 .filter(|&&c| c >= settings.min_bin_points)
                 .count();
             let coverage = covered as f64 / n_bins as f64;
-            let blocked_fraction = opening
+            let reading = opening
                 .as_ref()
-                .map(|o| covered_share(o, &tree, &mapped, settings));
+                .map(|o| read_opening(o, &tree, &mapped, noise_um * 1e-3, settings));
+            let blocked_fraction = reading.map(|r| r.covered_share);
             let u = uncertainty_um(noise_um, *bound_um, settings.coverage_factor);
             let measured = Measured {
                 excess_height_um: top(&excess_bins),
@@ -376,6 +381,7 @@ pub fn inspect(
                 excess_length_mm: span(&excess_bins),
                 gouge_depth_um: measured.gouge_depth_um,
                 blocked_fraction,
+                film: reading.and_then(|r| r.film),
                 uncertainty_um: u,
                 coverage,
                 reason,

@@ -120,7 +120,8 @@ pub(super) struct Detection {
     pub(super) contours: Vec<ContourCall>,
     /// The blocked openings hatched (`[trim] hatch_blocked`; filled once planned).
     pub(super) blocked_hatched: Vec<super::blocked::BlockedHatch>,
-    /// The film thickness their passes are set for, µm (`[trim] film_thickness_um`).
+    /// The film thickness their passes are set for where a film is seen from one side only,
+    /// µm (`[trim] film_thickness_um`; a film seen from both sides is measured).
     pub(super) film_thickness_um: f64,
     /// The inspection of the first scan, per contour.
     #[serde(skip)]
@@ -381,6 +382,7 @@ mod tests {
             excess_length_mm: 0.0,
             gouge_depth_um: 0.0,
             blocked_fraction: None,
+            film: None,
             uncertainty_um: u_um,
             coverage,
             reason: String::new(),

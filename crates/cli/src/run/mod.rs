@@ -31,6 +31,7 @@ use crate::summary;
 use execute::{TwinLink, execute, twin_link};
 pub(crate) use execute::{connect, start_simulators};
 use inputs::{DemoSpec, load_inputs};
+use lock::RunLock;
 pub(crate) use report::SpotReport;
 use report::{
     BeamBlock, RunNotes, append_resume_report, shutdown_of, shutdown_sentence, write_report,
@@ -40,6 +41,7 @@ mod blocked;
 mod detect;
 mod execute;
 mod inputs;
+mod lock;
 mod record;
 mod report;
 #[cfg(feature = "sim")]
@@ -104,6 +106,8 @@ pub mod files {
         expect(dead_code, reason = "written by --verify, which needs the simulators")
     )]
     pub const TWIN_CUTS: &str = "twin_cuts.jsonl";
+    /// The run folder's lock, held by the one process writing it; holds that process's id.
+    pub const LOCK: &str = ".lock";
 }
 
 /// The most retrim rounds `--verify --rounds` allows.
@@ -354,7 +358,10 @@ fn apply_overrides(config: &mut JobConfig, args: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn new_run_dir(config: &JobConfig, args: &Args) -> anyhow::Result<PathBuf> {
+/// The fresh run's folder (`--out`, or a time-stamped one under `[output] runs_dir`), made
+/// and locked for this process; refused when another process holds it or it already holds a
+/// run.
+fn new_run_dir(config: &JobConfig, args: &Args) -> anyhow::Result<(PathBuf, RunLock)> {
     let dir = match &args.out {
         Some(d) => d.clone(),
         None => {
@@ -364,6 +371,10 @@ fn new_run_dir(config: &JobConfig, args: &Args) -> anyhow::Result<PathBuf> {
             config.output.runs_dir.join(stamp)
         }
     };
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    // Locked before the journal is looked for: a run still writing the folder is named as
+    // such, not as one to resume.
+    let lock = RunLock::acquire(&dir)?;
     if dir.join(files::JOURNAL).exists() {
         bail!(
             "{} already holds a run (journal present): use --resume {} to continue it, or another --out",
@@ -371,8 +382,7 @@ fn new_run_dir(config: &JobConfig, args: &Args) -> anyhow::Result<PathBuf> {
             dir.display()
         );
     }
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    Ok(dir)
+    Ok((dir, lock))
 }
 
 /// A fresh run: the pipeline's steps in order. Each step writes its output into the run
@@ -380,7 +390,8 @@ fn new_run_dir(config: &JobConfig, args: &Args) -> anyhow::Result<PathBuf> {
 fn fresh(args: &Args, live: Option<&LiveServer>) -> anyhow::Result<()> {
     let mut timings = Timings::default();
     let t0 = Instant::now();
-    let (config, run_dir) = open_run(args)?;
+    // Held until the run ends: this process alone writes the folder and its retrims.
+    let (config, run_dir, _lock) = open_run(args)?;
     let spinner = stage("loading the part");
     let demo = DemoSpec {
         seed: args.demo_seed,
@@ -774,17 +785,18 @@ fn pair(p95: Option<f64>, max: Option<f64>) -> String {
     }
 }
 
-/// The job read (overrides applied) and the run folder made, with the run's own copy of the
-/// field correction it uses (the Job records its checksum), so the folder alone can be resumed
-/// and audited, and the effective job file naming that copy relative to itself and the part's
-/// other files absolutely.
-fn open_run(args: &Args) -> anyhow::Result<(JobConfig, PathBuf)> {
+/// The job read (overrides applied) and the run folder made and locked (the lock is returned
+/// to be held while the run writes), with the run's own copy of the field correction it uses
+/// (the Job records its checksum), so the folder alone can be resumed and audited, and the
+/// effective job file naming that copy relative to itself and the part's other files
+/// absolutely.
+fn open_run(args: &Args) -> anyhow::Result<(JobConfig, PathBuf, RunLock)> {
     let mut config = match &args.job {
         Some(p) => JobConfig::load(p)?,
         None => JobConfig::default(),
     };
     apply_overrides(&mut config, args)?;
-    let run_dir = new_run_dir(&config, args)?;
+    let (run_dir, lock) = new_run_dir(&config, args)?;
     if let Some(src) = config.plan.calibration.field_correction.clone() {
         let copy = run_dir.join(files::FIELD);
         std::fs::copy(&src, &copy).with_context(|| {
@@ -827,7 +839,7 @@ fn open_run(args: &Args) -> anyhow::Result<(JobConfig, PathBuf)> {
         toml::to_string(&effective).context("serialising the job file")?,
     )?;
     eprintln!("trimctl run: recording to {}", run_dir.display());
-    Ok((config, run_dir))
+    Ok((config, run_dir, lock))
 }
 
 /// The registration of the run's inputs under its job, with a spinner saying `what`.
@@ -1111,6 +1123,9 @@ fn resume(dir: &Path, args: &Args, live: Option<&LiveServer>) -> anyhow::Result<
     let run_dir = &resume_target(dir)?;
     let mut config = JobConfig::load(&run_dir.join(files::JOB))
         .with_context(|| format!("{} is not a run folder", run_dir.display()))?;
+    // Held until the resume ends, before anything is read that a live writer could be
+    // changing: a second process on the folder is refused at once.
+    let _lock = RunLock::acquire(run_dir)?;
     apply_overrides(&mut config, args)?;
     let text = std::fs::read_to_string(run_dir.join(files::PLAN))
         .with_context(|| format!("cannot read {}", run_dir.join(files::PLAN).display()))?;

@@ -331,8 +331,9 @@ fn twin_rescan(config: &JobConfig, part: &TwinPart, seed: u64) -> anyhow::Result
 
 /// Plans the failing contours (each polyline with the passes its measured excess height
 /// needs: a web is no thicker than it is tall) and, with `[trim] hatch_blocked`, hatches the
-/// blocked openings among them (`blocked`: each track with the passes of `[trim]
-/// film_thickness_um`; a rim blocked but with no excess is hatched, not trimmed again), into
+/// blocked openings among them (`blocked`: each track with the passes through the film's
+/// measured thickness, or `[trim] film_thickness_um` where only one side is seen; a rim
+/// blocked but with no excess is hatched, not trimmed again), into
 /// `retrim_<k>/` (a run folder of its own: the effective job file and field correction copied
 /// in, plan.json); the rims hatched. Nothing is executed.
 fn plan_retrim(
