@@ -10,7 +10,9 @@
 //! 3. **Deformation field.** A quadratic B-spline displacement field `F(x) = x + d(x)` over the
 //!    part ([`crate::deformation`]), fitted by Gauss-Newton to scan → CAD point-to-plane residuals
 //!    `r = n'·(F(c) − q)` (CAD normals carried by `F`; scan points matched within a sample
-//!    spacing of a sharp edge left out, their face being a biased guess), with a Huber kernel,
+//!    spacing of a sharp edge left out, their face being a biased guess; a match whose scan
+//!    normal turns from its CAD face's, or that lies beyond the face's extent, left out: burr
+//!    webs and films over holes are what the laser removes, not the part), with a Huber kernel,
 //!    a maximum distance shrinking from the coarse residual to a few noise levels, and a
 //!    second-difference smoothness prior that leaves affine motion free. Directions that a patch
 //!    cannot fix (a straight strip sliding along itself) are carried by the field from the
@@ -37,7 +39,9 @@ pub use coarse::{
 };
 pub use field_fit::{
     CURVATURE_NEIGHBOURS, EARLY_STRIDE, FIELD_DAMPING, FieldPosterior, LocalShape,
-    MATCH_CANDIDATES, MIN_SAME_FACE_COS, POSTERIOR_PRIOR_SCALE, PRIOR_REACH, local_shapes,
+    MATCH_CANDIDATES, MIN_SAME_FACE_COS, POSTERIOR_PRIOR_SCALE, PRIOR_REACH, SCAN_NORMAL_MIN_COS,
+    SCAN_NORMAL_NEIGHBOURS, SCAN_NORMAL_RADIUS_MM, TANGENT_GATE_SPACINGS, WARMUP_REACH_FACTOR,
+    WARMUP_STRIDE, local_shapes,
 };
 use field_fit::{final_matches, fit_field, move_contour, scan_normals};
 pub use quality::{
