@@ -468,23 +468,9 @@ mod tests {
         }
     }
 
-    /// Seeded uniforms on (0, 1) (xorshift64*) and standard Gaussians (Box–Muller).
-    struct Draws(u64);
+    use crate::draws::Draws;
 
     impl Draws {
-        fn uniform(&mut self) -> f64 {
-            self.0 ^= self.0 >> 12;
-            self.0 ^= self.0 << 25;
-            self.0 ^= self.0 >> 27;
-            let x = self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11;
-            (x as f64 + 0.5) / (1u64 << 53) as f64
-        }
-
-        fn gauss(&mut self) -> f64 {
-            let (u1, u2) = (self.uniform(), self.uniform());
-            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-        }
-
         /// A web's readings above `threshold`, drawn from the model: `sides` points on its
         /// upper side (uniform out to `h`, level with the face) and `edges` on its free edge
         /// (at `h`, uniform down to `thickness` below the face), each coordinate with noise σ.

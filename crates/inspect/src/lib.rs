@@ -21,6 +21,8 @@
 
 pub mod contours;
 pub mod crop;
+#[cfg(test)]
+mod draws;
 pub mod error;
 pub mod height;
 pub mod measure;

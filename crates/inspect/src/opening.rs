@@ -382,23 +382,7 @@ fn median(values: &[f64]) -> f64 {
 mod tests {
     use super::*;
 
-    /// Seeded uniforms on (0, 1) (xorshift64*) and standard Gaussians (Box–Muller).
-    struct Draws(u64);
-
-    impl Draws {
-        fn uniform(&mut self) -> f64 {
-            self.0 ^= self.0 >> 12;
-            self.0 ^= self.0 << 25;
-            self.0 ^= self.0 >> 27;
-            let x = self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11;
-            (x as f64 + 0.5) / (1u64 << 53) as f64
-        }
-
-        fn gauss(&mut self) -> f64 {
-            let (u1, u2) = (self.uniform(), self.uniform());
-            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-        }
-    }
+    use crate::draws::Draws;
 
     const SIGMA_MM: f64 = 0.01;
     /// A 3 × 3 mm opening on a 0.1 mm grid in the z = 0 face.
