@@ -11,7 +11,10 @@ use trim_register::regional::{CoarseInit, RegisterSettings, Registration, regist
 
 #[path = "common/posed.rs"]
 mod posed;
+#[path = "common/untrimmed.rs"]
+mod untrimmed;
 use posed::{DIRECTIONS, PosedCase, fixture_error, posed_case};
+use untrimmed::{register_untrimmed, untrimmed_case};
 
 /// The accuracy targets of `tests/regional.rs` (the issue's), mm.
 const CROSS_EDGE_P95_MM: f64 = 0.020;
@@ -206,30 +209,10 @@ fn a_one_view_core_is_held_along_its_span_by_the_faces_the_scanner_saw() {
     // start 2.1 mm along the span, beyond the finer levels' reach, and the part was refused
     // with every contour 1.8–2.5 mm off. Fitted again against the CAD the scan supports at
     // the captured pose, it registers.
-    let case = trim_synth::generate(&trim_synth::SynthParams {
-        seed: 202,
-        scan_points: 500_000,
-        dropouts: 0,
-        burr_fraction: 0.3,
-        burr_height_mm: [0.05, 0.6],
-        burr_thickness_mm: [0.02, 0.1],
-        blockage_fraction: 0.15,
-        ..trim_synth::SynthParams::default()
-    })
-    .unwrap();
+    let case = untrimmed_case(202);
     assert_eq!(case.views.len(), 1, "the case is a one-view scan");
-    let settings = RegisterSettings {
-        scanner_viewpoint_mm: Some(case.scanner_in_scan.coords.into()),
-        ..RegisterSettings::default()
-    };
-    let reg = register(
-        &case.cad_points,
-        &case.scan,
-        &case.path,
-        &Similarity3::identity(),
-        &settings,
-    )
-    .unwrap();
+    assert_eq!(case.scan_from_cad_nominal, Similarity3::identity());
+    let reg = register_untrimmed(&case);
     assert!(
         reg.report.global.refused.is_none(),
         "{:?}",

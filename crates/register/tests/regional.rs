@@ -8,6 +8,10 @@ use trim_register::regional::{Flag, RegisterSettings, register};
 use trim_register::scaled_icp_baseline::{PaperSettings, paper_method};
 use trim_synth::{SynthCase, SynthParams, generate};
 
+#[path = "common/untrimmed.rs"]
+mod untrimmed;
+use untrimmed::{register_untrimmed, untrimmed_case};
+
 /// The targets, mm.
 const CROSS_EDGE_P95_MM: f64 = 0.020;
 const CROSS_EDGE_MAX_MM: f64 = 0.050;
@@ -319,30 +323,9 @@ fn a_cancelled_registration_stops_with_cancelled() {
 /// scan normal turns from the CAD face's, or that lie beyond the face's extent.
 #[test]
 fn burrs_and_films_in_the_scan_do_not_pull_the_field() {
-    let c = generate(&SynthParams {
-        seed: 305,
-        scan_points: 500_000,
-        dropouts: 0,
-        burr_fraction: 0.3,
-        burr_height_mm: [0.05, 0.6],
-        burr_thickness_mm: [0.02, 0.1],
-        blockage_fraction: 0.15,
-        ..SynthParams::default()
-    })
-    .unwrap();
+    let c = untrimmed_case(305);
     assert!(!c.burrs.is_empty() && !c.blockages.is_empty());
-    let settings = RegisterSettings {
-        scanner_viewpoint_mm: Some(c.scanner_in_scan.coords.into()),
-        ..RegisterSettings::default()
-    };
-    let reg = register(
-        &c.cad_points,
-        &c.scan,
-        &c.path,
-        &c.scan_from_cad_nominal,
-        &settings,
-    )
-    .unwrap();
+    let reg = register_untrimmed(&c);
     let mut report = Vec::new();
     let mut over = 0;
     let mut silent = 0;
