@@ -291,8 +291,10 @@ fn merged_scan(args: &Args, config: Option<&JobConfig>) -> anyhow::Result<PointC
     Ok(PointCloud::new(points)?)
 }
 
-/// The contour fields of inspection.json and inspection.csv, in order.
-const FIELDS: [&str; 9] = [
+/// The contour fields of inspection.json and inspection.csv, in order. The film's two come
+/// last: a film over an opening seen from both sides (`ContourInspection::film`), null (an
+/// empty CSV cell) where none is measured.
+const FIELDS: [&str; 11] = [
     "id",
     "verdict",
     "excess_height_um",
@@ -302,6 +304,8 @@ const FIELDS: [&str; 9] = [
     "uncertainty_um",
     "coverage",
     "reason",
+    "film_thickness_um",
+    "film_uncertainty_um",
 ];
 
 fn write_outputs(dir: &Path, result: &Inspection) -> anyhow::Result<()> {
@@ -323,6 +327,8 @@ fn write_outputs(dir: &Path, result: &Inspection) -> anyhow::Result<()> {
                 "uncertainty_um": round(c.uncertainty_um, 2),
                 "coverage": round(c.coverage, 4),
                 "reason": c.reason,
+                "film_thickness_um": c.film.map(|f| round(f.thickness_um, 2)),
+                "film_uncertainty_um": c.film.map(|f| round(f.uncertainty_um, 2)),
             })
         })
         .collect();
@@ -388,18 +394,25 @@ fn report_html(result: &Inspection, contours: &[serde_json::Value]) -> String {
         count(Verdict::Undecided),
         MAP_SCALE_TOLERANCES * result.tolerance_um
     );
-    for f in FIELDS {
-        let _ = write!(html, "<th>{f}</th>");
+    // The film's thickness and its uncertainty share one column, "thickness ± u".
+    let columns = FIELDS.iter().filter(|f| **f != "film_uncertainty_um");
+    for f in columns.clone() {
+        let header = match *f {
+            "film_thickness_um" => "film_thickness_um ± u",
+            f => f,
+        };
+        let _ = write!(html, "<th>{header}</th>");
     }
     html.push_str("</tr></thead><tbody>\n");
     for (c, r) in contours.iter().zip(&result.contours) {
         let [red, green, blue] = verdict_colour(r.verdict);
         html.push_str("<tr>");
-        for f in FIELDS {
-            let text = match &c[f] {
-                serde_json::Value::Null => "—".to_string(),
-                serde_json::Value::String(s) => s.clone(),
-                v => v.to_string(),
+        for &f in columns.clone() {
+            let text = match (f, &c[f]) {
+                (_, serde_json::Value::Null) => "—".to_string(),
+                (_, serde_json::Value::String(s)) => s.clone(),
+                ("film_thickness_um", v) => format!("{v} ± {}", c["film_uncertainty_um"]),
+                (_, v) => v.to_string(),
             };
             let style = match f {
                 "verdict" => format!(" style=\"color:rgb({red},{green},{blue});font-weight:bold\""),
@@ -412,4 +425,95 @@ fn report_html(result: &Inspection, contours: &[serde_json::Value]) -> String {
     }
     html.push_str("</tbody></table>\n</body></html>\n");
     html
+}
+
+#[cfg(test)]
+mod tests {
+    use trim_inspect::ContourInspection;
+    use trim_inspect::opening::FilmThickness;
+
+    use super::*;
+
+    fn contour(id: i64, film: Option<FilmThickness>) -> ContourInspection {
+        ContourInspection {
+            id,
+            verdict: Verdict::Fail,
+            excess_height_um: 0.0,
+            excess_length_mm: 0.0,
+            gouge_depth_um: 0.0,
+            blocked_fraction: Some(0.8),
+            film,
+            uncertainty_um: 24.0,
+            coverage: 1.0,
+            reason: "blocked".to_string(),
+            bound_um: 12.0,
+            length_mm: 8.0,
+            points: 500,
+            excess_bins: Vec::new(),
+            gouge_bins: Vec::new(),
+        }
+    }
+
+    /// A film measured from both sides is written as its thickness and standard uncertainty
+    /// (JSON numbers, the CSV's last two columns, one "t ± u" cell in the report); a contour
+    /// without one as null, empty cells and a dash.
+    #[test]
+    fn the_film_is_written_where_it_is_measured_and_null_elsewhere() {
+        let film = FilmThickness {
+            thickness_um: 123.456,
+            uncertainty_um: 3.217,
+            upper_readings: 400,
+            underside_readings: 300,
+        };
+        let result = Inspection {
+            tolerance_um: 30.0,
+            noise_um: 10.0,
+            contours: vec![contour(4, Some(film)), contour(9, None)],
+            points_measured: 1000,
+            timings_s: Vec::new(),
+        };
+        let dir = tempfile::tempdir().unwrap();
+        write_outputs(dir.path(), &result).unwrap();
+
+        let json: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("inspection.json")).unwrap(),
+        )
+        .unwrap();
+        let contours = json["contours"].as_array().unwrap();
+        assert_eq!(contours[0]["film_thickness_um"].as_f64(), Some(123.46));
+        assert_eq!(contours[0]["film_uncertainty_um"].as_f64(), Some(3.22));
+        assert!(contours[1]["film_thickness_um"].is_null());
+        assert!(contours[1]["film_uncertainty_um"].is_null());
+        for c in contours {
+            let mut keys: Vec<&str> = c.as_object().unwrap().keys().map(String::as_str).collect();
+            keys.sort_unstable();
+            let mut want = FIELDS.to_vec();
+            want.sort_unstable();
+            assert_eq!(keys, want);
+        }
+
+        let csv = std::fs::read_to_string(dir.path().join("inspection.csv")).unwrap();
+        let lines: Vec<&str> = csv.lines().collect();
+        assert!(
+            lines[0].ends_with(",reason,film_thickness_um,film_uncertainty_um"),
+            "{}",
+            lines[0]
+        );
+        assert!(
+            lines[1].ends_with(",\"blocked\",123.46,3.22"),
+            "{}",
+            lines[1]
+        );
+        assert!(lines[2].ends_with(",\"blocked\",,"), "{}", lines[2]);
+
+        let html = std::fs::read_to_string(dir.path().join("report.html")).unwrap();
+        assert!(html.contains("<th>film_thickness_um ± u</th>"), "{html}");
+        assert!(!html.contains("<th>film_uncertainty_um</th>"), "{html}");
+        assert!(html.contains("<td>123.46 ± 3.22</td>"), "{html}");
+        // Both rows have as many cells as the header has columns.
+        let headers = html.matches("<th>").count();
+        for row in html.split("<tr>").skip(2) {
+            assert_eq!(row.matches("<td").count(), headers, "{row}");
+        }
+    }
 }
