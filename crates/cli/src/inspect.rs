@@ -382,7 +382,9 @@ fn report_html(result: &Inspection, contours: &[serde_json::Value]) -> String {
          td,th{{border:1px solid #bbb;padding:2px 8px;text-align:right}}td.reason{{text-align:left}}\
          img{{max-width:100%;border:1px solid #888}}</style></head><body>\n\
          <h1>Inspection</h1>\n<p>Tolerance {} µm, scan noise {:.1} µm: {} pass, {} fail, {} undecided \
-         (ISO 14253-1: pass when deviation + U ≤ tolerance, fail when deviation − U &gt; tolerance).</p>\n\
+         (ISO 14253-1: pass when deviation + U ≤ tolerance, fail when deviation − U &gt; tolerance). \
+         A film over an opening seen from both sides shows its thickness ± its standard \
+         uncertainty u (k = 1).</p>\n\
          <figure><img id=\"deviation\" src=\"deviation.png\" alt=\"scan-to-CAD deviation map\">\
          <figcaption>Scan-to-CAD signed distance, top view (red outside the material, blue inside, \
          ±{:.0} µm); contours green pass, red fail, orange undecided.</figcaption></figure>\n\
