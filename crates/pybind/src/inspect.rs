@@ -14,7 +14,8 @@ use crate::path::PyPath;
 use crate::register::similarity_from_numpy;
 
 /// One contour's inspection: what stands out of the nominal solid near it, what is missing
-/// below it, how much of its opening is covered, and the ISO 14253-1 verdict.
+/// below it, how much of its opening is covered (and, where the scan sees a film over it from
+/// both sides, the film's thickness), and the ISO 14253-1 verdict.
 #[pyclass(module = "trimctl", name = "ContourInspection", frozen, get_all)]
 #[derive(Debug, Clone)]
 pub struct PyContourInspection {
@@ -38,6 +39,13 @@ pub struct PyContourInspection {
     pub reason: String,
     /// The registration's bound for the contour (µm), one term of U.
     pub bound_um: f64,
+    /// The thickness of the film over the opening this contour rims (µm): its upper side's
+    /// median reading less its underside's, along the opening's normal. ``None`` where no film
+    /// is seen from both sides (no opening, an open one, or a film seen from above only).
+    pub film_thickness_um: Option<f64>,
+    /// The standard uncertainty (k = 1) of ``film_thickness_um`` (µm): the two medians' from
+    /// the noise and a systematic 3 µm, in quadrature. ``None`` where no film is measured.
+    pub film_uncertainty_um: Option<f64>,
 }
 
 #[pymethods]
@@ -222,6 +230,8 @@ pub fn inspect<'py>(
                 coverage: c.coverage,
                 reason: c.reason,
                 bound_um: c.bound_um,
+                film_thickness_um: c.film.map(|f| f.thickness_um),
+                film_uncertainty_um: c.film.map(|f| f.uncertainty_um),
             })
             .collect(),
     })

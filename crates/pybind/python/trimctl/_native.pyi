@@ -66,6 +66,11 @@ class ContourInspection:
     coverage: float
     reason: str
     bound_um: float
+    film_thickness_um: Optional[float]
+    """Thickness of the film over the opening this contour rims, µm, where the scan sees it
+    from both sides (its upper side's median reading less its underside's); else ``None``."""
+    film_uncertainty_um: Optional[float]
+    """Standard uncertainty (k = 1) of ``film_thickness_um``, µm; ``None`` with it."""
 
 class Inspection:
     tolerance_um: float
