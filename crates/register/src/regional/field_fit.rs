@@ -141,15 +141,16 @@ pub const SCAN_NORMAL_NEIGHBOURS: usize = 12;
 pub const SCAN_NORMAL_RADIUS_MM: f64 = 0.3;
 
 /// Each field point's surface normal from the scan around it (`picked` indexes `scan`), turned
-/// by `rotation` (into the CAD frame); the zero vector where too few scan points lie near.
+/// by `rotation` (into the CAD frame); the zero vector where too few scan points lie near. Also
+/// returns the kd-tree of the whole scan (scan frame) it searched.
 pub(crate) fn scan_normals(
     scan: &[Point3],
     picked: &[usize],
     rotation: &nalgebra::UnitQuaternion<f64>,
-) -> Vec<Vector3> {
+) -> (Vec<Vector3>, kdtree::KdTree) {
     let tree = kdtree::KdTree::build(scan);
     let d2 = SCAN_NORMAL_RADIUS_MM * SCAN_NORMAL_RADIUS_MM;
-    picked
+    let normals = picked
         .par_iter()
         .map_init(Scratch::default, |scratch, &i| {
             let nb = tree.knn_within(&scan[i], SCAN_NORMAL_NEIGHBOURS, d2, scratch);
@@ -161,7 +162,8 @@ pub(crate) fn scan_normals(
             let eig = SymmetricEigen::new(cov);
             rotation * eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned()
         })
-        .collect()
+        .collect();
+    (normals, tree)
 }
 
 /// The CAD sample's typical spacing: the median distance from a point to its nearest other

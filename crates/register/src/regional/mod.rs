@@ -28,6 +28,7 @@
 
 mod coarse;
 mod field_fit;
+mod openings;
 mod quality;
 mod settings;
 
@@ -44,6 +45,11 @@ pub use field_fit::{
     WARMUP_STRIDE, local_shapes,
 };
 use field_fit::{final_matches, fit_field, move_contour, scan_normals};
+pub use openings::{
+    OPENING_BAND_MM, OPENING_CELL_MM, OPENING_CLEAR_MM, OPENING_FACE_MIN_COS, OPENING_MIN_CELLS,
+    OPENING_MIN_SLIDE_MM, OPENING_MISMATCH_SHARE, OPENING_PROBE_RADIUS_MM, OPENING_SEARCH_MM,
+    OpeningCheck, check_openings,
+};
 pub use quality::{
     BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_MODEL_FACTOR,
     BOUND_RESIDUAL_FACTOR, BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS,
@@ -306,6 +312,7 @@ pub fn register(
     }
 
     let mut check_field = None;
+    let mut scan_tree = None;
     let (field, matches, posterior) = match settings.mode {
         Mode::Global => (
             None,
@@ -329,13 +336,14 @@ pub fn register(
             } else {
                 "deformation field"
             };
-            let normals = stage(&mut timings, "scan normals", || {
+            let (normals, tree) = stage(&mut timings, "scan normals", || {
                 Ok(scan_normals(
                     scan.points(),
                     &picked,
                     &cad_from_scan.isometry.rotation,
                 ))
             })?;
+            scan_tree = Some(tree);
             let fit = stage(&mut timings, name, || {
                 fit_field(
                     &field_points,
@@ -375,6 +383,26 @@ pub fn register(
         let n = matches.len().max(1) as f64;
         (matches.iter().map(|m| m.r * m.r).sum::<f64>() / n).sqrt()
     });
+    stage(&mut timings, "openings", || {
+        let scan_tree = scan_tree.unwrap_or_else(|| kdtree::KdTree::build(scan.points()));
+        let cad_tree = kdtree::KdTree::build(cad.points());
+        let checks = check_openings(
+            path,
+            field.as_ref(),
+            &scan_from_cad,
+            (&cad_tree, cad.points(), cad.normals()),
+            &scan_tree,
+        );
+        for (c, check) in contours.iter_mut().zip(checks) {
+            c.opening_slide_mm = check.map(|o| o.slide_mm.norm() * scan_from_cad.scaling());
+            c.opening_gain = check.map(|o| o.gain);
+            if check.is_some_and(|o| o.misplaced()) {
+                c.flags.push(Flag::OpeningMisplaced);
+                c.trustworthy = false;
+            }
+        }
+        Ok(())
+    })?;
     let untrustworthy = contours.iter().filter(|c| !c.trustworthy).count();
     let refused = refuse_part(&mut contours, &settings.quality);
     let report = QualityReport {

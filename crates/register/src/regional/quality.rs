@@ -22,8 +22,12 @@ pub enum Flag {
     HighResidual,
     /// The predicted error bound `predicted_max_error_um` exceeds `tolerance_um`.
     PredictedError,
+    /// The scan shows the contour's opening away from where the registration puts it: scan
+    /// material over the registered opening and the real opening over registered material
+    /// (`regional::openings`). The part is then refused as a whole.
+    OpeningMisplaced,
     /// The part as a whole is refused (`GlobalQuality::refused`): too many of its contours
-    /// are flagged for the rest to be believed.
+    /// are flagged for the rest to be believed, or an opening is misplaced.
     PartRefused,
 }
 
@@ -71,6 +75,24 @@ pub struct ContourQuality {
     /// large where the smoothness prior, not the data, decides the contour's position.
     #[serde(default)]
     pub model_disagreement_mm: f64,
+    /// The field's posterior deviation across the contour alone (the largest over its points in
+    /// the plane normal to it), mm; `field_sigma_mm` is the larger of this and `end_sigma_mm`.
+    #[serde(default)]
+    pub cross_sigma_mm: f64,
+    /// For an open contour, the posterior deviation at its ends in any direction (a slide along
+    /// itself included), mm; 0 for a closed contour.
+    #[serde(default)]
+    pub end_sigma_mm: f64,
+    /// For a closed contour, the opening check (`regional::openings`): how far off (mm, scan
+    /// frame) the scan shows its opening, and the share of the opening's cells that agree
+    /// better there; `null` for an open contour or too small an opening. From
+    /// [`crate::regional::OPENING_MIN_SLIDE_MM`] and [`crate::regional::OPENING_MISMATCH_SHARE`]
+    /// up the contour is flagged `opening_misplaced` and the part refused.
+    #[serde(default)]
+    pub opening_slide_mm: Option<f64>,
+    /// See `opening_slide_mm`.
+    #[serde(default)]
+    pub opening_gain: Option<f64>,
     /// The predicted bound on the contour's largest cross-edge error, µm: from the field's
     /// posterior deviation across it, the two fits' disagreement, its residual, its coverage and
     /// its distance to supporting data (the `BOUND_*` constants in `quality.rs`, DESIGN.md).
@@ -124,27 +146,48 @@ pub struct QualityReport {
     pub timings_s: Vec<(String, f64)>,
 }
 
-/// Refuses the part as a whole when more than `max_untrusted_fraction` of its contours are
-/// flagged: a registration that could not be trusted on that many contours is not believed on
-/// the others either (on the outside generator's cases, the parts whose scans missed both end
-/// faces flagged a third to two thirds of their contours and erred by up to 0.4 mm on some
-/// they trusted). Every contour is then flagged [`Flag::PartRefused`]; returns the reason.
+/// Refuses the part as a whole, and returns the reason:
+/// - when a contour is flagged [`Flag::OpeningMisplaced`]: a registration that puts an opening
+///   where the scan shows material is wrong by tenths of a millimetre or more, and its small
+///   bounds elsewhere are not believed (outside tune seeds 2025 and 2070);
+/// - when more than `max_untrusted_fraction` of its contours are flagged: a registration that
+///   could not be trusted on that many contours is not believed on the others either (on the
+///   outside generator's cases, the parts whose scans missed both end faces flagged a third to
+///   two thirds of their contours and erred by up to 0.4 mm on some they trusted).
+///
+/// Every contour is then flagged [`Flag::PartRefused`].
 pub(crate) fn refuse_part(contours: &mut [ContourQuality], q: &QualitySettings) -> Option<String> {
     let flagged = contours.iter().filter(|c| !c.trustworthy).count();
     let n = contours.len();
-    if n == 0 || (flagged as f64) <= q.max_untrusted_fraction * n as f64 {
+    let misplaced: Vec<String> = contours
+        .iter()
+        .filter(|c| c.flags.contains(&Flag::OpeningMisplaced))
+        .map(|c| c.id.to_string())
+        .collect();
+    let reason = if !misplaced.is_empty() {
+        format!(
+            "the scan shows the opening of contour{} {} away from where the registration puts it \
+             (material over the registered opening, the real opening over registered material): \
+             the part is misregistered by tenths of a millimetre or more (check the fixture pose \
+             and that the scanner saw the part's ends and its holes' walls, then rescan)",
+            if misplaced.len() > 1 { "s" } else { "" },
+            misplaced.join(", ")
+        )
+    } else if n > 0 && (flagged as f64) > q.max_untrusted_fraction * n as f64 {
+        format!(
+            "{flagged} of {n} contours are untrustworthy, more than quality.max_untrusted_fraction \
+             ({:.0} %) allows: the scan does not fix the part's deformation (check that the scanner \
+             saw both ends of the part, its edges and its holes, then rescan)",
+            100.0 * q.max_untrusted_fraction
+        )
+    } else {
         return None;
-    }
+    };
     for c in contours.iter_mut() {
         c.flags.push(Flag::PartRefused);
         c.trustworthy = false;
     }
-    Some(format!(
-        "{flagged} of {n} contours are untrustworthy, more than quality.max_untrusted_fraction \
-         ({:.0} %) allows: the scan does not fix the part's deformation (check that the scanner \
-         saw both ends of the part, its edges and its holes, then rescan)",
-        100.0 * q.max_untrusted_fraction
-    ))
+    Some(reason)
 }
 
 /// `λmin/λmax` and the weakest direction of `Σ n nᵀ` (unit weights), or `(0, z)` when empty.
@@ -199,26 +242,40 @@ pub const SUPPORT_MIN_COS: f64 = 0.5;
 /// Contour points sampled for the posterior deviation and the support distance (every k-th).
 pub const BOUND_SAMPLE_STEP: usize = 2;
 
-/// The contour's weak direction, CAD frame, and the posterior deviation along it (mm): the
-/// largest over the sampled points of the top eigenvalue of the displacement covariance
-/// projected on the plane normal to the contour.
+/// The posterior deviations of a contour (mm) and its weak direction (CAD frame).
+#[derive(Debug, Clone, Copy)]
+struct Deviation {
+    /// The larger of `cross` and `end`.
+    worst: f64,
+    /// The direction of `worst`.
+    direction: Vector3,
+    /// The largest over the sampled points of the top eigenvalue of the displacement covariance
+    /// projected on the plane normal to the contour (the deviation across it), square-rooted.
+    cross: f64,
+    /// For an open contour, the larger over its two ends of the covariance's top eigenvalue,
+    /// square-rooted (a strip that slides along itself is off by the slide there); 0 for a
+    /// closed one.
+    end: f64,
+}
+
+/// See [`Deviation`].
 fn weak_direction(
     points: &[Point3],
     field: &BSplineField,
     posterior: &FieldPosterior,
-) -> (f64, Vector3) {
-    let mut worst = (0.0, Vector3::z());
-    // An open contour's ends: a strip that slides along itself is off by the slide there.
+) -> Deviation {
+    let mut end = (0.0, Vector3::z());
     if is_open(points) {
-        for end in [points[0], points[points.len() - 1]] {
-            let eig = SymmetricEigen::new(posterior.displacement_covariance(field, &end));
+        for p in [points[0], points[points.len() - 1]] {
+            let eig = SymmetricEigen::new(posterior.displacement_covariance(field, &p));
             let i = eig.eigenvalues.imax();
             let var = eig.eigenvalues[i].max(0.0);
-            if var > worst.0 {
-                worst = (var, eig.eigenvectors.column(i).into_owned());
+            if var > end.0 {
+                end = (var, eig.eigenvectors.column(i).into_owned());
             }
         }
     }
+    let mut cross = (0.0, Vector3::z());
     for k in (0..points.len()).step_by(BOUND_SAMPLE_STEP) {
         let a = points[k.saturating_sub(1)];
         let b = points[(k + 1).min(points.len() - 1)];
@@ -230,11 +287,17 @@ fn weak_direction(
         let eig = SymmetricEigen::new(c);
         let i = eig.eigenvalues.imax();
         let var = eig.eigenvalues[i].max(0.0);
-        if var > worst.0 {
-            worst = (var, eig.eigenvectors.column(i).into_owned());
+        if var > cross.0 {
+            cross = (var, eig.eigenvectors.column(i).into_owned());
         }
     }
-    (worst.0.sqrt(), worst.1)
+    let worst = if end.0 > cross.0 { end } else { cross };
+    Deviation {
+        worst: worst.0.sqrt(),
+        direction: worst.1,
+        cross: cross.0.sqrt(),
+        end: end.0.sqrt(),
+    }
 }
 
 /// Scan points support a strip's end along the strip when `|n·t|` reaches this (45°).
@@ -267,7 +330,7 @@ fn end_support_distance(moved: &[Point3], matches: &[Match]) -> f64 {
 
 /// Whether a contour is open: its ends lie more than [`CLOSED_GAP_SPACINGS`] mean point
 /// spacings apart.
-fn is_open(points: &[Point3]) -> bool {
+pub(crate) fn is_open(points: &[Point3]) -> bool {
     let n = points.len();
     if n < 3 {
         return true;
@@ -355,10 +418,16 @@ pub(crate) fn contour_quality(
                 0.0
             };
             let coverage = covered as f64 / c.points().len() as f64;
-            let (field_sigma_mm, weak) = match (field, posterior) {
+            let deviation = match (field, posterior) {
                 (Some(f), Some(p)) => weak_direction(c.points(), f, p),
-                _ => (0.0, weakest),
+                _ => Deviation {
+                    worst: 0.0,
+                    direction: weakest,
+                    cross: 0.0,
+                    end: 0.0,
+                },
             };
+            let (field_sigma_mm, weak) = (deviation.worst, deviation.direction);
             // Nearest scan point whose surface faces along the weak direction.
             let supporting: Vec<Point3> = support
                 .iter()
@@ -425,6 +494,10 @@ pub(crate) fn contour_quality(
                 support_distance_mm,
                 end_support_mm,
                 model_disagreement_mm,
+                cross_sigma_mm: deviation.cross,
+                end_sigma_mm: deviation.end,
+                opening_slide_mm: None,
+                opening_gain: None,
                 predicted_max_error_um,
                 flags,
                 trustworthy,
