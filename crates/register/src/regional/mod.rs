@@ -47,8 +47,8 @@ pub use field_fit::{
 use field_fit::{final_matches, fit_field, move_contour, scan_normals};
 pub use openings::{
     OPENING_BAND_MM, OPENING_CELL_MM, OPENING_CLEAR_MM, OPENING_FACE_MIN_COS, OPENING_MIN_CELLS,
-    OPENING_MIN_SLIDE_MM, OPENING_MISMATCH_SHARE, OPENING_PROBE_RADIUS_MM, OPENING_SEARCH_MM,
-    OpeningCheck, check_openings,
+    OPENING_MIN_SLIDE_MM, OPENING_MISMATCH_SHARE, OPENING_COVER_SHARE, OPENING_PROBE_RADIUS_MM,
+    OPENING_SEARCH_MM, OpeningCheck, check_openings,
 };
 pub use quality::{
     BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_MODEL_FACTOR,
@@ -396,6 +396,7 @@ pub fn register(
         for (c, check) in contours.iter_mut().zip(checks) {
             c.opening_slide_mm = check.map(|o| o.slide_mm.norm() * scan_from_cad.scaling());
             c.opening_gain = check.map(|o| o.gain);
+            c.opening_cover_gain = check.map(|o| o.cover_gain);
             if check.is_some_and(|o| o.misplaced()) {
                 c.flags.push(Flag::OpeningMisplaced);
                 c.trustworthy = false;

@@ -45,6 +45,8 @@ pub const OPENING_FACE_MIN_COS: f64 = 0.7;
 pub const OPENING_MISMATCH_SHARE: f64 = 0.4;
 /// See [`OPENING_MISMATCH_SHARE`].
 pub const OPENING_MIN_SLIDE_MM: f64 = 0.3;
+/// …and the part of the gain over the opening reaches this ([`OpeningCheck::cover_gain`]).
+pub const OPENING_COVER_SHARE: f64 = 0.2;
 /// Fewer cells over the opening than this: no check.
 pub const OPENING_MIN_CELLS: usize = 30;
 
@@ -56,13 +58,19 @@ pub struct OpeningCheck {
     pub slide_mm: Vector3,
     /// The agreement gained by that slide, in cells, over the cells over the CAD opening.
     pub gain: f64,
+    /// The part of `gain` over the CAD opening: the share of its cells where the scan showed
+    /// material that the slide lays on the scan's own opening. A slid opening gains there; a
+    /// dropout or a shadow beside a hole in place does not (the opening already read empty).
+    pub cover_gain: f64,
 }
 
 impl OpeningCheck {
     /// Whether the scan shows the opening misplaced ([`OPENING_MISMATCH_SHARE`]).
     #[must_use]
     pub fn misplaced(&self) -> bool {
-        self.slide_mm.norm() >= OPENING_MIN_SLIDE_MM && self.gain >= OPENING_MISMATCH_SHARE
+        self.slide_mm.norm() >= OPENING_MIN_SLIDE_MM
+            && self.gain >= OPENING_MISMATCH_SHARE
+            && self.cover_gain >= OPENING_COVER_SHARE
     }
 }
 
@@ -208,8 +216,9 @@ fn check_one(
     // Agreement of the template slid by (di, dj) cells: CAD material where the scan saw
     // material, CAD opening where it saw none, over the template's known cells that land in
     // the band.
-    let agreement = |di: i64, dj: i64| -> i64 {
-        let mut sum = 0;
+    // Returns the sum and the opening cells' part of it.
+    let agreement = |di: i64, dj: i64| -> (i64, i64) {
+        let (mut sum, mut over_opening) = (0, 0);
         for (k, cell) in cells.iter().enumerate() {
             let Some((Some(material), _, true)) = cell else {
                 continue;
@@ -219,37 +228,44 @@ fn check_one(
                 continue;
             }
             if let Some((_, seen, _)) = cells[i as usize * nj + j as usize] {
-                sum += if *material == seen { 1 } else { -1 };
+                let a = if *material == seen { 1 } else { -1 };
+                sum += a;
+                if !*material {
+                    over_opening += a;
+                }
             }
         }
-        sum
+        (sum, over_opening)
     };
     let search = (OPENING_SEARCH_MM / h).round() as i64;
     let at_zero = agreement(0, 0);
-    let mut best = (at_zero, 0, 0);
+    let mut best = (at_zero.0, 0, 0);
     // A coarse pass every other cell, then the best one's neighbours.
     for di in (-search..=search).step_by(2) {
         for dj in (-search..=search).step_by(2) {
-            let a = agreement(di, dj);
+            let a = agreement(di, dj).0;
             if a > best.0 {
                 best = (a, di, dj);
             }
         }
     }
     let (_, ci, cj) = best;
-    for di in ci - 1..=ci + 1 {
-        for dj in cj - 1..=cj + 1 {
-            let a = agreement(di, dj);
+    for di in (ci - 1).max(-search)..=(ci + 1).min(search) {
+        for dj in (cj - 1).max(-search)..=(cj + 1).min(search) {
+            let a = agreement(di, dj).0;
             if a > best.0 {
                 best = (a, di, dj);
             }
         }
     }
     let (a, di, dj) = best;
+    let over_opening = agreement(di, dj).1;
+    // Each disagreeing cell that turns agreeing moves a sum by 2.
+    let share = |d: i64| d as f64 / (2.0 * opening_cells as f64);
     Some(OpeningCheck {
         slide_mm: e1 * (di as f64 * h) + e2 * (dj as f64 * h),
-        // Each disagreeing cell that turns agreeing moves the sum by 2.
-        gain: (a - at_zero) as f64 / (2.0 * opening_cells as f64),
+        gain: share(a - at_zero.0),
+        cover_gain: share(over_opening - at_zero.1),
     })
 }
 

@@ -93,6 +93,9 @@ pub struct ContourQuality {
     /// See `opening_slide_mm`.
     #[serde(default)]
     pub opening_gain: Option<f64>,
+    /// The part of `opening_gain` over the CAD opening (`OpeningCheck::cover_gain`).
+    #[serde(default)]
+    pub opening_cover_gain: Option<f64>,
     /// The predicted bound on the contour's largest cross-edge error, µm: from the field's
     /// posterior deviation across it, the two fits' disagreement, its residual, its coverage and
     /// its distance to supporting data (the `BOUND_*` constants in `quality.rs`, DESIGN.md).
@@ -498,6 +501,7 @@ pub(crate) fn contour_quality(
                 end_sigma_mm: deviation.end,
                 opening_slide_mm: None,
                 opening_gain: None,
+                opening_cover_gain: None,
                 predicted_max_error_um,
                 flags,
                 trustworthy,
