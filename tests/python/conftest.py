@@ -1,5 +1,6 @@
 """Shared fixtures for the trimctl Python tests."""
 
+import os
 import pathlib
 
 import numpy as np
@@ -8,6 +9,16 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 # The real data the tests read, in the repository (tests/data/README.md).
 TEST_DATA = ROOT / "tests" / "data"
+
+
+def trimctl_exe():
+    """The ``trimctl`` binary the test command built (debug first, else release)."""
+    target = pathlib.Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
+    for profile in ("debug", "release"):
+        exe = target / profile / "trimctl"
+        if exe.exists():
+            return exe
+    raise AssertionError("build trimctl first (the test command runs cargo test before pytest)")
 
 
 @pytest.fixture

@@ -1,15 +1,13 @@
 """trimctl.inspect from Python: typed per-contour results (issue 23), bad input refused by name."""
 
 import json
-import os
-import pathlib
 import subprocess
 
 import numpy as np
 import pytest
 
 import trimctl
-from conftest import ROOT
+from conftest import trimctl_exe
 
 
 def _case(**burrs):
@@ -85,19 +83,10 @@ FILM_SCAN_POINTS = 300_000
 FILM_AGREEMENT_UM = 2.0
 
 
-def _trimctl_exe():
-    target = pathlib.Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
-    for profile in ("debug", "release"):
-        exe = target / profile / "trimctl"
-        if exe.exists():
-            return exe
-    raise AssertionError("build trimctl first (the test command runs cargo test before pytest)")
-
-
 @pytest.fixture(scope="module")
 def film_case(tmp_path_factory):
     """The case written by ``trimctl synth``, its truth and ``trimctl inspect``'s contours."""
-    exe = _trimctl_exe()
+    exe = trimctl_exe()
     tmp = tmp_path_factory.mktemp("film")
     case_dir, out = tmp / "case", tmp / "out"
     subprocess.run(

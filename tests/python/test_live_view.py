@@ -18,7 +18,6 @@ import asyncio
 import base64
 import json
 import os
-import pathlib
 import re
 import socket
 import struct
@@ -29,9 +28,9 @@ import time
 import pytest
 import websockets
 from mcap.records import Schema
+from conftest import trimctl_exe
 from mcap_protobuf.decoder import DecoderFactory
 
-ROOT = pathlib.Path(__file__).resolve().parents[2]
 OP_MESSAGE_DATA = 0x01
 # A debug build registers and plans the demo in about a minute before executing it.
 RUN_TIMEOUT_S = 900
@@ -48,15 +47,6 @@ EXPECTED_TOPICS = {
     "/scan", "/cad", "/path/template", "/path/registered", "/tf", "/layer", "/layer/scene",
     "/progress", "/log", "/device/galvo", "/device/laser", "/device/cnc",
 }
-
-
-def trimctl_exe():
-    target = pathlib.Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
-    exe = target / "debug" / "trimctl"
-    if not exe.exists():
-        exe = target / "release" / "trimctl"
-    assert exe.exists(), "build trimctl first (the test command runs cargo test before pytest)"
-    return exe
 
 
 def free_port():
