@@ -93,6 +93,12 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
         # The check fit ran (quality.model_check defaults on) and agrees on the demo part to
         # well within the tolerance.
         assert 0.0 < q.model_disagreement_mm < 0.015, q
+        # The split deviations: the larger is the field's; the demo part's openings read where
+        # the registration puts them (the opening check, as in registration.json).
+        assert max(q.cross_sigma_mm, q.end_sigma_mm) == q.field_sigma_mm, q
+        assert q.opening_slide_mm == entry["opening_slide_mm"], q
+        assert q.opening_gain is None or q.opening_gain < 0.4, q
+        assert "opening_misplaced" not in q.flags, q
     # The demo case is trusted as a part (a refusal would flag every contour part_refused).
     assert registration.refused is None
     assert not any("part_refused" in q.flags for q in quality)

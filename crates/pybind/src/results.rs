@@ -60,6 +60,9 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// `end_support_mm`: for a strip, how far its ends lie from scan surface facing along it.
 /// `model_disagreement_mm`: how far apart the field and a second fit at 0.75× its control
 /// spacing put the contour (large where the smoothness prior, not the data, places it).
+/// `opening_slide_mm`, `opening_gain`, `opening_cover_gain`: for a closed contour, the opening
+/// check (how far off the scan shows its opening, and the agreement that gains; a misplaced
+/// opening flags `opening_misplaced` and refuses the part).
 #[pyclass(module = "trimctl", frozen, get_all)]
 pub struct ContourQuality {
     /// The contour id.
@@ -91,6 +94,18 @@ pub struct ContourQuality {
     /// How far apart the field and the check fit put the contour, mm (0 without
     /// `quality.model_check`).
     pub model_disagreement_mm: f64,
+    /// The posterior deviation across the contour alone, mm.
+    pub cross_sigma_mm: f64,
+    /// For an open contour, the posterior deviation at its ends in any direction, mm (0 for a
+    /// closed one).
+    pub end_sigma_mm: f64,
+    /// For a closed contour, how far off the scan shows its opening, mm; `None` for an open
+    /// contour or too small an opening (the opening check, flag `opening_misplaced`).
+    pub opening_slide_mm: Option<f64>,
+    /// The agreement that slide gains, over the opening's cells.
+    pub opening_gain: Option<f64>,
+    /// The part of that gain over the opening itself.
+    pub opening_cover_gain: Option<f64>,
     /// The predicted bound on the largest cross-edge error, µm.
     pub predicted_max_error_um: f64,
     /// What was found wrong (the report's flag names).
@@ -135,6 +150,11 @@ impl ContourQuality {
             support_distance_mm: c.support_distance_mm,
             end_support_mm: c.end_support_mm,
             model_disagreement_mm: c.model_disagreement_mm,
+            cross_sigma_mm: c.cross_sigma_mm,
+            end_sigma_mm: c.end_sigma_mm,
+            opening_slide_mm: c.opening_slide_mm,
+            opening_gain: c.opening_gain,
+            opening_cover_gain: c.opening_cover_gain,
             predicted_max_error_um: c.predicted_max_error_um,
             flags: pyo3::types::PyTuple::new(py, flags)?.unbind(),
             trustworthy: c.trustworthy,

@@ -131,6 +131,11 @@ class ContourQuality:
     support_distance_mm: float
     end_support_mm: float
     model_disagreement_mm: float
+    cross_sigma_mm: float
+    end_sigma_mm: float
+    opening_slide_mm: Optional[float]
+    opening_gain: Optional[float]
+    opening_cover_gain: Optional[float]
     predicted_max_error_um: float
     flags: Tuple[str, ...]
     trustworthy: bool
