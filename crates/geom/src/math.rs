@@ -45,3 +45,17 @@ pub fn unit_or_none(v: &Vector3, min_norm: f64) -> Option<Vector3> {
     }
     Some(scaled / scaled_norm)
 }
+
+/// Two unit vectors completing the unit normal `n` to a right-handed frame `(e1, e2, n)`: `e1`
+/// is `n × x` (or `n × y` when `n` lies within about 25° of x), `e2 = n × e1`.
+#[must_use]
+pub fn tangent_basis(n: &Vector3) -> (Vector3, Vector3) {
+    let helper = if n.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let e1 = n.cross(&helper).normalize();
+    let e2 = n.cross(&e1);
+    (e1, e2)
+}

@@ -57,14 +57,7 @@ pub fn local_shapes(cad: &PointCloud, tree: &kdtree::KdTree) -> Vec<LocalShape> 
     pts.par_iter()
         .zip(normals.par_iter())
         .map_init(Scratch::default, |scratch, (c, n)| {
-            // Tangent basis.
-            let helper = if n.x.abs() < 0.9 {
-                Vector3::x()
-            } else {
-                Vector3::y()
-            };
-            let e1 = n.cross(&helper).normalize();
-            let e2 = n.cross(&e1);
+            let (e1, e2) = trim_geom::math::tangent_basis(n);
             let mut ata = nalgebra::Matrix3::<f64>::zeros();
             let mut atb = Vector3::zeros();
             let mut near_edge = false;

@@ -112,13 +112,7 @@ fn check_one(
     scan: &kdtree::KdTree,
 ) -> Option<OpeningCheck> {
     let centre = Point3::from(rim.iter().map(|q| q.coords).sum::<Vector3>() / rim.len() as f64);
-    let helper = if n.x.abs() < 0.9 {
-        Vector3::x()
-    } else {
-        Vector3::y()
-    };
-    let e1 = n.cross(&helper).normalize();
-    let e2 = n.cross(&e1);
+    let (e1, e2) = trim_geom::math::tangent_basis(n);
     let h = OPENING_CELL_MM;
     let cell_of = |q: &Point3| {
         let d = q - centre;
