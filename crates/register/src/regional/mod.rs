@@ -21,10 +21,12 @@
 //! 5. **Quality.** Per contour: scan coverage, point-to-plane residual, and a predicted
 //!    bound on its largest cross-edge error from the field's posterior covariance across it,
 //!    its residual and its coverage. A contour whose bound exceeds the tolerance, or whose coverage
-//!    or residual fails, is flagged untrustworthy.
+//!    or residual fails, is flagged untrustworthy. The opening check then slides each closed
+//!    contour's opening over the raw scan around it; an opening the scan shows elsewhere flags
+//!    its contour and refuses the part (a slide along the part that every match hides).
 //!
-//! The stages live in the submodules `settings`, `coarse`, `field_fit` and `quality`; their
-//! public items are re-exported here by name.
+//! The stages live in the submodules `settings`, `coarse`, `field_fit`, `quality` and
+//! `openings`; their public items are re-exported here by name.
 
 mod coarse;
 mod field_fit;

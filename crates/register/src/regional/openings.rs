@@ -65,7 +65,9 @@ pub struct OpeningCheck {
 }
 
 impl OpeningCheck {
-    /// Whether the scan shows the opening misplaced ([`OPENING_MISMATCH_SHARE`]).
+    /// Whether the scan shows the opening misplaced: a slide of at least
+    /// [`OPENING_MIN_SLIDE_MM`] that gains [`OPENING_MISMATCH_SHARE`] in agreement, and
+    /// [`OPENING_COVER_SHARE`] of it over the opening itself.
     #[must_use]
     pub fn misplaced(&self) -> bool {
         self.slide_mm.norm() >= OPENING_MIN_SLIDE_MM
