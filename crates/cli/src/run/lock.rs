@@ -103,7 +103,20 @@ mod tests {
             "{text}"
         );
         drop(first);
-        let again = RunLock::acquire(dir.path()).expect("free again");
+        // A sibling test that spawns a process (the rescan tests) forks this test binary: the
+        // child shares the open lock file until its exec closes it, so the released lock can
+        // read as held for that instant. Retried for a bounded time, never forever.
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+        let again = loop {
+            match RunLock::acquire(dir.path()) {
+                Ok(lock) => break lock,
+                Err(e) if std::time::Instant::now() < deadline => {
+                    drop(e);
+                    std::thread::sleep(std::time::Duration::from_millis(20));
+                }
+                Err(e) => panic!("free again: {e:#}"),
+            }
+        };
         let pid = std::fs::read_to_string(dir.path().join(LOCK)).expect("the lock file");
         assert_eq!(pid.trim(), std::process::id().to_string());
         drop(again);
