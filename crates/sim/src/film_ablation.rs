@@ -51,7 +51,8 @@ const JOIN_MM: f64 = 1e-9;
 pub struct FilmOutcome {
     /// The contour that rims the film's opening.
     pub contour: i64,
-    /// Grid cells the cuts of this call reached (each once however many passes).
+    /// The film's grid cells (by their centres) the cuts of this call reached (each once however
+    /// many passes).
     pub cells_cut: usize,
     /// The share of the film as drawn still standing after them.
     pub standing_share: f64,
@@ -199,7 +200,14 @@ pub fn clear_films(
                 for j in js {
                     for i in is.clone() {
                         let k = j * cols + i;
-                        if stamp[k] == *chain || !snapshot.covers_cell(i, j) {
+                        // Every cell the kerf reaches loses the depth, the film's or not at
+                        // its centre: a cell on the free edge whose centre lies just past it
+                        // still holds film on its inner part, and the film there is read by
+                        // that cell (`Film::remaining_at`). Skipping it left a 10 µm strip
+                        // along the whole free edge standing under any hatch, which the
+                        // rescan sampled as an uncut free edge (a cleared opening read 10 %
+                        // covered, and its rim a 162 µm "web").
+                        if stamp[k] == *chain {
                             continue;
                         }
                         let [u, v] = snapshot.cell_centre(i, j);
@@ -211,7 +219,7 @@ pub fn clear_films(
                         };
                         let height = ha + t * (hb - ha);
                         if (x - seg * t).norm() <= half && height.abs() <= ON_FILM_MM {
-                            if stamp[k] == u32::MAX {
+                            if stamp[k] == u32::MAX && snapshot.covers_cell(i, j) {
                                 cells_cut += 1;
                             }
                             stamp[k] = *chain;
@@ -323,6 +331,50 @@ mod tests {
         assert!(out[0].standing_share < 1e-9, "{out:?}");
         assert!(out[0].covered_share < 1e-9, "{out:?}");
         assert!(out[0].cells_cut > 60_000, "{out:?}");
+    }
+
+    /// A film over part of the hole, its free edge slanted across the cells: a hatch that
+    /// clears the film leaves no strip standing along the free edge. The cells the edge cuts
+    /// through whose centres lie just past it hold film on their inner part; they must lose
+    /// the depth too, or the rescan samples the whole free edge as standing (it did: a cleared
+    /// opening read 10 % covered).
+    #[test]
+    fn a_cleared_film_leaves_nothing_along_its_free_edge() {
+        let direction = [0.6, 0.8];
+        let offset_mm = 0.3;
+        let mut films = vec![
+            Film::new(&Blockage {
+                contour: 7,
+                covered_share: 0.6,
+                thickness_mm: 0.1,
+                direction,
+                offset_mm,
+            })
+            .unwrap(),
+        ];
+        let out = clear(&mut films, &hatch(0.03, 3, 1.0));
+        assert!(out[0].standing_share < 1e-9, "{out:?}");
+        // Points a hair inside the free edge, all along the chord it makes across the hole
+        // (radius 1.5 mm about (−16, −30); the chord's half-length is √(1.5² − 0.3²)).
+        let (cu, cv) = (-16.0, -30.0);
+        let half = (1.5f64.powi(2) - offset_mm * offset_mm).sqrt() - 0.01;
+        let along = [-direction[1], direction[0]];
+        let standing: Vec<f64> = (0..=400)
+            .map(|k| -half + 2.0 * half * f64::from(k) / 400.0)
+            .filter(|s| {
+                let d = offset_mm - 1e-6;
+                let (u, v) = (
+                    cu + d * direction[0] + s * along[0],
+                    cv + d * direction[1] + s * along[1],
+                );
+                films[0].remaining_at(u, v) > 0.0
+            })
+            .collect();
+        assert!(
+            standing.is_empty(),
+            "{} points stand: {standing:?}",
+            standing.len()
+        );
     }
 
     #[test]
