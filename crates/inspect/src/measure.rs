@@ -32,7 +32,7 @@ use crate::contours::PathIndex;
 use crate::crop::Crop;
 use crate::error::{InspectError, Result};
 use crate::height::{Reading, web_heights_mm};
-use crate::opening::{FilmThickness, Opening, opening_of, read_opening};
+use crate::opening::{FilmThickness, Opening, WebStretch, opening_of, read_opening};
 use crate::placement::Placement;
 use crate::settings::InspectSettings;
 use crate::verdict::{Limits, Measured, Verdict, decide, uncertainty_um};
@@ -43,6 +43,10 @@ pub const NOISE_WINDOW_MM: f64 = 0.1;
 /// The noise estimate's floor, µm (a noise-free synthetic scan would otherwise call every
 /// rounding error excess).
 pub const MIN_NOISE_UM: f64 = 0.5;
+
+/// A bin's excess is a web on the rim, not a film's edge, when its height stands at least this
+/// far inside the band, mm (a film over an opening reads out to the band's edge).
+pub const WEB_BAND_MARGIN_MM: f64 = 0.05;
 
 /// Spacing of the crop's points along the registered contours, mm.
 const CROP_STEP_MM: f64 = 0.1;
@@ -361,9 +365,20 @@ pub fn inspect(
                 .filter(|&&c| c >= settings.min_bin_points)
                 .count();
             let coverage = covered as f64 / n_bins as f64;
+            // The webs measured on the rim (their free edge within the band: a film's rim reads
+            // out to the band's edge) and what reads as them across the face.
+            let webs: Vec<WebStretch> = excess_bins
+                .iter()
+                .filter(|b| b.height_um < 1e3 * (settings.band_mm - WEB_BAND_MARGIN_MM))
+                .map(|b| WebStretch {
+                    start_mm: b.start_mm,
+                    end_mm: b.end_mm,
+                    reach_mm: b.height_um * 1e-3 + settings.opening_support_mm + threshold_mm,
+                })
+                .collect();
             let reading = opening
                 .as_ref()
-                .map(|o| read_opening(o, &tree, &mapped, noise_um * 1e-3, settings));
+                .map(|o| read_opening(o, &tree, &mapped, noise_um * 1e-3, &webs, settings));
             let blocked_fraction = reading.map(|r| r.covered_share);
             let u = uncertainty_um(noise_um, *bound_um, settings.coverage_factor);
             let measured = Measured {

@@ -56,6 +56,13 @@ pub struct Opening {
     pub nodes: Vec<Point3>,
     /// Each node's place on the grid (column, row), parallel to `nodes`.
     pub cells: Vec<[i32; 2]>,
+    /// Each node's distance from the rim across the face, mm, parallel to `nodes`.
+    pub rim_distance_mm: Vec<f64>,
+    /// The arc length (along the contour, mm) of each node's nearest rim point, parallel to
+    /// `nodes`.
+    pub rim_arc_mm: Vec<f64>,
+    /// The rim's whole length, mm (arc lengths wrap around it).
+    pub rim_length_mm: f64,
     /// The grid's step, mm.
     pub step_mm: f64,
     /// The face's normal (the contour's feature vector).
@@ -75,6 +82,29 @@ pub struct FilmThickness {
     pub upper_readings: usize,
     /// Readings of the underside.
     pub underside_readings: usize,
+}
+
+/// A stretch of an opening's rim with a burr web standing into the opening
+/// ([`read_opening`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WebStretch {
+    /// Where the stretch starts along the contour, mm of arc length.
+    pub start_mm: f64,
+    /// Where it ends, mm.
+    pub end_mm: f64,
+    /// How far from the rim, across the face, the web's readings reach, mm.
+    pub reach_mm: f64,
+}
+
+impl WebStretch {
+    /// Whether a rim point at `arc_mm` is within the web's reach of the stretch, around a rim
+    /// `length_mm` long (a web ending inside a bin covers nodes past its end too).
+    fn holds(&self, arc_mm: f64, length_mm: f64) -> bool {
+        let (lo, hi) = (self.start_mm - self.reach_mm, self.end_mm + self.reach_mm);
+        [arc_mm - length_mm, arc_mm, arc_mm + length_mm]
+            .iter()
+            .any(|a| (lo..=hi).contains(a))
+    }
 }
 
 /// What the scan shows over an opening.
@@ -129,12 +159,13 @@ pub fn opening_of(g: &ContourGeometry, mesh: &Mesh, settings: &InspectSettings) 
     let mut enclosed = 0usize;
     let mut open = Vec::new();
     let mut cells = Vec::new();
+    let (mut rim_distance_mm, mut rim_arc_mm) = (Vec::new(), Vec::new());
     let trimesh = mesh.trimesh();
     for i in 0..na {
         for j in 0..nb {
             let a = lo[0] + (i as f64 + 0.5) * step;
             let b = lo[1] + (j as f64 + 0.5) * step;
-            let (inside, rim_distance) = place(&rim, a, b);
+            let (inside, rim_distance, (k, t)) = place(&rim, a, b);
             // Nodes near the rim are left out: a film there cannot be told from the wall's top.
             if !inside || rim_distance < settings.opening_rim_clearance_mm {
                 continue;
@@ -150,6 +181,9 @@ pub fn opening_of(g: &ContourGeometry, mesh: &Mesh, settings: &InspectSettings) 
                 .is_some();
             if !material {
                 open.push(node);
+                rim_distance_mm.push(rim_distance);
+                let next = g.arc_mm.get(k + 1).copied().unwrap_or(g.arc_mm[k]);
+                rim_arc_mm.push(g.arc_mm[k] + t * (next - g.arc_mm[k]));
                 cells.push([
                     i32::try_from(i).unwrap_or(i32::MAX),
                     i32::try_from(j).unwrap_or(i32::MAX),
@@ -160,16 +194,21 @@ pub fn opening_of(g: &ContourGeometry, mesh: &Mesh, settings: &InspectSettings) 
     (enclosed > 0 && open.len() as f64 >= OPEN_SHARE * enclosed as f64).then_some(Opening {
         nodes: open,
         cells,
+        rim_distance_mm,
+        rim_arc_mm,
+        rim_length_mm: g.length_mm(),
         step_mm: step,
         normal: n,
     })
 }
 
-/// Whether `(a, b)` is inside the rim polygon (even-odd) and its distance from the rim.
-fn place(rim: &[(f64, f64, f64)], a: f64, b: f64) -> (bool, f64) {
+/// Whether `(a, b)` is inside the rim polygon (even-odd), its distance from the rim, and where
+/// its nearest rim point lies (segment, fraction along it).
+fn place(rim: &[(f64, f64, f64)], a: f64, b: f64) -> (bool, f64, (usize, f64)) {
     let mut inside = false;
     let mut best = f64::INFINITY;
-    for w in rim.windows(2) {
+    let mut nearest = (0, 0.0);
+    for (k, w) in rim.windows(2).enumerate() {
         let ((a0, b0, _), (a1, b1, _)) = (w[0], w[1]);
         if (b0 > b) != (b1 > b) && a < a0 + (b - b0) * (a1 - a0) / (b1 - b0) {
             inside = !inside;
@@ -182,9 +221,12 @@ fn place(rim: &[(f64, f64, f64)], a: f64, b: f64) -> (bool, f64) {
             0.0
         };
         let d2 = (a0 + t * da - a).powi(2) + (b0 + t * db - b).powi(2);
-        best = best.min(d2);
+        if d2 < best {
+            best = d2;
+            nearest = (k, t);
+        }
     }
-    (inside, best.sqrt())
+    (inside, best.sqrt(), nearest)
 }
 
 /// The face's height at `(a, b)`, interpolated from the rim's heights (weights `1/d⁴` to the
@@ -218,6 +260,12 @@ pub fn covered_share(
 /// The covered share of the opening and, where the scan sees the film from both sides, its
 /// thickness; `noise_mm` is the scan's noise σ.
 ///
+/// `webs` are the stretches of the rim whose burr web was measured (start and end arc length
+/// along the contour, and how far the web and what reads as it reach across the face, mm): a
+/// web standing into the opening covers the nodes next to the rim, and that is excess, judged
+/// as such, not a film. Nodes whose nearest rim point lies in such a stretch and that lie
+/// within its reach of the rim are left out of the covered share (not of the film's reading).
+///
 /// The thickness is read from the covered nodes inside the film: those whose neighbours
 /// within `2·opening_support_mm` and a grid step are all covered nodes of the grid. The
 /// covered region reaches `opening_support_mm` (and the noise) past the film's free edge, so
@@ -236,11 +284,22 @@ pub fn read_opening(
     tree: &KdTree,
     points: &[Point3],
     noise_mm: f64,
+    webs: &[WebStretch],
     settings: &InspectSettings,
 ) -> OpeningReading {
     let supports = node_supports(opening, tree, points, settings);
+    let beyond_webs: Vec<Vec<(usize, f64)>> = supports
+        .iter()
+        .zip(opening.rim_arc_mm.iter().zip(&opening.rim_distance_mm))
+        .filter(|(_, (arc, distance))| {
+            !webs
+                .iter()
+                .any(|w| **distance <= w.reach_mm && w.holds(**arc, opening.rim_length_mm))
+        })
+        .map(|(s, _)| s.clone())
+        .collect();
     OpeningReading {
-        covered_share: share_of(&supports),
+        covered_share: share_of(&beyond_webs),
         film: film_thickness(opening, &supports, noise_mm, settings),
     }
 }
@@ -404,9 +463,39 @@ mod tests {
                     )
                 })
                 .collect(),
+            rim_distance_mm: cells
+                .iter()
+                .map(|[i, j]| {
+                    let (x, y) = (f64::from(*i) + 0.5, f64::from(*j) + 0.5);
+                    let side = f64::from(SIDE);
+                    x.min(y).min(side - x).min(side - y) * STEP_MM
+                })
+                .collect(),
+            rim_arc_mm: cells.iter().map(|&c| square_rim_arc(c)).collect(),
+            rim_length_mm: 4.0 * f64::from(SIDE) * STEP_MM,
             cells,
             step_mm: STEP_MM,
             normal: Vector3::z(),
+        }
+    }
+
+    /// The arc length of a node's nearest rim point on the square's rim, run from (0, 0)
+    /// along +x, then +y, then back along −x and −y.
+    fn square_rim_arc([i, j]: [i32; 2]) -> f64 {
+        let side = f64::from(SIDE) * STEP_MM;
+        let (x, y) = (
+            (f64::from(i) + 0.5) * STEP_MM,
+            (f64::from(j) + 0.5) * STEP_MM,
+        );
+        let nearest = [y, side - x, side - y, x];
+        let k = (0..4)
+            .min_by(|&a, &b| nearest[a].total_cmp(&nearest[b]))
+            .unwrap_or(0);
+        match k {
+            0 => x,
+            1 => side + y,
+            2 => 3.0 * side - x,
+            _ => 4.0 * side - y,
         }
     }
 
@@ -440,14 +529,58 @@ mod tests {
     }
 
     fn read(points: &[Point3]) -> OpeningReading {
+        read_with_webs(points, &[])
+    }
+
+    fn read_with_webs(points: &[Point3], webs: &[WebStretch]) -> OpeningReading {
         let tree = KdTree::build(points);
         read_opening(
             &square_opening(),
             &tree,
             points,
             SIGMA_MM,
+            webs,
             &InspectSettings::default(),
         )
+    }
+
+    /// A burr web standing 0.3 mm into the opening from one stretch of its rim (x in
+    /// 0.5–2.5 mm of the y = 0 side), read with σ = 10 µm: 800 points on its upper side.
+    fn web_scan(seed: u64) -> Vec<Point3> {
+        let mut d = Draws(seed);
+        (0..800)
+            .map(|_| {
+                Point3::new(
+                    0.5 + 2.0 * d.uniform() + SIGMA_MM * d.gauss(),
+                    0.3 * d.uniform() + SIGMA_MM * d.gauss(),
+                    SIGMA_MM * d.gauss(),
+                )
+            })
+            .collect()
+    }
+
+    /// A web standing into an opening covers the nodes next to its stretch of rim: read as a
+    /// cover without its stretch (a web is no film), not with it; nodes beyond the web's reach
+    /// or off its stretch still count, so a film next to a web still reads.
+    #[test]
+    fn a_web_on_the_rim_is_not_read_as_a_cover() {
+        let web = web_scan(5);
+        let plain = read(&web);
+        assert!(plain.covered_share > 0.05, "{plain:?}");
+        // The web's stretch, its reach (0.3 mm) plus the support (0.15) and 3.5σ.
+        let stretch = WebStretch {
+            start_mm: 0.5,
+            end_mm: 2.5,
+            reach_mm: 0.3 + 0.15 + 0.035,
+        };
+        let judged = read_with_webs(&web, &[stretch]);
+        assert!(judged.covered_share < 0.005, "{judged:?}");
+        // With a film over x < 2 mm besides, the share is the film's: its nodes away from the
+        // web's stretch all count.
+        let mut both = film_scan(0.1, 0, 31);
+        both.extend(web);
+        let r = read_with_webs(&both, &[stretch]);
+        assert!((0.6..=0.75).contains(&r.covered_share), "{r:?}");
     }
 
     /// Seen from both sides, a film 50–200 µm thick (the synthetic films' range) reads within
