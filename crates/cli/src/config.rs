@@ -226,7 +226,11 @@ pub struct VerifyConfig {
     /// the run folder.
     pub scan_file: String,
     /// A command that scans the part and writes `scan_file` (the program, then its arguments;
-    /// `{scan}` becomes the file's path and `{round}` k). Left out, the run waits for the file.
+    /// `{scan}` becomes the file's path, `{round}` k and `{look}` 1). When the scan leaves
+    /// contours under the inspection's coverage it is run once more (`{look}` 2, `{scan}` the
+    /// file with `_again` before its extension) and those contours are judged on the second
+    /// scan where it covers them better. Left out, the run waits for the file (and takes it as
+    /// given).
     pub scan_command: Vec<String>,
     /// The longest wait for a rescan (the command's run, or the file's arrival), s.
     pub scan_timeout_s: f64,

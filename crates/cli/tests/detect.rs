@@ -668,6 +668,85 @@ fn a_real_parts_rescan_comes_from_the_scan_command_and_is_inspected_without_a_tr
     assert!(report.contains("## Verify and retrim"), "{report}");
 }
 
+/// A real cell's scanner that loses part of the part on one scan (dropouts) is asked once more
+/// for the contours it left uncovered: the `[verify] scan_command` runs again with `{look}` 2,
+/// writing `rescan_<k>_again.ply`, and those contours are judged on that scan. Here the first
+/// look is a clean core's scan with dropout patches, the second the same core without them.
+#[test]
+fn a_real_parts_uncovered_contours_get_a_second_look_from_the_scan_command() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let clean = tmp.path().join("clean");
+    synth_job_with(&clean, "0", "");
+    let holed = tmp.path().join("holed");
+    let result = Command::new(TRIMCTL)
+        .args([
+            "synth",
+            "--seed",
+            "2",
+            "--views",
+            "4",
+            "--dropouts",
+            "30",
+            "--burrs",
+            "0",
+            "--out",
+        ])
+        .arg(&holed)
+        .output()
+        .expect("trimctl synth runs");
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let (first, second) = (holed.join("scan.ply"), clean.join("core").join("scan.ply"));
+    let script = format!(
+        "if [ \"$1\" = 1 ]; then cp {} \"$2\"; else cp {} \"$2\"; fi",
+        first.display(),
+        second.display()
+    );
+    let burred = tmp.path().join("burred");
+    let job = synth_job_with(
+        &burred,
+        "0.3",
+        &format!(
+            "[verify]\nscan_command = [\"sh\", \"-c\", {script:?}, \"scan\", \"{{look}}\", \"{{scan}}\"]\nscan_timeout_s = 60\n"
+        ),
+    );
+    let out = tmp.path().join("run");
+    let (code, stdout, stderr) = run_verify_once(&job, &out);
+    assert_eq!(code, Some(0), "stdout:\n{stdout}\nstderr:\n{stderr}");
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("verify 1: the rescan covered contours"))
+        .unwrap_or_else(|| panic!("no second look:\n{stdout}"));
+    eprintln!("{line}");
+    assert!(
+        stdout
+            .contains("verify 1: rescanning the part again for the contours it left uncovered: sh"),
+        "{stdout}"
+    );
+    assert!(out.join("rescan_1.ply").exists() && out.join("rescan_1_again.ply").exists());
+    // The contours the first look left uncovered are judged on the second: covered, and the
+    // part (delivered without burrs) passes with nothing left undecided for coverage.
+    let uncovered: Vec<i64> = line
+        .split('[')
+        .nth(1)
+        .and_then(|rest| rest.split(']').next())
+        .expect("a list")
+        .split(", ")
+        .map(|id| id.parse().expect("an id"))
+        .collect();
+    assert!(!uncovered.is_empty());
+    let inspected = inspection(&out.join("verify_1"));
+    for id in &uncovered {
+        let c = &inspected[id];
+        assert!(num(c, "coverage") >= 0.9, "contour {id}: {c}");
+    }
+    let rounds = read_json(&out.join("verify.json"));
+    assert_eq!(rounds[0]["fail"], 0, "{}", rounds[0]);
+}
+
 #[test]
 fn a_rescan_that_never_comes_stops_the_run_at_the_timeout_naming_the_file() {
     let tmp = tempfile::tempdir().expect("tempdir");

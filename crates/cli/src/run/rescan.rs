@@ -55,7 +55,7 @@ pub(super) fn rescan(config: &JobConfig, run_dir: &Path, round: u32) -> anyhow::
         wait_for_file(&file, since, timeout)
             .with_context(|| format!("verify {round}: no rescan (job.toml [verify])"))?;
     } else {
-        run_scan_command(&verify.scan_command, &file, round, timeout)?;
+        run_scan_command(&verify.scan_command, &file, (round, 1), timeout)?;
         if !written_since(&file, since) {
             bail!(
                 "verify {round}: [verify] scan_command {:?} succeeded but wrote no {}",
@@ -69,6 +69,54 @@ pub(super) fn rescan(config: &JobConfig, run_dir: &Path, round: u32) -> anyhow::
     config
         .workpiece_from_scan(&cloud)
         .with_context(|| format!("verify {round}: the rescan {}", file.display()))
+}
+
+/// Where inspection `round`'s second look is written: the round's scan file with `_again`
+/// before its extension.
+pub(super) fn scan_file_again(verify: &VerifyConfig, run_dir: &Path, round: u32) -> PathBuf {
+    let first = scan_file(verify, run_dir, round);
+    let stem = first
+        .file_stem()
+        .map_or_else(|| "rescan".into(), |s| s.to_string_lossy().into_owned());
+    let name = match first.extension() {
+        Some(ext) => format!("{stem}_again.{}", ext.to_string_lossy()),
+        None => format!("{stem}_again"),
+    };
+    first.with_file_name(name)
+}
+
+/// A second look for inspection `round` when its rescan left contours uncovered: with a
+/// `[verify] scan_command`, the command is run once more (`{look}` 2) to write
+/// [`scan_file_again`], and that scan is returned, work-piece frame; without one, none (a scan
+/// the run waits for is taken as given: the operator is not asked for another).
+pub(super) fn rescan_again(
+    config: &JobConfig,
+    run_dir: &Path,
+    round: u32,
+) -> anyhow::Result<Option<PointCloud>> {
+    let verify = &config.verify;
+    if verify.scan_command.is_empty() {
+        return Ok(None);
+    }
+    let file = scan_file_again(verify, run_dir, round);
+    let since = SystemTime::now()
+        .checked_sub(MTIME_SLACK)
+        .unwrap_or(SystemTime::UNIX_EPOCH);
+    let timeout = Duration::from_secs_f64(verify.scan_timeout_s);
+    run_scan_command(&verify.scan_command, &file, (round, 2), timeout)?;
+    if !written_since(&file, since) {
+        bail!(
+            "verify {round}: [verify] scan_command {:?} (second look) succeeded but wrote no {}",
+            verify.scan_command,
+            file.display()
+        );
+    }
+    let cloud =
+        formats::read_points(&file).with_context(|| format!("verify {round}: the second look"))?;
+    config
+        .workpiece_from_scan(&cloud)
+        .map(Some)
+        .with_context(|| format!("verify {round}: the second look {}", file.display()))
 }
 
 /// Whether `file` exists and was written at or after `since`.
@@ -109,12 +157,13 @@ fn wait_for_file(file: &Path, since: SystemTime, timeout: Duration) -> anyhow::R
     }
 }
 
-/// Runs the scan command (`{scan}` → `file`, `{round}` → `round` in every word), killing it
-/// when it outlasts `timeout`; a failure names the command and the end of what it printed.
+/// Runs the scan command (`{scan}` → `file`, `{round}` → the round, `{look}` → 1, or 2 for a
+/// second look, in every word), killing it when it outlasts `timeout`; a failure names the
+/// command and the end of what it printed.
 fn run_scan_command(
     command: &[String],
     file: &Path,
-    round: u32,
+    (round, look): (u32, u32),
     timeout: Duration,
 ) -> anyhow::Result<()> {
     let words: Vec<String> = command
@@ -122,12 +171,20 @@ fn run_scan_command(
         .map(|w| {
             w.replace("{scan}", &file.to_string_lossy())
                 .replace("{round}", &round.to_string())
+                .replace("{look}", &look.to_string())
         })
         .collect();
     let (program, args) = words
         .split_first()
         .context("verify.scan_command is empty")?;
-    println!("verify {round}: rescanning the part: {}", words.join(" "));
+    if look > 1 {
+        println!(
+            "verify {round}: rescanning the part again for the contours it left uncovered: {}",
+            words.join(" ")
+        );
+    } else {
+        println!("verify {round}: rescanning the part: {}", words.join(" "));
+    }
     let stderr_file = file.with_extension("scan_command.log");
     if let Some(dir) = file.parent() {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
@@ -191,6 +248,20 @@ mod tests {
     }
 
     #[test]
+    fn the_second_look_is_the_rounds_file_with_again_before_its_extension() {
+        let mut v = VerifyConfig::default();
+        assert_eq!(
+            scan_file_again(&v, Path::new("/runs/a"), 2),
+            PathBuf::from("/runs/a/rescan_2_again.ply")
+        );
+        v.scan_file = "/scans/part_{round}".to_owned();
+        assert_eq!(
+            scan_file_again(&v, Path::new("/runs/a"), 3),
+            PathBuf::from("/scans/part_3_again")
+        );
+    }
+
+    #[test]
     fn a_file_that_never_comes_times_out_naming_it_and_an_older_one_is_not_taken() {
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("never.ply");
@@ -212,7 +283,7 @@ mod tests {
         let file = dir.path().join("scan.ply");
         let hang = ["sleep".to_owned(), "30".to_owned()];
         let start = Instant::now();
-        let err = run_scan_command(&hang, &file, 1, Duration::from_millis(300)).unwrap_err();
+        let err = run_scan_command(&hang, &file, (1, 1), Duration::from_millis(300)).unwrap_err();
         assert!(start.elapsed() < Duration::from_secs(10), "not stopped");
         assert!(err.to_string().contains("timed out"), "{err}");
         let fail = [
@@ -220,7 +291,7 @@ mod tests {
             "-c".to_owned(),
             "echo scanner offline >&2; exit 3".to_owned(),
         ];
-        let err = run_scan_command(&fail, &file, 2, Duration::from_secs(10)).unwrap_err();
+        let err = run_scan_command(&fail, &file, (2, 1), Duration::from_secs(10)).unwrap_err();
         let text = err.to_string();
         assert!(
             text.contains("scanner offline") && text.contains("verify 2"),

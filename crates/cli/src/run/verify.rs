@@ -142,22 +142,33 @@ pub(super) fn verify(v: &VerifyRun<'_>) -> anyhow::Result<Vec<Round>> {
         };
         let spinner = stage("inspecting the part");
         let mut result = inspect(v.mesh, &v.inputs.path, scan.points(), &placement, &settings)?;
-        // The twin's scanner looks a second time when a dropout left contours uncovered, and
-        // those contours are judged on the second rescan where it covers them better: an
-        // uncovered contour is unverified, not good, and one more look is what a shop does.
-        // Not merged: the blocked share of an opening counts any scan point over it, so twice
-        // the points read films where the twin's truth has none (the demo's contour 19 at 13 %).
-        if let Some(part) = part.as_ref() {
-            let uncovered: Vec<i64> = result
-                .contours
-                .iter()
-                .filter(|c| c.coverage < settings.min_coverage)
-                .map(|c| c.id)
-                .collect();
-            if !uncovered.is_empty() {
-                let _spinner = stage("rescanning the uncovered contours");
-                let seed = v.state.demo.map_or(0, |d| d.seed);
-                let again = twin_rescan(config, part, seed ^ u64::from(k) << 32 ^ SECOND_LOOK)?;
+        // The scanner looks a second time when a dropout left contours uncovered, and those
+        // contours are judged on the second rescan where it covers them better: an uncovered
+        // contour is unverified, not good, and one more look is what a shop does. The twin's
+        // scanner always can; a real cell's when `[verify] scan_command` scans on demand
+        // (waiting for files, the run takes the one rescan as given). Not merged: the blocked
+        // share of an opening counts any scan point over it, so twice the points read films
+        // where the twin's truth has none (the demo's contour 19 at 13 %).
+        let uncovered: Vec<i64> = result
+            .contours
+            .iter()
+            .filter(|c| c.coverage < settings.min_coverage)
+            .map(|c| c.id)
+            .collect();
+        if !uncovered.is_empty() {
+            let again = match part.as_ref() {
+                Some(part) => {
+                    let _spinner = stage("rescanning the uncovered contours");
+                    let seed = v.state.demo.map_or(0, |d| d.seed);
+                    Some(twin_rescan(
+                        config,
+                        part,
+                        seed ^ u64::from(k) << 32 ^ SECOND_LOOK,
+                    )?)
+                }
+                None => rescan::rescan_again(config, v.run_dir, k)?,
+            };
+            if let Some(again) = again {
                 let second = inspect(
                     v.mesh,
                     &v.inputs.path,
