@@ -419,27 +419,7 @@ fn synth_job(dir: &Path, burrs: &str) -> std::path::PathBuf {
 /// [`synth_job`] with `tables` (job.toml text) in place of `[trim] only_detected`.
 fn synth_job_with(dir: &Path, burrs: &str, tables: &str) -> std::path::PathBuf {
     let core = dir.join("core");
-    let result = Command::new(TRIMCTL)
-        .args([
-            "synth",
-            "--seed",
-            "2",
-            "--views",
-            "4",
-            "--dropouts",
-            "0",
-            "--burrs",
-            burrs,
-            "--out",
-        ])
-        .arg(&core)
-        .output()
-        .expect("trimctl synth runs");
-    assert!(
-        result.status.success(),
-        "{}",
-        String::from_utf8_lossy(&result.stderr)
-    );
+    synth_core(&core, burrs, "0");
     let job = dir.join("job.toml");
     std::fs::write(
         &job,
@@ -452,6 +432,32 @@ fn synth_job_with(dir: &Path, burrs: &str, tables: &str) -> std::path::PathBuf {
     )
     .expect("job file");
     job
+}
+
+/// `trimctl synth` of the test core (seed 2, four views) into `core`, with `burrs` of its
+/// contours burred and `dropouts` dropout patches in its scan.
+fn synth_core(core: &Path, burrs: &str, dropouts: &str) {
+    let result = Command::new(TRIMCTL)
+        .args([
+            "synth",
+            "--seed",
+            "2",
+            "--views",
+            "4",
+            "--dropouts",
+            dropouts,
+            "--burrs",
+            burrs,
+            "--out",
+        ])
+        .arg(core)
+        .output()
+        .expect("trimctl synth runs");
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
 }
 
 #[test]
@@ -678,27 +684,7 @@ fn a_real_parts_uncovered_contours_get_a_second_look_from_the_scan_command() {
     let clean = tmp.path().join("clean");
     synth_job_with(&clean, "0", "");
     let holed = tmp.path().join("holed");
-    let result = Command::new(TRIMCTL)
-        .args([
-            "synth",
-            "--seed",
-            "2",
-            "--views",
-            "4",
-            "--dropouts",
-            "30",
-            "--burrs",
-            "0",
-            "--out",
-        ])
-        .arg(&holed)
-        .output()
-        .expect("trimctl synth runs");
-    assert!(
-        result.status.success(),
-        "{}",
-        String::from_utf8_lossy(&result.stderr)
-    );
+    synth_core(&holed, "0", "30");
     let (first, second) = (holed.join("scan.ply"), clean.join("core").join("scan.ply"));
     let script = format!(
         "if [ \"$1\" = 1 ]; then cp {} \"$2\"; else cp {} \"$2\"; fi",

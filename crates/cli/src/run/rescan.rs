@@ -38,37 +38,8 @@ pub(super) fn scan_file(verify: &VerifyConfig, run_dir: &Path, round: u32) -> Pa
 /// Inspection `round`'s rescan, work-piece frame: `[verify] scan_command` run to write it, or
 /// the file waited for; either within `[verify] scan_timeout_s`.
 pub(super) fn rescan(config: &JobConfig, run_dir: &Path, round: u32) -> anyhow::Result<PointCloud> {
-    let verify = &config.verify;
-    let file = scan_file(verify, run_dir, round);
-    // Only a file written from now on is this round's rescan (one already there is an older
-    // scan, e.g. the last round's when `scan_file` names no `{round}`).
-    let since = SystemTime::now()
-        .checked_sub(MTIME_SLACK)
-        .unwrap_or(SystemTime::UNIX_EPOCH);
-    let timeout = Duration::from_secs_f64(verify.scan_timeout_s);
-    if verify.scan_command.is_empty() {
-        println!(
-            "verify {round}: waiting for the rescan of the part at {} (timeout {} s)",
-            file.display(),
-            verify.scan_timeout_s
-        );
-        wait_for_file(&file, since, timeout)
-            .with_context(|| format!("verify {round}: no rescan (job.toml [verify])"))?;
-    } else {
-        run_scan_command(&verify.scan_command, &file, (round, 1), timeout)?;
-        if !written_since(&file, since) {
-            bail!(
-                "verify {round}: [verify] scan_command {:?} succeeded but wrote no {}",
-                verify.scan_command,
-                file.display()
-            );
-        }
-    }
-    let cloud =
-        formats::read_points(&file).with_context(|| format!("verify {round}: the rescan"))?;
-    config
-        .workpiece_from_scan(&cloud)
-        .with_context(|| format!("verify {round}: the rescan {}", file.display()))
+    let file = scan_file(&config.verify, run_dir, round);
+    scan(config, &file, (round, 1))
 }
 
 /// Where inspection `round`'s second look is written: the round's scan file with `_again`
@@ -94,29 +65,50 @@ pub(super) fn rescan_again(
     run_dir: &Path,
     round: u32,
 ) -> anyhow::Result<Option<PointCloud>> {
-    let verify = &config.verify;
-    if verify.scan_command.is_empty() {
+    if config.verify.scan_command.is_empty() {
         return Ok(None);
     }
-    let file = scan_file_again(verify, run_dir, round);
+    let file = scan_file_again(&config.verify, run_dir, round);
+    scan(config, &file, (round, 2)).map(Some)
+}
+
+/// Look `look` of inspection `round` (1, or 2 for a second look), written to `file` by the
+/// scan command or, without one, waited for there; read and carried into the work-piece frame.
+fn scan(config: &JobConfig, file: &Path, (round, look): (u32, u32)) -> anyhow::Result<PointCloud> {
+    let verify = &config.verify;
+    let what = if look > 1 {
+        "the second look"
+    } else {
+        "the rescan"
+    };
+    // Only a file written from now on is this look's (one already there is an older scan,
+    // e.g. the last round's when `scan_file` names no `{round}`).
     let since = SystemTime::now()
         .checked_sub(MTIME_SLACK)
         .unwrap_or(SystemTime::UNIX_EPOCH);
     let timeout = Duration::from_secs_f64(verify.scan_timeout_s);
-    run_scan_command(&verify.scan_command, &file, (round, 2), timeout)?;
-    if !written_since(&file, since) {
-        bail!(
-            "verify {round}: [verify] scan_command {:?} (second look) succeeded but wrote no {}",
-            verify.scan_command,
-            file.display()
+    if verify.scan_command.is_empty() {
+        println!(
+            "verify {round}: waiting for the rescan of the part at {} (timeout {} s)",
+            file.display(),
+            verify.scan_timeout_s
         );
+        wait_for_file(file, since, timeout)
+            .with_context(|| format!("verify {round}: no rescan (job.toml [verify])"))?;
+    } else {
+        run_scan_command(&verify.scan_command, file, (round, look), timeout)?;
+        if !written_since(file, since) {
+            bail!(
+                "verify {round}: [verify] scan_command {:?} succeeded but wrote no {} ({what})",
+                verify.scan_command,
+                file.display()
+            );
+        }
     }
-    let cloud =
-        formats::read_points(&file).with_context(|| format!("verify {round}: the second look"))?;
+    let cloud = formats::read_points(file).with_context(|| format!("verify {round}: {what}"))?;
     config
         .workpiece_from_scan(&cloud)
-        .map(Some)
-        .with_context(|| format!("verify {round}: the second look {}", file.display()))
+        .with_context(|| format!("verify {round}: {what} {}", file.display()))
 }
 
 /// Whether `file` exists and was written at or after `since`.
