@@ -288,7 +288,7 @@ pub fn read_opening(
     settings: &InspectSettings,
 ) -> OpeningReading {
     let supports = node_supports(opening, tree, points, settings);
-    let beyond_webs: Vec<Vec<(usize, f64)>> = supports
+    let beyond_webs: Vec<&Vec<(usize, f64)>> = supports
         .iter()
         .zip(opening.rim_arc_mm.iter().zip(&opening.rim_distance_mm))
         .filter(|(_, (arc, distance))| {
@@ -296,7 +296,7 @@ pub fn read_opening(
                 .iter()
                 .any(|w| **distance <= w.reach_mm && w.holds(**arc, opening.rim_length_mm))
         })
-        .map(|(s, _)| s.clone())
+        .map(|(s, _)| s)
         .collect();
     OpeningReading {
         covered_share: share_of(&beyond_webs),
@@ -334,8 +334,8 @@ fn node_supports(
 }
 
 /// The share of nodes with at least one supporting point.
-fn share_of(supports: &[Vec<(usize, f64)>]) -> f64 {
-    let covered = supports.iter().filter(|s| !s.is_empty()).count();
+fn share_of<S: AsRef<[(usize, f64)]>>(supports: &[S]) -> f64 {
+    let covered = supports.iter().filter(|s| !s.as_ref().is_empty()).count();
     covered as f64 / supports.len().max(1) as f64
 }
 
