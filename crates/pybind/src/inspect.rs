@@ -29,7 +29,8 @@ pub struct PyContourInspection {
     pub excess_length_mm: f64,
     /// The deepest gouge below the nominal surface (µm).
     pub gouge_depth_um: f64,
-    /// The covered share of the opening this contour rims (``None``: no opening).
+    /// The share of the opening this contour rims still covered by a film (``None``: no
+    /// opening); a burr web standing into it from the rim is excess, not cover.
     pub blocked_fraction: Option<f64>,
     /// The expanded uncertainty U (µm).
     pub uncertainty_um: f64,
