@@ -278,15 +278,12 @@ fn burrs_and_blockages_are_found_and_measured_on_the_test_seeds() {
 /// after).
 #[test]
 fn webs_on_the_rims_of_open_holes_do_not_read_as_covers() {
+    // The detection cases' scan (500k points, no dropouts), more webs, lower, and no films.
     let case = generate(&SynthParams {
-        seed: 36,
-        scan_points: 500_000,
-        dropouts: 0,
         burr_fraction: 0.5,
         burr_height_mm: [0.05, 0.4],
-        burr_thickness_mm: [0.02, 0.1],
         blockage_fraction: 0.0,
-        ..SynthParams::default()
+        ..params(36)
     })
     .unwrap();
     let settings = detection_settings();
