@@ -244,19 +244,6 @@ fn face_height(rim: &[(f64, f64, f64)], a: f64, b: f64) -> Option<f64> {
     (wsum > 0.0).then(|| hsum / wsum)
 }
 
-/// The share of the opening's nodes with a scan point (CAD frame, in `tree` over `points`)
-/// within `opening_support_mm` across the face and `opening_depth_mm` below or above its level.
-#[must_use]
-pub fn covered_share(
-    opening: &Opening,
-    tree: &KdTree,
-    points: &[Point3],
-    settings: &InspectSettings,
-) -> f64 {
-    let supports = node_supports(opening, tree, points, settings);
-    share_of(&supports)
-}
-
 /// The covered share of the opening and, where the scan sees the film from both sides, its
 /// thickness; `noise_mm` is the scan's noise σ.
 ///
