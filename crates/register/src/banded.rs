@@ -4,6 +4,86 @@
 
 use nalgebra::{DMatrix, DVector};
 
+/// The Cholesky factor `L` (`A = L Lᵀ`) of a symmetric positive-definite matrix with half-bandwidth
+/// `bandwidth`, stored by rows within the band: factor once, then solve for as many right-hand
+/// sides as needed (the model check solves ten with one matrix).
+#[derive(Debug, Clone)]
+pub struct BandedCholesky {
+    n: usize,
+    bw: usize,
+    /// Row `i` holds `L[i][i − bw ..= i]` contiguously: `L[i][k]` at `l[i·(bw + 1) + k + bw − i]`.
+    l: Vec<f64>,
+}
+
+impl BandedCholesky {
+    /// Factors `a`, reading only its lower triangle within `bandwidth`. `None` if `a` is not
+    /// square or not positive definite.
+    #[must_use]
+    pub fn factor(a: &DMatrix<f64>, bandwidth: usize) -> Option<Self> {
+        let n = a.nrows();
+        if a.ncols() != n {
+            return None;
+        }
+        // Row by row: each entry is one contiguous dot product of two rows (columns before 0
+        // stay zero).
+        let bw = bandwidth.min(n.saturating_sub(1));
+        let w = bw + 1;
+        let mut l = vec![0.0; n * w];
+        for i in 0..n {
+            let lo = i.saturating_sub(bw);
+            for j in lo..=i {
+                // Σ_k L[i][k] L[j][k] over k in lo..j (both rows are zero before their band).
+                let ri = &l[i * w + (lo + bw - i)..i * w + (j + bw - i)];
+                let rj = &l[j * w + (lo + bw - j)..j * w + bw];
+                let dot: f64 = ri.iter().zip(rj).map(|(x, y)| x * y).sum();
+                let v = a[(i, j)] - dot;
+                if j == i {
+                    if !(v > 0.0 && v.is_finite()) {
+                        return None;
+                    }
+                    l[i * w + bw] = v.sqrt();
+                } else {
+                    l[i * w + (j + bw - i)] = v / l[j * w + bw];
+                }
+            }
+        }
+        Some(BandedCholesky { n, bw, l })
+    }
+
+    /// `L[i][k]` for `k` within the band of row `i`.
+    fn at(&self, i: usize, k: usize) -> f64 {
+        self.l[i * (self.bw + 1) + (k + self.bw - i)]
+    }
+
+    /// Solves `A x = b`. `None` if `b` does not have the matrix's size.
+    #[must_use]
+    pub fn solve(&self, b: &DVector<f64>) -> Option<DVector<f64>> {
+        let (n, bw) = (self.n, self.bw);
+        if b.len() != n {
+            return None;
+        }
+        // Forward: L y = b.
+        let mut y = b.clone();
+        for i in 0..n {
+            let mut s = y[i];
+            for k in i.saturating_sub(bw)..i {
+                s -= self.at(i, k) * y[k];
+            }
+            y[i] = s / self.at(i, i);
+        }
+        // Backward: Lᵀ x = y.
+        let mut x = y;
+        for i in (0..n).rev() {
+            let mut s = x[i];
+            for k in i + 1..(i + bw + 1).min(n) {
+                s -= self.at(k, i) * x[k];
+            }
+            x[i] = s / self.at(i, i);
+        }
+        Some(x)
+    }
+}
+
 /// Solves `A x = b` for symmetric positive-definite `A` with half-bandwidth `bandwidth`
 /// (reading only the lower triangle within the band). `None` if `A` is not positive definite.
 #[must_use]
@@ -12,54 +92,7 @@ pub fn solve_banded_spd(
     b: &DVector<f64>,
     bandwidth: usize,
 ) -> Option<DVector<f64>> {
-    let n = a.nrows();
-    if a.ncols() != n || b.len() != n {
-        return None;
-    }
-    // Lower-triangular factor, row by row: row i holds L[i][i - bw ..= i] contiguously (columns
-    // before 0 stay zero), so each entry is one contiguous dot product of two rows.
-    let bw = bandwidth.min(n.saturating_sub(1));
-    let w = bw + 1;
-    let mut l = vec![0.0; n * w];
-    // L[i][k] lives at l[i * w + (k + bw - i)].
-    for i in 0..n {
-        let lo = i.saturating_sub(bw);
-        for j in lo..=i {
-            // Σ_k L[i][k] L[j][k] over k in lo..j (both rows are zero before their band).
-            let ri = &l[i * w + (lo + bw - i)..i * w + (j + bw - i)];
-            let rj = &l[j * w + (lo + bw - j)..j * w + bw];
-            let dot: f64 = ri.iter().zip(rj).map(|(x, y)| x * y).sum();
-            let v = a[(i, j)] - dot;
-            if j == i {
-                if !(v > 0.0 && v.is_finite()) {
-                    return None;
-                }
-                l[i * w + bw] = v.sqrt();
-            } else {
-                l[i * w + (j + bw - i)] = v / l[j * w + bw];
-            }
-        }
-    }
-    let at = |i: usize, k: usize| l[i * w + (k + bw - i)];
-    // Forward: L y = b.
-    let mut y = b.clone();
-    for i in 0..n {
-        let mut s = y[i];
-        for k in i.saturating_sub(bw)..i {
-            s -= at(i, k) * y[k];
-        }
-        y[i] = s / at(i, i);
-    }
-    // Backward: Lᵀ x = y.
-    let mut x = y;
-    for i in (0..n).rev() {
-        let mut s = x[i];
-        for k in i + 1..(i + bw + 1).min(n) {
-            s -= at(k, i) * x[k];
-        }
-        x[i] = s / at(i, i);
-    }
-    Some(x)
+    BandedCholesky::factor(a, bandwidth)?.solve(b)
 }
 
 #[cfg(test)]
@@ -87,6 +120,12 @@ mod tests {
         let dense = a.clone().cholesky().unwrap().solve(&b);
         let banded = solve_banded_spd(&a, &b, bw).unwrap();
         assert!((dense - banded).amax() < 1e-12);
+        // One factor, further right-hand sides.
+        let factor = BandedCholesky::factor(&a, bw).unwrap();
+        let b2 = DVector::from_fn(n, |i, _| (i as f64).cos());
+        let x2 = factor.solve(&b2).unwrap();
+        assert!((&a * x2 - b2).amax() < 1e-10);
+        assert!(factor.solve(&DVector::zeros(n + 1)).is_none());
         let mut bad = a.clone();
         bad[(3, 3)] = -1.0;
         assert!(solve_banded_spd(&bad, &b, bw).is_none());
