@@ -10,6 +10,7 @@ use parry3d_f64::query::PointQuery;
 use parry3d_f64::shape::TriMesh;
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
+use rayon::prelude::*;
 use std::sync::OnceLock;
 
 use crate::cloud::{Aabb, PointCloud};
@@ -209,22 +210,30 @@ impl Mesh {
         let total_mm2 = self.area();
         let surface_vertices = &self.vertices;
         let surface_indices = &self.surface_indices;
-        let mut points = Vec::with_capacity(n);
-        let mut normals = Vec::with_capacity(n);
-        for _ in 0..n {
-            let target = rng.random::<f64>() * total_mm2;
-            let s = self
-                .cumulative_area_mm2
-                .partition_point(|&c| c <= target)
-                .min(surface_indices.len() - 1);
-            let [a, b, c] = surface_indices[s].map(|i| surface_vertices[i as usize]);
-            // Uniform in the triangle: (1 − √r1) a + √r1 (1 − r2) b + √r1 r2 c.
-            let r1 = rng.random::<f64>().sqrt();
-            let r2 = rng.random::<f64>();
-            let p = a + (b - a) * (r1 * (1.0 - r2)) + (c - a) * (r1 * r2);
-            points.push(p);
-            normals.push(self.surface_normals[s]);
-        }
+        // The draws in their fixed order (three per sample), then the triangle searches and the
+        // points side by side: the same samples as one sequential pass, in a fraction of its
+        // time (the search over the cumulative areas is most of it).
+        let draws: Vec<[f64; 3]> = (0..n)
+            .map(|_| {
+                let target = rng.random::<f64>() * total_mm2;
+                let r1 = rng.random::<f64>().sqrt();
+                let r2 = rng.random::<f64>();
+                [target, r1, r2]
+            })
+            .collect();
+        let (points, normals): (Vec<Point3>, Vec<Vector3>) = draws
+            .par_iter()
+            .map(|&[target, r1, r2]| {
+                let s = self
+                    .cumulative_area_mm2
+                    .partition_point(|&c| c <= target)
+                    .min(surface_indices.len() - 1);
+                let [a, b, c] = surface_indices[s].map(|i| surface_vertices[i as usize]);
+                // Uniform in the triangle: (1 − √r1) a + √r1 (1 − r2) b + √r1 r2 c.
+                let p = a + (b - a) * (r1 * (1.0 - r2)) + (c - a) * (r1 * r2);
+                (p, self.surface_normals[s])
+            })
+            .unzip();
         PointCloud::with_normals(points, normals)
             .expect("points are convex combinations of finite vertices; normals are non-degenerate")
     }
