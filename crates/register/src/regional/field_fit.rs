@@ -120,6 +120,9 @@ pub(crate) struct Gates<'a> {
     pub(crate) scan_normals: Option<&'a [Vector3]>,
     /// The largest offset from the matched CAD point across its normal, mm (0: none).
     pub(crate) tangent_mm: f64,
+    /// Leave out a point whose best CAD point is [`LocalShape::near_edge`]
+    /// (`field.exclude_edges`).
+    pub(crate) exclude_edges: bool,
 }
 
 /// Whether a scan normal (zero: unknown) agrees with a CAD normal.
@@ -201,6 +204,33 @@ pub(crate) struct Match {
 /// residual (mm).
 pub(crate) type Matched = (usize, Point3, Vector3, Matrix3<f64>, f64);
 
+/// A field point's CAD candidates from its last neighbour search: where the search was made
+/// (CAD frame), within which squared distance (mm²), and the candidates found.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Candidates {
+    at: Point3,
+    distance_sq: f64,
+    count: u8,
+    index: [u32; MATCH_CANDIDATES],
+}
+
+impl Default for Candidates {
+    fn default() -> Self {
+        Candidates {
+            at: Point3::origin(),
+            distance_sq: -1.0,
+            count: 0,
+            index: [0; MATCH_CANDIDATES],
+        }
+    }
+}
+
+/// A field point's candidates are searched again only once it has moved this far (mm, CAD
+/// frame) from where they were searched, or when its maximum distance grew: in the last
+/// iterations the field moves points by micrometres, and the nearest few CAD samples (0.1–0.2
+/// mm apart) are the same.
+pub const CANDIDATE_REUSE_MM: f64 = 0.005;
+
 /// Matches of the field's points: scan point `q` (CAD frame) to its CAD point under the current
 /// field (`F⁻¹(q)`'s nearest CAD point), with the residual along the carried normal. With
 /// `exclude_edges`, a point whose best CAD point is [`LocalShape::near_edge`] has no match: which
@@ -215,17 +245,54 @@ pub(crate) fn match_points(
     shapes: &[LocalShape],
     field: Option<&BSplineField>,
     max_distance_mm: f64,
-    exclude_edges: bool,
+    cache: Option<&mut [Candidates]>,
 ) -> Vec<Option<Matched>> {
     let cad = target.cloud().points();
     let normals = target.cloud().normals();
     let d2max = max_distance_mm * max_distance_mm;
     let tangent2 = gates.tangent_mm * gates.tangent_mm;
+    let reuse2 = CANDIDATE_REUSE_MM * CANDIDATE_REUSE_MM;
+    let mut none: Vec<Candidates> = Vec::new();
+    let cache: &mut [Candidates] = match cache {
+        Some(c) if c.len() == points.len() => c,
+        _ => {
+            none.resize(points.len(), Candidates::default());
+            &mut none
+        }
+    };
     points
         .par_iter()
+        .zip(cache.par_iter_mut())
         .enumerate()
-        .map_init(Scratch::default, |scratch, (i, q)| {
+        .map_init(Scratch::default, |scratch, (i, (q, cached))| {
             let p = field.map_or(*q, |f| f.inverse_apply(q, 2));
+            if !(cached.distance_sq >= d2max && (p - cached.at).norm_squared() <= reuse2) {
+                let found = target
+                    .tree()
+                    .knn_within(&p, MATCH_CANDIDATES, d2max, scratch);
+                let mut index = [0u32; MATCH_CANDIDATES];
+                for (slot, nb) in index.iter_mut().zip(found) {
+                    *slot = nb.index as u32;
+                }
+                *cached = Candidates {
+                    at: p,
+                    distance_sq: d2max,
+                    count: found.len() as u8,
+                    index,
+                };
+            }
+            // The candidates within the distance, nearest first (ties by index, as the search).
+            let mut near: [(f64, usize); MATCH_CANDIDATES] = [(f64::INFINITY, 0); MATCH_CANDIDATES];
+            let mut count = 0;
+            for &index in &cached.index[..usize::from(cached.count)] {
+                let index = index as usize;
+                let d2 = (cad[index] - p).norm_squared();
+                if d2 <= d2max {
+                    near[count] = (d2, index);
+                    count += 1;
+                }
+            }
+            near[..count].sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             // Of the nearest CAD points, the one whose surface passes closest to q: near an
             // edge the nearest sample may lie on the other face (a top-face scan point 0.1 mm
             // from a rim finds a wall sample), and its plane would pull sideways.
@@ -233,12 +300,9 @@ pub(crate) fn match_points(
             // The field at the nearest candidate; the others (within a millimetre) use its
             // first-order expansion `d(c) ≈ d₀ + J₀ (c − c₀)` and its normal map.
             let mut at_nearest: Option<(Point3, Vector3, Matrix3<f64>, Matrix3<f64>)> = None;
-            for nb in target
-                .tree()
-                .knn_within(&p, MATCH_CANDIDATES, d2max, scratch)
-            {
-                let c = cad[nb.index];
-                let n0 = normals.map_or(Vector3::z(), |ns| ns[nb.index]);
+            for &(_, nb_index) in &near[..count] {
+                let c = cad[nb_index];
+                let n0 = normals.map_or(Vector3::z(), |ns| ns[nb_index]);
                 let (c0, d0, j, normal_map) = *at_nearest.get_or_insert_with(|| {
                     let (d, j) = field.map_or((Vector3::zeros(), Matrix3::zeros()), |f| {
                         f.displacement_and_jacobian(&c)
@@ -256,7 +320,7 @@ pub(crate) fn match_points(
                 let diff = q - (c + d);
                 let t = diff - n * n.dot(&diff);
                 let s = shapes
-                    .get(nb.index)
+                    .get(nb_index)
                     .map_or_else(Matrix3::zeros, |l| l.operator);
                 let r = -(n.dot(&diff) + 0.5 * (t.transpose() * s * t)[(0, 0)]);
                 // A scan point beyond the CAD surface's extent (over its edge or an opening)
@@ -265,11 +329,11 @@ pub(crate) fn match_points(
                     continue;
                 }
                 if best.is_none_or(|b| r.abs() < b.0) {
-                    best = Some((r.abs(), nb.index, c, n, j, r));
+                    best = Some((r.abs(), nb_index, c, n, j, r));
                 }
             }
             let (_, index, c, n, j, r) = best?;
-            if exclude_edges && shapes.get(index).is_some_and(|l| l.near_edge) {
+            if gates.exclude_edges && shapes.get(index).is_some_and(|l| l.near_edge) {
                 return None;
             }
             // A scan point whose own surface turns away from its CAD face's (a burr web or a
@@ -294,6 +358,7 @@ pub(crate) fn final_matches(
     let gates = Gates {
         scan_normals: None,
         tangent_mm: 0.0,
+        exclude_edges: false,
     };
     match_points(
         points,
@@ -302,7 +367,7 @@ pub(crate) fn final_matches(
         shapes,
         field,
         max_distance_mm,
-        false,
+        None,
     )
     .into_iter()
     .zip(points)
@@ -329,13 +394,23 @@ pub(crate) fn fit_field(
     check: Option<&DeformationSettings>,
 ) -> Result<FieldFit> {
     let tangent_mm = TANGENT_GATE_SPACINGS * cad_spacing_mm(target);
-    let (field, prior) = solve_field(points, scan_normals, tangent_mm, target, shapes, settings)?;
+    let mut candidates = vec![Candidates::default(); points.len()];
+    let (field, prior) = solve_field(
+        points,
+        scan_normals,
+        tangent_mm,
+        target,
+        shapes,
+        settings,
+        &mut candidates,
+    )?;
     // All final matches, edges, burrs and films included (the tangential gate only drops points
     // that lie on no CAD face), for the quality report (coverage and residuals are about what
     // the scanner saw); the posterior from those the fit used.
     let gates = Gates {
         scan_normals: None,
         tangent_mm,
+        exclude_edges: false,
     };
     let matched = match_points(
         points,
@@ -344,7 +419,7 @@ pub(crate) fn fit_field(
         shapes,
         Some(&field),
         settings.max_distance_end_mm,
-        false,
+        Some(&mut candidates),
     );
     let fitted: Vec<Option<Matched>> = matched
         .iter()
@@ -468,8 +543,10 @@ fn solve_field(
     target: &IcpTarget,
     shapes: &[LocalShape],
     settings: &DeformationSettings,
+    candidates: &mut [Candidates],
 ) -> Result<(BSplineField, Vec<PriorTerm>)> {
     let (mut field, prior) = zero_field(target, settings)?;
+    let mut early_candidates = vec![Candidates::default(); points.len().div_ceil(EARLY_STRIDE)];
     let kernel = RobustKernel::Huber {
         k_mm: settings.huber_mm,
     };
@@ -487,27 +564,34 @@ fn solve_field(
     let warmup = settings.warmup_iterations;
     for it in 0..warmup + settings.iterations {
         trim_geom::cancel::check()?;
-        let (sample, sample_normals, max_d) = if it < warmup {
+        let (sample, sample_normals, max_d, cache) = if it < warmup {
             let f = it as f64 / (warmup - 1).max(1) as f64;
             let reach = WARMUP_REACH_FACTOR.powf(1.0 - f);
             (
                 &warm[..],
                 &warm_n[..],
                 settings.max_distance_start_mm * reach,
+                None,
             )
         } else {
             let k = it - warmup;
             let t = (k as f64 / shrink_steps as f64).min(1.0);
             let max_d = settings.max_distance_start_mm * ratio.powf(t);
             if k < settings.iterations / 2 {
-                (&early[..], &early_n[..], max_d)
+                (
+                    &early[..],
+                    &early_n[..],
+                    max_d,
+                    Some(&mut early_candidates[..]),
+                )
             } else {
-                (points, scan_normals, max_d)
+                (points, scan_normals, max_d, Some(&mut *candidates))
             }
         };
         let gates = Gates {
             scan_normals: Some(sample_normals),
             tangent_mm,
+            exclude_edges: settings.exclude_edges,
         };
         let matched = match_points(
             sample,
@@ -516,7 +600,7 @@ fn solve_field(
             shapes,
             Some(&field),
             max_d,
-            settings.exclude_edges,
+            cache,
         );
         let pairs: Vec<(Point3, Vector3, f64, f64)> = matched
             .iter()
