@@ -2,7 +2,7 @@
 //! of the B-spline field, and moving contours through it.
 
 use super::settings::DeformationSettings;
-use crate::banded::{BandedCholesky, solve_banded_spd};
+use crate::banded::solve_banded_spd;
 use crate::deformation::{BSplineField, SUPPORT};
 use crate::error::{RegisterError, Result};
 use crate::icp::IcpTarget;
@@ -360,19 +360,11 @@ pub(crate) fn final_matches(
         tangent_mm: 0.0,
         exclude_edges: false,
     };
-    match_points(
-        points,
-        &gates,
-        target,
-        shapes,
-        field,
-        max_distance_mm,
-        None,
-    )
-    .into_iter()
-    .zip(points)
-    .filter_map(|(m, q)| m.map(|(_, _, n, _, r)| Match { q: *q, n, r }))
-    .collect()
+    match_points(points, &gates, target, shapes, field, max_distance_mm, None)
+        .into_iter()
+        .zip(points)
+        .filter_map(|(m, q)| m.map(|(_, _, n, _, r)| Match { q: *q, n, r }))
+        .collect()
 }
 
 /// The fitted field, its final matches and its posterior, and the model check's field.
@@ -458,17 +450,16 @@ pub(crate) fn fit_field(
 }
 
 /// The model check's field (`quality.model_check`): the same data as the fit, the fit's final
-/// matches `fitted` (their CAD points, carried normals and Huber weights held fixed), fitted
-/// under `settings` (another control spacing) from zero. Where the data fix the contour, the two
-/// fields agree; where the smoothness prior decides, they differ by what the two priors make of
-/// it. For fixed matches and weights the residual is linear in the field and the damped normal
-/// matrix `M = H + P + μI` does not change, so it is factored once and each pass is one solve,
-/// `δ ← δ − M⁻¹ (g₀ + (H + P) δ)`. It takes as many damped passes as the fit took Gauss-Newton
-/// steps: where neither the data nor the prior fix a direction well, the damping holds both
-/// fields equally near zero (three passes left the check short of the fit there, and the
-/// difference read as disagreement: the demo part's end strips 33 µm instead of 18 µm). Until
-/// 2026-11-27 each pass re-weighted the matches and rebuilt the normal equations (0.7 CPU-s of
-/// the outside 500k case for the same field to well under a micrometre).
+/// matches `fitted` (their CAD points and carried normals held fixed), fitted under `settings`
+/// (another control spacing) from zero. Where the data fix the contour, the two fields agree;
+/// where the smoothness prior decides, they differ by what the two priors make of it. The
+/// residual is linear in the field for fixed matches, so each pass is one solve, with the Huber
+/// weights of the last (re-weighted each pass, so that the check weighs the data as a fit of
+/// its own would, not as the fit did: with the fit's weights held, a part 1 mm off read half
+/// the disagreement). It takes as many damped passes as the fit took Gauss-Newton steps: where
+/// neither the data nor the prior fix a direction well, the damping holds both fields equally
+/// near zero (three passes left the check short of the fit there, and the difference read as
+/// disagreement: the demo part's end strips 33 µm instead of 18 µm).
 fn check_field(
     field: &BSplineField,
     fitted: &[Option<Matched>],
@@ -479,52 +470,28 @@ fn check_field(
     let kernel = RobustKernel::Huber {
         k_mm: settings.huber_mm,
     };
-    // Each match with the fit's displacement taken out, `r₀ = r − n·d(c)`, and the fit's weight.
-    let pairs: Vec<(Point3, Vector3, f64, f64)> = fitted
+    // Each match's residual with the fit's displacement taken out: `r₀ = r − n·d(c)`.
+    let base: Vec<(Point3, Vector3, f64)> = fitted
         .par_iter()
-        .filter_map(|m| {
-            m.map(|(_, c, n, _, r)| (c, n, r - n.dot(&field.displacement(&c)), kernel.weight(r)))
-        })
+        .filter_map(|m| m.map(|(_, c, n, _, r)| (c, n, r - n.dot(&field.displacement(&c)))))
         .collect();
-    let stage = "model check";
-    let dim = 3 * check.len();
-    // At the zero field: H = Σ w a aᵀ and g₀ = Σ w a r₀.
-    let (h, g0) = field_normal_equations(&check, &pairs);
-    let mean_diag = h.diagonal().sum() / dim as f64;
-    // The prior's matrix (its gradient at zero is zero).
-    let mut hp = h;
-    let mut zero_g = DVector::<f64>::zeros(dim);
-    add_prior(
-        &mut hp,
-        &mut zero_g,
-        &check,
-        &prior,
-        settings.smoothness * mean_diag,
-    );
-    let mut m = hp.clone();
-    for i in 0..dim {
-        m[(i, i)] += FIELD_DAMPING * mean_diag.max(f64::MIN_POSITIVE);
-    }
-    let factor =
-        BandedCholesky::factor(&m, check.bandwidth_with_prior(PRIOR_REACH)).ok_or_else(|| {
-            RegisterError::Singular {
-                stage: stage.to_string(),
-                eigenvalues: Vec::new(),
-            }
-        })?;
-    let mut delta = DVector::<f64>::zeros(dim);
-    for _ in 0..settings.iterations {
+    for pass in 0..settings.iterations {
         trim_geom::cancel::check()?;
-        let gradient = &g0 + &hp * &delta;
-        let step = factor
-            .solve(&(-gradient))
-            .filter(|s| s.iter().all(|v| v.is_finite()))
-            .ok_or_else(|| RegisterError::NonFinite {
-                what: format!("{stage}: step"),
-            })?;
-        delta += step;
+        let pairs: Vec<(Point3, Vector3, f64, f64)> = base
+            .par_iter()
+            .map(|&(c, n, r0)| {
+                let r = r0 + n.dot(&check.displacement(&c));
+                (c, n, r, kernel.weight(r))
+            })
+            .collect();
+        damped_step(
+            &mut check,
+            &pairs,
+            &prior,
+            settings.smoothness,
+            &format!("model check, pass {pass}"),
+        )?;
     }
-    check.add_step(delta.as_slice());
     Ok(check)
 }
 
@@ -593,15 +560,7 @@ fn solve_field(
             tangent_mm,
             exclude_edges: settings.exclude_edges,
         };
-        let matched = match_points(
-            sample,
-            &gates,
-            target,
-            shapes,
-            Some(&field),
-            max_d,
-            cache,
-        );
+        let matched = match_points(sample, &gates, target, shapes, Some(&field), max_d, cache);
         let pairs: Vec<(Point3, Vector3, f64, f64)> = matched
             .iter()
             .filter_map(|m| m.map(|(_, c, n, _, r)| (c, n, r, kernel.weight(r))))
