@@ -462,6 +462,10 @@ pub(crate) fn fit_field(
 /// neither the data nor the prior fix a direction well, the damping holds both fields equally
 /// near zero (three passes left the check short of the fit there, and the difference read as
 /// disagreement: the demo part's end strips 33 µm instead of 18 µm).
+/// One match of the model check: its CAD point, carried normal, residual without the fit's
+/// displacement (mm), and its basis indices and values on the check's grid.
+type CheckMatch = (Point3, Vector3, f64, [usize; SUPPORT], [f64; SUPPORT]);
+
 fn check_field(
     field: &BSplineField,
     fitted: &[Option<Matched>],
@@ -474,7 +478,7 @@ fn check_field(
     };
     // Each match's residual with the fit's displacement taken out: `r₀ = r − n·d(c)`, and its
     // basis values on the check's grid.
-    let base: Vec<(Point3, Vector3, f64, [usize; SUPPORT], [f64; SUPPORT])> = fitted
+    let base: Vec<CheckMatch> = fitted
         .par_iter()
         .filter_map(|m| {
             m.map(|(_, c, n, _, r)| {
