@@ -449,6 +449,10 @@ pub(crate) fn fit_field(
     })
 }
 
+/// One match of the model check: its CAD point, carried normal, residual without the fit's
+/// displacement (mm), and its basis indices and values on the check's grid.
+type CheckMatch = (Point3, Vector3, f64, [usize; SUPPORT], [f64; SUPPORT]);
+
 /// The model check's field (`quality.model_check`): the same data as the fit, the fit's final
 /// matches `fitted` (their CAD points and carried normals held fixed), fitted under `settings`
 /// (another control spacing) from zero. Where the data fix the contour, the two fields agree;
@@ -462,10 +466,6 @@ pub(crate) fn fit_field(
 /// neither the data nor the prior fix a direction well, the damping holds both fields equally
 /// near zero (three passes left the check short of the fit there, and the difference read as
 /// disagreement: the demo part's end strips 33 µm instead of 18 µm).
-/// One match of the model check: its CAD point, carried normal, residual without the fit's
-/// displacement (mm), and its basis indices and values on the check's grid.
-type CheckMatch = (Point3, Vector3, f64, [usize; SUPPORT], [f64; SUPPORT]);
-
 fn check_field(
     field: &BSplineField,
     fitted: &[Option<Matched>],
