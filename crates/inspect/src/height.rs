@@ -66,11 +66,13 @@ const VARIANTS: usize = 1 + EDGE_SHARES.len() * WEB_THICKNESSES_MM.len();
 pub const EDGE_PENALTY: f64 = 2.0;
 
 /// Two neighbouring stretches of a web are one web (one height) unless the likelihood ratio of
-/// two heights over one, `2Δℓ`, reaches this (χ² with one degree of freedom: p = 10⁻⁶; the
+/// two heights over one, `2Δℓ`, reaches this (χ² with one degree of freedom: p = 10⁻⁴; the
 /// ratio for a uniform's end is not χ²-distributed but heavier-tailed: at p = 0.001 (10.83)
-/// one web of the tune seeds, and 3 of 400 webs of eight bins drawn from the model, split by
-/// chance, the shorter part reading 10–16 µm high; none of those 400 at this level).
-pub const SPLIT_LIKELIHOOD_RATIO: f64 = 23.9;
+/// one web of the first tune seeds split by chance and read 16–29 µm high, and 1 of 400 webs
+/// of eight bins drawn from the model split; none of those 400 at this level). Chosen over
+/// p = 10⁻⁶ (23.9) on tune seeds 201–260: two webs side by side, 206 and 226 µm or 90 and
+/// 111 µm, merged there at Λ = 17.6 and 19.6 and read 17–18 µm low (DESIGN.md "Inspection").
+pub const SPLIT_LIKELIHOOD_RATIO: f64 = 15.1;
 
 /// Fine steps of the height search per coarse step (σ/2 coarse, σ/20 fine).
 const FINE_PER_COARSE: i64 = 10;
