@@ -281,8 +281,9 @@ mod tests {
     }
 
     /// A circle of radius 1.2 mm in 96 chords: the curvature points to the centre and is
-    /// 1/1.2 mm within the chords' error, all round (across the first point too); a straight
-    /// contour has none.
+    /// 1/1.2 mm within 1 % (the chords lie up to 0.6 µm inside the circle, against the three
+    /// points' 0.1 mm sagitta), all round (across the first point too); a straight contour has
+    /// none.
     #[test]
     fn the_curvature_points_to_the_centre() {
         let n = 96;
@@ -299,7 +300,7 @@ mod tests {
         for arc in [0.0, 0.1, 3.0, g.length_mm() - 0.05] {
             let p = g.point_at(arc);
             let k = g.curvature_at(arc, 0.5);
-            assert!((k.norm() - 1.0 / r).abs() < 2e-3, "{arc}: {k:?}");
+            assert!((k.norm() * r - 1.0).abs() < 0.01, "{arc}: {k:?}");
             let toward = -p.coords.normalize();
             assert!(k.normalize().dot(&toward) > 0.999, "{arc}: {k:?} at {p:?}");
         }
