@@ -28,7 +28,7 @@ use rayon::prelude::*;
 use trim_geom::mesh::Mesh;
 use trim_geom::{ContourId, KdTree, Path, Point3};
 
-use crate::contours::PathIndex;
+use crate::contours::{ContourGeometry, PathIndex};
 use crate::crop::Crop;
 use crate::error::{InspectError, Result};
 use crate::height::{Reading, web_heights_mm};
@@ -47,6 +47,10 @@ pub const MIN_NOISE_UM: f64 = 0.5;
 /// A bin's excess is a web on the rim, not a film's edge, when its height stands at least this
 /// far inside the band, mm (a film over an opening reads out to the band's edge).
 pub const WEB_BAND_MARGIN_MM: f64 = 0.05;
+
+/// How far across the rim (toward the centre of its curvature) and below the face the mesh is
+/// probed to tell a hole's rim (the centre out of the material) from an outer corner's, mm.
+const CURVATURE_PROBE_MM: f64 = 0.05;
 
 /// Spacing of the crop's points along the registered contours, mm.
 const CROP_STEP_MM: f64 = 0.1;
@@ -329,8 +333,10 @@ pub fn inspect(
             let below = beyond(samples, threshold_mm, -1.0, n_bins, &bin_of);
             // Excess: the webs' free edges fitted along the contour (crate::height), one
             // height per web; gouge: the robust top.
+            let curvature = rim_curvatures_per_mm(g, &signed, n_bins, bin_mm);
             let heights = web_heights_mm(
                 &above,
+                &curvature,
                 g.closed,
                 noise_um * 1e-3,
                 threshold_mm,
@@ -416,6 +422,34 @@ pub fn inspect(
         points_measured: samples.len(),
         timings_s: timings,
     })
+}
+
+/// The rim's curvature at the middle of each of `n_bins` bins `bin_mm` long (the circle through
+/// the bin's ends and middle), 1/mm: positive where its centre lies out of the material (a
+/// hole's rim, whose webs narrow as they reach in), negative where it lies inside (an outer
+/// corner's), told by the mesh a little across and below the rim toward the centre.
+fn rim_curvatures_per_mm(
+    g: &ContourGeometry,
+    signed: &SignedMesh,
+    n_bins: usize,
+    bin_mm: f64,
+) -> Vec<f64> {
+    (0..n_bins)
+        .map(|b| {
+            let arc = (b as f64 + 0.5) * bin_mm;
+            let k = g.curvature_at(arc, 0.5 * bin_mm);
+            let kappa = k.norm();
+            if kappa == 0.0 {
+                return 0.0;
+            }
+            let probe = g.point_at(arc) + (k / kappa - *g.feature) * CURVATURE_PROBE_MM;
+            if signed.distance(&probe) > 0.0 {
+                kappa
+            } else {
+                -kappa
+            }
+        })
+        .collect()
 }
 
 /// The readings (`side` +1: outside the material, −1: inside, distances read positive) of the

@@ -4,8 +4,10 @@
 //! blocked openings.
 //!
 //! Seeds: `TEST_SEEDS` are asserted on; every setting of the inspection was chosen on
-//! `TUNE_SEEDS` (run them with `cargo test -p trim-inspect --test detection -- --ignored
-//! --nocapture`), which never enter the assertions.
+//! `TUNE_SEEDS` (run them with `cargo test --release -p trim-inspect --test detection
+//! tune_seeds -- --ignored --nocapture`), which never enter the assertions. `FRESH_SEEDS`
+//! (`… fresh_seeds -- --ignored --nocapture`) are run once after a choice, to report it on
+//! cases nothing was chosen on.
 
 #![expect(
     clippy::unwrap_used,
@@ -20,21 +22,27 @@ use trim_synth::{SynthCase, SynthParams, generate};
 
 /// Seeds the assertions run on.
 const TEST_SEEDS: [u64; 4] = [1, 2, 3, 4];
-/// Seeds the settings were tuned on.
-const TUNE_SEEDS: [u64; 4] = [201, 202, 203, 204];
+/// Seeds the settings were tuned on (201–204 until the height estimator's third round,
+/// 201–260 since; seed 238 does not register: its webs read at the band's edge).
+const TUNE_SEEDS: std::ops::RangeInclusive<u64> = 201..=260;
+/// Seeds never used to choose anything, run once after a choice to report it.
+const FRESH_SEEDS: std::ops::RangeInclusive<u64> = 13..=60;
 
 /// The targets.
 const MIN_RECALL: f64 = 0.98;
 const MAX_FALSE_ALARM_RATE: f64 = 0.02;
 const MAX_HEIGHT_ERROR_UM: f64 = 15.0;
-/// Not met on every contour yet: the 15 µm holds for the median and for at least this
-/// share of the contours (measured on the test seeds with one height per web: 32 of 33, 97 %;
-/// before, with the largest of the bins' fits, 29 of 33; a second miss fails)…
+/// Not met on every contour: the 15 µm holds for the median and for at least this
+/// share of the contours (measured on the test seeds with the rim's curvature and the split at
+/// p = 10⁻⁴: 32 of 33, 97 %; on fresh seeds 13–60 without seed 45, which does not register,
+/// 368 of 386, 95 %, 289 of the 293 whose registration bound is under 20 µm; a second miss on
+/// the test seeds fails)…
 const MIN_WITHIN_SHARE: f64 = 0.96;
-/// …and every contour stays within this (measured on the test seeds: worst −22.6 µm, seed 4
+/// …and every contour stays within this (measured on the test seeds: worst −17.3 µm, seed 4
 /// contour 38: webs of 327 and 345 µm on the two halves of a hole, the taller seen only from
-/// above, read as one web at the lower one's edge; before, 21.0 µm on another contour. See
-/// DESIGN.md "Inspection" for what is left).
+/// above, read as one web at the lower one's edge; −18.4 µm before the third round. It is not a
+/// bound elsewhere: fresh seed 20 contour 8 reads −25.7 µm. See DESIGN.md "Inspection" for what
+/// is left).
 const WORST_HEIGHT_ERROR_UM: f64 = 25.0;
 /// Burrs at least this tall must be found, mm.
 const DETECTABLE_MM: f64 = 0.05;
@@ -172,13 +180,13 @@ fn evaluate(seeds: &[u64]) -> Tally {
                     let err = c.excess_height_um - truth_um;
                     t.height_errors_um.push(err);
                     eprintln!(
-                        "seed {seed} contour {}: height {:.1} µm, truth {truth_um:.1} µm, error {err:+.1} µm",
-                        c.id, c.excess_height_um
+                        "seed {seed} contour {}: height {:.1} µm, truth {truth_um:.1} µm, error {err:+.1} µm, registration bound {:.0} µm",
+                        c.id, c.excess_height_um, c.bound_um
                     );
                     if err.abs() > MAX_HEIGHT_ERROR_UM {
                         t.height_list.push(format!(
-                            "seed {seed} contour {}: measured {:.1} µm, truth {truth_um:.1} µm",
-                            c.id, c.excess_height_um
+                            "seed {seed} contour {}: measured {:.1} µm, truth {truth_um:.1} µm, registration bound {:.0} µm",
+                            c.id, c.excess_height_um, c.bound_um
                         ));
                     }
                 }
@@ -309,7 +317,13 @@ fn webs_on_the_rims_of_open_holes_do_not_read_as_covers() {
 }
 
 #[test]
-#[ignore = "tuning run: cargo test -p trim-inspect --test detection -- --ignored --nocapture"]
+#[ignore = "tuning run: cargo test --release -p trim-inspect --test detection tune_seeds -- --ignored --nocapture"]
 fn tune_seeds() {
-    report(&evaluate(&TUNE_SEEDS));
+    report(&evaluate(&TUNE_SEEDS.collect::<Vec<u64>>()));
+}
+
+#[test]
+#[ignore = "report run: cargo test --release -p trim-inspect --test detection fresh_seeds -- --ignored --nocapture"]
+fn fresh_seeds() {
+    report(&evaluate(&FRESH_SEEDS.collect::<Vec<u64>>()));
 }
