@@ -2,6 +2,7 @@
 worker's cancel flag, `trim_geom::cancel`)."""
 
 import _thread
+import signal
 import threading
 import time
 
@@ -17,10 +18,21 @@ def test_ctrl_c_stops_the_native_work():
     """A registration interrupted while it runs raises KeyboardInterrupt at once, and the
     worker stops at its next iteration: the process's CPU time stops growing within about a
     second (without the cancel flag it grows by a core or more for the rest of the
-    registration, tens of seconds with 200 field iterations)."""
+    registration, half a minute with 1,000 field iterations)."""
     case = trimctl.synth(seed=2, scan_points=200_000, cad_points=100_000)
-    settings = {"cad_sample_points": 100_000, "field": {"iterations": 200}}
+    # Long enough that the interrupt always lands while it runs: 200 iterations took 6 s in a
+    # release build in 2026-11 and get faster as the field does.
+    settings = {"cad_sample_points": 100_000, "field": {"iterations": 1000}}
+    # Ctrl-C as Python's default handler takes it, whatever an earlier test in this process
+    # (dask's cluster) left installed.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        _interrupt_and_watch(case, settings)
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
+
+def _interrupt_and_watch(case, settings):
     # Interrupt once the registration has been busy for a while (it must still be running
     # when the interrupt lands: the CPU it burns before is checked below).
     timer = threading.Timer(2.0, _thread.interrupt_main)
