@@ -231,6 +231,13 @@ impl BSplineField {
     #[must_use]
     pub fn displacement(&self, x: &Point3) -> Vector3 {
         let (index, value) = self.values(x);
+        self.displacement_from(&index, &value)
+    }
+
+    /// The displacement at a point whose control indices and basis values ([`Self::values`])
+    /// were taken before, mm: the same field evaluated again without locating the point.
+    #[must_use]
+    pub fn displacement_from(&self, index: &[usize; SUPPORT], value: &[f64; SUPPORT]) -> Vector3 {
         (0..SUPPORT)
             .map(|n| value[n] * self.coefficients[index[n]])
             .sum()

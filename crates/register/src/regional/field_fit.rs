@@ -9,6 +9,7 @@ use crate::icp::IcpTarget;
 use crate::kdtree;
 use crate::kdtree::Scratch;
 use crate::kernel::RobustKernel;
+use crate::reduce::chunked_sum;
 use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen};
 use rayon::prelude::*;
 use trim_geom::{Contour, Point3, PointCloud, Similarity3, Vector3};
@@ -495,16 +496,9 @@ fn check_field(
     let mut h = DMatrix::<f64>::zeros(dim, dim);
     for pass in 0..settings.iterations {
         trim_geom::cancel::check()?;
-        let coefficients = check.coefficients();
         let residuals: Vec<f64> = base
             .par_iter()
-            .map(|(_, n, r0, index, value)| {
-                let d = index
-                    .iter()
-                    .zip(value)
-                    .fold(Vector3::zeros(), |d, (&k, &v)| d + coefficients[k] * v);
-                r0 + n.dot(&d)
-            })
+            .map(|(_, n, r0, index, value)| r0 + n.dot(&check.displacement_from(index, value)))
             .collect();
         let changed: Vec<(Point3, Vector3, f64, f64)> = base
             .iter()
@@ -518,28 +512,21 @@ fn check_field(
             })
             .collect();
         h += field_normal_equations(&check, &changed).0;
-        // g = Σ w a r at the current residuals, summed in fixed chunks and in their order
-        // (deterministic whatever the thread count).
-        const CHUNK: usize = 4096;
-        let partial: Vec<DVector<f64>> = base
-            .par_chunks(CHUNK)
-            .zip(residuals.par_chunks(CHUNK))
-            .zip(weights.par_chunks(CHUNK))
-            .map(|((b, r), w)| {
-                let mut g = DVector::<f64>::zeros(dim);
-                for (((_, n, _, index, value), &r), &w) in b.iter().zip(r).zip(w) {
-                    for (&k, &v) in index.iter().zip(value) {
-                        for x in 0..3 {
-                            g[3 * k + x] += w * r * v * n[x];
-                        }
+        // g = Σ w a r at the current residuals (deterministic whatever the thread count).
+        let g = chunked_sum(
+            base.len(),
+            DVector::<f64>::zeros(dim),
+            |g, i| {
+                let (_, n, _, index, value) = &base[i];
+                let wr = weights[i] * residuals[i];
+                for (&k, &v) in index.iter().zip(value) {
+                    for x in 0..3 {
+                        g[3 * k + x] += wr * v * n[x];
                     }
                 }
-                g
-            })
-            .collect();
-        let g = partial
-            .into_iter()
-            .fold(DVector::<f64>::zeros(dim), |a, b| a + b);
+            },
+            |a, b| *a += b,
+        );
         damped_solve(
             &mut check,
             h.clone(),
@@ -1098,6 +1085,7 @@ pub(crate) fn move_contour(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::regional::MODEL_CHECK_SPACING_RATIO;
 
     /// The beam terms' energy `Σ e²` of the field whose control displacement at grid point
     /// `(i, j, k)` (mm from the first) is `d`.
@@ -1126,6 +1114,104 @@ mod tests {
             .iter()
             .map(|t| t.value(field.coefficients()).powi(2))
             .sum()
+    }
+
+    /// The model check's carried normal matrix (only matches whose Huber weight changed added
+    /// back) gives the field of a full re-weighted rebuild every pass: matches on a slab's two
+    /// faces, a third of them 30–60 µm off (beyond the 20 µm Huber threshold, so their weights
+    /// change from pass to pass), against the fit's field.
+    #[test]
+    fn the_model_check_equals_a_rebuild_every_pass() {
+        let mut points = Vec::new();
+        let mut normals = Vec::new();
+        for i in 0..40 {
+            for k in 0..100 {
+                for (y, n) in [(-4.0, -1.0), (4.0, 1.0)] {
+                    points.push(Point3::new(-20.0 + f64::from(i), y, f64::from(k)));
+                    normals.push(Vector3::new(0.0, n, 0.0));
+                }
+            }
+        }
+        let target = IcpTarget::new(
+            PointCloud::with_normals(points.clone(), normals.clone())
+                .unwrap_or_else(|e| panic!("{e}")),
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let settings = DeformationSettings {
+            spacing_mm: 15.0,
+            ..DeformationSettings::default()
+        };
+        let (mut field, _) = zero_field(&target, &settings).unwrap_or_else(|e| panic!("{e}"));
+        let step: Vec<f64> = (0..3 * field.len())
+            .map(|i| 0.01 * ((i as f64) * 0.7).sin())
+            .collect();
+        field.add_step(&step);
+        let fitted: Vec<Option<Matched>> = points
+            .iter()
+            .zip(&normals)
+            .enumerate()
+            .map(|(i, (c, n))| {
+                let r = if i % 3 == 0 {
+                    0.03 + 0.03 * ((i as f64) * 0.37).sin().abs()
+                } else {
+                    0.005 * ((i as f64) * 0.11).cos()
+                };
+                Some((i, *c, *n, Matrix3::identity(), r))
+            })
+            .collect();
+        let check_settings = DeformationSettings {
+            spacing_mm: settings.spacing_mm * MODEL_CHECK_SPACING_RATIO,
+            ..settings
+        };
+        let check = check_field(&field, &fitted, &target, &check_settings)
+            .unwrap_or_else(|e| panic!("{e}"));
+
+        // The same passes, the normal equations built from every match each time.
+        let (mut rebuilt, prior) =
+            zero_field(&target, &check_settings).unwrap_or_else(|e| panic!("{e}"));
+        let kernel = RobustKernel::Huber {
+            k_mm: check_settings.huber_mm,
+        };
+        let mut weights_changed = false;
+        let mut last: Vec<f64> = Vec::new();
+        for pass in 0..check_settings.iterations {
+            let pairs: Vec<(Point3, Vector3, f64, f64)> = fitted
+                .iter()
+                .flatten()
+                .map(|&(_, c, n, _, r)| {
+                    let r = r - n.dot(&field.displacement(&c)) + n.dot(&rebuilt.displacement(&c));
+                    (c, n, r, kernel.weight(r))
+                })
+                .collect();
+            let weights: Vec<f64> = pairs.iter().map(|p| p.3).collect();
+            weights_changed |= pass > 0 && weights != last;
+            last = weights;
+            damped_step(
+                &mut rebuilt,
+                &pairs,
+                &prior,
+                check_settings.smoothness,
+                "rebuilt",
+            )
+            .unwrap_or_else(|e| panic!("{e}"));
+        }
+        assert!(weights_changed, "the case does not change a Huber weight");
+        let worst = check
+            .coefficients()
+            .iter()
+            .zip(rebuilt.coefficients())
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        let largest = rebuilt
+            .coefficients()
+            .iter()
+            .map(|c| c.norm())
+            .fold(0.0, f64::max);
+        assert!(largest > 1e-3, "the check field is {largest} mm");
+        assert!(
+            worst < 1e-9,
+            "the check differs from the rebuild by {worst} mm"
+        );
     }
 
     /// The Kronecker-structured normal equations equal the dense `Σ w a aᵀ`, `Σ w a r` with
