@@ -25,6 +25,8 @@ use trim_sim::fault::{Fault, FaultKind, Trigger};
 const LASER_OFF_BOUND: Duration = Duration::from_millis(1500);
 /// The matrix's galvo clock: real seconds per modelled second.
 const MATRIX_GALVO_TIME_SCALE: f64 = 10.0;
+/// Fault-matrix cases run at once.
+const MATRIX_CONCURRENCY: usize = 4;
 /// Modelled galvo time vs the timing model's estimate (relative): both use the same model, the
 /// difference is bits rounding and ns rounding of delays.
 const ESTIMATE_REL_TOLERANCE: f64 = 1e-3;
@@ -356,128 +358,170 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
                 .collect(),
         ),
     );
-    let mut table = Vec::new();
-    for (device, where_, trigger, phase) in matrix_cases() {
-        for kind in FaultKind::ALL {
-            let label = format!("{device} {kind:?} at {where_}");
-            eprintln!("case: {label}");
-            // The galvo runs 10× slower than modelled.
-            let sim = sim_cell_scaled("monaco", MATRIX_GALVO_TIME_SCALE).await;
-            let fault = Fault {
-                kind,
-                trigger: trigger.clone(),
-            };
-            match device {
-                Device::Galvo => sim.galvo.faults().arm(fault),
-                Device::Laser => sim.laser.faults().arm(fault),
-                Device::Cnc => sim.cnc.faults().arm(fault),
+    // The cases run MATRIX_CONCURRENCY at a time, each against its own simulated cell: they
+    // wait on device clocks and timeouts far more than they compute, and the bound on the laser's
+    // way down is asserted for every case under that load.
+    // The executor's future is not Send (its zone gate), so the cases share this thread.
+    let job = std::rc::Rc::new(job);
+    let slots = std::rc::Rc::new(tokio::sync::Semaphore::new(MATRIX_CONCURRENCY));
+    let local = tokio::task::LocalSet::new();
+    let mut table = local
+        .run_until(async {
+            let mut cases = tokio::task::JoinSet::new();
+            for (device, where_, trigger, phase) in matrix_cases() {
+                for kind in FaultKind::ALL {
+                    let (job, slots, trigger) = (job.clone(), slots.clone(), trigger.clone());
+                    cases.spawn_local(async move {
+                        let _slot = slots.acquire().await.expect("semaphore open");
+                        matrix_case(&job, target, device, where_, trigger, phase, kind).await
+                    });
+                }
             }
-            let dir = tempfile::tempdir().unwrap();
-            let path = dir.path().join("run.journal");
-            let t_run = Instant::now();
-            let err = run_fresh(&sim, &job, &path, CancellationToken::new())
-                .await
-                .expect_err(&label);
-            let ExecError::Stopped(s) = err else {
-                panic!("{label}: {err}")
-            };
-            let fired = match device {
-                Device::Galvo => sim.galvo.faults().fired(),
-                Device::Laser => sim.laser.faults().fired(),
-                Device::Cnc => sim.cnc.faults().fired(),
-            };
-            assert_eq!(fired.len(), 1, "{label}: the fault did not fire: {s:?}");
-            let injected_at = fired[0].0;
-            assert_eq!(s.key, Some(target), "{label}: {:?}", s.cause);
-            assert_eq!(s.phase, phase, "{label}: {:?}", s.cause);
-            let detected_at = s.detected_at.expect("detection time");
-
-            // The laser is off (light path closed) within the bound of the injection.
-            let light_at_injection = light_on_at(&sim, injected_at);
-            let closed = sim
-                .monitor
-                .light_closed_since(injected_at)
-                .unwrap_or_else(|| panic!("{label}: light still on"));
-            let from_injection = closed.saturating_duration_since(injected_at);
-            let from_detection = closed.saturating_duration_since(detected_at);
-            assert!(
-                from_injection < LASER_OFF_BOUND,
-                "{label}: light off {from_injection:?} after the fault"
-            );
-            assert!(!sim.monitor.light(), "{label}");
-            assert!(
-                sim.monitor.violations().is_empty(),
-                "{label}: {:?}",
-                sim.monitor.violations()
-            );
-            // The laser's own emission is off, not only the light path closed; only a laser
-            // that answers nothing (stalled, cable pulled) leaves it unknown, and the report
-            // says so.
-            let laser_unreachable =
-                device == Device::Laser && matches!(kind, FaultKind::Stall | FaultKind::DropLink);
-            assert_eq!(
-                s.shutdown.laser_off_ok, !laser_unreachable,
-                "{label}: {:?}",
-                s.shutdown
-            );
-            if laser_unreachable {
-                assert!(
-                    s.shutdown
-                        .failures
-                        .iter()
-                        .any(|f| f.step == trim_io::executor::ShutdownStep::EmissionOff),
-                    "{label}: {:?}",
-                    s.shutdown
-                );
-                assert!(s.shutdown.emission_off.len() >= 2, "{label}: no retry");
-            } else {
-                assert!(!sim.laser.state().emission, "{label}: emission left on");
+            let mut table = Vec::new();
+            while let Some(row) = cases.join_next().await {
+                match row {
+                    Ok(row) => table.push(row),
+                    Err(e) => std::panic::resume_unwind(e.into_panic()),
+                }
             }
-
-            // The journal is intact: every line parses, the two layers before are finished.
-            let st = journal::read(&path).unwrap_or_else(|e| panic!("{label}: {e}"));
-            assert!(!st.torn_tail, "{label}");
-            assert_eq!(st.finished.len(), 2, "{label}");
-            assert!(!st.finished.contains(&target), "{label}");
-
-            // Resume on a repaired cell finishes the job, each vector marked once. A laser that
-            // never acknowledged its emission-off got one more from the client's drop guard as
-            // the run ended: the stalled simulator reads it (every 10 ms) before the repair, so
-            // its reply does not reach the next client.
-            if laser_unreachable {
-                tokio::time::sleep(Duration::from_millis(100)).await;
-            }
-            sim.clear_faults();
-            let summary = resume(&sim, &job, &path).await;
-            assert_eq!(summary.layers_skipped, 2, "{label}");
-            let partial = assert_marked_exactly_once(&job, &sim.galvo.marks());
-            assert!(partial <= 1, "{label}: {partial} partly marked vectors");
-            assert!(
-                sim.monitor.violations().is_empty(),
-                "{label}: {:?}",
-                sim.monitor.violations()
-            );
-            assert_eq!(journal::read(&path).unwrap().finished.len(), 4, "{label}");
-            table.push(format!(
-                "{label:<40} detected {:>5.0} ms after injection; light off {:>6.1} ms after injection, {:>5.1} ms after detection; laser-off cmds {:>5.1} ms (serial ok {}, galvo ok {}); cut at {:?}/{}; partial {partial}; light on at injection {light_at_injection}; {:.2} s",
-                detected_at.saturating_duration_since(injected_at).as_secs_f64() * 1e3,
-                from_injection.as_secs_f64() * 1e3,
-                from_detection.as_secs_f64() * 1e3,
-                s.shutdown.laser_off_s * 1e3,
-                s.shutdown.laser_off_ok,
-                s.shutdown.galvo_signals_off_ok,
-                s.vectors_done,
-                s.vectors,
-                t_run.elapsed().as_secs_f64(),
-            ));
-        }
-    }
+            table
+        })
+        .await;
+    table.sort();
     eprintln!(
         "fault matrix ({} cases):\n{}",
         table.len(),
         table.join("\n")
     );
     assert_eq!(table.len(), 32);
+}
+
+/// One case of the fault matrix: `kind` injected into `device` at `trigger` while the job's
+/// `target` layer runs. Asserts the way down, the journal and the resume; returns the table row.
+async fn matrix_case(
+    job: &Job,
+    target: LayerKey,
+    device: Device,
+    where_: &str,
+    trigger: Trigger,
+    phase: Phase,
+    kind: FaultKind,
+) -> String {
+    let label = format!("{device} {kind:?} at {where_}");
+    eprintln!("case: {label}");
+    // The galvo runs 10× slower than modelled.
+    let sim = sim_cell_scaled("monaco", MATRIX_GALVO_TIME_SCALE).await;
+    let fault = Fault { kind, trigger };
+    match device {
+        Device::Galvo => sim.galvo.faults().arm(fault),
+        Device::Laser => sim.laser.faults().arm(fault),
+        Device::Cnc => sim.cnc.faults().arm(fault),
+    }
+    let dir = tempfile::tempdir().expect("temporary folder");
+    let path = dir.path().join("run.journal");
+    let t_run = Instant::now();
+    let err = run_fresh(&sim, job, &path, CancellationToken::new())
+        .await
+        .expect_err(&label);
+    let ExecError::Stopped(s) = err else {
+        panic!("{label}: {err}")
+    };
+    let fired = match device {
+        Device::Galvo => sim.galvo.faults().fired(),
+        Device::Laser => sim.laser.faults().fired(),
+        Device::Cnc => sim.cnc.faults().fired(),
+    };
+    assert_eq!(fired.len(), 1, "{label}: the fault did not fire: {s:?}");
+    let injected_at = fired[0].0;
+    assert_eq!(s.key, Some(target), "{label}: {:?}", s.cause);
+    assert_eq!(s.phase, phase, "{label}: {:?}", s.cause);
+    let detected_at = s.detected_at.expect("detection time");
+
+    // The laser is off (light path closed) within the bound of the injection.
+    let light_at_injection = light_on_at(&sim, injected_at);
+    let closed = sim
+        .monitor
+        .light_closed_since(injected_at)
+        .unwrap_or_else(|| panic!("{label}: light still on"));
+    let from_injection = closed.saturating_duration_since(injected_at);
+    let from_detection = closed.saturating_duration_since(detected_at);
+    assert!(
+        from_injection < LASER_OFF_BOUND,
+        "{label}: light off {from_injection:?} after the fault"
+    );
+    assert!(!sim.monitor.light(), "{label}");
+    assert!(
+        sim.monitor.violations().is_empty(),
+        "{label}: {:?}",
+        sim.monitor.violations()
+    );
+    // The laser's own emission is off, not only the light path closed; only a laser
+    // that answers nothing (stalled, cable pulled) leaves it unknown, and the report
+    // says so.
+    let laser_unreachable =
+        device == Device::Laser && matches!(kind, FaultKind::Stall | FaultKind::DropLink);
+    assert_eq!(
+        s.shutdown.laser_off_ok, !laser_unreachable,
+        "{label}: {:?}",
+        s.shutdown
+    );
+    if laser_unreachable {
+        assert!(
+            s.shutdown
+                .failures
+                .iter()
+                .any(|f| f.step == trim_io::executor::ShutdownStep::EmissionOff),
+            "{label}: {:?}",
+            s.shutdown
+        );
+        assert!(s.shutdown.emission_off.len() >= 2, "{label}: no retry");
+    } else {
+        assert!(!sim.laser.state().emission, "{label}: emission left on");
+    }
+
+    // The journal is intact: every line parses, the two layers before are finished.
+    let st = journal::read(&path).unwrap_or_else(|e| panic!("{label}: {e}"));
+    assert!(!st.torn_tail, "{label}");
+    assert_eq!(st.finished.len(), 2, "{label}");
+    assert!(!st.finished.contains(&target), "{label}");
+
+    // Resume on a repaired cell finishes the job, each vector marked once. A laser that
+    // never acknowledged its emission-off got one more from the client's drop guard as
+    // the run ended: the stalled simulator reads it (every 10 ms) before the repair, so
+    // its reply does not reach the next client.
+    if laser_unreachable {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    sim.clear_faults();
+    let summary = resume(&sim, job, &path).await;
+    assert_eq!(summary.layers_skipped, 2, "{label}");
+    let partial = assert_marked_exactly_once(job, &sim.galvo.marks());
+    assert!(partial <= 1, "{label}: {partial} partly marked vectors");
+    assert!(
+        sim.monitor.violations().is_empty(),
+        "{label}: {:?}",
+        sim.monitor.violations()
+    );
+    assert_eq!(
+        journal::read(&path).expect("journal").finished.len(),
+        4,
+        "{label}"
+    );
+    format!(
+        "{label:<40} detected {:>5.0} ms after injection; light off {:>6.1} ms after injection, {:>5.1} ms after detection; laser-off cmds {:>5.1} ms (serial ok {}, galvo ok {}); cut at {:?}/{}; partial {partial}; light on at injection {light_at_injection}; {:.2} s",
+        detected_at
+            .saturating_duration_since(injected_at)
+            .as_secs_f64()
+            * 1e3,
+        from_injection.as_secs_f64() * 1e3,
+        from_detection.as_secs_f64() * 1e3,
+        s.shutdown.laser_off_s * 1e3,
+        s.shutdown.laser_off_ok,
+        s.shutdown.galvo_signals_off_ok,
+        s.vectors_done,
+        s.vectors,
+        t_run.elapsed().as_secs_f64(),
+    )
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
