@@ -42,13 +42,15 @@ ZONES, LAYERS = 2, 2
 
 def write_record_command(out):
     """The example `cargo test` built (target/debug/examples), when it is newer than every Rust
-    source under crates/; else `cargo run`, which builds it anew for the dev profile and the
-    crate's own features (2.5 minutes on a clean checkout)."""
+    source and manifest under crates/ and the workspace's Cargo.toml and Cargo.lock; else
+    `cargo run`, which builds it anew for the dev profile and the crate's own features
+    (2.5 minutes on a clean checkout)."""
     target = pathlib.Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
     built = target / "debug" / "examples" / "write_record"
     if built.exists():
-        newest_source = max(p.stat().st_mtime for p in (ROOT / "crates").rglob("*.rs"))
-        if built.stat().st_mtime > newest_source:
+        sources = [*(ROOT / "crates").rglob("*.rs"), *(ROOT / "crates").rglob("Cargo.toml"),
+                   ROOT / "Cargo.toml", ROOT / "Cargo.lock"]
+        if built.stat().st_mtime > max(p.stat().st_mtime for p in sources):
             return [str(built), str(out)]
     return ["cargo", "run", "-q", "-p", "trim-io", "--example", "write_record", "--", str(out)]
 

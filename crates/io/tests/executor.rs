@@ -360,8 +360,8 @@ async fn fault_matrix_laser_off_journal_intact_resume_marks_each_vector_once() {
     );
     // The cases run MATRIX_CONCURRENCY at a time, each against its own simulated cell: they
     // wait on device clocks and timeouts far more than they compute, and the bound on the laser's
-    // way down is asserted for every case under that load.
-    // The executor's future is not Send (its zone gate), so the cases share this thread.
+    // way down is asserted for every case under that load. They share this thread (a LocalSet):
+    // the executor's future is not Send (its zone gate).
     let job = std::rc::Rc::new(job);
     let slots = std::rc::Rc::new(tokio::sync::Semaphore::new(MATRIX_CONCURRENCY));
     let local = tokio::task::LocalSet::new();
