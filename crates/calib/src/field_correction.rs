@@ -549,26 +549,12 @@ fn choose_smoother(
 /// `[½, 2] ×` the focal length (the sum is near-quadratic in 1/L there).
 fn search_pivot(design: &Design, sm: &Smoother, marks: &[Mark], focal_length_mm: f64) -> f64 {
     let rss = |l: f64| solve(design, sm, marks, l).rss();
-    let (mut a, mut b) = (0.5 * focal_length_mm, 2.0 * focal_length_mm);
-    let g = (5f64.sqrt() - 1.0) / 2.0;
-    let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
-    let (mut fc, mut fd) = (rss(c), rss(d));
-    for _ in 0..PIVOT_SEARCH_STEPS {
-        if fc < fd {
-            b = d;
-            d = c;
-            fd = fc;
-            c = b - g * (b - a);
-            fc = rss(c);
-        } else {
-            a = c;
-            c = d;
-            fc = fd;
-            d = a + g * (b - a);
-            fd = rss(d);
-        }
-    }
-    0.5 * (a + b)
+    trim_geom::stats::golden_section_min(
+        rss,
+        0.5 * focal_length_mm,
+        2.0 * focal_length_mm,
+        PIVOT_SEARCH_STEPS,
+    )
 }
 
 /// Golden-section steps of L's search: the bracket shrinks to 0.618⁶⁰ ≈ 3·10⁻¹³ of itself.

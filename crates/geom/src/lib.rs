@@ -23,6 +23,7 @@ pub mod math;
 pub mod mesh;
 pub mod normals;
 pub mod path;
+pub mod stats;
 pub mod transform;
 pub mod voxel;
 

@@ -39,6 +39,7 @@
 //! web's height is fitted on all of its readings.
 
 use std::collections::HashMap;
+use trim_geom::stats::{normal_cdf_integral, normal_pdf, normal_upper_tail};
 
 /// Outliers' share of a bin's readings (the synthetic scans carry 1 % outliers over the whole
 /// scan; a bin's readings above the noise hold few).
@@ -91,44 +92,10 @@ pub struct Reading {
     pub rise_mm: f64,
 }
 
-/// `erfc(x)`, fractional error below 1.2·10⁻⁷ everywhere (Numerical Recipes in C, 2nd ed.,
-/// §6.2, `erfcc`: Chebyshev fit).
-fn erfc(x: f64) -> f64 {
-    let z = x.abs();
-    let t = 1.0 / (1.0 + 0.5 * z);
-    let poly = -z * z - 1.265_512_23
-        + t * (1.000_023_68
-            + t * (0.374_091_96
-                + t * (0.096_784_18
-                    + t * (-0.186_288_06
-                        + t * (0.278_868_07
-                            + t * (-1.135_203_98
-                                + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77))))))));
-    let r = t * poly.exp();
-    if x >= 0.0 { r } else { 2.0 - r }
-}
-
-/// The standard normal's upper tail `1 − Φ(z)`.
-fn upper_tail(z: f64) -> f64 {
-    0.5 * erfc(z / std::f64::consts::SQRT_2)
-}
-
-/// The standard normal density.
-fn density(z: f64) -> f64 {
-    (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt()
-}
-
-/// `ψ(z) = zΦ(z) + φ(z)`, the integral of Φ from −∞. Φ(z) is taken as the upper tail at −z,
-/// which keeps its relative accuracy far out on the lower side (`1 − Q(z)` is all rounding
-/// there, and ψ(z) ≈ φ(z)/z² is what is left of the difference).
-fn psi(z: f64) -> f64 {
-    z * upper_tail(-z) + density(z)
-}
-
 /// `G(v) = ((v² − 1)Φ(v) + vφ(v))/2`, the integral of `vΦ(v)` from −∞ (Φ taken as the upper
-/// tail at −v, as in [`psi`]).
+/// tail at −v, as in [`normal_cdf_integral`]).
 fn psi_moment(v: f64) -> f64 {
-    0.5 * ((v * v - 1.0) * upper_tail(-v) + v * density(v))
+    0.5 * ((v * v - 1.0) * normal_upper_tail(-v) + v * normal_pdf(v))
 }
 
 /// The upper side's area factor `1 − κr` is kept at or above `1 −` this over the web (a rim
@@ -188,13 +155,15 @@ impl BinReadings {
             distances: kept.iter().map(|r| r.distance_mm).collect(),
             side_rise: kept
                 .iter()
-                .map(|r| density(r.rise_mm / sigma) / sigma)
+                .map(|r| normal_pdf(r.rise_mm / sigma) / sigma)
                 .collect(),
             edge_rise: kept
                 .iter()
                 .map(|r| {
                     WEB_THICKNESSES_MM.map(|t| {
-                        (upper_tail(r.rise_mm / sigma) - upper_tail((r.rise_mm + t) / sigma)) / t
+                        (normal_upper_tail(r.rise_mm / sigma)
+                            - normal_upper_tail((r.rise_mm + t) / sigma))
+                            / t
                     })
                 })
                 .collect(),
@@ -221,11 +190,13 @@ impl BinReadings {
         // S_u, with ψ's difference taken as it is (not as 1 − σ(ψ(L/σ) − ψ((L − h)/σ))/h, by
         // ψ(z) − ψ(−z) = z), which cancels to nothing where h lies far below L.
         let (top, bottom) = ((h - floor) / sigma, -floor / sigma);
-        let s_side = ((sigma * (1.0 - kappa * floor) * (psi(top) - psi(bottom))
+        let s_side = ((sigma
+            * (1.0 - kappa * floor)
+            * (normal_cdf_integral(top) - normal_cdf_integral(bottom))
             - kappa * sigma * sigma * (psi_moment(top) - psi_moment(bottom)))
             / area)
             .max(1e-300);
-        let s_edge = upper_tail((floor - h) / sigma).max(1e-300);
+        let s_edge = normal_upper_tail((floor - h) / sigma).max(1e-300);
         let keep = 1.0 - OUTLIER_SHARE;
         // Per share: the side's and the edge's weights over the truncated normaliser.
         let weights = EDGE_SHARES.map(|a| {
@@ -235,13 +206,13 @@ impl BinReadings {
         let mut sums = [0.0; VARIANTS];
         let mut products = [1.0; VARIANTS];
         for (i, &r) in self.distances.iter().enumerate() {
-            let spread = upper_tail((r - h) / sigma) - upper_tail(r / sigma);
+            let spread = normal_upper_tail((r - h) / sigma) - normal_upper_tail(r / sigma);
             let side = ((spread * (1.0 - kappa * r)
-                - kappa * sigma * (density(r / sigma) - density((h - r) / sigma)))
+                - kappa * sigma * (normal_pdf(r / sigma) - normal_pdf((h - r) / sigma)))
                 / area)
                 .max(0.0)
                 * self.side_rise[i];
-            let edge_r = density((r - h) / sigma) / sigma;
+            let edge_r = normal_pdf((r - h) / sigma) / sigma;
             products[0] *= keep * side / s_side + self.outlier;
             let mut v = 1;
             for (w_side, w_edge) in weights {
@@ -498,24 +469,6 @@ fn segments(web: &mut Web, ring: bool) -> Vec<(Vec<usize>, Fit)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn erfc_matches_known_values() {
-        for (x, want) in [
-            (0.0, 1.0),
-            (0.5, 0.479_500_122_186_953_5),
-            (1.0, 0.157_299_207_050_285_13),
-            (2.0, 0.004_677_734_981_047_266),
-            (-1.0, 1.842_700_792_949_715),
-            (4.0, 1.541_725_790_028_002e-8),
-        ] {
-            assert!(
-                ((erfc(x) - want) / want).abs() < 2e-7,
-                "erfc({x}) = {} not {want}",
-                erfc(x)
-            );
-        }
-    }
 
     use crate::draws::Draws;
 
