@@ -19,7 +19,8 @@ the bound coverage (true error <= predicted_max_error_um), the flagged count and
 the totals. A part that registration refuses counts every contour as flagged.
 
 Seed sets (keep tuning and reporting apart): `--set tune` uses seeds 2001..; `--set report`
-(the default) seeds 1001... Each seed draws its case parameters over the whole range the
+(the default) seeds 1001..; `--set holdout` seeds 3001.., kept for checking a change once
+after it was chosen (on the tune seeds) and reported (on the report seeds). Each seed draws its case parameters over the whole range the
 generator's README gives (fixture 0-20 deg / 0-20 mm, per-axis scale +-0..2 %, sag 0-0.5 mm,
 twist 0-1 deg, noise 8-15 um, 2-4 views, 0-3 dropouts, path spacing 0.05-0.25 mm); every fifth
 case takes the hardest corner (20 deg, 20 mm, 2 %, 0.5 mm, 1 deg, 15 um, 2 views).
@@ -167,7 +168,7 @@ def main():
     ap.add_argument("--generator", required=True, help="path to the outside gen_core.py")
     ap.add_argument("--scorer", help="path to its score.py (default: beside the generator)")
     ap.add_argument("--cases", type=int, default=40)
-    ap.add_argument("--set", choices=["report", "tune"], default="report")
+    ap.add_argument("--set", choices=["report", "tune", "holdout"], default="report")
     ap.add_argument("--only", help="comma-separated seeds (of the chosen set's numbering)")
     ap.add_argument("--points", type=int, default=200000)
     ap.add_argument("--tolerance-um", type=float, default=30.0)
@@ -180,7 +181,7 @@ def main():
     args.register_args = args.register_args.split()
     args.generator = os.path.abspath(args.generator)
     scorer = args.scorer or os.path.join(os.path.dirname(args.generator), "score.py")
-    first = 1001 if args.set == "report" else 2001
+    first = {"report": 1001, "tune": 2001, "holdout": 3001}[args.set]
     plan = [(first + i, i) for i in range(args.cases)]
     if args.only:
         keep = {int(s) for s in args.only.split(",")}

@@ -62,7 +62,10 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// spacing put the contour (large where the smoothness prior, not the data, places it).
 /// `opening_slide_mm`, `opening_gain`, `opening_cover_gain`: for a closed contour, the opening
 /// check (how far off the scan shows its opening, and the agreement that gains; a misplaced
-/// opening flags `opening_misplaced` and refuses the part).
+/// opening flags `opening_misplaced` and refuses the part). `scan_edge_gap_um`: for an open
+/// contour, how far it lies beyond the material the scan shows beside it (negative: no gap;
+/// `None` where the scan does not locate its edge); over the tolerance it flags
+/// `edge_off_scan` and refuses the part.
 #[pyclass(module = "trimctl", frozen, get_all)]
 pub struct ContourQuality {
     /// The contour id.
@@ -106,6 +109,10 @@ pub struct ContourQuality {
     pub opening_gain: Option<f64>,
     /// The part of that gain over the opening itself.
     pub opening_cover_gain: Option<f64>,
+    /// How far the contour lies beyond the material the scan shows beside it, µm (2σ; negative:
+    /// no gap); `None` for a closed contour or an edge the scan does not locate (flag
+    /// `edge_off_scan`).
+    pub scan_edge_gap_um: Option<f64>,
     /// The predicted bound on the largest cross-edge error, µm.
     pub predicted_max_error_um: f64,
     /// What was found wrong (the report's flag names).
@@ -155,6 +162,7 @@ impl ContourQuality {
             opening_slide_mm: c.opening_slide_mm,
             opening_gain: c.opening_gain,
             opening_cover_gain: c.opening_cover_gain,
+            scan_edge_gap_um: c.scan_edge_gap_um,
             predicted_max_error_um: c.predicted_max_error_um,
             flags: pyo3::types::PyTuple::new(py, flags)?.unbind(),
             trustworthy: c.trustworthy,

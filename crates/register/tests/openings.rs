@@ -1,12 +1,20 @@
-//! The opening check (`regional::openings`): a registration that puts the part's openings where
-//! the scan shows them reads them in place, films and burrs notwithstanding; the same part slid
-//! along itself, as a part slides when the scanner saw neither its ends nor its holes' walls,
-//! shows its openings off by the slide, and a registration that misplaced them is refused.
+//! The whole-part checks against the raw scan. The opening check (`regional::openings`): a
+//! registration that puts the part's openings where the scan shows them reads them in place,
+//! films and burrs notwithstanding; the same part slid along itself, as a part slides when the
+//! scanner saw neither its ends nor its holes' walls, shows its openings off by the slide, and a
+//! registration that misplaced them is refused. The scanned-edge check
+//! (`regional::scanned_edge`): the burred strips of a registered core show no gap, and the same
+//! path slid by twice the tolerance shows one at the strip it slid beyond the material.
+
+use std::sync::OnceLock;
 
 use nalgebra::Translation3;
-use trim_geom::{Similarity3, Vector3};
+use trim_geom::{Path, Similarity3, Vector3};
 use trim_register::kdtree::KdTree;
-use trim_register::regional::{Flag, OPENING_MISMATCH_SHARE, check_openings};
+use trim_register::regional::{
+    EdgeFrom, Flag, OPENING_MISMATCH_SHARE, Registration, check_openings, scanned_edges,
+};
+use trim_synth::SynthCase;
 
 #[path = "common/untrimmed.rs"]
 mod untrimmed;
@@ -17,11 +25,35 @@ const SEED: u64 = 306;
 /// The slide, mm: about a hole's radius.
 const SLIDE_MM: f64 = 0.8;
 
+/// The case and its registration, made once for both tests.
+fn registered() -> &'static (SynthCase, Registration) {
+    static CASE: OnceLock<(SynthCase, Registration)> = OnceLock::new();
+    CASE.get_or_init(|| {
+        let c = untrimmed_case(SEED);
+        let reg = register_untrimmed(&c);
+        (c, reg)
+    })
+}
+
+/// The part's long axis in the scan frame (unit).
+fn long_axis(c: &SynthCase, reg: &Registration) -> Vector3 {
+    let pts = c.cad_points.points();
+    let extent = |axis: usize| {
+        let (lo, hi) = pts.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
+            (lo.min(p[axis]), hi.max(p[axis]))
+        });
+        hi - lo
+    };
+    let long = (0..3)
+        .max_by(|&a, &b| extent(a).total_cmp(&extent(b)))
+        .unwrap_or(0);
+    reg.scan_from_cad.isometry.rotation * Vector3::ith(long, 1.0)
+}
+
 #[test]
 fn openings_read_in_place_when_registered_and_off_by_the_slide_when_slid() {
-    let c = untrimmed_case(SEED);
+    let (c, reg) = registered();
     assert!(!c.blockages.is_empty(), "the case has films over openings");
-    let reg = register_untrimmed(&c);
     let rims: Vec<_> = reg
         .report
         .contours
@@ -46,16 +78,7 @@ fn openings_read_in_place_when_registered_and_off_by_the_slide_when_slid() {
 
     // Slid along the part's long axis (scan frame) by SLIDE_MM.
     let pts = c.cad_points.points();
-    let extent = |axis: usize| {
-        let (lo, hi) = pts.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
-            (lo.min(p[axis]), hi.max(p[axis]))
-        });
-        hi - lo
-    };
-    let long = (0..3)
-        .max_by(|&a, &b| extent(a).total_cmp(&extent(b)))
-        .unwrap_or(0);
-    let along = reg.scan_from_cad.isometry.rotation * Vector3::ith(long, 1.0);
+    let along = long_axis(c, reg);
     let slid = Similarity3::from_parts(
         Translation3::from(reg.scan_from_cad.isometry.translation.vector + along * SLIDE_MM),
         reg.scan_from_cad.isometry.rotation,
@@ -88,5 +111,76 @@ fn openings_read_in_place_when_registered_and_off_by_the_slide_when_slid() {
         "{} of {} openings read misplaced",
         misplaced.len(),
         checked.len()
+    );
+}
+
+#[test]
+fn burred_strips_show_no_gap_and_a_slid_path_shows_one() {
+    let (c, reg) = registered();
+    let burred: Vec<i64> = c.burrs.iter().map(|b| b.contour).collect();
+    let tree = KdTree::build(c.scan.points());
+    // Registered: every open strip's edge located, none beyond the material by the tolerance
+    // (burred ones included: a burr reads as material beyond the edge, never as a gap).
+    let strips: Vec<_> = reg
+        .report
+        .contours
+        .iter()
+        .filter(|q| q.scan_edge_gap_um.is_some())
+        .collect();
+    assert_eq!(strips.len(), 6, "the outline's six strips are measured");
+    assert!(
+        strips.iter().any(|q| burred.contains(&q.id)),
+        "a burred strip is among them (burred: {burred:?})"
+    );
+    for q in &strips {
+        eprintln!(
+            "contour {} (burred: {}): gap {:.1?} µm",
+            q.id,
+            burred.contains(&q.id),
+            q.scan_edge_gap_um
+        );
+        let gap = q.scan_edge_gap_um.unwrap_or(f64::NAN);
+        assert!(gap < 15.0, "contour {}: gap {gap:.1} µm", q.id);
+        assert!(
+            !q.flags.contains(&Flag::EdgeOffScan),
+            "contour {}: {:?}",
+            q.id,
+            q.flags
+        );
+    }
+    assert!(
+        reg.report.global.refused.is_none(),
+        "{:?}",
+        reg.report.global.refused
+    );
+
+    // The registered path slid 60 µm along the part: the strip across its far end now lies
+    // beyond the material by about that (found within 15 µm), the one at its near end inside.
+    let slide = 0.060;
+    let shift = Similarity3::from_parts(
+        Translation3::from(long_axis(c, reg) * slide),
+        nalgebra::UnitQuaternion::identity(),
+        1.0,
+    );
+    let slid: Path = reg.path.transformed(&shift).expect("a finite shift");
+    let mut offsets: Vec<(i64, f64, f64, EdgeFrom)> = Vec::new();
+    for contour in slid.contours() {
+        for e in scanned_edges(contour, c.scan.points(), &tree) {
+            offsets.push((contour.id(), e.offset_mm, e.gap_mm(), e.from));
+        }
+    }
+    eprintln!("slid {:.0} µm: {offsets:.4?}", 1e3 * slide);
+    let widest = offsets.iter().map(|o| o.2).fold(f64::MIN, f64::max);
+    let deepest = offsets.iter().map(|o| o.1).fold(f64::MAX, f64::min);
+    assert!(
+        widest > 0.030,
+        "widest gap {:.1} µm: {offsets:?}",
+        1e3 * widest
+    );
+    assert!(
+        (deepest + slide).abs() < 0.015,
+        "deepest offset {:.1} µm for a {:.0} µm slide: {offsets:?}",
+        1e3 * deepest,
+        1e3 * slide
     );
 }

@@ -136,6 +136,7 @@ class ContourQuality:
     opening_slide_mm: Optional[float]
     opening_gain: Optional[float]
     opening_cover_gain: Optional[float]
+    scan_edge_gap_um: Optional[float]
     predicted_max_error_um: float
     flags: Tuple[str, ...]
     trustworthy: bool

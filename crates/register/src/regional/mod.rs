@@ -32,6 +32,7 @@ mod coarse;
 mod field_fit;
 mod openings;
 mod quality;
+mod scanned_edge;
 mod settings;
 
 use coarse::overlap_fraction;
@@ -59,6 +60,9 @@ pub use quality::{
     QualityReport, SUPPORT_MIN_COS, predicted_bound_mm,
 };
 use quality::{contour_quality, refuse_part};
+pub use scanned_edge::{
+    EDGE_GAP_SIGMAS, EDGE_STRETCH_MM, EDGE_WINDOW_MM, EdgeFrom, ScannedEdge, scanned_edges,
+};
 pub use settings::{
     CoarseInit, CoarseSettings, DeformationSettings, MAX_CAD_SAMPLE_POINTS, Mode, QualitySettings,
     RegisterSettings, Visibility, gate,
@@ -385,8 +389,8 @@ pub fn register(
         let n = matches.len().max(1) as f64;
         (matches.iter().map(|m| m.r * m.r).sum::<f64>() / n).sqrt()
     });
+    let scan_tree = scan_tree.unwrap_or_else(|| kdtree::KdTree::build(scan.points()));
     stage(&mut timings, "openings", || {
-        let scan_tree = scan_tree.unwrap_or_else(|| kdtree::KdTree::build(scan.points()));
         let cad_tree = kdtree::KdTree::build(cad.points());
         let checks = check_openings(
             path,
@@ -401,6 +405,26 @@ pub fn register(
             c.opening_cover_gain = check.map(|o| o.cover_gain);
             if check.is_some_and(|o| o.misplaced()) {
                 c.flags.push(Flag::OpeningMisplaced);
+                c.trustworthy = false;
+            }
+        }
+        Ok(())
+    })?;
+    stage(&mut timings, "scanned edges", || {
+        let gaps: Vec<Option<f64>> = registered
+            .contours()
+            .par_iter()
+            .map(|c| {
+                scanned_edge::scanned_edges(c, scan.points(), &scan_tree)
+                    .iter()
+                    .map(|e| 1e3 * e.gap_mm())
+                    .reduce(f64::max)
+            })
+            .collect();
+        for (c, gap) in contours.iter_mut().zip(gaps) {
+            c.scan_edge_gap_um = gap;
+            if gap.is_some_and(|g| g > settings.quality.tolerance_um) {
+                c.flags.push(Flag::EdgeOffScan);
                 c.trustworthy = false;
             }
         }

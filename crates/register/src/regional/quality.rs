@@ -26,6 +26,10 @@ pub enum Flag {
     /// material over the registered opening and the real opening over registered material
     /// (`regional::openings`). The part is then refused as a whole.
     OpeningMisplaced,
+    /// The scan shows the contour's edge inside where the registration puts it by more than
+    /// the tolerance (`scan_edge_gap_um`, `regional::scanned_edge`). The part is then refused as
+    /// a whole: the smooth field moved the part's other edges along the same direction too.
+    EdgeOffScan,
     /// The part as a whole is refused (`GlobalQuality::refused`): too many of its contours
     /// are flagged for the rest to be believed, or an opening is misplaced.
     PartRefused,
@@ -96,6 +100,13 @@ pub struct ContourQuality {
     /// The part of `opening_gain` over the CAD opening (`OpeningCheck::cover_gain`).
     #[serde(default)]
     pub opening_cover_gain: Option<f64>,
+    /// The scanned-edge check (`regional::scanned_edge`): the widest gap, µm, by which the
+    /// registered contour lies beyond the material the scan shows next to it, at
+    /// [`crate::regional::EDGE_GAP_SIGMAS`] confidence, over its stretches; negative when no
+    /// stretch shows a gap, `null` when the scan locates no stretch's edge. Over
+    /// `tolerance_um` the contour is flagged `edge_off_scan` and the part refused.
+    #[serde(default)]
+    pub scan_edge_gap_um: Option<f64>,
     /// The predicted bound on the contour's largest cross-edge error, µm: from the field's
     /// posterior deviation across it, the two fits' disagreement, its residual, its coverage and
     /// its distance to supporting data (the `BOUND_*` constants in `quality.rs`, DESIGN.md).
@@ -153,6 +164,10 @@ pub struct QualityReport {
 /// - when a contour is flagged [`Flag::OpeningMisplaced`]: a registration that puts an opening
 ///   where the scan shows material is wrong by tenths of a millimetre or more, and its small
 ///   bounds elsewhere are not believed (outside tune seeds 2025 and 2070);
+/// - when a contour is flagged [`Flag::EdgeOffScan`]: the scan shows one of its edges inside
+///   where the registration puts it by more than the tolerance, and the smooth field moved the
+///   edges along the same direction with it, where their own bounds cannot see it (outside
+///   report parts 1045 and 1084);
 /// - when more than `max_untrusted_fraction` of its contours are flagged: a registration that
 ///   could not be trusted on that many contours is not believed on the others either (on the
 ///   outside generator's cases, the parts whose scans missed both end faces flagged a third to
@@ -167,6 +182,17 @@ pub(crate) fn refuse_part(contours: &mut [ContourQuality], q: &QualitySettings) 
         .filter(|c| c.flags.contains(&Flag::OpeningMisplaced))
         .map(|c| c.id.to_string())
         .collect();
+    let off_scan: Vec<String> = contours
+        .iter()
+        .filter(|c| c.flags.contains(&Flag::EdgeOffScan))
+        .map(|c| {
+            format!(
+                "{} ({:.0} µm)",
+                c.id,
+                c.scan_edge_gap_um.unwrap_or(f64::NAN)
+            )
+        })
+        .collect();
     let reason = if !misplaced.is_empty() {
         format!(
             "the scan shows the opening of contour{} {} away from where the registration puts it \
@@ -175,6 +201,16 @@ pub(crate) fn refuse_part(contours: &mut [ContourQuality], q: &QualitySettings) 
              and that the scanner saw the part's ends and its holes' walls, then rescan)",
             if misplaced.len() > 1 { "s" } else { "" },
             misplaced.join(", ")
+        )
+    } else if !off_scan.is_empty() {
+        format!(
+            "the scan shows the edge of contour{} {} inside where the registration puts it, by \
+             more than the {:.0} µm tolerance: the part is misregistered along that edge's \
+             normal in the face, and its other edges moved with it (check the fixture pose and \
+             that the scanner saw the part's ends, then rescan)",
+            if off_scan.len() > 1 { "s" } else { "" },
+            off_scan.join(", "),
+            q.tolerance_um
         )
     } else if n > 0 && (flagged as f64) > q.max_untrusted_fraction * n as f64 {
         format!(
@@ -502,6 +538,7 @@ pub(crate) fn contour_quality(
                 opening_slide_mm: None,
                 opening_gain: None,
                 opening_cover_gain: None,
+                scan_edge_gap_um: None,
                 predicted_max_error_um,
                 flags,
                 trustworthy,

@@ -1,0 +1,431 @@
+//! The scanned edge as a check on the registered contours (DESIGN.md, Registration step 5,
+//! "The scanned edge as a check").
+//!
+//! A part that slides along a direction its surfaces do not fix (a core's span) keeps the
+//! field's residuals small and its posterior confident, while every edge across that direction
+//! moves: the root and tip strips, the ends of slots. The scan shows where such an edge really
+//! is. For each stretch of [`EDGE_STRETCH_MM`] of a registered contour (scan frame), the scan
+//! points beside it are taken in the contour's local frame (tangent `t`, feature vector `f`,
+//! and `b = t × f` across the edge in the face), turned so that the face lies at `b < 0`:
+//! - when the scanner saw at least [`EDGE_MIN_WALL_POINTS`] of the wall below the edge, the
+//!   edge is where a line fitted to the wall points' `b` against their depth meets the face;
+//! - otherwise the edge is where the face points end: the maximum-likelihood position `e` of a
+//!   step blurred by the scan noise (points spread evenly over `b < e` within
+//!   [`EDGE_WINDOW_MM`], each displaced by the noise, with a small share of outliers).
+//!
+//! Only one side of the answer tests the registration. Scan material beyond the registered
+//! edge is also what a burr looks like (flash standing off the edge, the thing the laser is
+//! there to remove), so it proves nothing. The registered edge lying beyond the material the
+//! scan shows, by `gap = −e − 2σₑ`, is what no burr can cause: a gap wider than the tolerance
+//! says the registration put that edge where the part is not, and, since the field is smooth,
+//! that the part's other edges along the same direction moved with it (outside report parts
+//! 1045 and 1084: the tip and root strips showed gaps of 34–52 µm while the leading-edge strips,
+//! slid along themselves by 33–39 µm, stayed trusted).
+
+use rayon::prelude::*;
+use trim_geom::stats::{golden_section_min, normal_cdf, normal_cdf_integral};
+use trim_geom::{Contour, Point3, Vector3};
+
+use crate::kdtree::{KdTree, Scratch};
+
+/// Half-width of the strip beside the contour in which scan points locate the edge, mm.
+pub const EDGE_WINDOW_MM: f64 = 0.4;
+/// Length of contour over which one edge position is measured, mm (a contour shorter than
+/// this is one stretch).
+pub const EDGE_STRETCH_MM: f64 = 20.0;
+/// Fewest face points that locate an edge in one stretch.
+pub const EDGE_MIN_FACE_POINTS: usize = 50;
+/// Fewest wall points (below the face, within [`EDGE_WALL_REACH_MM`] of the edge across it)
+/// that locate the edge from the wall instead of the face.
+pub const EDGE_MIN_WALL_POINTS: usize = 30;
+/// How far across the edge wall points may lie, mm, and how deep below the face.
+pub const EDGE_WALL_REACH_MM: f64 = 0.08;
+/// See [`EDGE_WALL_REACH_MM`].
+pub const EDGE_WALL_DEPTH_MM: f64 = 0.3;
+/// Share of outliers in the face's step model.
+pub const EDGE_OUTLIER_SHARE: f64 = 0.01;
+/// Standard deviations of its own estimate the edge must lie inside the registered contour
+/// before the difference counts as a gap.
+pub const EDGE_GAP_SIGMAS: f64 = 2.0;
+/// The scan noise is taken as at least this, mm (a face fitted closer than this is a face the
+/// scanner saw from one side; the step model needs a blur).
+pub const EDGE_MIN_NOISE_MM: f64 = 0.002;
+
+/// How one stretch's edge was located.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EdgeFrom {
+    /// From the wall below the edge.
+    Wall,
+    /// From where the face points end.
+    Face,
+}
+
+/// One stretch's scanned edge, relative to the registered contour.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScannedEdge {
+    /// Arc length of the stretch's middle from the contour's first point, mm.
+    pub at_mm: f64,
+    /// Where the scan shows the edge, across the contour in the face, mm: negative when the
+    /// registered contour lies beyond the material, positive when material (or a burr) stands
+    /// beyond it.
+    pub offset_mm: f64,
+    /// The offset's standard deviation, mm.
+    pub sigma_mm: f64,
+    /// Scan points that located it.
+    pub points: usize,
+    /// How.
+    pub from: EdgeFrom,
+}
+
+impl ScannedEdge {
+    /// How far the registered contour lies beyond the scanned material at
+    /// [`EDGE_GAP_SIGMAS`] confidence, mm (negative: no gap shown).
+    #[must_use]
+    pub fn gap_mm(&self) -> f64 {
+        -self.offset_mm - EDGE_GAP_SIGMAS * self.sigma_mm
+    }
+}
+
+/// The scanned edges of every stretch of `contour` (scan frame, with its per-point feature
+/// vectors), from the scan points `scan` indexed by `tree`. Stretches the scan does not show
+/// well enough are left out.
+pub fn scanned_edges(contour: &Contour, scan: &[Point3], tree: &KdTree) -> Vec<ScannedEdge> {
+    let p = contour.points();
+    let n = p.len();
+    if n < 2 {
+        return Vec::new();
+    }
+    // A closed rim's edge moves as a whole (a slot slid along its axis shows the slide at one
+    // end one way and at the other the other way), which one offset per stretch cannot
+    // measure; rims are left to the opening check.
+    if !super::quality::is_open(p) {
+        return Vec::new();
+    }
+    // Arc length, tangents and the across-edge direction at every point.
+    let mut s = vec![0.0; n];
+    for i in 1..n {
+        s[i] = s[i - 1] + (p[i] - p[i - 1]).norm();
+    }
+    let length = s[n - 1];
+    if length.is_nan() || length <= 0.0 {
+        return Vec::new();
+    }
+    let frames: Vec<Option<(Vector3, Vector3, Vector3, f64)>> = (0..n)
+        .map(|i| {
+            // Central differences, one-sided at the ends.
+            let end = i == 0 || i == n - 1;
+            let (a, b) = match i {
+                0 => (p[0], p[1]),
+                i if end => (p[i - 1], p[i]),
+                i => (p[i - 1], p[i + 1]),
+            };
+            let t = trim_geom::math::unit_or_none(&(b - a), 1e-9)?;
+            let f = contour.features()[i];
+            let across = trim_geom::math::unit_or_none(&t.cross(&f), 1e-9)?;
+            let normal = across.cross(&t);
+            // Half the local spacing: the slice of scan points this point answers for.
+            let half = (b - a).norm() * if end { 0.5 } else { 0.25 };
+            Some((t, normal, across, half))
+        })
+        .collect();
+    let stretches = ((length / EDGE_STRETCH_MM).round() as usize).max(1);
+    let stretch_of = |i: usize| (((s[i] / length) * stretches as f64) as usize).min(stretches - 1);
+
+    // The scan points near the contour, each with the contour point it lies beside.
+    let contour_tree = KdTree::build(p);
+    let reach = EDGE_WINDOW_MM + 0.05;
+    let mut near: Vec<Vec<(f64, f64)>> = vec![Vec::new(); stretches];
+    let mut seen = std::collections::HashSet::new();
+    let mut scratch = Scratch::default();
+    let mut last = f64::NEG_INFINITY;
+    for i in 0..n {
+        if s[i] - last < 0.5 * EDGE_WINDOW_MM && i != n - 1 {
+            continue;
+        }
+        last = s[i];
+        let found: Vec<usize> = tree
+            .knn_within(&p[i], usize::MAX, reach * reach, &mut scratch)
+            .iter()
+            .map(|nb| nb.index)
+            .collect();
+        for j in found {
+            if !seen.insert(j) {
+                continue;
+            }
+            let q = scan[j];
+            let Some(k) = contour_tree.nearest_within(&q, f64::INFINITY) else {
+                continue;
+            };
+            let k = k.index;
+            if k < 3 || k + 3 >= n {
+                continue;
+            }
+            let Some((t, normal, across, half)) = frames[k] else {
+                continue;
+            };
+            let d = q - p[k];
+            if d.dot(&t).abs() > half + 1e-9 {
+                continue;
+            }
+            let (h, b) = (d.dot(&normal), d.dot(&across));
+            if b.abs() < EDGE_WINDOW_MM {
+                near[stretch_of(k)].push((h, b));
+            }
+        }
+    }
+    near.into_par_iter()
+        .enumerate()
+        .filter_map(|(j, readings)| {
+            let at_mm = (j as f64 + 0.5) * length / stretches as f64;
+            locate(&readings).map(|(offset_mm, sigma_mm, points, from)| ScannedEdge {
+                at_mm,
+                offset_mm,
+                sigma_mm,
+                points,
+                from,
+            })
+        })
+        .collect()
+}
+
+/// The edge from one stretch's readings `(height above the face, offset across the edge)`:
+/// `(offset, σ, points, how)`, or `None` when too few points show it.
+fn locate(readings: &[(f64, f64)]) -> Option<(f64, f64, usize, EdgeFrom)> {
+    // The noise from the face's spread about its median height (within 50 µm of it).
+    let mut heights: Vec<f64> = readings
+        .iter()
+        .map(|r| r.0)
+        .filter(|h| h.abs() < 0.05)
+        .collect();
+    if heights.len() < EDGE_MIN_FACE_POINTS {
+        return None;
+    }
+    let mid = median(&mut heights);
+    let mut dev: Vec<f64> = heights.iter().map(|h| (h - mid).abs()).collect();
+    let sigma = (1.4826 * median(&mut dev)).max(EDGE_MIN_NOISE_MM);
+    let face: Vec<f64> = readings
+        .iter()
+        .filter(|r| (r.0 - mid).abs() < 3.0 * sigma)
+        .map(|r| r.1)
+        .collect();
+    // Turn the frame so that the face lies at b < 0.
+    let sign =
+        if face.iter().filter(|&&b| b > 0.0).count() > face.iter().filter(|&&b| b < 0.0).count() {
+            -1.0
+        } else {
+            1.0
+        };
+    let wall: Vec<(f64, f64)> = readings
+        .iter()
+        .map(|&(h, b)| (h - mid, sign * b))
+        .filter(|&(h, b)| {
+            h < -3.0 * sigma && h > -EDGE_WALL_DEPTH_MM && b.abs() < EDGE_WALL_REACH_MM
+        })
+        .collect();
+    if wall.len() >= EDGE_MIN_WALL_POINTS {
+        return wall_edge(&wall, sigma).map(|(e, sd, k)| (e, sd, k, EdgeFrom::Wall));
+    }
+    if face.len() < EDGE_MIN_FACE_POINTS {
+        return None;
+    }
+    let face: Vec<f64> = face.into_iter().map(|b| sign * b).collect();
+    let (e, sd) = face_edge(&face, sigma)?;
+    Some((e, sd, face.len(), EdgeFrom::Face))
+}
+
+/// The wall's line `b = c₀ + c₁·h`, fitted twice (the second time without points beyond 3
+/// robust deviations): the edge is `c₀`, where it meets the face. `(c₀, σ, points kept)`.
+fn wall_edge(wall: &[(f64, f64)], sigma: f64) -> Option<(f64, f64, usize)> {
+    let fit = |pts: &[(f64, f64)]| -> Option<(f64, f64)> {
+        let k = pts.len() as f64;
+        let (sh, sb) = pts.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0, a.1 + p.1));
+        let (mh, mb) = (sh / k, sb / k);
+        let (shh, shb) = pts.iter().fold((0.0, 0.0), |a, p| {
+            (a.0 + (p.0 - mh) * (p.0 - mh), a.1 + (p.0 - mh) * (p.1 - mb))
+        });
+        if shh.is_nan() || shh <= 1e-12 {
+            return None;
+        }
+        let c1 = shb / shh;
+        Some((mb - c1 * mh, c1))
+    };
+    let (c0, c1) = fit(wall)?;
+    let mut res: Vec<f64> = wall.iter().map(|p| p.1 - c0 - c1 * p.0).collect();
+    let mut dev: Vec<f64> = res.iter().map(|r| r.abs()).collect();
+    let spread = 1.4826 * median(&mut dev);
+    let cut = 3.0 * spread.max(sigma);
+    let kept: Vec<(f64, f64)> = wall
+        .iter()
+        .zip(&mut res)
+        .filter(|(_, r)| r.abs() < cut)
+        .map(|(p, _)| *p)
+        .collect();
+    if kept.len() < EDGE_MIN_WALL_POINTS {
+        return None;
+    }
+    let (c0, _) = fit(&kept)?;
+    // The intercept's spread, doubled for the line's slope and the noise along the wall.
+    let sd = 2.0 * spread.max(0.5 * sigma) / (kept.len() as f64).sqrt();
+    Some((c0, sd, kept.len()))
+}
+
+/// The maximum-likelihood end `e` of the face points `b` (face at `b < e`) and its standard
+/// deviation from the likelihood's curvature.
+fn face_edge(b: &[f64], sigma: f64) -> Option<(f64, f64)> {
+    let w = EDGE_WINDOW_MM;
+    let eps = EDGE_OUTLIER_SHARE;
+    let nll = |e: f64| -> f64 {
+        // ∫_{−w}^{w} Φ((e − x)/σ) dx.
+        let z =
+            sigma * (normal_cdf_integral((e + w) / sigma) - normal_cdf_integral((e - w) / sigma));
+        b.iter()
+            .map(|&x| -((1.0 - eps) * normal_cdf((e - x) / sigma) / z + eps / (2.0 * w)).ln())
+            .sum()
+    };
+    let e = golden_section_min(nll, -0.6 * w, 0.6 * w, 60);
+    let h = 3e-4;
+    let curvature = (nll(e + h) - 2.0 * nll(e) + nll(e - h)) / (h * h);
+    (curvature > 0.0 && e.abs() < 0.59 * w).then(|| (e, 1.0 / curvature.sqrt()))
+}
+
+/// The median of `v` (reordered), or 0 when empty.
+fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let m = v.len() / 2;
+    *v.select_nth_unstable_by(m, f64::total_cmp).1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_distr::{Distribution, Normal};
+    use rand_xoshiro::Xoshiro256PlusPlus;
+
+    /// A contour along x over `length` mm at y = 0 on the face z = 0 (feature +z), and scan
+    /// points of that face over `y < edge` (material on −y) at `density` per mm², with noise
+    /// `sigma` along z and y; with `wall`, also the wall below the edge down to 0.5 mm.
+    fn case(edge: f64, sigma: f64, density: f64, wall: bool, seed: u64) -> (Contour, Vec<Point3>) {
+        let length = 12.0;
+        let points: Vec<Point3> = (0..=240)
+            .map(|i| Point3::new(length * i as f64 / 240.0, 0.0, 0.0))
+            .collect();
+        let contour = Contour::new(7, points, Vector3::z()).unwrap();
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+        let noise = Normal::new(0.0, sigma).unwrap();
+        let mut scan = Vec::new();
+        let face_area = length * 2.0;
+        for _ in 0..(density * face_area) as usize {
+            let x = rng.random_range(0.0..length);
+            let y = rng.random_range(edge - 2.0..edge);
+            scan.push(Point3::new(
+                x,
+                y + noise.sample(&mut rng),
+                noise.sample(&mut rng),
+            ));
+        }
+        if wall {
+            for _ in 0..(density * length * 0.5) as usize {
+                let x = rng.random_range(0.0..length);
+                let z = rng.random_range(-0.5..0.0);
+                scan.push(Point3::new(x, edge + noise.sample(&mut rng), z));
+            }
+        }
+        (contour, scan)
+    }
+
+    fn edges(contour: &Contour, scan: &[Point3]) -> Vec<ScannedEdge> {
+        scanned_edges(contour, scan, &KdTree::build(scan))
+    }
+
+    #[test]
+    fn the_face_locates_an_edge_inside_the_registered_contour() {
+        // The scan's face ends 50 µm short of the registered contour: a 50 µm gap, measured to
+        // within a few µm, and over the 30 µm tolerance at 2σ.
+        for seed in 0..5 {
+            let (contour, scan) = case(-0.05, 0.010, 60.0, false, seed);
+            let found = edges(&contour, &scan);
+            assert_eq!(found.len(), 1, "one stretch for a 12 mm contour");
+            let e = found[0];
+            assert_eq!(e.from, EdgeFrom::Face);
+            assert!(
+                (e.offset_mm + 0.05).abs() < 0.008,
+                "offset {} mm",
+                e.offset_mm
+            );
+            assert!(
+                e.sigma_mm > 0.0005 && e.sigma_mm < 0.006,
+                "σ {} mm",
+                e.sigma_mm
+            );
+            assert!(e.gap_mm() > 0.030, "gap {} mm", e.gap_mm());
+        }
+    }
+
+    #[test]
+    fn a_contour_on_the_edge_shows_no_gap() {
+        // Over 20 scans of a contour placed on the edge: each offset within 3.5 of its own σ,
+        // their mean within 4 µm of zero, and no gap near the tolerance.
+        let mut sum = 0.0;
+        for seed in 0..20 {
+            let (contour, scan) = case(0.0, 0.012, 40.0, false, seed);
+            let e = edges(&contour, &scan)[0];
+            assert!(e.offset_mm.abs() < 3.5 * e.sigma_mm, "seed {seed}: {e:?}");
+            assert!(e.gap_mm() < 0.015, "seed {seed}: gap {} mm", e.gap_mm());
+            sum += e.offset_mm;
+        }
+        assert!((sum / 20.0).abs() < 0.004, "mean offset {} mm", sum / 20.0);
+    }
+
+    #[test]
+    fn the_wall_locates_the_edge_when_the_scanner_saw_it() {
+        let (contour, scan) = case(-0.04, 0.008, 60.0, true, 3);
+        let e = edges(&contour, &scan)[0];
+        assert_eq!(e.from, EdgeFrom::Wall);
+        assert!(
+            (e.offset_mm + 0.04).abs() < 0.005,
+            "offset {} mm",
+            e.offset_mm
+        );
+        assert!(e.gap_mm() > 0.030, "gap {} mm", e.gap_mm());
+    }
+
+    #[test]
+    fn a_burr_beyond_the_edge_is_no_gap() {
+        // Flash in the face's plane standing 0.3 mm off the edge along the whole contour: the
+        // face appears to extend beyond the registered contour, which proves nothing about the
+        // registration (the gap is negative: no refusal).
+        let (contour, mut scan) = case(0.0, 0.010, 60.0, false, 4);
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
+        for _ in 0..(60.0 * 12.0 * 0.3) as usize {
+            let x = rng.random_range(0.0..12.0);
+            let y = rng.random_range(0.0..0.3);
+            scan.push(Point3::new(x, y, 0.0));
+        }
+        let e = edges(&contour, &scan)[0];
+        assert!(e.offset_mm > 0.1, "offset {} mm", e.offset_mm);
+        assert!(e.gap_mm() < 0.0, "gap {} mm", e.gap_mm());
+    }
+
+    #[test]
+    fn rims_short_contours_and_bare_stretches_are_not_measured() {
+        // A closed rim (left to the opening check).
+        let rim: Vec<Point3> = (0..=200)
+            .map(|i| {
+                let a = std::f64::consts::TAU * i as f64 / 200.0;
+                Point3::new(a.cos(), a.sin(), 0.0)
+            })
+            .collect();
+        let rim = Contour::new(1, rim, Vector3::z()).unwrap();
+        let (_, scan) = case(0.0, 0.01, 60.0, false, 1);
+        assert!(edges(&rim, &scan).is_empty());
+        // A stretch with too few face points.
+        let (contour, scan) = case(0.0, 0.01, 1.0, false, 1);
+        assert!(edges(&contour, &scan).is_empty());
+        // No scan at all.
+        assert!(edges(&contour, &[]).is_empty());
+    }
+}
