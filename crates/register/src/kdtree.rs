@@ -193,6 +193,28 @@ impl KdTree {
         &scratch.found
     }
 
+    /// Every point within `max_distance_sq` (inclusive) of `query`, in no particular order
+    /// (for gathering a neighbourhood, where [`KdTree::knn_within`]'s sorted insert would cost
+    /// the square of its size). The answer lives in `scratch`.
+    pub fn within<'s>(
+        &self,
+        query: &Point3,
+        max_distance_sq: f64,
+        scratch: &'s mut Scratch,
+    ) -> &'s [Neighbour] {
+        scratch.found.clear();
+        if self.index.is_empty() || max_distance_sq.is_nan() || max_distance_sq < 0.0 {
+            return &scratch.found;
+        }
+        let q = [query.x, query.y, query.z];
+        let mut all = Within {
+            max_distance_sq,
+            found: &mut scratch.found,
+        };
+        self.search(&q, &mut all, &mut scratch.stack);
+        &scratch.found
+    }
+
     /// Depth-first search: descend to the query's leaf, stacking the far children whose cells
     /// (incremental distance, Arya & Mount 1993) lie within the visitor's bound; then the stacked
     /// cells still within the (shrunk) bound.
@@ -360,6 +382,30 @@ impl Visitor for Nearests<'_> {
     }
 }
 
+/// Every point within the bound, unordered.
+struct Within<'a> {
+    max_distance_sq: f64,
+    found: &'a mut Vec<Neighbour>,
+}
+
+impl Visitor for Within<'_> {
+    #[inline]
+    fn bound(&self) -> f64 {
+        self.max_distance_sq
+    }
+
+    fn visit(&mut self, distance_sq: &[f64], index: &[u32]) {
+        for (&d, &i) in distance_sq.iter().zip(index) {
+            if d <= self.max_distance_sq {
+                self.found.push(Neighbour {
+                    index: i as usize,
+                    distance_sq: d,
+                });
+            }
+        }
+    }
+}
+
 /// Splits `items` (the node `node`'s range) at its median along the widest axis, recursively;
 /// records `(node, axis, split)`.
 fn build_node(items: &mut [([f64; 3], u32)], node: usize, out: &mut Vec<(usize, u8, f64)>) {
@@ -458,6 +504,14 @@ mod tests {
                         out.iter().map(|g| (g.distance_sq, g.index)).collect();
                     assert_eq!(have, want);
                 }
+                // The whole neighbourhood, unordered: the same set.
+                let mut all: Vec<(f64, usize)> = tree
+                    .within(q, max_sq, &mut scratch)
+                    .iter()
+                    .map(|g| (g.distance_sq, g.index))
+                    .collect();
+                all.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                assert_eq!(all, truth);
             }
         }
     }
@@ -474,6 +528,17 @@ mod tests {
         );
         assert!(one.nearest_within(&Point3::origin(), 0.5).is_none());
         assert!(one.nearest_within(&Point3::origin(), f64::NAN).is_none());
+        let mut scratch = Scratch::default();
+        assert!(
+            empty
+                .within(&Point3::origin(), 1.0, &mut scratch)
+                .is_empty()
+        );
+        assert!(
+            one.within(&Point3::origin(), f64::NAN, &mut scratch)
+                .is_empty()
+        );
+        assert_eq!(one.within(&Point3::origin(), 1.0, &mut scratch).len(), 1);
     }
 
     #[test]

@@ -145,7 +145,7 @@ pub fn scanned_edges(contour: &Contour, scan: &[Point3], tree: &KdTree) -> Vec<S
         }
         last = s[i];
         let found: Vec<usize> = tree
-            .knn_within(&p[i], usize::MAX, reach * reach, &mut scratch)
+            .within(&p[i], reach * reach, &mut scratch)
             .iter()
             .map(|nb| nb.index)
             .collect();
