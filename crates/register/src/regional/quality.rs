@@ -31,7 +31,8 @@ pub enum Flag {
     /// a whole: the smooth field moved the part's other edges along the same direction too.
     EdgeOffScan,
     /// The part as a whole is refused (`GlobalQuality::refused`): too many of its contours
-    /// are flagged for the rest to be believed, or an opening is misplaced.
+    /// are flagged for the rest to be believed, an opening is misplaced, or an edge lies off
+    /// the scan.
     PartRefused,
 }
 
@@ -545,4 +546,60 @@ pub(crate) fn contour_quality(
             }
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn contour(id: ContourId, gap_um: Option<f64>, flags: Vec<Flag>) -> ContourQuality {
+        ContourQuality {
+            id,
+            points: 100,
+            scan_points: 100,
+            coverage: 1.0,
+            residual_rms_mm: Some(0.01),
+            degeneracy_ratio: 0.5,
+            weakest_direction: [0.0, 0.0, 1.0],
+            support_ratio: 0.5,
+            max_field_displacement_mm: 0.1,
+            field_sigma_mm: 0.005,
+            field_weak_direction: [0.0, 0.0, 1.0],
+            support_distance_mm: 0.0,
+            end_support_mm: 0.0,
+            model_disagreement_mm: 0.001,
+            cross_sigma_mm: 0.005,
+            end_sigma_mm: 0.0,
+            opening_slide_mm: None,
+            opening_gain: None,
+            opening_cover_gain: None,
+            scan_edge_gap_um: gap_um,
+            predicted_max_error_um: 12.0,
+            trustworthy: flags.is_empty(),
+            flags,
+        }
+    }
+
+    #[test]
+    fn an_edge_off_the_scan_refuses_the_part_and_names_the_contour() {
+        let q = QualitySettings::default();
+        // One contour of ten off the scan: far below the untrusted fraction, yet refused.
+        let mut contours: Vec<ContourQuality> = (0..10)
+            .map(|i| contour(i, Some(-5.0), Vec::new()))
+            .collect();
+        contours[3] = contour(3, Some(41.6), vec![Flag::EdgeOffScan]);
+        let reason = refuse_part(&mut contours, &q).expect("the part is refused");
+        assert!(reason.contains("contour 3 (42 µm)"), "{reason}");
+        assert!(
+            contours
+                .iter()
+                .all(|c| !c.trustworthy && c.flags.contains(&Flag::PartRefused))
+        );
+        // Without the flag, nothing is refused.
+        let mut clean: Vec<ContourQuality> = (0..10)
+            .map(|i| contour(i, Some(-5.0), Vec::new()))
+            .collect();
+        assert!(refuse_part(&mut clean, &q).is_none());
+        assert!(clean.iter().all(|c| c.trustworthy));
+    }
 }
