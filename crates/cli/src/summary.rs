@@ -31,6 +31,16 @@ pub fn registration(report: &QualityReport) -> String {
         g.untrustworthy,
         report.contours.len()
     );
+    if let Some(e) = &g.edge_terms {
+        let _ = writeln!(
+            s,
+            "  scanned edges in the field: {} stretches used, {} implausible, {} with material beyond; moved the path up to {:.1} µm",
+            e.used,
+            e.gated,
+            e.flashed,
+            e.largest_shift_mm * 1e3
+        );
+    }
     let mut worst: Vec<_> = report.contours.iter().collect();
     // Untrustworthy first, then by predicted bound.
     worst.sort_by(|a, b| {

@@ -724,6 +724,26 @@ pub struct FieldPosterior {
 }
 
 impl FieldPosterior {
+    /// The covariance of the control displacements (3 per control point, CAD frame, mm²).
+    pub(crate) fn covariance(&self) -> &DMatrix<f64> {
+        &self.covariance
+    }
+
+    /// A posterior with the given covariance (tests).
+    #[cfg(test)]
+    pub(crate) fn from_covariance(covariance: DMatrix<f64>) -> Self {
+        FieldPosterior {
+            covariance,
+            sigma_mm: 0.01,
+        }
+    }
+
+    /// Takes `reduction` (symmetric, what a conditioning explained) off the covariance.
+    pub(crate) fn subtract(&mut self, reduction: &DMatrix<f64>) {
+        self.covariance -= reduction;
+        self.covariance = (&self.covariance + self.covariance.transpose()) * 0.5;
+    }
+
     /// The covariance of the displacement `d(x)` at `x` (CAD frame, mm²).
     #[must_use]
     pub fn displacement_covariance(&self, field: &BSplineField, x: &Point3) -> Matrix3<f64> {

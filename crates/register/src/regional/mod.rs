@@ -29,6 +29,7 @@
 //! `openings`; their public items are re-exported here by name.
 
 mod coarse;
+mod edge_terms;
 mod field_fit;
 mod openings;
 mod quality;
@@ -56,8 +57,8 @@ pub use openings::{
 pub use quality::{
     BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_MODEL_FACTOR,
     BOUND_RESIDUAL_FACTOR, BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS,
-    ContourQuality, END_SUPPORT_MIN_COS, Flag, GlobalQuality, MODEL_CHECK_SPACING_RATIO,
-    QualityReport, SUPPORT_MIN_COS, predicted_bound_mm,
+    ContourQuality, END_SUPPORT_MIN_COS, EdgeReading, Flag, GlobalQuality,
+    MODEL_CHECK_SPACING_RATIO, QualityReport, SUPPORT_MIN_COS, predicted_bound_mm,
 };
 use quality::{contour_quality, refuse_part};
 pub use scanned_edge::{
@@ -319,7 +320,7 @@ pub fn register(
 
     let mut check_field = None;
     let mut scan_tree = None;
-    let (field, matches, posterior) = match settings.mode {
+    let (mut field, matches, mut posterior) = match settings.mode {
         Mode::Global => (
             None,
             final_matches(
@@ -365,20 +366,46 @@ pub fn register(
         }
     };
 
-    let registered = stage(&mut timings, "apply to path", || {
+    let apply = |field: Option<&BSplineField>| -> Result<Path> {
         let contours = path
             .contours()
             .par_iter()
-            .map(|c| move_contour(c, field.as_ref(), &scan_from_cad))
+            .map(|c| move_contour(c, field, &scan_from_cad))
             .collect::<Result<Vec<_>>>()?;
         Ok(Path::new(contours)?)
-    })?;
+    };
+    let mut registered = stage(&mut timings, "apply to path", || apply(field.as_ref()))?;
+    let scan_tree = scan_tree.unwrap_or_else(|| kdtree::KdTree::build(scan.points()));
+
+    // The scanned edges as observations of the field (`regional::edge_terms`).
+    let fitted_field = field.clone();
+    let mut edge_terms = None;
+    if settings.quality.edge_terms
+        && let (Some(f), Some(post)) = (field.as_mut(), posterior.as_mut())
+    {
+        let summary = stage(&mut timings, "edge terms", || {
+            let readings: Vec<Vec<ScannedEdge>> = registered
+                .contours()
+                .par_iter()
+                .map(|c| scanned_edge::scanned_edges(c, scan.points(), &scan_tree))
+                .collect();
+            Ok(edge_terms::condition_on_edges(
+                f,
+                post,
+                path,
+                &readings,
+                &scan_from_cad,
+            ))
+        })?;
+        registered = stage(&mut timings, "apply to path", || apply(Some(f)))?;
+        edge_terms = Some(summary);
+    }
 
     let mut contours = stage(&mut timings, "quality", || {
         Ok(contour_quality(
             path,
             field.as_ref(),
-            check_field.as_ref(),
+            check_field.as_ref().zip(fitted_field.as_ref()),
             posterior.as_ref(),
             &matches,
             &scan_from_cad,
@@ -389,7 +416,6 @@ pub fn register(
         let n = matches.len().max(1) as f64;
         (matches.iter().map(|m| m.r * m.r).sum::<f64>() / n).sqrt()
     });
-    let scan_tree = scan_tree.unwrap_or_else(|| kdtree::KdTree::build(scan.points()));
     stage(&mut timings, "openings", || {
         let cad_tree = kdtree::KdTree::build(cad.points());
         let checks = check_openings(
@@ -411,18 +437,30 @@ pub fn register(
         Ok(())
     })?;
     stage(&mut timings, "scanned edges", || {
-        let gaps: Vec<Option<f64>> = registered
+        let readings: Vec<Vec<quality::EdgeReading>> = registered
             .contours()
             .par_iter()
             .map(|c| {
                 scanned_edge::scanned_edges(c, scan.points(), &scan_tree)
                     .iter()
-                    .map(|e| 1e3 * e.gap_mm())
-                    .reduce(f64::max)
+                    .map(|e| quality::EdgeReading {
+                        at_mm: e.at_mm,
+                        offset_um: 1e3 * e.offset_mm,
+                        sigma_um: 1e3 * e.sigma_mm,
+                        points: e.points,
+                        from: e.from,
+                        flash_share: e.flash_share,
+                    })
+                    .collect()
             })
             .collect();
-        for (c, gap) in contours.iter_mut().zip(gaps) {
+        for (c, edges) in contours.iter_mut().zip(readings) {
+            let gap = edges
+                .iter()
+                .map(|e| -e.offset_um - EDGE_GAP_SIGMAS * e.sigma_um)
+                .reduce(f64::max);
             c.scan_edge_gap_um = gap;
+            c.scan_edges = edges;
             if gap.is_some_and(|g| g > settings.quality.tolerance_um) {
                 c.flags.push(Flag::EdgeOffScan);
                 c.trustworthy = false;
@@ -446,6 +484,7 @@ pub fn register(
             field_points: field_points.len(),
             untrustworthy,
             refused,
+            edge_terms,
         },
         contours,
         timings_s: timings,

@@ -108,6 +108,10 @@ pub struct ContourQuality {
     /// `tolerance_um` the contour is flagged `edge_off_scan` and the part refused.
     #[serde(default)]
     pub scan_edge_gap_um: Option<f64>,
+    /// The scanned-edge check's readings, one per stretch the scan shows (empty for a closed
+    /// contour or one the scan does not show).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub scan_edges: Vec<EdgeReading>,
     /// The predicted bound on the contour's largest cross-edge error, µm: from the field's
     /// posterior deviation across it, the two fits' disagreement, its residual, its coverage and
     /// its distance to supporting data (the `BOUND_*` constants in `quality.rs`, DESIGN.md).
@@ -116,6 +120,27 @@ pub struct ContourQuality {
     pub flags: Vec<Flag>,
     /// Whether the planner may use the contour.
     pub trustworthy: bool,
+}
+
+/// One stretch's reading of the scanned-edge check (`regional::scanned_edge`), report units.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct EdgeReading {
+    /// Arc length of the stretch's middle from the contour's first point, mm.
+    pub at_mm: f64,
+    /// Where the scan shows the edge across the contour in the face, µm: negative when the
+    /// registered contour lies beyond the material, positive when material (or a burr) stands
+    /// beyond it.
+    pub offset_um: f64,
+    /// The offset's standard deviation, µm.
+    pub sigma_um: f64,
+    /// Scan points that located it.
+    pub points: usize,
+    /// Whether the wall below the edge or the face's end located it.
+    pub from: super::scanned_edge::EdgeFrom,
+    /// The share of the face's points standing over 60 µm beyond the contour: flash (a burr)
+    /// above 2 %, and the reading then does not move the field.
+    #[serde(default)]
+    pub flash_share: f64,
 }
 
 /// The whole-part figures (report JSON).
@@ -148,6 +173,9 @@ pub struct GlobalQuality {
     /// `part_refused`), or `null`.
     #[serde(default)]
     pub refused: Option<String>,
+    /// What the edge terms did (`quality.edge_terms`); `null` when off or in global mode.
+    #[serde(default)]
+    pub edge_terms: Option<super::edge_terms::EdgeTermSummary>,
 }
 
 /// The quality report: global figures and one entry per contour, in path order.
@@ -402,13 +430,14 @@ pub fn predicted_bound_mm(
         * (1.0 + BOUND_COVERAGE_FACTOR * (1.0 - coverage.clamp(0.0, 1.0)))
 }
 
-/// `check`, when given, is the check field of `quality.model_check`; its disagreement
-/// with `field` is measured in the scan frame (× the similarity's scale).
+/// `check`, when given, is the check field of `quality.model_check` with the field as fitted
+/// to the faces beside it (before the edge terms); their disagreement is measured in the scan
+/// frame (× the similarity's scale).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn contour_quality(
     path: &Path,
     field: Option<&BSplineField>,
-    check: Option<&BSplineField>,
+    check: Option<(&BSplineField, &BSplineField)>,
     posterior: Option<&FieldPosterior>,
     matches: &[Match],
     scan_from_cad: &Similarity3,
@@ -486,12 +515,13 @@ pub(crate) fn contour_quality(
                     .min(q.support_radius_mm)
             };
             let end_support_mm = end_support_distance(&moved, matches);
-            let model_disagreement_mm = check.map_or(0.0, |f2| {
+            // Between the two fits to the faces: the edge terms move the first field after
+            // the check was fitted beside it.
+            let model_disagreement_mm = check.map_or(0.0, |(f2, f1)| {
                 scale
                     * c.points()
                         .iter()
-                        .zip(&moved)
-                        .map(|(p, m)| (f2.apply(p) - m).norm())
+                        .map(|p| (f2.apply(p) - f1.apply(p)).norm())
                         .fold(0.0, f64::max)
             });
             let predicted_max_error_um = 1e3
@@ -540,6 +570,7 @@ pub(crate) fn contour_quality(
                 opening_gain: None,
                 opening_cover_gain: None,
                 scan_edge_gap_um: None,
+                scan_edges: Vec::new(),
                 predicted_max_error_um,
                 flags,
                 trustworthy,
@@ -574,6 +605,7 @@ mod tests {
             opening_gain: None,
             opening_cover_gain: None,
             scan_edge_gap_um: gap_um,
+            scan_edges: Vec::new(),
             predicted_max_error_um: 12.0,
             trustworthy: flags.is_empty(),
             flags,

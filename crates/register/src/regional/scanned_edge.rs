@@ -47,6 +47,12 @@ pub const EDGE_OUTLIER_SHARE: f64 = 0.01;
 /// Standard deviations of its own estimate the edge must lie inside the registered contour
 /// before the difference counts as a gap.
 pub const EDGE_GAP_SIGMAS: f64 = 2.0;
+/// Face points this far beyond the registered contour, mm, count as flash (see
+/// [`ScannedEdge::flash_share`]): twice the tolerance, beyond what a registration that passes
+/// the check leaves.
+pub const EDGE_FLASH_MM: f64 = 0.06;
+/// See [`ScannedEdge::flash_share`].
+pub const EDGE_FLASH_SHARE: f64 = 0.02;
 /// The scan noise is taken as at least this, mm (a face fitted closer than this is a face the
 /// scanner saw from one side; the step model needs a blur).
 pub const EDGE_MIN_NOISE_MM: f64 = 0.002;
@@ -76,6 +82,18 @@ pub struct ScannedEdge {
     pub points: usize,
     /// How.
     pub from: EdgeFrom,
+    /// The stretch's first and last contour points.
+    pub first: usize,
+    /// See `first`.
+    pub last: usize,
+    /// The share of the stretch's face points standing more than [`EDGE_FLASH_MM`] beyond the
+    /// registered contour: flash (a burr web in the face's plane) where it is more than
+    /// [`EDGE_FLASH_SHARE`], since no registration error this check can pass leaves that much
+    /// face out there.
+    pub flash_share: f64,
+    /// `+1` when the offset is measured along `t × f` (tangent, feature vector), `−1` when
+    /// against it: the side away from the material.
+    pub outward: f64,
 }
 
 impl ScannedEdge {
@@ -174,24 +192,44 @@ pub fn scanned_edges(contour: &Contour, scan: &[Point3], tree: &KdTree) -> Vec<S
             }
         }
     }
+    let mut bounds = vec![(usize::MAX, 0); stretches];
+    for i in 0..n {
+        let b = &mut bounds[stretch_of(i)];
+        *b = (b.0.min(i), b.1.max(i));
+    }
     near.into_par_iter()
+        .zip(bounds)
         .enumerate()
-        .filter_map(|(j, readings)| {
+        .filter_map(|(j, (readings, (first, last)))| {
             let at_mm = (j as f64 + 0.5) * length / stretches as f64;
-            locate(&readings).map(|(offset_mm, sigma_mm, points, from)| ScannedEdge {
+            locate(&readings).map(|l| ScannedEdge {
                 at_mm,
-                offset_mm,
-                sigma_mm,
-                points,
-                from,
+                offset_mm: l.offset_mm,
+                sigma_mm: l.sigma_mm,
+                points: l.points,
+                from: l.from,
+                first,
+                last,
+                flash_share: l.flash_share,
+                outward: l.outward,
             })
         })
         .collect()
 }
 
 /// The edge from one stretch's readings `(height above the face, offset across the edge)`:
-/// `(offset, σ, points, how)`, or `None` when too few points show it.
-fn locate(readings: &[(f64, f64)]) -> Option<(f64, f64, usize, EdgeFrom)> {
+/// One stretch's edge as [`locate`] finds it (see [`ScannedEdge`]).
+struct Located {
+    offset_mm: f64,
+    sigma_mm: f64,
+    points: usize,
+    from: EdgeFrom,
+    flash_share: f64,
+    outward: f64,
+}
+
+/// See [`Located`]; `None` when too few points show the edge.
+fn locate(readings: &[(f64, f64)]) -> Option<Located> {
     // The noise from the face's spread about its median height (within 50 µm of it).
     let mut heights: Vec<f64> = readings
         .iter()
@@ -223,15 +261,25 @@ fn locate(readings: &[(f64, f64)]) -> Option<(f64, f64, usize, EdgeFrom)> {
             h < -3.0 * sigma && h > -EDGE_WALL_DEPTH_MM && b.abs() < EDGE_WALL_REACH_MM
         })
         .collect();
+    let face: Vec<f64> = face.into_iter().map(|b| sign * b).collect();
+    let flash_share =
+        face.iter().filter(|&&b| b > EDGE_FLASH_MM).count() as f64 / face.len().max(1) as f64;
+    let located = |(offset_mm, sigma_mm, points, from)| Located {
+        offset_mm,
+        sigma_mm,
+        points,
+        from,
+        flash_share,
+        outward: sign,
+    };
     if wall.len() >= EDGE_MIN_WALL_POINTS {
-        return wall_edge(&wall, sigma).map(|(e, sd, k)| (e, sd, k, EdgeFrom::Wall));
+        return wall_edge(&wall, sigma).map(|(e, sd, k)| located((e, sd, k, EdgeFrom::Wall)));
     }
     if face.len() < EDGE_MIN_FACE_POINTS {
         return None;
     }
-    let face: Vec<f64> = face.into_iter().map(|b| sign * b).collect();
     let (e, sd) = face_edge(&face, sigma)?;
-    Some((e, sd, face.len(), EdgeFrom::Face))
+    Some(located((e, sd, face.len(), EdgeFrom::Face)))
 }
 
 /// The wall's line `b = c₀ + c₁·h`, fitted twice (the second time without points beyond 3

@@ -234,6 +234,14 @@ pub struct QualitySettings {
     /// little data, an end the scanner barely saw) they do not. The second fit holds the first
     /// one's final matches fixed: one linear solve per Gauss-Newton step of the first.
     pub model_check: bool,
+    /// Condition the field on the edges the scan shows (`regional::edge_terms`): each open
+    /// contour's stretches, located in the raw scan, observe the displacement across the edge
+    /// that the faces do not fix (a strip's slide along the span, a corner's along the chord).
+    /// Off by default: on the outside report seeds it corrected parts 1045 and 1084 from one
+    /// end only (readings of material beyond the contour are left out, since a burr reads the
+    /// same), which took their gaps under the tolerance and left 7 contours 31–39 µm off
+    /// trusted (DESIGN.md, "Edge terms").
+    pub edge_terms: bool,
 }
 
 impl Default for QualitySettings {
@@ -249,6 +257,7 @@ impl Default for QualitySettings {
             min_overlap: 0.3,
             overlap_distance_mm: 1.0,
             model_check: true,
+            edge_terms: false,
         }
     }
 }

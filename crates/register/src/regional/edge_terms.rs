@@ -1,0 +1,376 @@
+//! The scanned edges as observations of the field (DESIGN.md, Registration step 4,
+//! "Edge terms").
+//!
+//! The field is fitted to the faces. Where no face fixes a direction (a strip's slide along a
+//! core's span, a corner's slide along the chord), its posterior is wide and its estimate is
+//! whatever the smoothness prior makes of it. The scanned edge of each stretch
+//! ([`super::scanned_edge`]) measures exactly the displacement the faces miss, across the edge:
+//! the offset `o` is, to first order, the mean over the stretch's points of
+//! `s·(Rᵀu)ᵀ·δ(xᵢ)`, with `δ = d_true − d` the field's error at the CAD point `xᵢ`, `u` the
+//! stretch's outward direction (scan frame) and `s`, `R` the similarity's scale and rotation.
+//! That is linear in the field's control displacements: a row `h`. The field's posterior
+//! `N(c, Σ)` (given the faces) is conditioned on the readings `o ~ N(h·δ, r)`:
+//!
+//! ```text
+//! K = Σ Hᵀ (H Σ Hᵀ + R)⁻¹,   c ← c + K o,   Σ ← Σ − K H Σ,
+//! ```
+//!
+//! the Kalman update, with `r = σₑ² + floor²` per reading. The floors
+//! ([`EDGE_TERM_WALL_FLOOR_MM`], [`EDGE_TERM_FACE_FLOOR_MM`]) are the readings' scatter about
+//! the truth that their own `σₑ` does not explain, measured on the outside generator's tune
+//! seeds. A reading the posterior finds implausible (`o² > 9·(hΣhᵀ + r)`) is left out: flash
+//! standing off the edge reads as material far beyond it, and the laser is there to remove it,
+//! not to follow it; so is a stretch whose face runs on beyond the contour
+//! (`ScannedEdge::flash_share`), where a burr web in the face's plane would bias the reading
+//! by a share of its height, and so is any reading of more than [`EDGE_TERM_MAX_OUTWARD_MM`]
+//! of material beyond the contour, since a web too low to count as flash reads the same. An edge the registration put beyond the material by more than that is
+//! left to the scanned-edge check, which refuses the part.
+
+use nalgebra::{DMatrix, DVector};
+use trim_geom::{Path, Similarity3, Vector3};
+
+use super::field_fit::FieldPosterior;
+use super::scanned_edge::{EDGE_FLASH_SHARE, EdgeFrom, ScannedEdge};
+use crate::deformation::{BSplineField, SUPPORT};
+
+/// The scatter of a reading located from the wall about the true edge that its own `σₑ` does
+/// not explain, mm (outside tune seeds 2001–2080: residual SD 3.4 µm at a median σₑ of 2.4 µm).
+pub const EDGE_TERM_WALL_FLOOR_MM: f64 = 0.003;
+/// The same for a reading from the face's end, mm (SD 9.5 µm at a median σₑ of 5.8 µm).
+pub const EDGE_TERM_FACE_FLOOR_MM: f64 = 0.008;
+/// A reading that shows more material beyond the contour than this, mm, is left out: flash
+/// can only add material beyond the edge, so such a reading may be a burr too low to show as
+/// flash (own burred core 305: a 53 µm web over 13 of 20 mm read +41 µm and, taken, pulled
+/// the strip 40 µm off). A third of the tolerance; the posterior keeps the contour's bound.
+pub const EDGE_TERM_MAX_OUTWARD_MM: f64 = 0.010;
+/// A reading whose offset lies beyond this many predicted deviations is left out.
+pub const EDGE_TERM_GATE_SIGMAS: f64 = 3.0;
+/// Contour points per stretch whose field rows are averaged into the reading's row (evenly
+/// spaced; the rest add nothing the spline does not already interpolate).
+pub const EDGE_TERM_SAMPLES: usize = 16;
+
+/// One reading as a row of the field's control displacements: `(sparse row, offset mm,
+/// variance mm²)`.
+type Row = (Vec<(usize, f64)>, f64, f64);
+
+/// What the edge terms did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct EdgeTermSummary {
+    /// Readings used.
+    pub used: usize,
+    /// Readings left out by the gate.
+    pub gated: usize,
+    /// Readings left out for the material beyond them (`ScannedEdge::flash_share`,
+    /// [`EDGE_TERM_MAX_OUTWARD_MM`]).
+    pub flashed: usize,
+    /// The largest change of the field along the path's points, mm (CAD frame).
+    pub largest_shift_mm: f64,
+}
+
+/// Conditions `field` and `posterior` on the scanned edges `readings` (one list per contour of
+/// `path`, measured on the contours registered with `field`).
+pub(crate) fn condition_on_edges(
+    field: &mut BSplineField,
+    posterior: &mut FieldPosterior,
+    path: &Path,
+    readings: &[Vec<ScannedEdge>],
+    scan_from_cad: &Similarity3,
+) -> EdgeTermSummary {
+    let dim = 3 * field.len();
+    let scale = scan_from_cad.scaling();
+    // One sparse row per reading: the mean of the stretch's sampled rows.
+    let mut rows: Vec<Row> = Vec::new();
+    let mut flashed = 0;
+    for (contour, edges) in path.contours().iter().zip(readings) {
+        let p = contour.points();
+        let f = contour.features();
+        for e in edges {
+            if e.flash_share > EDGE_FLASH_SHARE || e.offset_mm > EDGE_TERM_MAX_OUTWARD_MM {
+                flashed += 1;
+                continue;
+            }
+            if e.last <= e.first || e.last >= p.len() {
+                continue;
+            }
+            let span = e.last - e.first;
+            let samples = EDGE_TERM_SAMPLES.min(span + 1);
+            let mut row: Vec<(usize, f64)> = Vec::new();
+            let mut entries: Vec<(usize, f64)> = Vec::with_capacity(samples * SUPPORT * 3);
+            for k in 0..samples {
+                let i = e.first + (k * span) / (samples - 1).max(1);
+                let (a, b) = (p[i.saturating_sub(1)], p[(i + 1).min(p.len() - 1)]);
+                let Some(t) = (b - a).try_normalize(1e-12) else {
+                    continue;
+                };
+                let Some(across) = t.cross(&f[i]).try_normalize(1e-12) else {
+                    continue;
+                };
+                // The outward direction in the CAD frame: the scan frame's, turned back (the
+                // contour here is the CAD one, so its frame is already the CAD frame).
+                let u: Vector3 = across * e.outward;
+                let (index, value) = field.values(&p[i]);
+                for m in 0..SUPPORT {
+                    if value[m] == 0.0 {
+                        continue;
+                    }
+                    for c in 0..3 {
+                        entries.push((3 * index[m] + c, scale * value[m] * u[c]));
+                    }
+                }
+            }
+            if entries.is_empty() {
+                continue;
+            }
+            let w = 1.0 / samples as f64;
+            entries.sort_unstable_by_key(|x| x.0);
+            for (j, v) in entries {
+                match row.last_mut() {
+                    Some((last, acc)) if *last == j => *acc += w * v,
+                    _ => row.push((j, w * v)),
+                }
+            }
+            let floor = match e.from {
+                EdgeFrom::Wall => EDGE_TERM_WALL_FLOOR_MM,
+                EdgeFrom::Face => EDGE_TERM_FACE_FLOOR_MM,
+            };
+            rows.push((row, e.offset_mm, e.sigma_mm.powi(2) + floor * floor));
+        }
+    }
+    let sigma = posterior.covariance();
+    // Gate each reading on its own predicted spread.
+    let sigma_h = |row: &[(usize, f64)]| -> DVector<f64> {
+        let mut out = DVector::zeros(dim);
+        for &(j, v) in row {
+            out.axpy(v, &sigma.column(j), 1.0);
+        }
+        out
+    };
+    let mut kept = Vec::new();
+    let mut gated = 0;
+    let mut columns = Vec::new();
+    for (row, o, r) in &rows {
+        let sh = sigma_h(row);
+        let hsh: f64 = row.iter().map(|&(j, v)| v * sh[j]).sum();
+        if o * o > EDGE_TERM_GATE_SIGMAS.powi(2) * (hsh + r) {
+            gated += 1;
+            continue;
+        }
+        kept.push((row, *o, *r));
+        columns.push(sh);
+    }
+    let m = kept.len();
+    if m == 0 {
+        return EdgeTermSummary {
+            used: 0,
+            gated,
+            flashed,
+            largest_shift_mm: 0.0,
+        };
+    }
+    // ΣHᵀ (dim × m) and S = HΣHᵀ + R (m × m).
+    let sht = DMatrix::from_columns(&columns);
+    let mut s = DMatrix::zeros(m, m);
+    for (a, (row, _, r)) in kept.iter().enumerate() {
+        for b in 0..m {
+            s[(a, b)] = row.iter().map(|&(j, v)| v * sht[(j, b)]).sum::<f64>();
+        }
+        s[(a, a)] += r;
+    }
+    let s = (&s + s.transpose()) * 0.5;
+    let Some(chol) = s.cholesky() else {
+        return EdgeTermSummary {
+            used: 0,
+            gated,
+            flashed,
+            largest_shift_mm: 0.0,
+        };
+    };
+    let o = DVector::from_iterator(m, kept.iter().map(|k| k.1));
+    // Step: ΣHᵀ S⁻¹ o; covariance: Σ − ΣHᵀ S⁻¹ HΣ.
+    let step = &sht * chol.solve(&o);
+    let s_inv_hs = chol.solve(&sht.transpose());
+    posterior.subtract(&(&sht * s_inv_hs));
+    let before: Vec<_> = path
+        .contours()
+        .iter()
+        .flat_map(|c| c.points().iter().map(|p| field.displacement(p)))
+        .collect();
+    field.add_step(step.as_slice());
+    let largest_shift_mm = path
+        .contours()
+        .iter()
+        .flat_map(|c| c.points().iter().map(|p| field.displacement(p)))
+        .zip(before)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    EdgeTermSummary {
+        used: m,
+        gated,
+        flashed,
+        largest_shift_mm,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::regional::scanned_edge::EdgeFrom;
+    use trim_geom::{Contour, Point3};
+
+    /// A field over a 40 × 20 × 10 mm box with control points every 5 mm, each displacement
+    /// component independent, scaled so that the displacement at the strip's middle has
+    /// deviation `sd_mm` (a posterior the faces left wide), and a strip along x at y = 10 on
+    /// the face z = 5 (feature +z), so across it is ±y.
+    fn case(sd_mm: f64) -> (BSplineField, FieldPosterior, Path) {
+        let field = BSplineField::zero(
+            &Point3::new(0.0, 0.0, 0.0),
+            &Point3::new(40.0, 20.0, 10.0),
+            5.0,
+        );
+        let dim = 3 * field.len();
+        let (_, value) = field.values(&Point3::new(20.0, 10.0, 5.0));
+        let sum: f64 = value.iter().map(|v| v * v).sum();
+        let posterior =
+            FieldPosterior::from_covariance(DMatrix::identity(dim, dim) * (sd_mm * sd_mm / sum));
+        let strip: Vec<Point3> = (0..=200)
+            .map(|i| Point3::new(10.0 + 0.1 * i as f64, 10.0, 5.0))
+            .collect();
+        let path = Path::new(vec![Contour::new(3, strip, Vector3::z()).unwrap()]).unwrap();
+        (field, posterior, path)
+    }
+
+    fn reading(offset_mm: f64, from: EdgeFrom) -> ScannedEdge {
+        ScannedEdge {
+            at_mm: 10.0,
+            offset_mm,
+            sigma_mm: 0.002,
+            points: 200,
+            from,
+            first: 0,
+            last: 200,
+            flash_share: 0.0,
+            // t × f = x × z = −y: outward is +y.
+            outward: -1.0,
+        }
+    }
+
+    /// The variance of the displacement along `u` at `x`.
+    fn variance(field: &BSplineField, posterior: &FieldPosterior, x: &Point3, u: &Vector3) -> f64 {
+        (u.transpose() * posterior.displacement_covariance(field, x) * u)[(0, 0)]
+    }
+
+    #[test]
+    fn a_reading_moves_the_edge_toward_the_scan_and_narrows_the_posterior_across_it() {
+        let (mut field, mut posterior, path) = case(0.025);
+        let mid = Point3::new(20.0, 10.0, 5.0);
+        let before = variance(&field, &posterior, &mid, &Vector3::y());
+        // The scan shows the edge 40 µm short of the registered one (the contour lies beyond
+        // the material, −y).
+        let summary = condition_on_edges(
+            &mut field,
+            &mut posterior,
+            &path,
+            &[vec![reading(-0.04, EdgeFrom::Wall)]],
+            &Similarity3::identity(),
+        );
+        assert_eq!((summary.used, summary.gated), (1, 0));
+        // The reading is the stretch's mean offset. A prior of about 25 µm against a reading
+        // good to 3.6 µm: most of the 40 µm is taken.
+        let points = path.contours()[0].points();
+        let mean =
+            -points.iter().map(|p| field.displacement(p).y).sum::<f64>() / points.len() as f64;
+        assert!(
+            mean > 0.03 && mean < 0.04,
+            "moved {mean:.4} mm inward on average"
+        );
+        let d = field.displacement(&mid);
+        assert!(
+            d.x.abs() < 1e-9 && d.z.abs() < 1e-9,
+            "moved along or off the face: {d:?}"
+        );
+        let after = variance(&field, &posterior, &mid, &Vector3::y());
+        // One mean over 20 mm of independent control points: the middle's variance about halves.
+        assert!(
+            after < 0.6 * before,
+            "variance across {before:.2e} -> {after:.2e}"
+        );
+        // Along the strip and off the face the reading says nothing.
+        let along = variance(&field, &posterior, &mid, &Vector3::x());
+        assert!((along - before).abs() < 1e-12 * before.max(1.0) + 1e-15);
+    }
+
+    #[test]
+    fn an_implausible_reading_is_left_out() {
+        let (mut field, mut posterior, path) = case(0.01);
+        // The contour 200 µm beyond the material where the posterior allows 10 µm: left to
+        // the scanned-edge check.
+        let summary = condition_on_edges(
+            &mut field,
+            &mut posterior,
+            &path,
+            &[vec![reading(-0.2, EdgeFrom::Face)]],
+            &Similarity3::identity(),
+        );
+        assert_eq!((summary.used, summary.gated), (0, 1));
+        assert_eq!(
+            field.displacement(&Point3::new(20.0, 10.0, 5.0)),
+            Vector3::zeros()
+        );
+    }
+
+    #[test]
+    fn material_beyond_the_edge_is_left_out() {
+        let (mut field, mut posterior, path) = case(0.025);
+        // 15 µm more material than the contour: a low web reads the same.
+        let summary = condition_on_edges(
+            &mut field,
+            &mut posterior,
+            &path,
+            &[vec![reading(0.015, EdgeFrom::Wall)]],
+            &Similarity3::identity(),
+        );
+        assert_eq!((summary.used, summary.flashed), (0, 1));
+        assert_eq!(
+            field.displacement(&Point3::new(20.0, 10.0, 5.0)),
+            Vector3::zeros()
+        );
+    }
+
+    #[test]
+    fn a_stretch_whose_face_runs_on_beyond_the_edge_is_left_out() {
+        let (mut field, mut posterior, path) = case(0.025);
+        // 5 µm read where 10 % of the face stands beyond 60 µm: a web biased it.
+        let summary = condition_on_edges(
+            &mut field,
+            &mut posterior,
+            &path,
+            &[vec![ScannedEdge {
+                flash_share: 0.1,
+                ..reading(0.005, EdgeFrom::Face)
+            }]],
+            &Similarity3::identity(),
+        );
+        assert_eq!((summary.used, summary.flashed), (0, 1));
+        assert_eq!(
+            field.displacement(&Point3::new(20.0, 10.0, 5.0)),
+            Vector3::zeros()
+        );
+    }
+
+    #[test]
+    fn a_face_reading_counts_for_less_than_a_wall_reading() {
+        let moved = |from| {
+            let (mut field, mut posterior, path) = case(0.015);
+            condition_on_edges(
+                &mut field,
+                &mut posterior,
+                &path,
+                &[vec![reading(-0.02, from)]],
+                &Similarity3::identity(),
+            );
+            -field.displacement(&Point3::new(20.0, 10.0, 5.0)).y
+        };
+        let (wall, face) = (moved(EdgeFrom::Wall), moved(EdgeFrom::Face));
+        assert!(face > 0.0 && face < wall, "face {face:.4}, wall {wall:.4}");
+    }
+}
