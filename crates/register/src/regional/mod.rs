@@ -380,6 +380,10 @@ pub fn register(
     // The scanned edges as observations of the field (`regional::edge_terms`).
     let fitted_field = field.clone();
     let mut edge_terms = None;
+    // The gaps the scan showed before the edge terms moved the field: a part they correct
+    // from one end only (a reading of material beyond the contour is left out as possible
+    // flash) shows its gap there and no longer after, so both count.
+    let mut gaps_before: Vec<Option<f64>> = vec![None; path.contours().len()];
     if settings.quality.edge_terms
         && let (Some(f), Some(post)) = (field.as_mut(), posterior.as_mut())
     {
@@ -389,6 +393,9 @@ pub fn register(
                 .par_iter()
                 .map(|c| scanned_edge::scanned_edges(c, scan.points(), &scan_tree))
                 .collect();
+            for (g, edges) in gaps_before.iter_mut().zip(&readings) {
+                *g = edges.iter().map(|e| 1e3 * e.gap_mm()).reduce(f64::max);
+            }
             Ok(edge_terms::condition_on_edges(
                 f,
                 post,
@@ -454,10 +461,11 @@ pub fn register(
                     .collect()
             })
             .collect();
-        for (c, edges) in contours.iter_mut().zip(readings) {
+        for ((c, edges), before) in contours.iter_mut().zip(readings).zip(&gaps_before) {
             let gap = edges
                 .iter()
                 .map(|e| -e.offset_um - EDGE_GAP_SIGMAS * e.sigma_um)
+                .chain(*before)
                 .reduce(f64::max);
             c.scan_edge_gap_um = gap;
             c.scan_edges = edges;

@@ -237,10 +237,8 @@ pub struct QualitySettings {
     /// Condition the field on the edges the scan shows (`regional::edge_terms`): each open
     /// contour's stretches, located in the raw scan, observe the displacement across the edge
     /// that the faces do not fix (a strip's slide along the span, a corner's along the chord).
-    /// Off by default: on the outside report seeds it corrected parts 1045 and 1084 from one
-    /// end only (readings of material beyond the contour are left out, since a burr reads the
-    /// same), which took their gaps under the tolerance and left 7 contours 31–39 µm off
-    /// trusted (DESIGN.md, "Edge terms").
+    /// A part whose scan showed a gap over the tolerance before the terms moved the field is
+    /// still refused (a slide corrected from one end only shows its gap there and not after).
     pub edge_terms: bool,
 }
 
@@ -257,7 +255,7 @@ impl Default for QualitySettings {
             min_overlap: 0.3,
             overlap_distance_mm: 1.0,
             model_check: true,
-            edge_terms: false,
+            edge_terms: true,
         }
     }
 }

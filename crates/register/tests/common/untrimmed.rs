@@ -27,15 +27,28 @@ pub fn untrimmed_case(seed: u64) -> SynthCase {
 
 /// Its registration with the default settings, the scanner's position given, from the
 /// fixture's nominal pose.
+pub fn register_untrimmed(case: &SynthCase) -> Registration {
+    register_untrimmed_with(case, |_| ())
+}
+
+/// [`register_untrimmed`] with the settings changed by `edit` first.
+#[allow(
+    dead_code,
+    reason = "not every test file that includes this module uses it"
+)]
 #[expect(
     clippy::unwrap_used,
     reason = "a test helper: a refused registration must fail the test"
 )]
-pub fn register_untrimmed(case: &SynthCase) -> Registration {
-    let settings = RegisterSettings {
+pub fn register_untrimmed_with(
+    case: &SynthCase,
+    edit: impl FnOnce(&mut RegisterSettings),
+) -> Registration {
+    let mut settings = RegisterSettings {
         scanner_viewpoint_mm: Some(case.scanner_in_scan.coords.into()),
         ..RegisterSettings::default()
     };
+    edit(&mut settings);
     register(
         &case.cad_points,
         &case.scan,
