@@ -105,8 +105,8 @@ pub(crate) fn condition_on_edges(
                 let Some(across) = t.cross(&f[i]).try_normalize(1e-12) else {
                     continue;
                 };
-                // The outward direction in the CAD frame: the scan frame's, turned back (the
-                // contour here is the CAD one, so its frame is already the CAD frame).
+                // The outward direction, from the CAD contour's own frame: the similarity turns
+                // `t × f` as a whole, so the reading's sign carries over.
                 let u: Vector3 = across * e.outward;
                 let (index, value) = field.values(&p[i]);
                 for m in 0..SUPPORT {
@@ -161,10 +161,9 @@ pub(crate) fn condition_on_edges(
     let m = kept.len();
     if m == 0 {
         return EdgeTermSummary {
-            used: 0,
             gated,
             flashed,
-            largest_shift_mm: 0.0,
+            ..EdgeTermSummary::default()
         };
     }
     // ΣHᵀ (dim × m) and S = HΣHᵀ + R (m × m).
@@ -179,10 +178,9 @@ pub(crate) fn condition_on_edges(
     let s = (&s + s.transpose()) * 0.5;
     let Some(chol) = s.cholesky() else {
         return EdgeTermSummary {
-            used: 0,
             gated,
             flashed,
-            largest_shift_mm: 0.0,
+            ..EdgeTermSummary::default()
         };
     };
     let o = DVector::from_iterator(m, kept.iter().map(|k| k.1));
@@ -228,7 +226,7 @@ mod tests {
             5.0,
         );
         let dim = 3 * field.len();
-        let (_, value) = field.values(&Point3::new(20.0, 10.0, 5.0));
+        let (_, value) = field.values(&MID);
         let sum: f64 = value.iter().map(|v| v * v).sum();
         let posterior =
             FieldPosterior::from_covariance(DMatrix::identity(dim, dim) * (sd_mm * sd_mm / sum));
@@ -254,6 +252,22 @@ mod tests {
         }
     }
 
+    /// [`case`] conditioned on the one reading `e`: the field after, and what the terms did.
+    fn conditioned(sd_mm: f64, e: ScannedEdge) -> (BSplineField, EdgeTermSummary) {
+        let (mut field, mut posterior, path) = case(sd_mm);
+        let summary = condition_on_edges(
+            &mut field,
+            &mut posterior,
+            &path,
+            &[vec![e]],
+            &Similarity3::identity(),
+        );
+        (field, summary)
+    }
+
+    /// The strip's middle.
+    const MID: Point3 = Point3::new(20.0, 10.0, 5.0);
+
     /// The variance of the displacement along `u` at `x`.
     fn variance(field: &BSplineField, posterior: &FieldPosterior, x: &Point3, u: &Vector3) -> f64 {
         (u.transpose() * posterior.displacement_covariance(field, x) * u)[(0, 0)]
@@ -262,7 +276,7 @@ mod tests {
     #[test]
     fn a_reading_moves_the_edge_toward_the_scan_and_narrows_the_posterior_across_it() {
         let (mut field, mut posterior, path) = case(0.025);
-        let mid = Point3::new(20.0, 10.0, 5.0);
+        let mid = MID;
         let before = variance(&field, &posterior, &mid, &Vector3::y());
         // The scan shows the edge 40 µm short of the registered one (the contour lies beyond
         // the material, −y).
@@ -301,74 +315,40 @@ mod tests {
 
     #[test]
     fn an_implausible_reading_is_left_out() {
-        let (mut field, mut posterior, path) = case(0.01);
         // The contour 200 µm beyond the material where the posterior allows 10 µm: left to
         // the scanned-edge check.
-        let summary = condition_on_edges(
-            &mut field,
-            &mut posterior,
-            &path,
-            &[vec![reading(-0.2, EdgeFrom::Face)]],
-            &Similarity3::identity(),
-        );
+        let (field, summary) = conditioned(0.01, reading(-0.2, EdgeFrom::Face));
         assert_eq!((summary.used, summary.gated), (0, 1));
-        assert_eq!(
-            field.displacement(&Point3::new(20.0, 10.0, 5.0)),
-            Vector3::zeros()
-        );
+        assert_eq!(field.displacement(&MID), Vector3::zeros());
     }
 
     #[test]
     fn material_beyond_the_edge_is_left_out() {
-        let (mut field, mut posterior, path) = case(0.025);
         // 15 µm more material than the contour: a low web reads the same.
-        let summary = condition_on_edges(
-            &mut field,
-            &mut posterior,
-            &path,
-            &[vec![reading(0.015, EdgeFrom::Wall)]],
-            &Similarity3::identity(),
-        );
+        let (field, summary) = conditioned(0.025, reading(0.015, EdgeFrom::Wall));
         assert_eq!((summary.used, summary.flashed), (0, 1));
-        assert_eq!(
-            field.displacement(&Point3::new(20.0, 10.0, 5.0)),
-            Vector3::zeros()
-        );
+        assert_eq!(field.displacement(&MID), Vector3::zeros());
     }
 
     #[test]
     fn a_stretch_whose_face_runs_on_beyond_the_edge_is_left_out() {
-        let (mut field, mut posterior, path) = case(0.025);
         // 5 µm read where 10 % of the face stands beyond 60 µm: a web biased it.
-        let summary = condition_on_edges(
-            &mut field,
-            &mut posterior,
-            &path,
-            &[vec![ScannedEdge {
-                flash_share: 0.1,
-                ..reading(0.005, EdgeFrom::Face)
-            }]],
-            &Similarity3::identity(),
-        );
+        let flashed = ScannedEdge {
+            flash_share: 0.1,
+            ..reading(0.005, EdgeFrom::Face)
+        };
+        let (field, summary) = conditioned(0.025, flashed);
         assert_eq!((summary.used, summary.flashed), (0, 1));
-        assert_eq!(
-            field.displacement(&Point3::new(20.0, 10.0, 5.0)),
-            Vector3::zeros()
-        );
+        assert_eq!(field.displacement(&MID), Vector3::zeros());
     }
 
     #[test]
     fn a_face_reading_counts_for_less_than_a_wall_reading() {
         let moved = |from| {
-            let (mut field, mut posterior, path) = case(0.015);
-            condition_on_edges(
-                &mut field,
-                &mut posterior,
-                &path,
-                &[vec![reading(-0.02, from)]],
-                &Similarity3::identity(),
-            );
-            -field.displacement(&Point3::new(20.0, 10.0, 5.0)).y
+            -conditioned(0.015, reading(-0.02, from))
+                .0
+                .displacement(&MID)
+                .y
         };
         let (wall, face) = (moved(EdgeFrom::Wall), moved(EdgeFrom::Face));
         assert!(face > 0.0 && face < wall, "face {face:.4}, wall {wall:.4}");

@@ -394,7 +394,7 @@ pub fn register(
                 .map(|c| scanned_edge::scanned_edges(c, scan.points(), &scan_tree))
                 .collect();
             for (g, edges) in gaps_before.iter_mut().zip(&readings) {
-                *g = edges.iter().map(|e| 1e3 * e.gap_mm()).reduce(f64::max);
+                *g = scanned_edge::widest_gap_um(edges);
             }
             Ok(edge_terms::condition_on_edges(
                 f,
@@ -444,31 +444,18 @@ pub fn register(
         Ok(())
     })?;
     stage(&mut timings, "scanned edges", || {
-        let readings: Vec<Vec<quality::EdgeReading>> = registered
+        let readings: Vec<Vec<ScannedEdge>> = registered
             .contours()
             .par_iter()
-            .map(|c| {
-                scanned_edge::scanned_edges(c, scan.points(), &scan_tree)
-                    .iter()
-                    .map(|e| quality::EdgeReading {
-                        at_mm: e.at_mm,
-                        offset_um: 1e3 * e.offset_mm,
-                        sigma_um: 1e3 * e.sigma_mm,
-                        points: e.points,
-                        from: e.from,
-                        flash_share: e.flash_share,
-                    })
-                    .collect()
-            })
+            .map(|c| scanned_edge::scanned_edges(c, scan.points(), &scan_tree))
             .collect();
         for ((c, edges), before) in contours.iter_mut().zip(readings).zip(&gaps_before) {
-            let gap = edges
-                .iter()
-                .map(|e| -e.offset_um - EDGE_GAP_SIGMAS * e.sigma_um)
+            let gap = scanned_edge::widest_gap_um(&edges)
+                .into_iter()
                 .chain(*before)
                 .reduce(f64::max);
+            c.scan_edges = edges.iter().map(quality::EdgeReading::from).collect();
             c.scan_edge_gap_um = gap;
-            c.scan_edges = edges;
             if gap.is_some_and(|g| g > settings.quality.tolerance_um) {
                 c.flags.push(Flag::EdgeOffScan);
                 c.trustworthy = false;

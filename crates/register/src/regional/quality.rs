@@ -143,6 +143,19 @@ pub struct EdgeReading {
     pub flash_share: f64,
 }
 
+impl From<&super::scanned_edge::ScannedEdge> for EdgeReading {
+    fn from(e: &super::scanned_edge::ScannedEdge) -> Self {
+        EdgeReading {
+            at_mm: e.at_mm,
+            offset_um: 1e3 * e.offset_mm,
+            sigma_um: 1e3 * e.sigma_mm,
+            points: e.points,
+            from: e.from,
+            flash_share: e.flash_share,
+        }
+    }
+}
+
 /// The whole-part figures (report JSON).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct GlobalQuality {

@@ -105,6 +105,12 @@ impl ScannedEdge {
     }
 }
 
+/// The widest gap over `edges`, µm ([`ScannedEdge::gap_mm`]); `None` without readings.
+#[must_use]
+pub fn widest_gap_um(edges: &[ScannedEdge]) -> Option<f64> {
+    edges.iter().map(|e| 1e3 * e.gap_mm()).reduce(f64::max)
+}
+
 /// The scanned edges of every stretch of `contour` (scan frame, with its per-point feature
 /// vectors), from the scan points `scan` indexed by `tree`. Stretches the scan does not show
 /// well enough are left out.
