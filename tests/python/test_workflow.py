@@ -99,6 +99,16 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
         assert q.opening_slide_mm == entry["opening_slide_mm"], q
         assert q.opening_gain is None or q.opening_gain < 0.4, q
         assert "opening_misplaced" not in q.flags, q
+        # The scanned-edge readings behind scan_edge_gap_um, as in registration.json.
+        assert isinstance(q.scan_edges, tuple)
+        assert list(q.scan_edges) == entry.get("scan_edges", []), q
+        for r in q.scan_edges:
+            assert r["from"] in ("wall", "face"), r
+            assert np.isfinite(r["offset_um"]) and r["sigma_um"] > 0.0 and r["points"] > 0, r
+            assert 0.0 <= r["flash_share"] <= 1.0, r
+    # Some strips' edges are located even in this sparse scan (5 of 52 contours on this seed;
+    # closed contours have none).
+    assert sum(bool(q.scan_edges) for q in quality) >= 3
     # The demo case is trusted as a part (a refusal would flag every contour part_refused).
     assert registration.refused is None
     assert not any("part_refused" in q.flags for q in quality)

@@ -65,7 +65,9 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// opening flags `opening_misplaced` and refuses the part). `scan_edge_gap_um`: for an open
 /// contour, how far it lies beyond the material the scan shows beside it (negative: no gap;
 /// `None` where the scan does not locate its edge); over the tolerance it flags
-/// `edge_off_scan` and refuses the part.
+/// `edge_off_scan` and refuses the part. `scan_edges`: the scanned-edge readings behind that gap,
+/// one dict per stretch (`at_mm`, `offset_um`, `sigma_um`, `points`, `from`, `flash_share`), as
+/// in registration.json; the edge terms condition the field on them.
 #[pyclass(module = "trimctl", frozen, get_all)]
 pub struct ContourQuality {
     /// The contour id.
@@ -113,6 +115,11 @@ pub struct ContourQuality {
     /// no gap); `None` for a closed contour or an edge the scan does not locate (flag
     /// `edge_off_scan`).
     pub scan_edge_gap_um: Option<f64>,
+    /// The scanned-edge readings along an open contour, one dict per stretch: `at_mm` (arc
+    /// length of its middle), `offset_um` (negative: the contour lies beyond the material),
+    /// `sigma_um`, `points`, `from` (`wall` or `face`), `flash_share`. Empty for a closed
+    /// contour or an edge the scan does not locate.
+    pub scan_edges: Py<pyo3::types::PyTuple>,
     /// The predicted bound on the largest cross-edge error, µm.
     pub predicted_max_error_um: f64,
     /// What was found wrong (the report's flag names).
@@ -163,6 +170,14 @@ impl ContourQuality {
             opening_gain: c.opening_gain,
             opening_cover_gain: c.opening_cover_gain,
             scan_edge_gap_um: c.scan_edge_gap_um,
+            scan_edges: pyo3::types::PyTuple::new(
+                py,
+                c.scan_edges
+                    .iter()
+                    .map(|r| to_py(py, "a scanned-edge reading", r))
+                    .collect::<PyResult<Vec<_>>>()?,
+            )?
+            .unbind(),
             predicted_max_error_um: c.predicted_max_error_um,
             flags: pyo3::types::PyTuple::new(py, flags)?.unbind(),
             trustworthy: c.trustworthy,

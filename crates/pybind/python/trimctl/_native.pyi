@@ -137,6 +137,7 @@ class ContourQuality:
     opening_gain: Optional[float]
     opening_cover_gain: Optional[float]
     scan_edge_gap_um: Optional[float]
+    scan_edges: Tuple[Dict[str, Any], ...]
     predicted_max_error_um: float
     flags: Tuple[str, ...]
     trustworthy: bool
