@@ -63,11 +63,11 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// `opening_slide_mm`, `opening_gain`, `opening_cover_gain`: for a closed contour, the opening
 /// check (how far off the scan shows its opening, and the agreement that gains; a misplaced
 /// opening flags `opening_misplaced` and refuses the part). `scan_edge_gap_um`: for an open
-/// contour, how far it lies beyond the material the scan shows beside it (negative: no gap;
-/// `None` where the scan does not locate its edge); over the tolerance it flags
+/// contour or a hole's rim, how far it lies beyond the material the scan shows beside it
+/// (negative: no gap; `None` where the scan does not locate its edge); over the tolerance it flags
 /// `edge_off_scan` and refuses the part. `scan_edges`: the scanned-edge readings behind that gap,
 /// one dict per stretch (`at_mm`, `offset_um`, `sigma_um`, `points`, `from`, `flash_share`), as
-/// in registration.json; the edge terms condition the field on them.
+/// in registration.json; the edge terms condition the field on a strip's (not a rim's).
 #[pyclass(module = "trimctl", frozen, get_all)]
 pub struct ContourQuality {
     /// The contour id.
@@ -112,13 +112,15 @@ pub struct ContourQuality {
     /// The part of that gain over the opening itself.
     pub opening_cover_gain: Option<f64>,
     /// How far the contour lies beyond the material the scan shows beside it, µm (2σ; negative:
-    /// no gap); `None` for a closed contour or an edge the scan does not locate (flag
+    /// no gap; a hole's rim from the edge fitted over it); `None` for a closed contour longer
+    /// than a hole's, a rim under a film, or an edge the scan does not locate (flag
     /// `edge_off_scan`).
     pub scan_edge_gap_um: Option<f64>,
-    /// The scanned-edge readings along an open contour, one dict per stretch: `at_mm` (arc
+    /// The scanned-edge readings along the contour, one dict per stretch: `at_mm` (arc
     /// length of its middle), `offset_um` (negative: the contour lies beyond the material),
-    /// `sigma_um`, `points`, `from` (`wall` or `face`), `flash_share`. Empty for a closed
-    /// contour or an edge the scan does not locate.
+    /// `sigma_um`, `points`, `from` (`wall` or `face`), `flash_share`; for a hole's rim, one per
+    /// arc of the edge fitted over the whole rim. Empty where the scan does not locate the
+    /// edge.
     pub scan_edges: Py<pyo3::types::PyTuple>,
     /// The predicted bound on the largest cross-edge error, µm.
     pub predicted_max_error_um: f64,

@@ -83,6 +83,11 @@ pub(crate) fn condition_on_edges(
     let mut flashed = 0;
     for (contour, edges) in path.contours().iter().zip(readings) {
         let p = contour.points();
+        // A rim's arcs check the registration (a gap refuses the part) but do not move the
+        // field: the floors above were measured on strips.
+        if !super::quality::is_open(p) {
+            continue;
+        }
         let f = contour.features();
         for e in edges {
             if e.flash_share > EDGE_FLASH_SHARE || e.offset_mm > EDGE_TERM_MAX_OUTWARD_MM {

@@ -108,8 +108,10 @@ pub struct ContourQuality {
     /// `tolerance_um` the contour is flagged `edge_off_scan` and the part refused.
     #[serde(default)]
     pub scan_edge_gap_um: Option<f64>,
-    /// The scanned-edge check's readings, one per stretch the scan shows (empty for a closed
-    /// contour or one the scan does not show).
+    /// The scanned-edge check's readings, one per stretch the scan shows; for a hole's rim
+    /// (a closed contour up to `RIM_MAX_LENGTH_MM`), one per arc of the edge fitted over the
+    /// whole rim. Empty for a longer closed contour, a rim under a film, or an edge the scan
+    /// does not show.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub scan_edges: Vec<EdgeReading>,
     /// The predicted bound on the contour's largest cross-edge error, µm: from the field's
