@@ -73,8 +73,9 @@ pub const RIM_MAX_LENGTH_MM: f64 = 15.0;
 /// 21 µm at 96 points).
 pub const RIM_MIN_FACE_POINTS: usize = 100;
 /// Face points this far inside a rim's opening, mm, are a film over it (a blockage, which the
-/// rim's step model does not describe) where more than [`EDGE_FLASH_SHARE`] of them stand there;
-/// a slide this large the opening check finds.
+/// rim's step model does not describe) where more than [`EDGE_FLASH_SHARE`] of them stand there.
+/// A hole slid this far is not read either (nor is a fit that finds a slide over 0.2 mm): the
+/// strips' scanned edges and the opening check are left to judge the part.
 pub const RIM_FILM_MM: f64 = 0.15;
 /// The scan noise is taken as at least this, mm (a face fitted closer than this is a face the
 /// scanner saw from one side; the step model needs a blur).
