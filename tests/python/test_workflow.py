@@ -106,8 +106,8 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
             assert r["from"] in ("wall", "face"), r
             assert np.isfinite(r["offset_um"]) and r["sigma_um"] > 0.0 and r["points"] > 0, r
             assert 0.0 <= r["flash_share"] <= 1.0, r
-    # Some strips' edges are located even in this sparse scan (5 of 52 contours on this seed;
-    # closed contours have none).
+    # Some strips' edges are located even in this sparse scan (5 of 52 contours on this seed,
+    # all strips: no hole has the 100 face points a rim's edge needs).
     assert sum(bool(q.scan_edges) for q in quality) >= 3
     # The demo case is trusted as a part (a refusal would flag every contour part_refused).
     assert registration.refused is None

@@ -13,7 +13,7 @@ use nalgebra::Translation3;
 use trim_geom::{Path, Similarity3, Vector3};
 use trim_register::kdtree::KdTree;
 use trim_register::regional::{
-    EdgeFrom, Flag, OPENING_MISMATCH_SHARE, Registration, check_openings, scanned_edges,
+    EdgeFrom, Flag, OPENING_MISMATCH_SHARE, Registration, check_openings, is_open, scanned_edges,
 };
 use trim_synth::SynthCase;
 
@@ -126,10 +126,7 @@ fn burred_strips_show_no_gap_and_a_slid_path_shows_one() {
         .path
         .contours()
         .iter()
-        .filter(|c| {
-            let p = c.points();
-            (p[p.len() - 1] - p[0]).norm() > 0.1
-        })
+        .filter(|c| is_open(c.points()))
         .map(|c| c.id())
         .collect();
     let strips: Vec<_> = reg

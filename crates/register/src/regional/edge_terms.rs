@@ -68,7 +68,9 @@ pub struct EdgeTermSummary {
 }
 
 /// Conditions `field` and `posterior` on the scanned edges `readings` (one list per contour of
-/// `path`, measured on the contours registered with `field`).
+/// `path`, measured on the contours registered with `field`). `register` passes the strips'
+/// readings only, a rim's list empty: rims check the registration but do not move the field
+/// (the floors were measured on strips).
 pub(crate) fn condition_on_edges(
     field: &mut BSplineField,
     posterior: &mut FieldPosterior,
@@ -83,11 +85,6 @@ pub(crate) fn condition_on_edges(
     let mut flashed = 0;
     for (contour, edges) in path.contours().iter().zip(readings) {
         let p = contour.points();
-        // A rim's arcs check the registration (a gap refuses the part) but do not move the
-        // field: the floors above were measured on strips.
-        if !super::quality::is_open(p) {
-            continue;
-        }
         let f = contour.features();
         for e in edges {
             if e.flash_share > EDGE_FLASH_SHARE || e.offset_mm > EDGE_TERM_MAX_OUTWARD_MM {

@@ -58,7 +58,7 @@ pub use quality::{
     BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_MODEL_FACTOR,
     BOUND_RESIDUAL_FACTOR, BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS,
     ContourQuality, END_SUPPORT_MIN_COS, EdgeReading, Flag, GlobalQuality,
-    MODEL_CHECK_SPACING_RATIO, QualityReport, SUPPORT_MIN_COS, predicted_bound_mm,
+    MODEL_CHECK_SPACING_RATIO, QualityReport, SUPPORT_MIN_COS, is_open, predicted_bound_mm,
 };
 use quality::{contour_quality, refuse_part};
 pub use scanned_edge::{
@@ -380,16 +380,17 @@ pub fn register(
     // The scanned edges as observations of the field (`regional::edge_terms`).
     let fitted_field = field.clone();
     let mut edge_terms = None;
-    // The gaps the scan showed before the edge terms moved the field: a part they correct
-    // from one end only (a reading of material beyond the contour is left out as possible
-    // flash) shows its gap there and no longer after, so both count.
+    // The strips' gaps the scan showed before the edge terms moved the field: a part they
+    // correct from one end only (a reading of material beyond the contour is left out as
+    // possible flash) shows its gap there and no longer after, so both count.
     let mut gaps_before: Vec<Option<f64>> = vec![None; path.contours().len()];
     if settings.quality.edge_terms
         && let (Some(f), Some(post)) = (field.as_mut(), posterior.as_mut())
     {
         let summary = stage(&mut timings, "edge terms", || {
-            // The strips only: a rim's reading does not move the field, so its reading after
-            // the update is an independent check of it (own seed 5's outline read a 130 µm
+            // The strips only: a rim's reading does not move the field (the terms' floors were
+            // measured on strips), so its reading after the update is an independent check of
+            // it and its gap before does not count (own seed 5's outline loop read a 130 µm
             // slide before the strips' terms and none after, with the part within 1 µm).
             let readings: Vec<Vec<ScannedEdge>> = registered
                 .contours()

@@ -413,7 +413,8 @@ fn end_support_distance(moved: &[Point3], matches: &[Match]) -> f64 {
 
 /// Whether a contour is open: its ends lie more than [`CLOSED_GAP_SPACINGS`] mean point
 /// spacings apart.
-pub(crate) fn is_open(points: &[Point3]) -> bool {
+#[must_use]
+pub fn is_open(points: &[Point3]) -> bool {
     let n = points.len();
     if n < 3 {
         return true;

@@ -280,12 +280,7 @@ fn locate(readings: &[(f64, f64)]) -> Option<Located> {
         .map(|r| r.1)
         .collect();
     // Turn the frame so that the face lies at b < 0.
-    let sign =
-        if face.iter().filter(|&&b| b > 0.0).count() > face.iter().filter(|&&b| b < 0.0).count() {
-            -1.0
-        } else {
-            1.0
-        };
+    let sign = material_sign(face.iter().copied());
     let wall: Vec<(f64, f64)> = readings
         .iter()
         .map(|&(h, b)| (h - mid, sign * b))
@@ -326,6 +321,15 @@ fn face_level(heights: impl Iterator<Item = f64>, least: usize) -> Option<(f64, 
     Some((mid, (1.4826 * median(&mut dev)).max(EDGE_MIN_NOISE_MM)))
 }
 
+/// `−1` when most of the face offsets `b` are positive, else `+1`: the sign that turns the
+/// frame so that the face (the material) lies at `b < 0`.
+fn material_sign(b: impl Iterator<Item = f64>) -> f64 {
+    let (above, below) = b.fold((0, 0), |(a, n), b| {
+        (a + usize::from(b > 0.0), n + usize::from(b < 0.0))
+    });
+    if above > below { -1.0 } else { 1.0 }
+}
+
 /// The negative log-likelihood of a face point at `b` across the edge for an edge at `e`: a
 /// uniform density over `b < e` within ±[`EDGE_WINDOW_MM`], blurred by `sigma`, with a share
 /// [`EDGE_OUTLIER_SHARE`] of outliers.
@@ -351,7 +355,8 @@ fn step_nll(e: f64, b: f64, sigma: f64) -> f64 {
 /// reported as [`RIM_STRETCHES`] or more arcs, each read at its middle point with the
 /// deviation of `e` there from the fit's curvature. A slot slid along its axis shows the slide
 /// at its ends' arcs, but only there, and those few points misread it: rims longer than
-/// [`RIM_MAX_LENGTH_MM`] are not read. The widest gap over the arcs is within `cos(π/arcs)` of the rim's.
+/// [`RIM_MAX_LENGTH_MM`] are not read. The widest gap over the arcs' middles is short of the
+/// model's widest by at most `|δ|(1 − cos(π/arcs))`.
 fn rim_edges(
     contour: &Contour,
     across: &[Option<Vector3>],
@@ -404,6 +409,8 @@ impl RimFit {
     }
 }
 
+/// The rim's edge from its scan points `near` (see [`rim_edges`]); `None` when too few, under a
+/// film, or not fitted within the window.
 fn fit_rim(
     contour: &Contour,
     across: &[Option<Vector3>],
@@ -418,12 +425,7 @@ fn fit_rim(
     if face.len() < RIM_MIN_FACE_POINTS {
         return None;
     }
-    // The material's side: where most face points lie.
-    let sign = if face.iter().filter(|f| f.1 > 0.0).count() > face.len() / 2 {
-        -1.0
-    } else {
-        1.0
-    };
+    let sign = material_sign(face.iter().map(|f| f.1));
     let film = face.iter().filter(|f| sign * f.1 > RIM_FILM_MM).count() as f64;
     let flash_share = film / face.len() as f64;
     if flash_share > EDGE_FLASH_SHARE {
