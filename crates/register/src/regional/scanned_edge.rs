@@ -781,17 +781,25 @@ mod tests {
 
     #[test]
     fn a_film_over_the_opening_is_not_read() {
-        // A film over the whole hole: face points inside the rim, the step model does not
-        // hold, and the rim is not read (no gap, no reading).
-        let (rim, mut scan) = holed_plate(0.0, 0.010, 150.0, 3);
-        let mut rng = Xoshiro256PlusPlus::seed_from_u64(11);
-        for _ in 0..(150.0 * 7.0) as usize {
-            let (x, y): (f64, f64) = (rng.random_range(-1.5..1.5), rng.random_range(-1.5..1.5));
-            if x.hypot(y) < 1.5 {
-                scan.push(Point3::new(x, y, 0.0));
+        // A film over the whole hole, and a flange 0.25 mm wide over the +x half of the rim
+        // only (which a slid, widened edge would otherwise fit, reading a gap on the −x
+        // side): face points inside the rim, the step model does not hold, and the rim is not
+        // read (no gap, no reading).
+        for (inner, from_x) in [(0.0, -1.5), (1.25, 0.0)] {
+            let (rim, mut scan) = holed_plate(0.0, 0.010, 150.0, 3);
+            let mut rng = Xoshiro256PlusPlus::seed_from_u64(11);
+            for _ in 0..(150.0 * 7.0) as usize {
+                let (x, y): (f64, f64) = (rng.random_range(-1.5..1.5), rng.random_range(-1.5..1.5));
+                let r = x.hypot(y);
+                if r < 1.5 && r > inner && x > from_x {
+                    scan.push(Point3::new(x, y, 0.0));
+                }
             }
+            assert!(
+                edges(&rim, &scan).is_empty(),
+                "film from r = {inner}, x = {from_x}"
+            );
         }
-        assert!(edges(&rim, &scan).is_empty());
     }
 
     #[test]
