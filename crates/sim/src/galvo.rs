@@ -29,8 +29,8 @@ const WATCHDOG_TICK_MS: u64 = 5;
 const STALL_HOLD_S: u64 = 600;
 /// Traced vectors kept in the record ([`GalvoSim::traces`]); later ones are counted only.
 pub const TRACE_RECORD_CAP: usize = 100_000;
-/// The shortest real time of one frame pass when the clock runs as fast as possible (ms): an
-/// endless trace must not spin.
+/// The shortest real time of one frame pass (ms): an endless trace must not spin, however fast
+/// its clock runs.
 const MIN_PASS_MS: u64 = 1;
 
 /// Simulator settings.
@@ -733,19 +733,48 @@ fn check_field(commands: &[ListCommand], half: i64) -> Result<(), (StatusCode, S
     Ok(())
 }
 
+/// A list's clock in scaled real time: each command ends when the list's modelled time so far,
+/// times the scale, has passed since the list started.
+///
+/// The commands' ends are absolute deadlines, not one sleep per command: the timer's
+/// granularity is a millisecond, so a sleep per 20 µs vector made a list last about a millisecond
+/// a command whatever its modelled time (the demo's 4.7 s of galvo time took 7 s at a scale of
+/// 0.01). A command whose end has already passed yields and goes on at once.
+struct Pacer {
+    start: tokio::time::Instant,
+    due_ns: f64,
+    scale: f64,
+}
+
+impl Pacer {
+    fn start(scale: f64) -> Self {
+        Self {
+            start: tokio::time::Instant::now(),
+            due_ns: 0.0,
+            scale,
+        }
+    }
+
+    /// Waits until `ns` more of modelled time have passed.
+    async fn advance(&mut self, ns: f64) {
+        if self.scale > 0.0 && ns > 0.0 {
+            self.due_ns += ns * self.scale;
+            let due = self.start + Duration::from_secs_f64(self.due_ns * 1e-9);
+            if due > tokio::time::Instant::now() {
+                tokio::time::sleep_until(due).await;
+                return;
+            }
+        }
+        tokio::task::yield_now().await;
+    }
+}
+
 /// Executes a list in (scaled) real time, one command after the other.
 async fn run_list(shared: Arc<Shared>, commands: Vec<ListCommand>, tag: u32, run_id: u64) {
     let list_number = shared.faults.on_list_start();
     let mut clock = ListClock::new();
     let mut pos = [0_i32, 0_i32];
-    let scale = shared.config.time_scale;
-    let sleep_ns = |ns: f64| async move {
-        if scale > 0.0 && ns > 0.0 {
-            tokio::time::sleep(Duration::from_secs_f64(ns * 1e-9 * scale)).await;
-        } else {
-            tokio::task::yield_now().await;
-        }
-    };
+    let mut pacer = Pacer::start(shared.config.time_scale);
     let mut marks_in_list = 0_u32;
     for cmd in &commands {
         if still_running(&shared, run_id).is_none() {
@@ -753,7 +782,7 @@ async fn run_list(shared: Arc<Shared>, commands: Vec<ListCommand>, tag: u32, run
         }
         let step = clock.step(cmd);
         if step.run_end_ns > 0.0 {
-            sleep_ns(step.run_end_ns).await;
+            pacer.advance(step.run_end_ns).await;
             let mut c = shared.ctl();
             c.elapsed_ns += step.run_end_ns;
             shared.set_gate(&mut c, false);
@@ -770,7 +799,7 @@ async fn run_list(shared: Arc<Shared>, commands: Vec<ListCommand>, tag: u32, run
                 }
                 shared.monitor.light_epoch()
             };
-            sleep_ns(step.ns).await;
+            pacer.advance(step.ns).await;
             let after = shared.monitor.light_epoch();
             let lit = if before.on && after.on && after.offs == before.offs {
                 Lit::Full
@@ -816,7 +845,7 @@ async fn run_list(shared: Arc<Shared>, commands: Vec<ListCommand>, tag: u32, run
                 inject_mid_list(&shared, kind);
             }
         } else {
-            sleep_ns(step.ns).await;
+            pacer.advance(step.ns).await;
             let Some(mut c) = still_running(&shared, run_id) else {
                 return;
             };
@@ -825,7 +854,7 @@ async fn run_list(shared: Arc<Shared>, commands: Vec<ListCommand>, tag: u32, run
         }
     }
     let end_ns = clock.finish();
-    sleep_ns(end_ns).await;
+    pacer.advance(end_ns).await;
     let Some(mut c) = still_running(&shared, run_id) else {
         return;
     };
@@ -877,6 +906,7 @@ async fn run_frame(
         let pass_started = Instant::now();
         let mut clock = ListClock::new();
         let mut pos = [0_i32, 0_i32];
+        let mut pacer = Pacer::start(scale);
         for cmd in &commands {
             if still_running(&shared, run_id).is_none() {
                 return;
@@ -892,11 +922,7 @@ async fn run_frame(
                 (c.pointer, c.gate)
             };
             let emission_before = shared.monitor.emission();
-            if scale > 0.0 && ns > 0.0 {
-                tokio::time::sleep(Duration::from_secs_f64(ns * 1e-9 * scale)).await;
-            } else {
-                tokio::task::yield_now().await;
-            }
+            pacer.advance(ns).await;
             let Some(mut c) = still_running(&shared, run_id) else {
                 return;
             };
@@ -924,14 +950,11 @@ async fn run_frame(
             }
         }
         let end_ns = clock.finish();
-        let min_pass = Duration::from_millis(MIN_PASS_MS);
-        let modelled = Duration::from_secs_f64(end_ns * 1e-9 * scale.max(0.0));
-        let rest = if scale > 0.0 {
-            modelled
-        } else {
-            min_pass.saturating_sub(pass_started.elapsed())
-        };
-        tokio::time::sleep(rest).await;
+        pacer.advance(end_ns).await;
+        tokio::time::sleep(
+            Duration::from_millis(MIN_PASS_MS).saturating_sub(pass_started.elapsed()),
+        )
+        .await;
         let Some(mut c) = still_running(&shared, run_id) else {
             return;
         };
