@@ -380,28 +380,18 @@ pub fn register(
     // The scanned edges as observations of the field (`regional::edge_terms`).
     let fitted_field = field.clone();
     let mut edge_terms = None;
-    // The strips' gaps the scan showed before the edge terms moved the field: a part they
-    // correct from one end only (a reading of material beyond the contour is left out as
-    // possible flash) shows its gap there and no longer after, so both count.
+    // The strips' gaps the scan showed before the edge terms moved the field: both count
+    // (`scanned_edge::contour_gap_um`).
     let mut gaps_before: Vec<Option<f64>> = vec![None; path.contours().len()];
     if settings.quality.edge_terms
         && let (Some(f), Some(post)) = (field.as_mut(), posterior.as_mut())
     {
         let summary = stage(&mut timings, "edge terms", || {
-            // The strips only: a rim's reading does not move the field (the terms' floors were
-            // measured on strips), so its reading after the update is an independent check of
-            // it and its gap before does not count (own seed 5's outline loop read a 130 µm
-            // slide before the strips' terms and none after, with the part within 1 µm).
+            // The strips only (`scanned_edge::strip_edges`).
             let readings: Vec<Vec<ScannedEdge>> = registered
                 .contours()
                 .par_iter()
-                .map(|c| {
-                    if quality::is_open(c.points()) {
-                        scanned_edge::scanned_edges(c, scan.points(), &scan_tree)
-                    } else {
-                        Vec::new()
-                    }
-                })
+                .map(|c| scanned_edge::strip_edges(c, scan.points(), &scan_tree))
                 .collect();
             for (g, edges) in gaps_before.iter_mut().zip(&readings) {
                 *g = scanned_edge::widest_gap_um(edges);
@@ -460,10 +450,7 @@ pub fn register(
             .map(|c| scanned_edge::scanned_edges(c, scan.points(), &scan_tree))
             .collect();
         for ((c, edges), before) in contours.iter_mut().zip(readings).zip(&gaps_before) {
-            let gap = scanned_edge::widest_gap_um(&edges)
-                .into_iter()
-                .chain(*before)
-                .reduce(f64::max);
+            let gap = scanned_edge::contour_gap_um(&edges, *before);
             c.scan_edges = edges.iter().map(quality::EdgeReading::from).collect();
             c.scan_edge_gap_um = gap;
             if gap.is_some_and(|g| g > settings.quality.tolerance_um) {

@@ -135,6 +135,30 @@ pub fn widest_gap_um(edges: &[ScannedEdge]) -> Option<f64> {
     edges.iter().map(|e| 1e3 * e.gap_mm()).reduce(f64::max)
 }
 
+/// The readings that may move the field (`edge_terms`) and whose gap before the update counts:
+/// a strip's [`scanned_edges`], none of a rim's. The terms' floors were measured on strips, so a
+/// rim checks the registration but does not move it, and its reading after the update is an
+/// independent check (own seed 5's outline loop read a 130 µm slide before the strips' terms
+/// and none after, with the part within 1 µm).
+pub(crate) fn strip_edges(contour: &Contour, scan: &[Point3], tree: &KdTree) -> Vec<ScannedEdge> {
+    if super::quality::is_open(contour.points()) {
+        scanned_edges(contour, scan, tree)
+    } else {
+        Vec::new()
+    }
+}
+
+/// A contour's scanned-edge gap, µm: the widest of its readings after the edge terms and of
+/// its strip readings before them (`before`, [`widest_gap_um`] of [`strip_edges`]). A part the
+/// terms correct from one end only (a reading of material beyond the contour is left out as
+/// possible flash) shows its gap there before and no longer after, so both count.
+pub(crate) fn contour_gap_um(after: &[ScannedEdge], before: Option<f64>) -> Option<f64> {
+    widest_gap_um(after)
+        .into_iter()
+        .chain(before)
+        .reduce(f64::max)
+}
+
 /// The scanned edges of every stretch of `contour` (scan frame, with its per-point feature
 /// vectors), from the scan points `scan` indexed by `tree`. Stretches the scan does not show
 /// well enough are left out.
@@ -754,6 +778,28 @@ mod tests {
                 "seed {seed}: highest {highest} mm"
             );
         }
+    }
+
+    #[test]
+    fn a_rim_moves_no_field_and_a_strips_gap_before_the_update_counts() {
+        // A slid hole's rim shows its gap when checked, but gives the edge terms nothing: its
+        // gap before the update cannot refuse the part.
+        let (rim, scan) = holed_plate(0.060, 0.010, 150.0, 0);
+        let tree = KdTree::build(&scan);
+        assert!(widest_gap_um(&scanned_edges(&rim, &scan, &tree)).is_some_and(|g| g > 30.0));
+        assert!(strip_edges(&rim, &scan, &tree).is_empty());
+        // A strip 50 µm beyond the material gives the terms its reading; once they have moved
+        // the field onto the edge it reads in place, and its gap before still counts.
+        let (strip, scan) = case(-0.05, 0.010, 60.0, false, 0);
+        let tree = KdTree::build(&scan);
+        let before = widest_gap_um(&strip_edges(&strip, &scan, &tree));
+        assert!(before.is_some_and(|g| g > 30.0), "{before:?}");
+        let (_, moved) = case(0.0, 0.010, 60.0, false, 0);
+        let after = edges(&strip, &moved);
+        assert!(widest_gap_um(&after).is_some_and(|g| g < 30.0), "{after:?}");
+        assert_eq!(contour_gap_um(&after, before), before);
+        assert_eq!(contour_gap_um(&after, None), widest_gap_um(&after));
+        assert_eq!(contour_gap_um(&[], None), None);
     }
 
     #[test]
