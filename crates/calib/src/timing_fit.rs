@@ -150,12 +150,7 @@ pub fn fit_moves(start: &MachineSettings, samples: &[MoveSample]) -> Result<Move
     let residuals = |x: &[f64]| move_residuals(start, x, &samples);
     // Which parameters the moves determine, at the start (a parameter no move depends on,
     // anywhere near the start, has a zero column).
-    let j0 = jacobian(&x0, &all, &residuals);
-    let norms: Vec<f64> = (0..5).map(|k| j0.column(k).norm()).collect();
-    let largest = norms.iter().copied().fold(0.0, f64::max);
-    let mut free: Vec<usize> = (0..5)
-        .filter(|&k| norms[k] > DETERMINED_FRACTION * largest)
-        .collect();
+    let mut free = determined(&x0, &all, &residuals);
     // The slowest axis switches from move to move, so the cost has kinks: start from the
     // given settings and from scaled copies of them, keep the best. A parameter the fit then
     // drives where no move depends on it (an acceleration run off to 10¹⁵ because the moves
@@ -165,11 +160,16 @@ pub fn fit_moves(start: &MachineSettings, samples: &[MoveSample]) -> Result<Move
         let mut best: Option<(Vec<f64>, DVector<f64>, f64, usize)> = None;
         for speed_factor in START_FACTORS {
             for accel_factor in START_FACTORS {
+                // A held parameter stays at its start value: the fit is the one reported.
                 let mut x = x0.to_vec();
-                x[0] += speed_factor.ln();
-                x[1] += speed_factor.ln();
-                x[2] += accel_factor.ln();
-                x[3] += accel_factor.ln();
+                for (k, factor) in [speed_factor, speed_factor, accel_factor, accel_factor]
+                    .into_iter()
+                    .enumerate()
+                {
+                    if free.contains(&k) {
+                        x[k] += factor.ln();
+                    }
+                }
                 let found = levenberg_marquardt(x, &free, &residuals);
                 if best.as_ref().is_none_or(|b| found.2 < b.2) {
                     best = Some(found);
@@ -179,15 +179,7 @@ pub fn fit_moves(start: &MachineSettings, samples: &[MoveSample]) -> Result<Move
         let Some(found) = best else {
             unreachable!("START_FACTORS is not empty")
         };
-        let j = jacobian(&found.0, &free, &residuals);
-        let norms: Vec<f64> = (0..free.len()).map(|i| j.column(i).norm()).collect();
-        let largest = norms.iter().copied().fold(0.0, f64::max);
-        let kept: Vec<usize> = free
-            .iter()
-            .zip(&norms)
-            .filter(|&(_, &n)| n > DETERMINED_FRACTION * largest)
-            .map(|(&k, _)| k)
-            .collect();
+        let kept = determined(&found.0, &free, &residuals);
         if kept.len() == free.len() || kept.is_empty() {
             break found;
         }
@@ -241,6 +233,19 @@ pub fn fit_moves(start: &MachineSettings, samples: &[MoveSample]) -> Result<Move
         rms_after_s: rms(&r),
         iterations,
     })
+}
+
+/// The parameters of `free` that the residuals depend on at `x`: those whose Jacobian column
+/// is over [`DETERMINED_FRACTION`] of the largest.
+fn determined(x: &[f64], free: &[usize], residuals: &dyn Fn(&[f64]) -> DVector<f64>) -> Vec<usize> {
+    let j = jacobian(x, free, residuals);
+    let norms: Vec<f64> = (0..free.len()).map(|i| j.column(i).norm()).collect();
+    let largest = norms.iter().copied().fold(0.0, f64::max);
+    free.iter()
+        .zip(&norms)
+        .filter(|&(_, &n)| n > DETERMINED_FRACTION * largest)
+        .map(|(&k, _)| k)
+        .collect()
 }
 
 /// Levenberg–Marquardt ([`least_squares::minimize`]) over the parameters `free` of `x`, the
