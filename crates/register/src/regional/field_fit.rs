@@ -992,6 +992,9 @@ pub(crate) fn add_prior(
 /// Basis pairs `(k, l)`, `k ≤ l`, of one cell's control points.
 const BASIS_PAIRS: usize = SUPPORT * (SUPPORT + 1) / 2;
 
+/// Points whose products [`field_normal_equations`] adds to a cell's sums in one pass.
+const BATCH: usize = 4;
+
 /// `Σ w a aᵀ` and `Σ w a r` with `a = Bₖ(c) n'` (the residual's gradient in `δₖ`), accumulated
 /// per grid cell (the points of a cell share their 27 control points), cells in parallel,
 /// scattered in cell order (deterministic). The gradient is a Kronecker product, `a = b ⊗ n`
@@ -1020,27 +1023,46 @@ pub(crate) fn field_normal_equations(
             // acc[q·BASIS_PAIRS + m]: Σ (w nᵢ nⱼ) b_k b_l for NORMAL_PAIRS[q] and pair m.
             let mut acc = vec![0.0; NORMAL_PAIRS.len() * BASIS_PAIRS];
             let mut gl = [0.0; LOCAL];
-            let mut bb = [0.0; BASIS_PAIRS];
+            // The products of BATCH points at a time, added to `acc` in one pass: each sum
+            // takes its terms in the points' order as one point at a time would (the same
+            // rounding), but loads and stores `acc` once per batch, not once per point.
+            let mut bb = [[0.0; BASIS_PAIRS]; BATCH];
+            let mut sw = [[0.0; BATCH]; NORMAL_PAIRS.len()];
             let mut index = [0usize; SUPPORT];
-            for &(_, i) in *group {
-                let (c, nrm, r, w) = pairs[i];
-                let (wt_index, b) = field.values(&c);
-                index = wt_index;
-                let mut m = 0;
-                for k in 0..SUPPORT {
-                    for l in k..SUPPORT {
-                        bb[m] = b[k] * b[l];
-                        m += 1;
+            for batch in group.chunks(BATCH) {
+                for (j, &(_, i)) in batch.iter().enumerate() {
+                    let (c, nrm, r, w) = pairs[i];
+                    let (wt_index, b) = field.values(&c);
+                    index = wt_index;
+                    let mut m = 0;
+                    for k in 0..SUPPORT {
+                        for l in k..SUPPORT {
+                            bb[j][m] = b[k] * b[l];
+                            m += 1;
+                        }
+                        for x in 0..3 {
+                            gl[3 * k + x] += w * r * b[k] * nrm[x];
+                        }
                     }
-                    for x in 0..3 {
-                        gl[3 * k + x] += w * r * b[k] * nrm[x];
+                    for (q, &(x, y)) in NORMAL_PAIRS.iter().enumerate() {
+                        sw[q][j] = w * nrm[x] * nrm[y];
                     }
                 }
-                for (q, &(x, y)) in NORMAL_PAIRS.iter().enumerate() {
-                    let s = w * nrm[x] * nrm[y];
+                for (q, s) in sw.iter().enumerate() {
                     let row = &mut acc[q * BASIS_PAIRS..(q + 1) * BASIS_PAIRS];
-                    for (a, v) in row.iter_mut().zip(&bb) {
-                        *a += s * v;
+                    if let ([b0, b1, b2, b3], [s0, s1, s2, s3]) = (&bb, s)
+                        && batch.len() == BATCH
+                    {
+                        let terms = b0.iter().zip(b1).zip(b2).zip(b3);
+                        for (a, (((v0, v1), v2), v3)) in row.iter_mut().zip(terms) {
+                            *a = *a + s0 * v0 + s1 * v1 + s2 * v2 + s3 * v3;
+                        }
+                    } else {
+                        for j in 0..batch.len() {
+                            for (a, v) in row.iter_mut().zip(&bb[j]) {
+                                *a += s[j] * v;
+                            }
+                        }
                     }
                 }
             }
