@@ -17,6 +17,12 @@ pub fn point_segment_distance(p: &Point3, a: &Point3, b: &Point3) -> f64 {
     (p - (a + ab * t)).norm()
 }
 
+/// A candidate run's length, as a fraction of the crop's radius (see [`crop_near_polyline`]).
+const RUN_FRACTION: f64 = 0.25;
+
+/// The runs on either side of a point's own run whose centres may make it a sure point.
+const SURE_RUNS: usize = 4;
+
 /// The indices (ascending, unique) of the points of `tree` (built over `points`) that lie
 /// within `radius_mm` of the polyline. A one-point polyline is a ball.
 pub fn crop_near_polyline(
@@ -77,9 +83,12 @@ pub fn crop_near_polyline(
                     point_segment_distance(p, &a, &b) <= radius_mm
                 })
     };
-    // Candidates: balls around runs of consecutive segments, each run about `radius_mm` long
-    // (at least a segment), holding every point within `radius_mm` of the run.
-    let run_mm = radius_mm.max(half_max);
+    // Candidates: balls around runs of consecutive segments, each run about a quarter of
+    // `radius_mm` long (at least a segment), holding every point within `radius_mm` of the run.
+    // Short runs keep the balls close about the capsule (a run as long as the radius gives a
+    // ball of twice the radius, most of it outside the capsule, each such point then decided
+    // by the segment tree), and their centres make nearly every point inside a sure one.
+    let run_mm = (RUN_FRACTION * radius_mm).max(half_max);
     let mut runs: Vec<(Point3, f64)> = Vec::new();
     let mut start = 0;
     while start < segments.len() {
@@ -103,13 +112,16 @@ pub fn crop_near_polyline(
     let sure = (radius_mm - slack).max(0.0).powi(2);
     let mut seen = vec![false; points.len()];
     let mut keep = vec![false; points.len()];
-    for (centre, extent) in &runs {
+    for (k, (centre, extent)) in runs.iter().enumerate() {
+        // The runs next to this one, whose centres a point in its ball most likely lies near
+        // (any centre within the radius decides; the segment tree decides the rest exactly).
+        let near_runs = &runs[k.saturating_sub(SURE_RUNS)..(k + SURE_RUNS + 1).min(runs.len())];
         for n in tree.within_radius_unsorted(centre, radius_mm + extent + slack) {
             if !seen[n.index] {
                 seen[n.index] = true;
                 let p = &points[n.index];
                 keep[n.index] = n.distance_sq < sure
-                    || runs.iter().any(|(c, _)| (p - c).norm_squared() < sure)
+                    || near_runs.iter().any(|(c, _)| (p - c).norm_squared() < sure)
                     || within(p);
             }
         }
