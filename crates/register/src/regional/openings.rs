@@ -170,6 +170,11 @@ fn check_one(
         f.displacement_and_jacobian(&centre)
     });
     // Per cell: the CAD's state (material, opening, unknown or outside the band) and the scan's.
+    // The cells go row by row, so the last cell's CAD point starts the next one's search (the
+    // answer does not depend on it; the scan's answers, 0.15 mm off at most, start nothing
+    // sooner) and one scratch serves every search.
+    let mut scratch = kdtree::Scratch::default();
+    let mut last_cad: Option<usize> = None;
     let cells: Vec<Option<Cell>> = (0..ni * nj)
         .map(|k| {
             if band[k] == 0 {
@@ -177,7 +182,11 @@ fn check_one(
             }
             let (i, j) = (i0 + (k / nj) as i64, j0 + (k % nj) as i64);
             let x = centre + e1 * (i as f64 * h) + e2 * (j as f64 * h);
-            let near = cad_tree.nearest_within(&x, clear2);
+            let hint = last_cad.map(|c| (c, &cad_points[c]));
+            let near = cad_tree.nearest_from(&x, clear2, hint, &mut scratch);
+            if let Some(nb) = near {
+                last_cad = Some(nb.index);
+            }
             let cad_state = match near {
                 None => Some(false),
                 Some(nb) if nb.distance_sq <= r2 => cad_normals
@@ -197,7 +206,12 @@ fn check_one(
             };
             let moved = at + d0 + jacobian * (at - centre);
             let seen = scan
-                .nearest_within(&(scan_from_cad * moved), r2 * scale * scale)
+                .nearest_from(
+                    &(scan_from_cad * moved),
+                    r2 * scale * scale,
+                    None,
+                    &mut scratch,
+                )
                 .is_some();
             Some((cad_state, seen, band[k] == 2))
         })
@@ -213,20 +227,28 @@ fn check_one(
     // material, CAD opening where it saw none, over the template's known cells that land in
     // the band.
     // Returns the sum and the opening cells' part of it.
+    // The template's known cells (row, column, CAD material), and what the scan saw per cell
+    // (`None` outside the band): listed once, not found again among all cells per shift.
+    let template: Vec<(i64, i64, bool)> = cells
+        .iter()
+        .enumerate()
+        .filter_map(|(k, cell)| match cell {
+            Some((Some(material), _, true)) => Some(((k / nj) as i64, (k % nj) as i64, *material)),
+            _ => None,
+        })
+        .collect();
+    let seen_at: Vec<Option<bool>> = cells.iter().map(|c| c.map(|(_, seen, _)| seen)).collect();
     let agreement = |di: i64, dj: i64| -> (i64, i64) {
         let (mut sum, mut over_opening) = (0, 0);
-        for (k, cell) in cells.iter().enumerate() {
-            let Some((Some(material), _, true)) = cell else {
-                continue;
-            };
-            let (i, j) = ((k / nj) as i64 + di, (k % nj) as i64 + dj);
+        for &(i, j, material) in &template {
+            let (i, j) = (i + di, j + dj);
             if i < 0 || j < 0 || i >= ni as i64 || j >= nj as i64 {
                 continue;
             }
-            if let Some((_, seen, _)) = cells[i as usize * nj + j as usize] {
-                let a = if *material == seen { 1 } else { -1 };
+            if let Some(seen) = seen_at[i as usize * nj + j as usize] {
+                let a = if material == seen { 1 } else { -1 };
                 sum += a;
-                if !*material {
+                if !material {
                     over_opening += a;
                 }
             }
