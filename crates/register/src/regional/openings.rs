@@ -148,17 +148,27 @@ fn check_one(
         (i1 + reach - i0 + 1) as usize,
         (j1 + reach - j0 + 1) as usize,
     );
-    // 0: outside, 1: raster, 2: template (and raster).
+    // 0: outside, 1: raster, 2: template (and raster). The disc of offsets is worked out once,
+    // and each rim cell stamped once (the rim is resampled at half a cell, so most cells come
+    // twice or more, and stamping is a maximum).
+    let disc: Vec<(i64, i64, u8)> = (-reach..=reach)
+        .flat_map(|di| (-reach..=reach).map(move |dj| (di, dj)))
+        .filter_map(|(di, dj)| {
+            let d2 = (di * di + dj * dj) as f64;
+            (d2 * h * h <= outer * outer).then_some((
+                di,
+                dj,
+                if d2 <= template_reach2 { 2 } else { 1 },
+            ))
+        })
+        .collect();
+    rim_cells.sort_unstable();
+    rim_cells.dedup();
     let mut band = vec![0u8; ni * nj];
     for &(i, j) in &rim_cells {
-        for di in -reach..=reach {
-            for dj in -reach..=reach {
-                let d2 = (di * di + dj * dj) as f64;
-                if d2 * h * h <= outer * outer {
-                    let b = &mut band[(i + di - i0) as usize * nj + (j + dj - j0) as usize];
-                    *b = (*b).max(if d2 <= template_reach2 { 2 } else { 1 });
-                }
-            }
+        for &(di, dj, v) in &disc {
+            let b = &mut band[(i + di - i0) as usize * nj + (j + dj - j0) as usize];
+            *b = (*b).max(v);
         }
     }
     let r2 = OPENING_PROBE_RADIUS_MM * OPENING_PROBE_RADIUS_MM;
