@@ -1050,9 +1050,8 @@ pub(crate) fn field_normal_equations(
                 }
                 for (q, s) in sw.iter().enumerate() {
                     let row = &mut acc[q * BASIS_PAIRS..(q + 1) * BASIS_PAIRS];
-                    if let ([b0, b1, b2, b3], [s0, s1, s2, s3]) = (&bb, s)
-                        && batch.len() == BATCH
-                    {
+                    if batch.len() == BATCH {
+                        let ([b0, b1, b2, b3], [s0, s1, s2, s3]) = (&bb, s);
                         let terms = b0.iter().zip(b1).zip(b2).zip(b3);
                         for (a, (((v0, v1), v2), v3)) in row.iter_mut().zip(terms) {
                             *a = *a + s0 * v0 + s1 * v1 + s2 * v2 + s3 * v3;

@@ -233,10 +233,6 @@ fn check_one(
     if opening_cells < OPENING_MIN_CELLS {
         return None;
     }
-    // Agreement of the template slid by (di, dj) cells: CAD material where the scan saw
-    // material, CAD opening where it saw none, over the template's known cells that land in
-    // the band.
-    // Returns the sum and the opening cells' part of it.
     // The template's known cells (row, column, CAD material), and what the scan saw per cell
     // (`None` outside the band): listed once, not found again among all cells per shift.
     let template: Vec<(i64, i64, bool)> = cells
@@ -248,6 +244,9 @@ fn check_one(
         })
         .collect();
     let seen_at: Vec<Option<bool>> = cells.iter().map(|c| c.map(|(_, seen, _)| seen)).collect();
+    // Agreement of the template slid by (di, dj) cells: CAD material where the scan saw
+    // material, CAD opening where it saw none, over the template's known cells that land in
+    // the band. Returns the sum and the opening cells' part of it.
     let agreement = |di: i64, dj: i64| -> (i64, i64) {
         let (mut sum, mut over_opening) = (0, 0);
         for &(i, j, material) in &template {
