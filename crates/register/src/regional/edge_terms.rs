@@ -249,6 +249,7 @@ mod tests {
             first: 0,
             last: 200,
             flash_share: 0.0,
+            gap_sigmas: crate::regional::EDGE_GAP_SIGMAS,
             // t × f = x × z = −y: outward is +y.
             outward: -1.0,
         }
