@@ -27,6 +27,15 @@ run many times, so a change chosen after looking at them is not tested by them: 
 generator's README gives (fixture 0-20 deg / 0-20 mm, per-axis scale +-0..2 %, sag 0-0.5 mm,
 twist 0-1 deg, noise 8-15 um, 2-4 views, 0-3 dropouts, path spacing 0.05-0.25 mm); every fifth
 case takes the hardest corner (20 deg, 20 mm, 2 %, 0.5 mm, 1 deg, 15 um, 2 views).
+
+`--generator own` runs the same sweep on the project's own synthetic core (`trimctl synth`)
+instead, scored by this script's own code (the same true error: the largest of every registered
+point's distance to the true contour and every true point's distance to the registered one).
+Its seeds draw 1-4 views fixed to the machine (tilts seeded), fixture 0-20 deg / 0-20 mm,
+per-axis scale +-0..2 % along pressing axes tilted 0-30 deg, sag 0-0.5 mm bent up to 30 deg in
+the part's plane, twist 0-1 deg, noise 8-15 um, 0-3 dropouts, path spacing 0.05-0.25 mm, and
+burrs on 30 % of the contours, 0.05-0.6 mm high; every fifth case the hardest corner with one
+view. Its sets: tune 600.., holdout 640.., report 680.., fresh 800 and above.
 """
 import argparse
 import json
@@ -59,6 +68,80 @@ def case_params(seed, index, points):
     if index % 5 == 4:
         p.update(pose_deg=20.0, pose_mm=20.0, scale_range=0.02, sag=0.5, twist=1.0, noise=0.015, cams=2)
     return p
+
+
+def own_params(seed, index, points):
+    """`trimctl synth` options for one own case: drawn from the seed, the hardest corner every fifth."""
+    r = np.random.default_rng(seed)
+    p = dict(
+        seed=seed,
+        scan_points=points,
+        pose_deg=round(float(r.uniform(0, 20)), 2),
+        pose_mm=round(float(r.uniform(0, 20)), 2),
+        scale_range=round(float(r.uniform(0, 0.02)), 4),
+        pressing_tilt=round(float(r.uniform(0, 30)), 1),
+        sag=round(float(r.uniform(0, 0.5)), 3),
+        bend_tilt=round(float(r.uniform(0, 30)), 1),
+        twist=round(float(r.uniform(0, 1)), 3),
+        noise=round(float(r.uniform(0.008, 0.015)), 4),
+        views=int(r.integers(1, 5)),
+        dropouts=int(r.integers(0, 4)),
+        path_spacing=round(float(r.choice([0.05, 0.1, 0.15, 0.25])), 3),
+        burrs=0.3,
+        burr_height="0.05,0.6",
+    )
+    if index % 5 == 4:
+        p.update(pose_deg=20.0, pose_mm=20.0, scale_range=0.02, pressing_tilt=30.0, sag=0.5,
+                 twist=1.0, noise=0.015, views=1)
+    return p
+
+
+def generate_own(trimctl, p, out):
+    done = os.path.join(out, "params.json")
+    if os.path.exists(done) and json.load(open(done)) == p:
+        return
+    cmd = [trimctl, "synth", "--out", out]
+    for k, v in p.items():
+        cmd += ["--" + k.replace("_", "-"), str(v)]
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    json.dump(p, open(done, "w"))
+
+
+def own_meta(case):
+    """What run_case needs of an own case (the outside generator's meta.json names)."""
+    c = json.load(open(os.path.join(case, "case.json")))
+    tc, tp = read_path(os.path.join(case, "truth.csv"))
+    burred = {b["contour"] for b in c.get("burrs", [])}
+    info = {}
+    for i in np.unique(tc):
+        q = tp[tc == i]
+        step = np.linalg.norm(np.diff(q, axis=0), axis=1)
+        closed = bool(len(q) > 2 and np.linalg.norm(q[-1] - q[0]) <= 3 * step.mean())
+        info[int(i)] = dict(type="burred" if int(i) in burred else "clean",
+                            face="rim" if closed else "strip", closed=closed)
+    # The fixture's rotation off the nominal pose (the angle of nominal⁻¹ · true).
+    true_r = np.array(c["scan_from_cad_true"], dtype=float)[:3, :3]
+    nominal_r = np.array(c["scan_from_cad_nominal"], dtype=float)[:3, :3]
+    off = nominal_r.T @ true_r
+    angle = np.degrees(np.arccos(np.clip((np.trace(off) - 1) / 2, -1, 1)))
+    return dict(path=dict(contour_info=[dict(id=k, **v) for k, v in info.items()], rows=int(len(tc))),
+                pose=dict(rotation_deg=float(angle)), deformation=dict(scale=c["deformation"]["scale"]),
+                geometry=dict(triangles=None))
+
+
+def curve_errors(reg_csv, truth_csv, closed_ids):
+    """Per contour, the largest of each registered point's distance to the true contour and each
+    true point's distance to the registered contour (its points are in the path's order), mm."""
+    rc, rp = read_path(reg_csv)
+    tc, tp = read_path(truth_csv)
+    out = {}
+    for c in np.unique(tc):
+        closed = int(c) in closed_ids
+        r, t = rp[rc == c], tp[tc == c]
+        cross = point_to_polyline(r, t, closed)
+        back = point_to_polyline(t, r, closed) if len(r) > 1 else np.linalg.norm(t - r[0], axis=1)
+        out[str(int(c))] = dict(curve_max=float(max(cross.max(), back.max())), cross_max=float(cross.max()))
+    return out
 
 
 def generate(gen, py, p, out):
@@ -104,7 +187,10 @@ def run_case(args, scorer, p):
     case = os.path.join(args.work, "cases", name)
     os.makedirs(case, exist_ok=True)
     t0 = time.time()
-    generate(args.generator, sys.executable, p, case)
+    if args.own:
+        generate_own(args.trimctl, p, case)
+    else:
+        generate(args.generator, sys.executable, p, case)
     gen_s = time.time() - t0
     res_dir = os.path.join(args.work, "results", name)
     os.makedirs(res_dir, exist_ok=True)
@@ -115,7 +201,7 @@ def run_case(args, scorer, p):
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
     wall_s = time.perf_counter() - t0
-    meta = json.load(open(os.path.join(case, "meta.json")))
+    meta = own_meta(case) if args.own else json.load(open(os.path.join(case, "meta.json")))
     info = {c["id"]: c for c in meta["path"]["contour_info"]}
     row = dict(seed=p["seed"], params=p, wall_s=wall_s, gen_s=gen_s, contours=len(info),
                rotation_deg=meta["pose"]["rotation_deg"], scale=meta["deformation"]["scale"],
@@ -125,13 +211,16 @@ def run_case(args, scorer, p):
         row.update(refused=True, reason=(proc.stderr.strip().splitlines() or ["?"])[-1],
                    flagged=len(info), silent=0, false_alarms=None, bound_held=None)
         return row
-    score_json = os.path.join(res_dir, "score.json")
-    subprocess.run([sys.executable, scorer, reg_csv, os.path.join(case, "truth.csv"), "--match", "curve",
-                    "--json", score_json, "--quiet"], stdout=subprocess.DEVNULL)
-    per = json.load(open(score_json))["per_contour"]
+    closed_ids = {i for i, c in info.items() if c.get("closed")}
+    if args.own:
+        per = curve_errors(reg_csv, os.path.join(case, "truth.csv"), closed_ids)
+    else:
+        score_json = os.path.join(res_dir, "score.json")
+        subprocess.run([sys.executable, scorer, reg_csv, os.path.join(case, "truth.csv"), "--match", "curve",
+                        "--json", score_json, "--quiet"], stdout=subprocess.DEVNULL)
+        per = json.load(open(score_json))["per_contour"]
     rep = json.load(open(reg_json))
-    cross = cross_track(reg_csv, os.path.join(case, "truth.csv"),
-                        {i for i, c in info.items() if c.get("closed")})
+    cross = cross_track(reg_csv, os.path.join(case, "truth.csv"), closed_ids)
     tol = args.tolerance_um
     contours = []
     for c in rep["contours"]:
@@ -168,7 +257,8 @@ def run_case(args, scorer, p):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--generator", required=True, help="path to the outside gen_core.py")
+    ap.add_argument("--generator", required=True,
+                    help="path to the outside gen_core.py, or `own` for the project's own core")
     ap.add_argument("--scorer", help="path to its score.py (default: beside the generator)")
     ap.add_argument("--cases", type=int, default=40)
     ap.add_argument("--set", choices=["report", "tune", "holdout", "fresh"], default="report")
@@ -184,17 +274,24 @@ def main():
     ap.add_argument("--generate-only", action="store_true", help="write the cases, register none")
     args = ap.parse_args()
     args.register_args = args.register_args.split()
-    args.generator = os.path.abspath(args.generator)
-    scorer = args.scorer or os.path.join(os.path.dirname(args.generator), "score.py")
+    args.own = args.generator == "own"
+    scorer = None
+    if not args.own:
+        args.generator = os.path.abspath(args.generator)
+        scorer = args.scorer or os.path.join(os.path.dirname(args.generator), "score.py")
+    sets = ({"tune": 600, "holdout": 640, "report": 680} if args.own
+            else {"report": 1001, "tune": 2001, "holdout": 3001})
+    fresh_from = 800 if args.own else 4001
     if args.set == "fresh":
-        if args.first_seed is None or args.first_seed < 4001:
-            ap.error("--set fresh needs --first-seed 4001 or above (seeds below are the tune, "
-                     "report and holdout sets)")
+        if args.first_seed is None or args.first_seed < fresh_from:
+            ap.error("--set fresh needs --first-seed %d or above (seeds below are the tune, "
+                     "report and holdout sets)" % fresh_from)
         first = args.first_seed
     elif args.first_seed is not None:
         ap.error("--first-seed goes with --set fresh only")
     else:
-        first = {"report": 1001, "tune": 2001, "holdout": 3001}[args.set]
+        first = sets[args.set]
+    params = own_params if args.own else case_params
     plan = [(first + i, i) for i in range(args.cases)]
     if args.only:
         keep = {int(s) for s in args.only.split(",")}
@@ -206,7 +303,10 @@ def main():
         for seed, index in plan:
             out = os.path.join(args.work, "cases", "s%d" % seed)
             os.makedirs(out, exist_ok=True)
-            generate(args.generator, sys.executable, case_params(seed, index, args.points), out)
+            if args.own:
+                generate_own(args.trimctl, own_params(seed, index, args.points), out)
+            else:
+                generate(args.generator, sys.executable, case_params(seed, index, args.points), out)
             print("case s%d written" % seed, flush=True)
         return
     print(head)
@@ -218,12 +318,12 @@ def main():
             if os.path.exists(f):
                 os.remove(f)
     for seed, index in plan:
-        p = case_params(seed, index, args.points)
+        p = params(seed, index, args.points)
         row = run_case(args, scorer, p)
         rows.append(row)
         pre = "%6d %5.1f %5.1f %5.3f %4.2f %4.2f %5.3f %3d %5.2f |" % (
             seed, row["rotation_deg"], p["pose_mm"], p["scale_range"], p["sag"], p["twist"], p["noise"],
-            p["cams"], p["spacing"])
+            p["views"] if args.own else p["cams"], p["path_spacing"] if args.own else p["spacing"])
         if row["refused"]:
             print(pre, "refused: %s" % row["reason"][:80], flush=True)
             continue
