@@ -68,6 +68,10 @@ def test_registration_lands_on_the_truth(case, registration):
     assert registration.scan_from_cad.shape == (4, 4)
 
 
+def entry_of(registration, contour_id):
+    return next(c for c in registration.contours if c["id"] == contour_id)
+
+
 def test_registration_reports_each_contours_predicted_bound(case, registration):
     quality = registration.quality
     assert [q.id for q in quality] == list(case.path.contour_ids)
@@ -78,6 +82,10 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
         assert isinstance(q.predicted_max_error_um, float)
         assert np.isfinite(q.predicted_max_error_um) and q.predicted_max_error_um > 0.0
         assert bounds[q.id] == q.predicted_max_error_um
+        # The part's bound keeps a tenth of every prior term, the contour's the span's whole:
+        # the part's posterior is the wider, so is its bound.
+        assert q.part_bound_um >= q.predicted_max_error_um - 1e-6
+        assert q.part_bound_um == entry_of(registration, q.id)["part_bound_um"]
         assert q.field_weak_direction.shape == (3,)
         assert abs(np.linalg.norm(q.field_weak_direction) - 1.0) < 1e-6
         # Built in Rust with every field of registration.json's entry.

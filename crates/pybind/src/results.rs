@@ -67,7 +67,10 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// (negative: no gap; `None` where the scan does not locate its edge); over the tolerance it flags
 /// `edge_off_scan` and refuses the part. `scan_edges`: the scanned-edge readings behind that gap,
 /// one dict per stretch (`at_mm`, `offset_um`, `sigma_um`, `points`, `from`, `flash_share`), as
-/// in registration.json; the edge terms condition the field on a strip's (not a rim's).
+/// in registration.json; the edge terms condition the field on a strip's (not a rim's). A strip
+/// whose readings show more than 15 µm of material beyond it, or a strip sharing an end with
+/// one, is flagged `material_beyond` (the edge may lie inside the material, or a burr stands
+/// there; the part is not refused for it).
 #[pyclass(module = "trimctl", frozen, get_all)]
 pub struct ContourQuality {
     /// The contour id.
@@ -124,6 +127,10 @@ pub struct ContourQuality {
     pub scan_edges: Py<pyo3::types::PyTuple>,
     /// The predicted bound on the largest cross-edge error, µm.
     pub predicted_max_error_um: f64,
+    /// The same under a tenth of the whole prior, µm: what the part's refusal counts a contour
+    /// as flagged by (more than `max_untrusted_fraction` of the contours over the tolerance by
+    /// this or flagged refuses the part).
+    pub part_bound_um: f64,
     /// What was found wrong (the report's flag names).
     pub flags: Py<pyo3::types::PyTuple>,
     /// Whether the planner may use the contour.
@@ -181,6 +188,7 @@ impl ContourQuality {
             )?
             .unbind(),
             predicted_max_error_um: c.predicted_max_error_um,
+            part_bound_um: c.part_bound_um,
             flags: pyo3::types::PyTuple::new(py, flags)?.unbind(),
             trustworthy: c.trustworthy,
         })

@@ -139,6 +139,7 @@ class ContourQuality:
     scan_edge_gap_um: Optional[float]
     scan_edges: Tuple[Dict[str, Any], ...]
     predicted_max_error_um: float
+    part_bound_um: float
     flags: Tuple[str, ...]
     trustworthy: bool
 

@@ -26,7 +26,7 @@
 //! of material beyond the contour, since a web too low to count as flash reads the same. An edge the registration put beyond the material by more than that is
 //! left to the scanned-edge check, which refuses the part.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 use trim_geom::{Path, Similarity3, Vector3};
 
 use super::field_fit::FieldPosterior;
@@ -147,9 +147,8 @@ pub(crate) fn condition_on_edges(
         }
         out
     };
-    let mut kept = Vec::new();
+    let mut kept: Vec<Kept<'_>> = Vec::new();
     let mut gated = 0;
-    let mut columns = Vec::new();
     for (row, o, r) in &rows {
         let sh = sigma_h(row);
         let hsh: f64 = row.iter().map(|&(j, v)| v * sh[j]).sum();
@@ -158,7 +157,6 @@ pub(crate) fn condition_on_edges(
             continue;
         }
         kept.push((row, *o, *r));
-        columns.push(sh);
     }
     let m = kept.len();
     if m == 0 {
@@ -168,17 +166,7 @@ pub(crate) fn condition_on_edges(
             ..EdgeTermSummary::default()
         };
     }
-    // ΣHᵀ (dim × m) and S = HΣHᵀ + R (m × m).
-    let sht = DMatrix::from_columns(&columns);
-    let mut s = DMatrix::zeros(m, m);
-    for (a, (row, _, r)) in kept.iter().enumerate() {
-        for b in 0..m {
-            s[(a, b)] = row.iter().map(|&(j, v)| v * sht[(j, b)]).sum::<f64>();
-        }
-        s[(a, a)] += r;
-    }
-    let s = (&s + s.transpose()) * 0.5;
-    let Some(chol) = s.cholesky() else {
+    let Some((sht, chol)) = gain(posterior.covariance(), &kept) else {
         return EdgeTermSummary {
             gated,
             flashed,
@@ -188,8 +176,11 @@ pub(crate) fn condition_on_edges(
     let o = DVector::from_iterator(m, kept.iter().map(|k| k.1));
     // Step: ΣHᵀ S⁻¹ o; covariance: Σ − ΣHᵀ S⁻¹ HΣ.
     let step = &sht * chol.solve(&o);
-    let s_inv_hs = chol.solve(&sht.transpose());
-    posterior.subtract(&(&sht * s_inv_hs));
+    posterior.subtract(&(&sht * chol.solve(&sht.transpose())));
+    // The part's covariance takes the same readings (no step: the field moves once).
+    if let Some((sht, chol)) = posterior.part_covariance().and_then(|c| gain(c, &kept)) {
+        posterior.subtract_part(&(&sht * chol.solve(&sht.transpose())));
+    }
     let before: Vec<_> = path
         .contours()
         .iter()
@@ -209,6 +200,35 @@ pub(crate) fn condition_on_edges(
         flashed,
         largest_shift_mm,
     }
+}
+
+/// A reading kept: its sparse row, offset (mm) and variance (mm²).
+type Kept<'a> = (&'a Vec<(usize, f64)>, f64, f64);
+
+/// `ΣHᵀ` (dim × m) and the Cholesky factor of `S = HΣHᵀ + R` (m × m) for the covariance
+/// `sigma` and the readings `kept`; `None` when `S` is not positive definite.
+fn gain(sigma: &DMatrix<f64>, kept: &[Kept<'_>]) -> Option<(DMatrix<f64>, Cholesky<f64, Dyn>)> {
+    let m = kept.len();
+    let columns: Vec<DVector<f64>> = kept
+        .iter()
+        .map(|(row, _, _)| {
+            let mut out = DVector::zeros(sigma.nrows());
+            for &(j, v) in row.iter() {
+                out.axpy(v, &sigma.column(j), 1.0);
+            }
+            out
+        })
+        .collect();
+    let sht = DMatrix::from_columns(&columns);
+    let mut s = DMatrix::zeros(m, m);
+    for (a, (row, _, r)) in kept.iter().enumerate() {
+        for b in 0..m {
+            s[(a, b)] = row.iter().map(|&(j, v)| v * sht[(j, b)]).sum::<f64>();
+        }
+        s[(a, a)] += r;
+    }
+    let s = (&s + s.transpose()) * 0.5;
+    Some((sht, s.cholesky()?))
 }
 
 #[cfg(test)]

@@ -57,10 +57,10 @@ pub use openings::{
 pub use quality::{
     BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_MODEL_FACTOR,
     BOUND_RESIDUAL_FACTOR, BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS,
-    ContourQuality, END_SUPPORT_MIN_COS, EdgeReading, Flag, GlobalQuality,
+    ContourQuality, END_SUPPORT_MIN_COS, EdgeReading, Flag, GlobalQuality, MATERIAL_BEYOND_MM,
     MODEL_CHECK_SPACING_RATIO, QualityReport, SUPPORT_MIN_COS, is_open, predicted_bound_mm,
 };
-use quality::{contour_quality, refuse_part};
+use quality::{contour_quality, material_beyond, refuse_part};
 pub use scanned_edge::{
     EDGE_GAP_SIGMAS, EDGE_STRETCH_MM, EDGE_WINDOW_MM, EdgeFrom, ScannedEdge, scanned_edges,
 };
@@ -449,12 +449,19 @@ pub fn register(
             .par_iter()
             .map(|c| scanned_edge::scanned_edges(c, scan.points(), &scan_tree))
             .collect();
-        for ((c, edges), before) in contours.iter_mut().zip(readings).zip(&gaps_before) {
-            let gap = scanned_edge::contour_gap_um(&edges, *before);
+        for ((c, edges), before) in contours.iter_mut().zip(&readings).zip(&gaps_before) {
+            let gap = scanned_edge::contour_gap_um(edges, *before);
             c.scan_edges = edges.iter().map(quality::EdgeReading::from).collect();
             c.scan_edge_gap_um = gap;
             if gap.is_some_and(|g| g > settings.quality.tolerance_um) {
                 c.flags.push(Flag::EdgeOffScan);
+                c.trustworthy = false;
+            }
+        }
+        let points: Vec<&[Point3]> = path.contours().iter().map(|c| c.points()).collect();
+        for (c, beyond) in contours.iter_mut().zip(material_beyond(&points, &readings)) {
+            if beyond {
+                c.flags.push(Flag::MaterialBeyond);
                 c.trustworthy = false;
             }
         }
