@@ -96,17 +96,6 @@ def own_params(seed, index, points):
     return p
 
 
-def generate_own(trimctl, p, out):
-    done = os.path.join(out, "params.json")
-    if os.path.exists(done) and json.load(open(done)) == p:
-        return
-    cmd = [trimctl, "synth", "--out", out]
-    for k, v in p.items():
-        cmd += ["--" + k.replace("_", "-"), str(v)]
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
-    json.dump(p, open(done, "w"))
-
-
 def own_meta(case):
     """What run_case needs of an own case (the outside generator's meta.json names)."""
     c = json.load(open(os.path.join(case, "case.json")))
@@ -144,11 +133,13 @@ def curve_errors(reg_csv, truth_csv, closed_ids):
     return out
 
 
-def generate(gen, py, p, out):
+def generate(command, p, out):
+    """Writes one case into `out` with `command` (the generator's, before `--out`) and the options
+    `p`; a case already written with the same options is kept."""
     done = os.path.join(out, "params.json")
     if os.path.exists(done) and json.load(open(done)) == p:
         return
-    cmd = [py, gen, "--out", out]
+    cmd = command + ["--out", out]
     for k, v in p.items():
         cmd += ["--" + k.replace("_", "-"), str(v)]
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
@@ -187,10 +178,7 @@ def run_case(args, scorer, p):
     case = os.path.join(args.work, "cases", name)
     os.makedirs(case, exist_ok=True)
     t0 = time.time()
-    if args.own:
-        generate_own(args.trimctl, p, case)
-    else:
-        generate(args.generator, sys.executable, p, case)
+    generate(args.generate, p, case)
     gen_s = time.time() - t0
     res_dir = os.path.join(args.work, "results", name)
     os.makedirs(res_dir, exist_ok=True)
@@ -276,8 +264,11 @@ def main():
     args.register_args = args.register_args.split()
     args.own = args.generator == "own"
     scorer = None
-    if not args.own:
+    if args.own:
+        args.generate = [args.trimctl, "synth"]
+    else:
         args.generator = os.path.abspath(args.generator)
+        args.generate = [sys.executable, args.generator]
         scorer = args.scorer or os.path.join(os.path.dirname(args.generator), "score.py")
     sets = ({"tune": 600, "holdout": 640, "report": 680} if args.own
             else {"report": 1001, "tune": 2001, "holdout": 3001})
@@ -303,10 +294,7 @@ def main():
         for seed, index in plan:
             out = os.path.join(args.work, "cases", "s%d" % seed)
             os.makedirs(out, exist_ok=True)
-            if args.own:
-                generate_own(args.trimctl, own_params(seed, index, args.points), out)
-            else:
-                generate(args.generator, sys.executable, case_params(seed, index, args.points), out)
+            generate(args.generate, params(seed, index, args.points), out)
             print("case s%d written" % seed, flush=True)
         return
     print(head)

@@ -78,7 +78,6 @@ pub(crate) fn condition_on_edges(
     readings: &[Vec<ScannedEdge>],
     scan_from_cad: &Similarity3,
 ) -> EdgeTermSummary {
-    let dim = 3 * field.len();
     let scale = scan_from_cad.scaling();
     // One sparse row per reading: the mean of the stretch's sampled rows.
     let mut rows: Vec<Row> = Vec::new();
@@ -138,35 +137,24 @@ pub(crate) fn condition_on_edges(
             rows.push((row, e.offset_mm, e.sigma_mm.powi(2) + floor * floor));
         }
     }
+    // Gate each reading on its own predicted spread; a kept reading's column of ΣHᵀ is kept
+    // for the update.
     let sigma = posterior.covariance();
-    // Gate each reading on its own predicted spread.
-    let sigma_h = |row: &[(usize, f64)]| -> DVector<f64> {
-        let mut out = DVector::zeros(dim);
-        for &(j, v) in row {
-            out.axpy(v, &sigma.column(j), 1.0);
-        }
-        out
-    };
     let mut kept: Vec<Kept<'_>> = Vec::new();
+    let mut columns = Vec::new();
     let mut gated = 0;
     for (row, o, r) in &rows {
-        let sh = sigma_h(row);
+        let sh = sigma_h(sigma, row);
         let hsh: f64 = row.iter().map(|&(j, v)| v * sh[j]).sum();
         if o * o > EDGE_TERM_GATE_SIGMAS.powi(2) * (hsh + r) {
             gated += 1;
             continue;
         }
         kept.push((row, *o, *r));
+        columns.push(sh);
     }
     let m = kept.len();
-    if m == 0 {
-        return EdgeTermSummary {
-            gated,
-            flashed,
-            ..EdgeTermSummary::default()
-        };
-    }
-    let Some((sht, chol)) = gain(posterior.covariance(), &kept) else {
+    let Some((sht, chol)) = (m > 0).then(|| gain(columns, &kept)).flatten() else {
         return EdgeTermSummary {
             gated,
             flashed,
@@ -178,7 +166,11 @@ pub(crate) fn condition_on_edges(
     let step = &sht * chol.solve(&o);
     posterior.subtract(&(&sht * chol.solve(&sht.transpose())));
     // The part's covariance takes the same readings (no step: the field moves once).
-    if let Some((sht, chol)) = posterior.part_covariance().and_then(|c| gain(c, &kept)) {
+    let part = posterior.part_covariance().and_then(|c| {
+        let columns = kept.iter().map(|(row, ..)| sigma_h(c, row)).collect();
+        gain(columns, &kept)
+    });
+    if let Some((sht, chol)) = part {
         posterior.subtract_part(&(&sht * chol.solve(&sht.transpose())));
     }
     let before: Vec<_> = path
@@ -205,20 +197,22 @@ pub(crate) fn condition_on_edges(
 /// A reading kept: its sparse row, offset (mm) and variance (mm²).
 type Kept<'a> = (&'a Vec<(usize, f64)>, f64, f64);
 
-/// `ΣHᵀ` (dim × m) and the Cholesky factor of `S = HΣHᵀ + R` (m × m) for the covariance
-/// `sigma` and the readings `kept`; `None` when `S` is not positive definite.
-fn gain(sigma: &DMatrix<f64>, kept: &[Kept<'_>]) -> Option<(DMatrix<f64>, Cholesky<f64, Dyn>)> {
+/// The column `Σhᵀ` of the sparse row `row` under the covariance `sigma`.
+fn sigma_h(sigma: &DMatrix<f64>, row: &[(usize, f64)]) -> DVector<f64> {
+    let mut out = DVector::zeros(sigma.nrows());
+    for &(j, v) in row {
+        out.axpy(v, &sigma.column(j), 1.0);
+    }
+    out
+}
+
+/// `ΣHᵀ` (dim × m, from the kept readings' `columns`, [`sigma_h`]) and the Cholesky factor of
+/// `S = HΣHᵀ + R` (m × m) for the readings `kept`; `None` when `S` is not positive definite.
+fn gain(
+    columns: Vec<DVector<f64>>,
+    kept: &[Kept<'_>],
+) -> Option<(DMatrix<f64>, Cholesky<f64, Dyn>)> {
     let m = kept.len();
-    let columns: Vec<DVector<f64>> = kept
-        .iter()
-        .map(|(row, _, _)| {
-            let mut out = DVector::zeros(sigma.nrows());
-            for &(j, v) in row.iter() {
-                out.axpy(v, &sigma.column(j), 1.0);
-            }
-            out
-        })
-        .collect();
     let sht = DMatrix::from_columns(&columns);
     let mut s = DMatrix::zeros(m, m);
     for (a, (row, _, r)) in kept.iter().enumerate() {

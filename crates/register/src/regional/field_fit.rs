@@ -778,23 +778,10 @@ impl FieldPosterior {
     pub fn displacement_covariance(&self, field: &BSplineField, x: &Point3) -> Matrix3<f64> {
         block_covariance(&self.covariance, field, x)
     }
-
-    /// The same under the part's covariance ([`FieldPosterior::part_covariance`]); `None`
-    /// without one.
-    #[must_use]
-    pub fn part_displacement_covariance(
-        &self,
-        field: &BSplineField,
-        x: &Point3,
-    ) -> Option<Matrix3<f64>> {
-        self.part_covariance
-            .as_ref()
-            .map(|c| block_covariance(c, field, x))
-    }
 }
 
 /// `Σₐ Σᵦ Bₐ(x) Bᵦ(x) Cₐᵦ`: the covariance of `d(x)` from the control displacements' `c`.
-fn block_covariance(c: &DMatrix<f64>, field: &BSplineField, x: &Point3) -> Matrix3<f64> {
+pub(crate) fn block_covariance(c: &DMatrix<f64>, field: &BSplineField, x: &Point3) -> Matrix3<f64> {
     let (index, value) = field.values(x);
     let mut out = Matrix3::zeros();
     for a in 0..SUPPORT {

@@ -2,7 +2,7 @@
 //! translational degeneracy and support), and the flags that make a contour untrustworthy.
 
 use super::coarse::PoseOffset;
-use super::field_fit::{FieldPosterior, Match};
+use super::field_fit::{FieldPosterior, Match, block_covariance};
 use super::scanned_edge::ScannedEdge;
 use super::settings::QualitySettings;
 use crate::deformation::BSplineField;
@@ -583,13 +583,8 @@ pub(crate) fn contour_quality(
                 }
                 _ => none,
             };
-            let part_deviation = match (field, posterior) {
-                (Some(f), Some(p)) if p.part_covariance().is_some() => {
-                    weak_direction(c.points(), |x| {
-                        p.part_displacement_covariance(f, x)
-                            .unwrap_or_else(Matrix3::zeros)
-                    })
-                }
+            let part_deviation = match (field, posterior.and_then(|p| p.part_covariance())) {
+                (Some(f), Some(pc)) => weak_direction(c.points(), |x| block_covariance(pc, f, x)),
                 _ => deviation,
             };
             let (field_sigma_mm, weak) = (deviation.worst, deviation.direction);

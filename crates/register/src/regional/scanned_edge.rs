@@ -763,6 +763,10 @@ mod tests {
             assert_eq!(found.len(), RIM_STRETCHES, "seed {seed}: {found:?}");
             for e in &found {
                 assert_eq!(e.from, EdgeFrom::Face);
+                // A rim's gap is taken at 2.5σ, a strip's at 2σ (below).
+                assert_eq!(e.gap_sigmas, RIM_GAP_SIGMAS);
+                let gap = -e.offset_mm - RIM_GAP_SIGMAS * e.sigma_mm;
+                assert!((e.gap_mm() - gap).abs() < 1e-15, "seed {seed}: {e:?}");
                 assert!(e.offset_mm.abs() < 3.5 * e.sigma_mm, "seed {seed}: {e:?}");
                 assert!(e.gap_mm() < 0.020, "seed {seed}: {e:?}");
                 sum += e.offset_mm;
@@ -808,7 +812,9 @@ mod tests {
         // the field onto the edge it reads in place, and its gap before still counts.
         let (strip, scan) = case(-0.05, 0.010, 60.0, false, 0);
         let tree = KdTree::build(&scan);
-        let before = widest_gap_um(&strip_edges(&strip, &scan, &tree));
+        let readings = strip_edges(&strip, &scan, &tree);
+        assert!(readings.iter().all(|e| e.gap_sigmas == EDGE_GAP_SIGMAS));
+        let before = widest_gap_um(&readings);
         assert!(before.is_some_and(|g| g > 30.0), "{before:?}");
         let (_, moved) = case(0.0, 0.010, 60.0, false, 0);
         let after = edges(&strip, &moved);
