@@ -68,7 +68,7 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// `edge_off_scan` and refuses the part. `scan_edges`: the scanned-edge readings behind that gap,
 /// one dict per stretch (`at_mm`, `offset_um`, `sigma_um`, `points`, `from`, `flash_share`), as
 /// in registration.json; the edge terms condition the field on a strip's (not a rim's). A strip
-/// whose readings show more than 15 µm of material beyond it, or a strip sharing an end with
+/// whose readings show more than 20 µm of material beyond it, or a strip sharing an end with
 /// one, is flagged `material_beyond` (the edge may lie inside the material, or a burr stands
 /// there; the part is not refused for it).
 #[pyclass(module = "trimctl", frozen, get_all)]

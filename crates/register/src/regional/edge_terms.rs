@@ -30,6 +30,7 @@ use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 use trim_geom::{Path, Similarity3, Vector3};
 
 use super::field_fit::FieldPosterior;
+use super::quality::MATERIAL_BEYOND_MM;
 use super::scanned_edge::{EDGE_FLASH_SHARE, EdgeFrom, ScannedEdge};
 use crate::deformation::{BSplineField, SUPPORT};
 
@@ -41,8 +42,12 @@ pub const EDGE_TERM_FACE_FLOOR_MM: f64 = 0.008;
 /// A reading that shows more material beyond the contour than this, mm, is left out: flash
 /// can only add material beyond the edge, so such a reading may be a burr too low to show as
 /// flash (own burred core 305: a 53 µm web over 13 of 20 mm read +41 µm and, taken, pulled
-/// the strip 40 µm off). A third of the tolerance; the posterior keeps the contour's bound.
-pub const EDGE_TERM_MAX_OUTWARD_MM: f64 = 0.010;
+/// the strip 40 µm off). It is the threshold of the `material_beyond` flag
+/// ([`MATERIAL_BEYOND_MM`]), so that every reading of material beyond a strip either moves
+/// the field or flags the strip: until 2026-11-28 the cap was 10 µm and the flag 15 µm, and
+/// strips reading 10–15 µm beyond were neither corrected nor flagged (outside tune seeds
+/// 2001–2080: 12 of the 29 trusted contours with a cross-edge P95 over 12 µm).
+pub const EDGE_TERM_MAX_OUTWARD_MM: f64 = MATERIAL_BEYOND_MM;
 /// A reading whose offset lies beyond this many predicted deviations is left out.
 pub const EDGE_TERM_GATE_SIGMAS: f64 = 3.0;
 /// Contour points per stretch whose field rows are averaged into the reading's row (evenly
@@ -341,10 +346,27 @@ mod tests {
 
     #[test]
     fn material_beyond_the_edge_is_left_out() {
-        // 15 µm more material than the contour: a low web reads the same.
-        let (field, summary) = conditioned(0.025, reading(0.015, EdgeFrom::Wall));
+        // 25 µm more material than the contour: a low web reads the same, and the strip is
+        // flagged `material_beyond` instead.
+        let (field, summary) = conditioned(0.025, reading(0.025, EdgeFrom::Wall));
         assert_eq!((summary.used, summary.flashed), (0, 1));
         assert_eq!(field.displacement(&MID), Vector3::zeros());
+    }
+
+    #[test]
+    fn material_beyond_the_edge_within_the_flags_threshold_moves_the_field() {
+        // 15 µm more material than the contour, under `MATERIAL_BEYOND_MM`: no flag would
+        // follow, so the reading moves the strip outward (+y). The reading is the stretch's
+        // mean offset; a prior of about 25 µm against a wall reading good to 3.6 µm takes most
+        // of it.
+        let (field, summary) = conditioned(0.025, reading(0.015, EdgeFrom::Wall));
+        assert_eq!((summary.used, summary.flashed), (1, 0));
+        let points = [10.0, 15.0, 20.0, 25.0, 30.0].map(|x| Point3::new(x, 10.0, 5.0));
+        let mean = points.iter().map(|p| field.displacement(p).y).sum::<f64>() / 5.0;
+        assert!(
+            (0.011..0.015).contains(&mean),
+            "moved {mean:.4} mm outward on average"
+        );
     }
 
     #[test]
