@@ -34,10 +34,11 @@ pub fn registration(report: &QualityReport) -> String {
     if let Some(e) = &g.edge_terms {
         let _ = writeln!(
             s,
-            "  scanned edges in the field: {} stretches used, {} implausible, {} with material beyond; moved the path up to {:.1} µm",
+            "  scanned edges in the field: {} stretches used, {} implausible, {} with material beyond ({} of them widening the bounds); moved the path up to {:.1} µm",
             e.used,
             e.gated,
             e.flashed,
+            e.widened,
             e.largest_shift_mm * 1e3
         );
     }

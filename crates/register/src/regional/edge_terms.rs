@@ -24,7 +24,11 @@
 //! (`ScannedEdge::flash_share`), where a burr web in the face's plane would bias the reading
 //! by a share of its height, and so is any reading of more than [`EDGE_TERM_MAX_OUTWARD_MM`]
 //! of material beyond the contour, since a web too low to count as flash reads the same. An edge the registration put beyond the material by more than that is
-//! left to the scanned-edge check, which refuses the part.
+//! left to the scanned-edge check, which refuses the part. A reading left out for more
+//! material beyond than [`EDGE_TERM_MAX_OUTWARD_MM`] (not flash) may still be the part lying
+//! out there: the move it would have made, `k = Σhᵀ o / (hΣhᵀ + r)`, is added to the
+//! posterior as a possible one (`Σ ← Σ + k kᵀ`), so the contours it would have carried have
+//! it in their bounds.
 
 use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 use trim_geom::{Path, Similarity3, Vector3};
@@ -68,6 +72,10 @@ pub struct EdgeTermSummary {
     /// Readings left out for the material beyond them (`ScannedEdge::flash_share`,
     /// [`EDGE_TERM_MAX_OUTWARD_MM`]).
     pub flashed: usize,
+    /// Of those, the readings over [`EDGE_TERM_MAX_OUTWARD_MM`] (not flash) whose possible move
+    /// widened the posterior.
+    #[serde(default)]
+    pub widened: usize,
     /// The largest change of the field along the path's points, mm (CAD frame).
     pub largest_shift_mm: f64,
 }
@@ -84,62 +92,34 @@ pub(crate) fn condition_on_edges(
     scan_from_cad: &Similarity3,
 ) -> EdgeTermSummary {
     let scale = scan_from_cad.scaling();
-    // One sparse row per reading: the mean of the stretch's sampled rows.
+    // One sparse row per reading: the mean of the stretch's sampled rows. A reading of more
+    // material beyond the strip than the cap (not flash: its face does not run on) is kept
+    // apart: it does not move the field, but widens the posterior by the move it would make.
     let mut rows: Vec<Row> = Vec::new();
+    let mut beyond: Vec<Row> = Vec::new();
     let mut flashed = 0;
     for (contour, edges) in path.contours().iter().zip(readings) {
-        let p = contour.points();
-        let f = contour.features();
         for e in edges {
-            if e.flash_share > EDGE_FLASH_SHARE || e.offset_mm > EDGE_TERM_MAX_OUTWARD_MM {
+            let outward = e.offset_mm > EDGE_TERM_MAX_OUTWARD_MM;
+            if e.flash_share > EDGE_FLASH_SHARE || outward {
                 flashed += 1;
+            }
+            if e.flash_share > EDGE_FLASH_SHARE {
                 continue;
             }
-            if e.last <= e.first || e.last >= p.len() {
+            let Some(row) = reading_row(field, contour, e, scale) else {
                 continue;
-            }
-            let span = e.last - e.first;
-            let samples = EDGE_TERM_SAMPLES.min(span + 1);
-            let mut row: Vec<(usize, f64)> = Vec::new();
-            let mut entries: Vec<(usize, f64)> = Vec::with_capacity(samples * SUPPORT * 3);
-            for k in 0..samples {
-                let i = e.first + (k * span) / (samples - 1).max(1);
-                let (a, b) = (p[i.saturating_sub(1)], p[(i + 1).min(p.len() - 1)]);
-                let Some(t) = (b - a).try_normalize(1e-12) else {
-                    continue;
-                };
-                let Some(across) = t.cross(&f[i]).try_normalize(1e-12) else {
-                    continue;
-                };
-                // The outward direction, from the CAD contour's own frame: the similarity turns
-                // `t × f` as a whole, so the reading's sign carries over.
-                let u: Vector3 = across * e.outward;
-                let (index, value) = field.values(&p[i]);
-                for m in 0..SUPPORT {
-                    if value[m] == 0.0 {
-                        continue;
-                    }
-                    for c in 0..3 {
-                        entries.push((3 * index[m] + c, scale * value[m] * u[c]));
-                    }
-                }
-            }
-            if entries.is_empty() {
-                continue;
-            }
-            let w = 1.0 / samples as f64;
-            entries.sort_unstable_by_key(|x| x.0);
-            for (j, v) in entries {
-                match row.last_mut() {
-                    Some((last, acc)) if *last == j => *acc += w * v,
-                    _ => row.push((j, w * v)),
-                }
-            }
+            };
             let floor = match e.from {
                 EdgeFrom::Wall => EDGE_TERM_WALL_FLOOR_MM,
                 EdgeFrom::Face => EDGE_TERM_FACE_FLOOR_MM,
             };
-            rows.push((row, e.offset_mm, e.sigma_mm.powi(2) + floor * floor));
+            let reading = (row, e.offset_mm, e.sigma_mm.powi(2) + floor * floor);
+            if outward {
+                beyond.push(reading);
+            } else {
+                rows.push(reading);
+            }
         }
     }
     // Gate each reading on its own predicted spread; a kept reading's column of ΣHᵀ is kept
@@ -159,44 +139,116 @@ pub(crate) fn condition_on_edges(
         columns.push(sh);
     }
     let m = kept.len();
-    let Some((sht, chol)) = (m > 0).then(|| gain(columns, &kept)).flatten() else {
-        return EdgeTermSummary {
-            gated,
-            flashed,
-            ..EdgeTermSummary::default()
-        };
-    };
-    let o = DVector::from_iterator(m, kept.iter().map(|k| k.1));
-    // Step: ΣHᵀ S⁻¹ o; covariance: Σ − ΣHᵀ S⁻¹ HΣ.
-    let step = &sht * chol.solve(&o);
-    posterior.subtract(&(&sht * chol.solve(&sht.transpose())));
-    // The part's covariance takes the same readings (no step: the field moves once).
-    let part = posterior.part_covariance().and_then(|c| {
-        let columns = kept.iter().map(|(row, ..)| sigma_h(c, row)).collect();
-        gain(columns, &kept)
-    });
-    if let Some((sht, chol)) = part {
-        posterior.subtract_part(&(&sht * chol.solve(&sht.transpose())));
+    let mut largest_shift_mm = 0.0;
+    if let Some((sht, chol)) = (m > 0).then(|| gain(columns, &kept)).flatten() {
+        let o = DVector::from_iterator(m, kept.iter().map(|k| k.1));
+        // Step: ΣHᵀ S⁻¹ o; covariance: Σ − ΣHᵀ S⁻¹ HΣ.
+        let step = &sht * chol.solve(&o);
+        posterior.subtract(&(&sht * chol.solve(&sht.transpose())));
+        // The part's covariance takes the same readings (no step: the field moves once).
+        let part = posterior.part_covariance().and_then(|c| {
+            let columns = kept.iter().map(|(row, ..)| sigma_h(c, row)).collect();
+            gain(columns, &kept)
+        });
+        if let Some((sht, chol)) = part {
+            posterior.subtract_part(&(&sht * chol.solve(&sht.transpose())));
+        }
+        let before: Vec<_> = path
+            .contours()
+            .iter()
+            .flat_map(|c| c.points().iter().map(|p| field.displacement(p)))
+            .collect();
+        field.add_step(step.as_slice());
+        largest_shift_mm = path
+            .contours()
+            .iter()
+            .flat_map(|c| c.points().iter().map(|p| field.displacement(p)))
+            .zip(before)
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
     }
-    let before: Vec<_> = path
-        .contours()
-        .iter()
-        .flat_map(|c| c.points().iter().map(|p| field.displacement(p)))
-        .collect();
-    field.add_step(step.as_slice());
-    let largest_shift_mm = path
-        .contours()
-        .iter()
-        .flat_map(|c| c.points().iter().map(|p| field.displacement(p)))
-        .zip(before)
-        .map(|(a, b)| (a - b).norm())
-        .fold(0.0, f64::max);
+    // A reading of material beyond the cap is a burr or the part lying out there; which, the
+    // scan cannot tell. Had it been the part, the update would have moved the field by
+    // `k = Σhᵀ o / (hΣhᵀ + r)` (under the posterior the kept readings left): that move is added
+    // to the posterior as a possible one, `Σ ← Σ + k kᵀ`, so every contour it would have
+    // carried along (a strip slid along the span by an end the scan shows out there) has it
+    // in its bound.
+    for (row, o, r) in &beyond {
+        posterior.widen(&possible_move(posterior.covariance(), row, *o, *r));
+        if let Some(c) = posterior.part_covariance() {
+            let k = possible_move(c, row, *o, *r);
+            posterior.widen_part(&k);
+        }
+    }
     EdgeTermSummary {
         used: m,
         gated,
         flashed,
+        widened: beyond.len(),
         largest_shift_mm,
     }
+}
+
+/// The move `Σhᵀ o / (hΣhᵀ + r)` a reading `o` (variance `r`, sparse row `row`) would make
+/// under the covariance `sigma`.
+fn possible_move(sigma: &DMatrix<f64>, row: &[(usize, f64)], o: f64, r: f64) -> DVector<f64> {
+    let sh = sigma_h(sigma, row);
+    let hsh: f64 = row.iter().map(|&(j, v)| v * sh[j]).sum();
+    sh * (o / (hsh + r))
+}
+
+/// The reading `e` of `contour` (CAD frame) as a sparse row of `field`'s control
+/// displacements: the mean over the stretch's sampled points of `s·uᵀ·B(x)`, `u` the outward
+/// direction; `None` for a stretch with no usable point.
+fn reading_row(
+    field: &BSplineField,
+    contour: &trim_geom::Contour,
+    e: &ScannedEdge,
+    scale: f64,
+) -> Option<Vec<(usize, f64)>> {
+    let p = contour.points();
+    let f = contour.features();
+    if e.last <= e.first || e.last >= p.len() {
+        return None;
+    }
+    let span = e.last - e.first;
+    let samples = EDGE_TERM_SAMPLES.min(span + 1);
+    let mut entries: Vec<(usize, f64)> = Vec::with_capacity(samples * SUPPORT * 3);
+    for k in 0..samples {
+        let i = e.first + (k * span) / (samples - 1).max(1);
+        let (a, b) = (p[i.saturating_sub(1)], p[(i + 1).min(p.len() - 1)]);
+        let Some(t) = (b - a).try_normalize(1e-12) else {
+            continue;
+        };
+        let Some(across) = t.cross(&f[i]).try_normalize(1e-12) else {
+            continue;
+        };
+        // The outward direction, from the CAD contour's own frame: the similarity turns
+        // `t × f` as a whole, so the reading's sign carries over.
+        let u: Vector3 = across * e.outward;
+        let (index, value) = field.values(&p[i]);
+        for m in 0..SUPPORT {
+            if value[m] == 0.0 {
+                continue;
+            }
+            for c in 0..3 {
+                entries.push((3 * index[m] + c, scale * value[m] * u[c]));
+            }
+        }
+    }
+    if entries.is_empty() {
+        return None;
+    }
+    let w = 1.0 / samples as f64;
+    entries.sort_unstable_by_key(|x| x.0);
+    let mut row: Vec<(usize, f64)> = Vec::new();
+    for (j, v) in entries {
+        match row.last_mut() {
+            Some((last, acc)) if *last == j => *acc += w * v,
+            _ => row.push((j, w * v)),
+        }
+    }
+    Some(row)
 }
 
 /// A reading kept: its sparse row, offset (mm) and variance (mm²).
@@ -351,6 +403,47 @@ mod tests {
         let (field, summary) = conditioned(0.025, reading(0.025, EdgeFrom::Wall));
         assert_eq!((summary.used, summary.flashed), (0, 1));
         assert_eq!(field.displacement(&MID), Vector3::zeros());
+    }
+
+    #[test]
+    fn material_beyond_the_cap_widens_the_posterior_by_the_move_it_would_make() {
+        // 25 µm beyond, over the cap: the field stays, but the strip's deviation across its
+        // edge grows, in quadrature, by exactly the move the reading would have made had it
+        // been taken: 25/15 of what a 15 µm reading (under the cap, taken) moves the middle.
+        let (mut field, mut posterior, path) = case(0.025);
+        let before = variance(&field, &posterior, &MID, &Vector3::y());
+        let summary = condition_on_edges(
+            &mut field,
+            &mut posterior,
+            &path,
+            &[vec![reading(0.025, EdgeFrom::Wall)]],
+            &Similarity3::identity(),
+        );
+        assert_eq!((summary.used, summary.flashed, summary.widened), (0, 1, 1));
+        assert_eq!(field.displacement(&MID), Vector3::zeros());
+        let grown = (variance(&field, &posterior, &MID, &Vector3::y()) - before).sqrt();
+        let taken = conditioned(0.025, reading(0.015, EdgeFrom::Wall)).0;
+        let would = taken.displacement(&MID).y * 0.025 / 0.015;
+        assert!(
+            (grown - would).abs() < 1e-9 && would > 0.02,
+            "grew by {grown:.6} mm in quadrature, the reading would have moved it {would:.6} mm"
+        );
+        // Flash widens nothing: its face shows the burr.
+        let (mut field, mut posterior, path) = case(0.025);
+        let flash = ScannedEdge {
+            flash_share: 0.1,
+            ..reading(0.025, EdgeFrom::Wall)
+        };
+        let summary = condition_on_edges(
+            &mut field,
+            &mut posterior,
+            &path,
+            &[vec![flash]],
+            &Similarity3::identity(),
+        );
+        assert_eq!((summary.flashed, summary.widened), (1, 0));
+        let after = variance(&field, &posterior, &MID, &Vector3::y());
+        assert!((after - before).abs() < 1e-15, "{before} -> {after}");
     }
 
     #[test]

@@ -765,6 +765,18 @@ impl FieldPosterior {
         self.covariance = (&self.covariance + self.covariance.transpose()) * 0.5;
     }
 
+    /// Adds the possible move `k` to the covariance: `Σ ← Σ + k kᵀ`.
+    pub(crate) fn widen(&mut self, k: &DVector<f64>) {
+        self.covariance.ger(1.0, k, k, 1.0);
+    }
+
+    /// The same on the part's covariance ([`FieldPosterior::part_covariance`]).
+    pub(crate) fn widen_part(&mut self, k: &DVector<f64>) {
+        if let Some(c) = self.part_covariance.as_mut() {
+            c.ger(1.0, k, k, 1.0);
+        }
+    }
+
     /// Takes `reduction` off the part's covariance ([`FieldPosterior::part_covariance`]).
     pub(crate) fn subtract_part(&mut self, reduction: &DMatrix<f64>) {
         if let Some(c) = self.part_covariance.as_mut() {
