@@ -139,8 +139,9 @@ pub(crate) fn condition_on_edges(
         columns.push(sh);
     }
     let m = kept.len();
-    let mut largest_shift_mm = 0.0;
+    let (mut used, mut largest_shift_mm) = (0, 0.0);
     if let Some((sht, chol)) = (m > 0).then(|| gain(columns, &kept)).flatten() {
+        used = m;
         let o = DVector::from_iterator(m, kept.iter().map(|k| k.1));
         // Step: ΣHᵀ S⁻¹ o; covariance: Σ − ΣHᵀ S⁻¹ HΣ.
         let step = &sht * chol.solve(&o);
@@ -181,7 +182,7 @@ pub(crate) fn condition_on_edges(
         }
     }
     EdgeTermSummary {
-        used: m,
+        used,
         gated,
         flashed,
         widened: beyond.len(),
