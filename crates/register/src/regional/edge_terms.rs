@@ -22,20 +22,24 @@
 //! standing off the edge reads as material far beyond it, and the laser is there to remove it,
 //! not to follow it; so is a stretch whose face runs on beyond the contour
 //! (`ScannedEdge::flash_share`), where a burr web in the face's plane would bias the reading
-//! by a share of its height, and so is any reading of more than [`EDGE_TERM_MAX_OUTWARD_MM`]
-//! of material beyond the contour, since a web too low to count as flash reads the same. An edge the registration put beyond the material by more than that is
-//! left to the scanned-edge check, which refuses the part. A reading left out for more
-//! material beyond than [`EDGE_TERM_MAX_OUTWARD_MM`] (not flash) may still be the part lying
-//! out there: the move it would have made, `k = Σhᵀ o / (hΣhᵀ + r)`, is added to the
-//! posterior as a possible one (`Σ ← Σ + k kᵀ`), so the contours it would have carried have
-//! it in their bounds.
+//! by a share of its height, and so is any reading of more material beyond the contour than
+//! the `material_beyond` flag's threshold ([`ScannedEdge::shows_material_beyond`]), since a web
+//! too low to count as flash reads the same (own burred core 305: a 53 µm web over 13 of 20 mm
+//! read +41 µm and, taken, pulled the strip 40 µm off). The cap is that threshold, so every
+//! reading of material beyond a strip either moves the field or flags the strip: until
+//! 2026-11-28 the cap was 10 µm and the flag 15 µm, and strips reading 10–15 µm beyond were
+//! neither corrected nor flagged (outside tune seeds 2001–2080: 12 of the 29 trusted contours
+//! with a cross-edge P95 over 12 µm). An edge the registration put beyond the material is left
+//! to the scanned-edge check, which refuses the part. A reading left out for the material
+//! beyond it (not flash) may still be the part lying out there: the move it would have made,
+//! `k = Σhᵀ o / (hΣhᵀ + r)`, is added to the posterior as a possible one (`Σ ← Σ + k kᵀ`), so
+//! the contours it would have carried have it in their bounds.
 
 use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 use trim_geom::{Path, Similarity3, Vector3};
 
 use super::field_fit::FieldPosterior;
-use super::quality::MATERIAL_BEYOND_MM;
-use super::scanned_edge::{EDGE_FLASH_SHARE, EdgeFrom, ScannedEdge};
+use super::scanned_edge::{EdgeFrom, ScannedEdge};
 use crate::deformation::{BSplineField, SUPPORT};
 
 /// The scatter of a reading located from the wall about the true edge that its own `σₑ` does
@@ -43,15 +47,6 @@ use crate::deformation::{BSplineField, SUPPORT};
 pub const EDGE_TERM_WALL_FLOOR_MM: f64 = 0.003;
 /// The same for a reading from the face's end, mm (SD 9.5 µm at a median σₑ of 5.8 µm).
 pub const EDGE_TERM_FACE_FLOOR_MM: f64 = 0.008;
-/// A reading that shows more material beyond the contour than this, mm, is left out: flash
-/// can only add material beyond the edge, so such a reading may be a burr too low to show as
-/// flash (own burred core 305: a 53 µm web over 13 of 20 mm read +41 µm and, taken, pulled
-/// the strip 40 µm off). It is the threshold of the `material_beyond` flag
-/// ([`MATERIAL_BEYOND_MM`]), so that every reading of material beyond a strip either moves
-/// the field or flags the strip: until 2026-11-28 the cap was 10 µm and the flag 15 µm, and
-/// strips reading 10–15 µm beyond were neither corrected nor flagged (outside tune seeds
-/// 2001–2080: 12 of the 29 trusted contours with a cross-edge P95 over 12 µm).
-pub const EDGE_TERM_MAX_OUTWARD_MM: f64 = MATERIAL_BEYOND_MM;
 /// A reading whose offset lies beyond this many predicted deviations is left out.
 pub const EDGE_TERM_GATE_SIGMAS: f64 = 3.0;
 /// Contour points per stretch whose field rows are averaged into the reading's row (evenly
@@ -69,11 +64,11 @@ pub struct EdgeTermSummary {
     pub used: usize,
     /// Readings left out by the gate.
     pub gated: usize,
-    /// Readings left out for the material beyond them (`ScannedEdge::flash_share`,
-    /// [`EDGE_TERM_MAX_OUTWARD_MM`]).
+    /// Readings left out for the material beyond them ([`ScannedEdge::is_flash`],
+    /// [`ScannedEdge::shows_material_beyond`]).
     pub flashed: usize,
-    /// Of those, the readings over [`EDGE_TERM_MAX_OUTWARD_MM`] (not flash) whose possible move
-    /// widened the posterior.
+    /// Of those, the readings showing material beyond (not flash) whose possible move widened
+    /// the posterior.
     #[serde(default)]
     pub widened: usize,
     /// The largest change of the field along the path's points, mm (CAD frame).
@@ -100,11 +95,11 @@ pub(crate) fn condition_on_edges(
     let mut flashed = 0;
     for (contour, edges) in path.contours().iter().zip(readings) {
         for e in edges {
-            let outward = e.offset_mm > EDGE_TERM_MAX_OUTWARD_MM;
-            if e.flash_share > EDGE_FLASH_SHARE || outward {
+            let outward = e.shows_material_beyond();
+            if e.is_flash() || outward {
                 flashed += 1;
             }
-            if e.flash_share > EDGE_FLASH_SHARE {
+            if e.is_flash() {
                 continue;
             }
             let Some(row) = reading_row(field, contour, e, scale) else {

@@ -711,8 +711,8 @@ fn damped_solve(
 /// under the full prior is confident exactly where the fit is blind.
 /// Chosen on the outside generator's tune seeds 2001–2010: at 1 a fifth of the contours over
 /// 30 µm were trusted; at 0.1 none (at 0.3, 8 of 17). The terms on the displacement along the
-/// part's span ([`PriorKind::Span`], [`PriorKind::Beam`]) keep
-/// [`POSTERIOR_SPAN_PRIOR_SCALE`] instead.
+/// part's span (`PriorKind::Span`, `PriorKind::Beam`) keep
+/// `POSTERIOR_SPAN_PRIOR_SCALE` instead.
 pub const POSTERIOR_PRIOR_SCALE: f64 = 0.1;
 
 /// The share of the fit's prior the posterior keeps on the displacement along the span: its

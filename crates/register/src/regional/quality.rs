@@ -32,7 +32,7 @@ pub enum Flag {
     /// a whole: the smooth field moved the part's other edges along the same direction too.
     EdgeOffScan,
     /// The scan shows more than [`MATERIAL_BEYOND_MM`] of material beyond this strip, or beyond
-    /// a strip that shares an end with it ([`material_beyond`]): the registration may have put
+    /// a strip that shares an end with it (`material_beyond`): the registration may have put
     /// the edge inside the material, where the laser would cut into the part, or a burr stands
     /// there. The part is not refused for it.
     MaterialBeyond,
@@ -427,7 +427,7 @@ fn end_support_distance(moved: &[Point3], matches: &[Match]) -> f64 {
 
 /// A strip's scanned edge showing more material beyond it than this, mm, flags it
 /// ([`Flag::MaterialBeyond`]); the edge terms take every reading up to it
-/// (`edge_terms::EDGE_TERM_MAX_OUTWARD_MM`), so a reading of material beyond a strip either
+/// ([`ScannedEdge::shows_material_beyond`]), so a reading of material beyond a strip either
 /// moves the field or flags the strip. First 15 µm, chosen on the outside generator's tune
 /// seeds 2001–2080 with the edge terms' cap at 10 µm (15 and 20 µm gave the same flags, 10 µm
 /// flagged 1 % more good contours): the two contours over 30 µm the posterior trusted there
@@ -459,13 +459,7 @@ pub fn material_beyond(contours: &[&[Point3]], readings: &[Vec<ScannedEdge>]) ->
     let beyond: Vec<bool> = ends
         .iter()
         .zip(readings)
-        .map(|(e, r)| {
-            e.is_some()
-                && r.iter().any(|x| {
-                    x.offset_mm > MATERIAL_BEYOND_MM
-                        && x.flash_share <= super::scanned_edge::EDGE_FLASH_SHARE
-                })
-        })
+        .map(|(e, r)| e.is_some() && r.iter().any(ScannedEdge::shows_material_beyond))
         .collect();
     let join2 = STRIP_JOIN_MM * STRIP_JOIN_MM;
     let shares_end = |a: &[Point3; 2], b: &[Point3; 2]| {

@@ -130,7 +130,7 @@ pub struct ScannedEdge {
     /// against it: the side away from the material.
     pub outward: f64,
     /// The confidence its gap is taken at, standard deviations: [`EDGE_GAP_SIGMAS`] for a
-    /// strip's stretch, [`RIM_GAP_SIGMAS`] for a rim's arc.
+    /// strip's stretch, `RIM_GAP_SIGMAS` for a rim's arc.
     pub gap_sigmas: f64,
 }
 
@@ -140,6 +140,23 @@ impl ScannedEdge {
     #[must_use]
     pub fn gap_mm(&self) -> f64 {
         -self.offset_mm - self.gap_sigmas * self.sigma_mm
+    }
+
+    /// Whether the stretch's face runs on beyond the contour ([`ScannedEdge::flash_share`] over
+    /// `EDGE_FLASH_SHARE`): a burr web, which neither moves the field nor flags the strip.
+    #[must_use]
+    pub fn is_flash(&self) -> bool {
+        self.flash_share > EDGE_FLASH_SHARE
+    }
+
+    /// Whether it shows more material beyond the contour than
+    /// [`super::quality::MATERIAL_BEYOND_MM`], flash aside: a low burr or the part lying out
+    /// there. Such a reading flags its strip (`material_beyond`) and, instead of moving the
+    /// field, widens its posterior (`edge_terms`); every other reading that is not flash may
+    /// move the field.
+    #[must_use]
+    pub fn shows_material_beyond(&self) -> bool {
+        !self.is_flash() && self.offset_mm > super::quality::MATERIAL_BEYOND_MM
     }
 }
 
