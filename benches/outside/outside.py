@@ -39,6 +39,7 @@ view. Its sets: tune 600.., holdout 640.., report 680.., fresh 800 and above.
 """
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -70,6 +71,11 @@ def case_params(seed, index, points):
     return p
 
 
+# The own cores' shrinkage changes along the span by up to this much end to end (a pressed core's
+# density gradient; `trimctl synth --shrink-gradient`).
+OWN_SHRINK_GRADIENT = 0.003
+
+
 def own_params(seed, index, points):
     """`trimctl synth` options for one own case: drawn from the seed, the hardest corner every fifth."""
     r = np.random.default_rng(seed)
@@ -90,9 +96,12 @@ def own_params(seed, index, points):
         burrs=0.3,
         burr_height="0.05,0.6",
     )
+    # Drawn last, so that the draws above are what they were before it existed.
+    p["shrink_gradient"] = round(float(r.uniform(-OWN_SHRINK_GRADIENT, OWN_SHRINK_GRADIENT)), 5)
     if index % 5 == 4:
         p.update(pose_deg=20.0, pose_mm=20.0, scale_range=0.02, pressing_tilt=30.0, sag=0.5,
-                 twist=1.0, noise=0.015, views=1)
+                 twist=1.0, noise=0.015, views=1,
+                 shrink_gradient=math.copysign(OWN_SHRINK_GRADIENT, p["shrink_gradient"]))
     return p
 
 
@@ -141,7 +150,7 @@ def generate(command, p, out):
         return
     cmd = command + ["--out", out]
     for k, v in p.items():
-        cmd += ["--" + k.replace("_", "-"), str(v)]
+        cmd.append("--%s=%s" % (k.replace("_", "-"), v))  # joined: a negative value is no flag
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
     json.dump(p, open(done, "w"))
 

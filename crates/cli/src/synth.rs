@@ -36,6 +36,10 @@ pub struct Args {
     /// length), mm.
     #[arg(long = "tip-curl", default_value_t = SynthParams::default().tip_curl_mm)]
     pub tip_curl_mm: f64,
+    /// The change of the part's shrinkage along its span, end to end (a density gradient from
+    /// pressing: 0.002 is 0.2 % more at the +Y end than at the −Y end).
+    #[arg(long = "shrink-gradient", default_value_t = SynthParams::default().shrink_gradient, allow_negative_numbers = true)]
+    pub shrink_gradient: f64,
     /// Twist about the long axis end to end, degrees.
     #[arg(long = "twist", default_value_t = SynthParams::default().twist_deg)]
     pub twist_deg: f64,
@@ -135,6 +139,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         seed: args.seed,
         sag_mm: args.sag_mm,
         tip_curl_mm: args.tip_curl_mm,
+        shrink_gradient: args.shrink_gradient,
         twist_deg: args.twist_deg,
         scale_range: args.scale_range,
         pressing_tilt_deg: args.pressing_tilt_deg,

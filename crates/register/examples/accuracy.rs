@@ -40,9 +40,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Err(_) => None,
     };
     println!(
-        "| seed | bend mm | twist ° | scale ± | noise µm | fixture °/mm | method | cross-edge P95 µm | cross-edge max µm | pointwise P95 µm | slots P95/max | holes P95/max | edges P95/max | flagged | bound misses | time s |"
+        "| seed | bend mm | twist ° | scale ± | shrink gradient | noise µm | fixture °/mm | method | cross-edge P95 µm | cross-edge max µm | pointwise P95 µm | slots P95/max | holes P95/max | edges P95/max | flagged | bound misses | time s |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let mut worst = (0.0f64, 0.0f64, 0.0f64);
     let (mut contours, mut misses) = (0usize, 0usize);
     for seed in first..first + seeds {
@@ -155,10 +155,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         worst.1 = worst.1.max(e.cross_edge_max_mm);
         worst.2 = worst.2.max(e.pointwise_p95_mm);
         let head = format!(
-            "| {seed} | {:.2} | {:.2} | {:.1} % | {:.1} | {:.1}/{:.1}",
+            "| {seed} | {:.2} | {:.2} | {:.1} % | {:+.2} % | {:.1} | {:.1}/{:.1}",
             params.sag_mm,
             params.twist_deg,
             params.scale_range * 100.0,
+            params.shrink_gradient * 100.0,
             params.noise_mm * 1e3,
             params.pose_deg,
             params.pose_mm

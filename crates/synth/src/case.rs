@@ -51,6 +51,10 @@ pub struct SynthParams {
     pub tip_curl_mm: f64,
     /// Per-axis scale (shrinkage) is drawn from `[1 − r, 1 + r]`, along the pressing axes.
     pub scale_range: f64,
+    /// The change of the shrinkage along the span, end to end (`Deformation::shrink_gradient`;
+    /// signed as given, no draw; |g| ≤ 0.02). Left out of case.json when 0.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub shrink_gradient: f64,
     /// The pressing axes (along which the per-axis scale acts) are the CAD axes turned by a
     /// seeded rotation of `[½, 1] ×` this, random axis, degrees (0: the CAD axes).
     pub pressing_tilt_deg: f64,
@@ -128,6 +132,7 @@ impl Default for SynthParams {
             sag_mm: 0.3,
             bend_tilt_deg: 0.0,
             tip_curl_mm: 0.0,
+            shrink_gradient: 0.0,
             twist_deg: 0.6,
             scale_range: 0.01,
             noise_mm: 0.01,
@@ -183,6 +188,11 @@ impl SynthParams {
             "twist_deg",
             self.twist_deg.is_finite() && self.twist_deg.abs() <= 10.0,
             "must be finite, |twist| ≤ 10°",
+        )?;
+        check(
+            "shrink_gradient",
+            self.shrink_gradient.is_finite() && self.shrink_gradient.abs() <= 0.02,
+            "must be finite, |gradient| ≤ 0.02",
         )?;
         check(
             "scale_range",
@@ -458,6 +468,7 @@ pub fn generate(params: &SynthParams) -> Result<SynthCase> {
         pressing_axes: pressing_axes(params.pressing_tilt_deg, params.seed),
         tip_curl_mm: params.tip_curl_mm,
         bend_tilt_rad: params.bend_tilt_deg.to_radians(),
+        shrink_gradient: params.shrink_gradient,
     };
     let axis: [f64; 3] = UnitSphere.sample(&mut rng);
     let dir: [f64; 3] = UnitSphere.sample(&mut rng);

@@ -30,8 +30,9 @@ pub(crate) const PATH_STEP_MM: f64 = DEFAULT_PATH_SPACING_MM;
 /// Central-difference step for Jacobians, mm.
 pub(crate) const JACOBIAN_STEP_MM: f64 = 1e-4;
 
-/// The smooth deformation of the part, in the CAD frame (mm): a per-axis scale about the origin
-/// along the pressing axes (the shrinkage of a pressed and sintered core,
+/// The smooth deformation of the part, in the CAD frame (mm): a shrinkage that changes along the
+/// span (a density gradient from pressing), a per-axis scale about the origin along the pressing
+/// axes (the shrinkage of a pressed and sintered core,
 /// `Σᵢ scaleᵢ (aᵢ·p) aᵢ = R·diag(scale)·Rᵀ·p` with `aᵢ = R·eᵢ`), then a twist about the Y (long)
 /// axis growing linearly along Y, then a bend along Z, then a curl of the `+Y` end along Z.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -59,6 +60,14 @@ pub struct Deformation {
     /// before it existed.
     #[serde(default)]
     pub bend_tilt_rad: f64,
+    /// The change of the part's linear shrinkage along its span, from the `−Y` end to the `+Y`
+    /// end over [`LENGTH_MM`] (a pressed core's green density, and so its shrinkage, varies
+    /// from the end the powder entered to the other): the material at `y` grows by
+    /// `1 + g·y/LENGTH_MM` in every direction, so the span stretches as `y + g·y²/(2·LENGTH_MM)`
+    /// and the sections scale with it. Applied before the per-axis scale. An affine map cannot
+    /// undo it. 0 in cases written before it existed.
+    #[serde(default)]
+    pub shrink_gradient: f64,
 }
 
 /// Where the tip curl starts, as a share of the half length from the middle.
@@ -75,6 +84,7 @@ impl Deformation {
             sag_mm: 0.0,
             tip_curl_mm: 0.0,
             bend_tilt_rad: 0.0,
+            shrink_gradient: 0.0,
         }
     }
 
@@ -88,12 +98,25 @@ impl Deformation {
     /// The deformed position of a CAD-frame point.
     #[must_use]
     pub fn apply(&self, p_cad: &Point3) -> Point3 {
+        // The shrinkage along the span: left out when 0, so cases without it are what they were
+        // bit for bit.
+        let p = if self.shrink_gradient == 0.0 {
+            p_cad.coords
+        } else {
+            let y = p_cad.y;
+            let grow = 1.0 + self.shrink_gradient * y / LENGTH_MM;
+            Vector3::new(
+                p_cad.x * grow,
+                y + self.shrink_gradient * y * y / (2.0 * LENGTH_MM),
+                p_cad.z * grow,
+            )
+        };
         // Σᵢ sᵢ (aᵢ·p) aᵢ, summed axis by axis: with the identity axes this is the per-axis
         // product bit for bit, so cases without a pressing tilt are what they were.
         let mut s = Vector3::zeros();
         for (axis, scale) in self.pressing_axes.iter().zip(self.scale.iter()) {
             let a = Vector3::from(*axis);
-            s += a * (scale * a.dot(&p_cad.coords));
+            s += a * (scale * a.dot(&p));
         }
         let phi = self.twist_rad * s.y / LENGTH_MM;
         let (sin, cos) = phi.sin_cos();

@@ -282,6 +282,61 @@ fn shrinkage_along_tilted_pressing_axes_maps_the_truth() {
 }
 
 #[test]
+fn shrinkage_that_changes_along_the_span_maps_the_truth_and_no_affine_map_undoes_it() {
+    let g = 0.004;
+    let params = SynthParams {
+        shrink_gradient: g,
+        ..undeformed(9)
+    };
+    let case = generate(&params).unwrap();
+    assert_eq!(case.deformation.shrink_gradient, g);
+    // Independent: the local scale 1 + g·y/L integrated along the span, the section scaled by it.
+    let grown = |p: &Point3| {
+        let k = 1.0 + g * p.y / LENGTH_MM;
+        Point3::new(p.x * k, p.y + g * p.y * p.y / (2.0 * LENGTH_MM), p.z * k)
+    };
+    let mut template = Vec::new();
+    let mut truth_cad = Vec::new();
+    let cad_from_scan = case.scan_from_cad_true.inverse();
+    for (c, t) in case.path.contours().iter().zip(case.truth.contours()) {
+        for (k, (p, q)) in c.points().iter().zip(t.points()).enumerate() {
+            let expected = case.scan_from_cad_true * grown(p);
+            assert!((expected - q).norm() < 1e-9, "contour {} point {k}", c.id());
+            template.push(*p);
+            truth_cad.push(cad_from_scan * q);
+        }
+    }
+    // The best affine map of the template onto the truth (least squares, per coordinate) leaves
+    // the quadratic along the span: g·L/2·(1/4 − 1/12)·… about g·L/12 at the ends.
+    let rows =
+        nalgebra::DMatrix::from_fn(
+            template.len(),
+            4,
+            |i, j| {
+                if j < 3 { template[i][j] } else { 1.0 }
+            },
+        );
+    let svd = rows.clone().svd(true, true);
+    let mut worst: f64 = 0.0;
+    for axis in 0..3 {
+        let b = nalgebra::DVector::from_fn(truth_cad.len(), |i, _| truth_cad[i][axis]);
+        let x = svd.solve(&b, 1e-12).unwrap();
+        worst = worst.max((&rows * x - b).amax());
+    }
+    let extent = template.iter().map(|p| p.y.abs()).fold(0.0, f64::max);
+    let quadratic = g * extent * extent / (2.0 * LENGTH_MM);
+    assert!(
+        worst > 0.3 * quadratic && worst > 0.01,
+        "an affine map leaves {worst} mm (the span's quadratic is {quadratic} mm)"
+    );
+    // A case written before the key existed reads as no gradient.
+    let mut json = serde_json::to_value(case.deformation).unwrap();
+    json.as_object_mut().unwrap().remove("shrink_gradient");
+    let old: Deformation = serde_json::from_value(json).unwrap();
+    assert_eq!(old.shrink_gradient, 0.0);
+}
+
+#[test]
 fn burr_points_stand_off_the_true_edges_within_their_size() {
     let params = SynthParams {
         noise_mm: 0.0,
@@ -536,6 +591,20 @@ fn validation_names_the_field() {
             "dropouts",
             SynthParams {
                 dropouts: 1000,
+                ..SynthParams::default()
+            },
+        ),
+        (
+            "shrink_gradient",
+            SynthParams {
+                shrink_gradient: -0.03,
+                ..SynthParams::default()
+            },
+        ),
+        (
+            "shrink_gradient",
+            SynthParams {
+                shrink_gradient: f64::NAN,
                 ..SynthParams::default()
             },
         ),

@@ -334,7 +334,9 @@ def synth(seed: int = 1, **params: Any) -> DemoCase:
     ``scale_range``, ``noise_mm``, ``scan_points``, ``cad_points``, ``pose_deg``, ``pose_mm``,
     ``outlier_fraction``, ``dropouts``, ``scanner_tilt_deg``, ``scanner_views`` (fixed views of
     the machine-mounted scanner, 1–4; default 1, the demo cell of ``trimctl run`` uses 3),
-    ``burr_fraction``, ``pressing_tilt_deg``, ``tip_curl_mm``, ``path_spacing_mm``, ``mesh_step_mm``."""
+    ``burr_fraction``, ``pressing_tilt_deg``, ``tip_curl_mm``, ``shrink_gradient`` (the change of
+    shrinkage along the span, end to end: a density gradient), ``path_spacing_mm``,
+    ``mesh_step_mm``."""
     d = _native.synth_case(json.dumps({"seed": seed, **params}))
     return DemoCase(
         cad_points=d["cad_points"],

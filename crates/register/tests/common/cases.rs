@@ -20,6 +20,10 @@ pub const POSE_RANGE_MM: (f64, f64) = (1.0, 20.0);
 /// Tilt of the pressing axes (along which shrinkage acts) from the part's axes, degrees
 /// (drawn `[½, 1] ×` this).
 pub const PRESSING_TILT_RANGE_DEG: (f64, f64) = (0.0, 30.0);
+/// The change of shrinkage along the span, end to end (a pressed core's density gradient;
+/// `SynthParams::shrink_gradient`): an along-span displacement no affine map takes out, which
+/// the field's prior on the span penalises.
+pub const SHRINK_GRADIENT_RANGE: (f64, f64) = (-0.003, 0.003);
 /// The share of contours whose edges carry burrs (flash webs 20–100 µm thick standing
 /// 0.1–0.5 mm off the edge, in the scan): what the laser is there to remove, and what
 /// registration must not be pulled by.
@@ -58,6 +62,7 @@ pub fn case_params(seed: u64, scan_points: usize, cad_points: usize) -> SynthPar
         scan_points,
         cad_points,
         pressing_tilt_deg: p(7, PRESSING_TILT_RANGE_DEG),
+        shrink_gradient: p(8, SHRINK_GRADIENT_RANGE),
         burr_fraction: BURR_FRACTION,
         // A scanner fixed to the machine, looking from three directions (issue 21).
         scanner_views: 3,
