@@ -75,6 +75,15 @@ pub struct EdgeTermSummary {
     pub largest_shift_mm: f64,
 }
 
+impl EdgeTermSummary {
+    /// Whether the update ran on every reading: none gated, none left out for the material
+    /// beyond it.
+    #[must_use]
+    pub fn every_reading_used(&self) -> bool {
+        self.used > 0 && self.gated == 0 && self.flashed == 0
+    }
+}
+
 /// Conditions `field` and `posterior` on the scanned edges `readings` (one list per contour of
 /// `path`, measured on the contours registered with `field`). `register` passes the strips'
 /// readings only, a rim's list empty: rims check the registration but do not move the field
@@ -358,6 +367,7 @@ mod tests {
             &Similarity3::identity(),
         );
         assert_eq!((summary.used, summary.gated), (1, 0));
+        assert!(summary.every_reading_used());
         // The reading is the stretch's mean offset. A prior of about 25 µm against a reading
         // good to 3.6 µm: most of the 40 µm is taken.
         let points = path.contours()[0].points();
@@ -389,6 +399,7 @@ mod tests {
         // the scanned-edge check.
         let (field, summary) = conditioned(0.01, reading(-0.2, EdgeFrom::Face));
         assert_eq!((summary.used, summary.gated), (0, 1));
+        assert!(!summary.every_reading_used());
         assert_eq!(field.displacement(&MID), Vector3::zeros());
     }
 
@@ -416,6 +427,7 @@ mod tests {
             &Similarity3::identity(),
         );
         assert_eq!((summary.used, summary.flashed, summary.widened), (0, 1, 1));
+        assert!(!summary.every_reading_used());
         assert_eq!(field.displacement(&MID), Vector3::zeros());
         let grown = (variance(&field, &posterior, &MID, &Vector3::y()) - before).sqrt();
         let taken = conditioned(0.025, reading(0.015, EdgeFrom::Wall)).0;
@@ -467,6 +479,7 @@ mod tests {
         };
         let (field, summary) = conditioned(0.025, flashed);
         assert_eq!((summary.used, summary.flashed), (0, 1));
+        assert!(!summary.every_reading_used());
         assert_eq!(field.displacement(&MID), Vector3::zeros());
     }
 

@@ -381,7 +381,8 @@ pub fn register(
     let fitted_field = field.clone();
     let mut edge_terms = None;
     // The strips' gaps the scan showed before the edge terms moved the field: both count
-    // (`scanned_edge::contour_gap_um`).
+    // (`scanned_edge::contour_gap_um`), unless the terms took every reading (then nothing was
+    // corrected from one end only, and the gap after is the one the scan shows).
     let mut gaps_before: Vec<Option<f64>> = vec![None; path.contours().len()];
     if settings.quality.edge_terms
         && let (Some(f), Some(post)) = (field.as_mut(), posterior.as_mut())
@@ -405,6 +406,9 @@ pub fn register(
             ))
         })?;
         registered = stage(&mut timings, "apply to path", || apply(Some(f)))?;
+        if summary.every_reading_used() {
+            gaps_before.fill(None);
+        }
         edge_terms = Some(summary);
     }
 

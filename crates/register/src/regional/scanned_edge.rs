@@ -182,7 +182,9 @@ pub(crate) fn strip_edges(contour: &Contour, scan: &[Point3], tree: &KdTree) -> 
 /// A contour's scanned-edge gap, µm: the widest of its readings after the edge terms and of
 /// its strip readings before them (`before`, [`widest_gap_um`] of [`strip_edges`]). A part the
 /// terms correct from one end only (a reading of material beyond the contour is left out as
-/// possible flash) shows its gap there before and no longer after, so both count.
+/// possible flash) shows its gap there before and no longer after, so both count; `register`
+/// passes no `before` when the terms took every reading
+/// (`EdgeTermSummary::every_reading_used`).
 pub(crate) fn contour_gap_um(after: &[ScannedEdge], before: Option<f64>) -> Option<f64> {
     widest_gap_um(after)
         .into_iter()

@@ -238,7 +238,8 @@ pub struct QualitySettings {
     /// contour's stretches, located in the raw scan, observe the displacement across the edge
     /// that the faces do not fix (a strip's slide along the span, a corner's along the chord).
     /// A part whose scan showed a gap over the tolerance before the terms moved the field is
-    /// still refused (a slide corrected from one end only shows its gap there and not after).
+    /// still refused when the terms left a reading out (a slide corrected from one end only
+    /// shows its gap there and not after); when they took every reading, the gap after counts.
     pub edge_terms: bool,
 }
 
