@@ -193,6 +193,22 @@ impl KdTree {
         &scratch.found
     }
 
+    /// Whether any point lies within `max_distance_sq` (inclusive) of `query`: the answer of
+    /// `nearest_within(..).is_some()`, but the search stops at the first point found instead of
+    /// looking on for a nearer one (a coverage test asks no more).
+    pub fn any_within(&self, query: &Point3, max_distance_sq: f64, scratch: &mut Scratch) -> bool {
+        if self.index.is_empty() || max_distance_sq.is_nan() || max_distance_sq < 0.0 {
+            return false;
+        }
+        let q = [query.x, query.y, query.z];
+        let mut any = Any {
+            max_distance_sq,
+            found: false,
+        };
+        self.search(&q, &mut any, &mut scratch.stack);
+        any.found
+    }
+
     /// Every point within `max_distance_sq` (inclusive) of `query`, in no particular order
     /// (for gathering a neighbourhood, where [`KdTree::knn_within`]'s sorted insert would cost
     /// the square of its size). The answer lives in `scratch`.
@@ -266,6 +282,9 @@ impl KdTree {
             let mut d = [0.0; LEAF];
             let n = self.leaf_distances(q, lo, hi, &mut d);
             visitor.visit(&d[..n], &self.index[lo..hi]);
+            if visitor.done() {
+                return;
+            }
         }
     }
 
@@ -311,6 +330,34 @@ trait Visitor {
     fn bound(&self) -> f64;
     /// A leaf's squared distances and point indices.
     fn visit(&mut self, distance_sq: &[f64], index: &[u32]);
+    /// Whether the answer is known: the search stops.
+    #[inline]
+    fn done(&self) -> bool {
+        false
+    }
+}
+
+/// Whether any point lies within the bound.
+struct Any {
+    max_distance_sq: f64,
+    found: bool,
+}
+
+impl Visitor for Any {
+    #[inline]
+    fn bound(&self) -> f64 {
+        self.max_distance_sq
+    }
+
+    #[inline]
+    fn visit(&mut self, distance_sq: &[f64], _index: &[u32]) {
+        self.found = self.found || distance_sq.iter().any(|&d| d <= self.max_distance_sq);
+    }
+
+    #[inline]
+    fn done(&self) -> bool {
+        self.found
+    }
 }
 
 /// The least `(d², index)` within the bound (`index == u32::MAX`: none yet).
@@ -504,6 +551,8 @@ mod tests {
                         out.iter().map(|g| (g.distance_sq, g.index)).collect();
                     assert_eq!(have, want);
                 }
+                // Whether there is any: the same as whether there is a nearest.
+                assert_eq!(tree.any_within(q, max_sq, &mut scratch), !truth.is_empty());
                 // The whole neighbourhood, unordered: the same set.
                 let mut all: Vec<(f64, usize)> = tree
                     .within(q, max_sq, &mut scratch)
@@ -529,6 +578,10 @@ mod tests {
         assert!(one.nearest_within(&Point3::origin(), 0.5).is_none());
         assert!(one.nearest_within(&Point3::origin(), f64::NAN).is_none());
         let mut scratch = Scratch::default();
+        assert!(!empty.any_within(&Point3::origin(), 1.0, &mut scratch));
+        assert!(one.any_within(&Point3::origin(), 1.0, &mut scratch));
+        assert!(!one.any_within(&Point3::origin(), 0.5, &mut scratch));
+        assert!(!one.any_within(&Point3::origin(), f64::NAN, &mut scratch));
         assert!(
             empty
                 .within(&Point3::origin(), 1.0, &mut scratch)

@@ -474,7 +474,7 @@ pub(crate) fn overlap_fraction(points: &[Point3], tree: &kdtree::KdTree, distanc
     let near = points
         .par_iter()
         .map_init(Scratch::default, |scratch, p| {
-            usize::from(tree.nearest_from(p, d2, None, scratch).is_some())
+            usize::from(tree.any_within(p, d2, scratch))
         })
         .sum::<usize>();
     near as f64 / points.len().max(1) as f64

@@ -72,7 +72,7 @@ pub use settings::{
 use crate::deformation::BSplineField;
 use crate::error::{RegisterError, Result};
 use crate::icp::{IcpResult, IcpTarget};
-use crate::kdtree::{self};
+use crate::kdtree::{self, Scratch};
 use crate::sampling::{View, VoxelPyramid, facing_indices, spatial_order, voxel_pick};
 use rayon::prelude::*;
 use std::time::Instant;
@@ -165,8 +165,10 @@ fn supported_target(
         .points()
         .par_iter()
         .enumerate()
-        .filter(|(_, p)| tree.nearest_within(p, d2).is_some())
-        .map(|(i, _)| i)
+        .map_init(Scratch::default, |scratch, (i, p)| {
+            tree.any_within(p, d2, scratch).then_some(i)
+        })
+        .flatten()
         .collect();
     if supported.is_empty() {
         return Err(RegisterError::EmptyCloud {

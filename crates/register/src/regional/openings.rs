@@ -215,14 +215,7 @@ fn check_one(
                 _ => x,
             };
             let moved = at + d0 + jacobian * (at - centre);
-            let seen = scan
-                .nearest_from(
-                    &(scan_from_cad * moved),
-                    r2 * scale * scale,
-                    None,
-                    &mut scratch,
-                )
-                .is_some();
+            let seen = scan.any_within(&(scan_from_cad * moved), r2 * scale * scale, &mut scratch);
             Some((cad_state, seen, band[k] == 2))
         })
         .collect();
