@@ -16,6 +16,13 @@ def test_a_huge_point_count_raises_value_error_naming_the_key(key, value):
         trimctl.synth(seed=1, **{key: value})
 
 
+@pytest.mark.parametrize("value", [0.05, -0.03, float("nan")])
+def test_a_shrinkage_gradient_out_of_range_raises_value_error_naming_the_key(value):
+    # The change of shrinkage along the span is bounded by 2 % end to end.
+    with pytest.raises(ValueError, match="shrink_gradient"):
+        trimctl.synth(seed=1, shrink_gradient=value)
+
+
 def tiny_inputs():
     rng = np.random.default_rng(1)
     cad = rng.uniform(-1.0, 1.0, (100, 3))
