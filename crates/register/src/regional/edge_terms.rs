@@ -39,7 +39,7 @@ use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 use trim_geom::{Path, Similarity3, Vector3};
 
 use super::field_fit::FieldPosterior;
-use super::scanned_edge::{EdgeFrom, ScannedEdge};
+use super::scanned_edge::{EdgeFrom, ScannedEdge, widest_gap_um};
 use crate::deformation::{BSplineField, SUPPORT};
 
 /// The scatter of a reading located from the wall about the true edge that its own `σₑ` does
@@ -82,6 +82,19 @@ impl EdgeTermSummary {
     pub fn every_reading_used(&self) -> bool {
         self.used > 0 && self.gated == 0 && self.flashed == 0
     }
+
+    /// The strips' widest gaps before the update (µm, one per contour of `readings`, the lists
+    /// the update was given) that still count in `scan_edge_gap_um`: all of them when the terms
+    /// left a reading out, since a part corrected from one end only (the other end's readings
+    /// left out as possible flash) shows its gap there before and no longer after; none when
+    /// they took every reading, since then no end went uncorrected.
+    pub(crate) fn gaps_before(&self, readings: &[Vec<ScannedEdge>]) -> Vec<Option<f64>> {
+        let count = !self.every_reading_used();
+        readings
+            .iter()
+            .map(|edges| widest_gap_um(edges).filter(|_| count))
+            .collect()
+    }
 }
 
 /// Conditions `field` and `posterior` on the scanned edges `readings` (one list per contour of
@@ -104,13 +117,12 @@ pub(crate) fn condition_on_edges(
     let mut flashed = 0;
     for (contour, edges) in path.contours().iter().zip(readings) {
         for e in edges {
-            let outward = e.shows_material_beyond();
-            if e.is_flash() || outward {
-                flashed += 1;
-            }
             if e.is_flash() {
+                flashed += 1;
                 continue;
             }
+            let outward = e.shows_material_beyond();
+            flashed += usize::from(outward);
             let Some(row) = reading_row(field, contour, e, scale) else {
                 continue;
             };
@@ -468,6 +480,38 @@ mod tests {
             (0.011..0.015).contains(&mean),
             "moved {mean:.4} mm outward on average"
         );
+    }
+
+    #[test]
+    fn a_gap_before_the_update_counts_only_when_a_reading_was_left_out() {
+        // A strip 50 µm beyond the material before the update (gap 50 − 2 × 2 = 46 µm) and a
+        // strip with no reading.
+        let readings = vec![vec![reading(-0.05, EdgeFrom::Wall)], Vec::new()];
+        let all_used = EdgeTermSummary {
+            used: 3,
+            ..EdgeTermSummary::default()
+        };
+        assert_eq!(all_used.gaps_before(&readings), [None, None]);
+        // One reading gated, or left out for the material beyond it: the gap before counts.
+        for left_out in [
+            EdgeTermSummary {
+                gated: 1,
+                ..all_used
+            },
+            EdgeTermSummary {
+                flashed: 1,
+                widened: 1,
+                ..all_used
+            },
+            // The update did not run.
+            EdgeTermSummary::default(),
+        ] {
+            let gaps = left_out.gaps_before(&readings);
+            assert!(
+                gaps[0].is_some_and(|g| (g - 46.0).abs() < 1e-9) && gaps[1].is_none(),
+                "{left_out:?}: {gaps:?}"
+            );
+        }
     }
 
     #[test]

@@ -382,9 +382,8 @@ pub fn register(
     // The scanned edges as observations of the field (`regional::edge_terms`).
     let fitted_field = field.clone();
     let mut edge_terms = None;
-    // The strips' gaps the scan showed before the edge terms moved the field: both count
-    // (`scanned_edge::contour_gap_um`), unless the terms took every reading (then nothing was
-    // corrected from one end only, and the gap after is the one the scan shows).
+    // The strips' gaps the scan showed before the edge terms moved the field, where they still
+    // count (`EdgeTermSummary::gaps_before`, `scanned_edge::contour_gap_um`).
     let mut gaps_before: Vec<Option<f64>> = vec![None; path.contours().len()];
     if settings.quality.edge_terms
         && let (Some(f), Some(post)) = (field.as_mut(), posterior.as_mut())
@@ -396,21 +395,11 @@ pub fn register(
                 .par_iter()
                 .map(|c| scanned_edge::strip_edges(c, scan.points(), &scan_tree))
                 .collect();
-            for (g, edges) in gaps_before.iter_mut().zip(&readings) {
-                *g = scanned_edge::widest_gap_um(edges);
-            }
-            Ok(edge_terms::condition_on_edges(
-                f,
-                post,
-                path,
-                &readings,
-                &scan_from_cad,
-            ))
+            let summary = edge_terms::condition_on_edges(f, post, path, &readings, &scan_from_cad);
+            gaps_before = summary.gaps_before(&readings);
+            Ok(summary)
         })?;
         registered = stage(&mut timings, "apply to path", || apply(Some(f)))?;
-        if summary.every_reading_used() {
-            gaps_before.fill(None);
-        }
         edge_terms = Some(summary);
     }
 
