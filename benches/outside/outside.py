@@ -234,6 +234,7 @@ def run_case(args, scorer, p):
     row.update(
         refused=False,
         part_refused=rep["global"].get("refused"),
+        part_in_doubt=rep["global"].get("in_doubt"),
         p95_um=1e3 * float(np.percentile(pts, 95)) if len(pts) else float("nan"),
         max_um=max((c["true_um"] for c in trusted), default=float("nan")),
         worst_contour_p95_um=max((c["cross_p95_um"] for c in trusted), default=float("nan")),
@@ -329,6 +330,7 @@ def main():
             row["silent"], row["false_alarms"], row["good"], row["bound_held"], row["contours"],
             row["contours"], row["wall_s"],
             ("  PART REFUSED" if row["part_refused"] else "")
+            + ("  PART IN DOUBT" if row.get("part_in_doubt") else "")
             + ("  silent %s" % row["silent_ids"][:6] if row["silent"] else "")),
             flush=True)
     ok = [r for r in rows if not r["refused"]]
@@ -336,6 +338,7 @@ def main():
     tot = dict(
         cases=len(rows), refused=len(rows) - len(ok), contours=n,
         parts_refused=sum(bool(r["part_refused"]) for r in ok),
+        parts_in_doubt=sum(bool(r.get("part_in_doubt")) for r in ok),
         worst_p95_um=max((r["p95_um"] for r in ok), default=float("nan")),
         worst_max_um=max((r["max_um"] for r in ok), default=float("nan")),
         worst_contour_p95_um=max((r["worst_contour_p95_um"] for r in ok), default=float("nan")),
@@ -346,10 +349,10 @@ def main():
         median_wall_s=float(np.median([r["wall_s"] for r in ok])) if ok else float("nan"),
     )
     print("-" * len(head))
-    print("cases %d (not registered %d, parts refused %d), contours %d: worst P95 %.1f um, worst max %.1f um over trusted contours "
+    print("cases %d (not registered %d, parts refused %d, in doubt %d), contours %d: worst P95 %.1f um, worst max %.1f um over trusted contours "
           "(worst per-contour P95 %.1f um); silent misses %d (contours over tolerance %d); false alarms %d of "
           "%d (%.1f %%); bound held %d of %d (%.1f %%); flagged %d; median register wall %.2f s" % (
-              tot["cases"], tot["refused"], tot["parts_refused"], n, tot["worst_p95_um"], tot["worst_max_um"],
+              tot["cases"], tot["refused"], tot["parts_refused"], tot["parts_in_doubt"], n, tot["worst_p95_um"], tot["worst_max_um"],
               tot["worst_contour_p95_um"], tot["silent"], tot["over_tol"], tot["false_alarms"], tot["good"],
               100 * tot["false_alarms"] / max(tot["good"], 1), tot["bound_held"], n,
               100 * tot["bound_held"] / max(n, 1), tot["flagged"], tot["median_wall_s"]))

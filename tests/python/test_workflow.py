@@ -120,6 +120,9 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
     # The demo case is trusted as a part (a refusal would flag every contour part_refused).
     assert registration.refused is None
     assert not any("part_refused" in q.flags for q in quality)
+    # Nor is it in doubt; a doubt would name its reason and flag contours part_in_doubt.
+    assert registration.in_doubt is None
+    assert not any("part_in_doubt" in q.flags for q in quality)
     # The bound covers the actual largest cross-edge error on most contours of the demo case
     # (the calibration test asserts >= 95 % on the seeded cases; here a few contours only).
     truth = {cid: case.truth.points[case.truth.ids == cid] for cid in bounds}

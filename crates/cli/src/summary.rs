@@ -31,6 +31,9 @@ pub fn registration(report: &QualityReport) -> String {
         g.untrustworthy,
         report.contours.len()
     );
+    if let Some(reason) = &g.in_doubt {
+        let _ = writeln!(s, "  part in doubt: {reason}");
+    }
     if let Some(e) = &g.edge_terms {
         let _ = writeln!(
             s,

@@ -65,7 +65,8 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// opening flags `opening_misplaced` and refuses the part). `scan_edge_gap_um`: for an open
 /// contour or a hole's rim, how far it lies beyond the material the scan shows beside it
 /// (negative: no gap; `None` where the scan does not locate its edge); over the tolerance it flags
-/// `edge_off_scan` and refuses the part. `scan_edges`: the scanned-edge readings behind that gap,
+/// `edge_off_scan` and puts the part in doubt (every contour whose bound exceeds
+/// `quality.doubt_bound_fraction` of the tolerance is then flagged `part_in_doubt`). `scan_edges`: the scanned-edge readings behind that gap,
 /// one dict per stretch (`at_mm`, `offset_um`, `sigma_um`, `points`, `from`, `flash_share`), as
 /// in registration.json; the edge terms condition the field on a strip's (not a rim's). A strip
 /// whose readings show more than 20 µm of material beyond it, or a strip sharing an end with
@@ -127,9 +128,9 @@ pub struct ContourQuality {
     pub scan_edges: Py<pyo3::types::PyTuple>,
     /// The predicted bound on the largest cross-edge error, µm.
     pub predicted_max_error_um: f64,
-    /// The same under a tenth of the whole prior, µm: what the part's refusal counts a contour
+    /// The same under a tenth of the whole prior, µm: what the part's doubt counts a contour
     /// as flagged by (more than `max_untrusted_fraction` of the contours over the tolerance by
-    /// this or flagged refuses the part).
+    /// this or flagged puts the part in doubt).
     pub part_bound_um: f64,
     /// What was found wrong (the report's flag names).
     pub flags: Py<pyo3::types::PyTuple>,

@@ -905,11 +905,17 @@ fn trusted_contours(
     if untrusted.is_empty() {
         return Ok(registration.path.clone());
     }
+    let doubt = registration
+        .report
+        .global
+        .in_doubt
+        .as_ref()
+        .map_or(String::new(), |r| format!(" (the part is in doubt: {r})"));
     if !args.skip_untrusted {
         return Err(Failure::with_exit(
             Exit::Refused,
             anyhow::anyhow!(
-                "registration flags {} contour(s) untrustworthy: {untrusted:?} (see {}); refusing to start. Check the scan, or pass --skip-untrusted to trim the others",
+                "registration flags {} contour(s) untrustworthy: {untrusted:?}{doubt} (see {}); refusing to start. Check the scan, or pass --skip-untrusted to trim the others",
                 untrusted.len(),
                 run_dir.join(files::REGISTRATION).display()
             ),

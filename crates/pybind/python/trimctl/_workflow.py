@@ -286,6 +286,14 @@ class Registration:
         ``part_refused``), or ``None``."""
         return self.report["global"].get("refused")
 
+    @property
+    def in_doubt(self) -> Optional[str]:
+        """Why the part is in doubt (an edge off the scan, or more than
+        ``max_untrusted_fraction`` of its contours flagged), or ``None``. In a part in doubt
+        every contour whose bound exceeds ``quality.doubt_bound_fraction`` of the tolerance
+        is flagged ``part_in_doubt``; the others stay trusted."""
+        return self.report["global"].get("in_doubt")
+
 
 def register_path(
     cad: np.ndarray,

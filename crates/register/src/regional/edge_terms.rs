@@ -30,7 +30,7 @@
 //! 2026-11-28 the cap was 10 µm and the flag 15 µm, and strips reading 10–15 µm beyond were
 //! neither corrected nor flagged (outside tune seeds 2001–2080: 12 of the 29 trusted contours
 //! with a cross-edge P95 over 12 µm). An edge the registration put beyond the material is left
-//! to the scanned-edge check, which refuses the part. A reading left out for the material
+//! to the scanned-edge check, which puts the part in doubt. A reading left out for the material
 //! beyond it (not flash) may still be the part lying out there: the move it would have made,
 //! `k = Σhᵀ o / (hΣhᵀ + r)`, is added to the posterior as a possible one (`Σ ← Σ + k kᵀ`), so
 //! the contours it would have carried have it in their bounds.

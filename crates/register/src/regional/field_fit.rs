@@ -732,7 +732,7 @@ pub const POSTERIOR_SPAN_PRIOR_SCALE: f64 = 1.0;
 pub struct FieldPosterior {
     covariance: DMatrix<f64>,
     /// The same under [`POSTERIOR_PRIOR_SCALE`] of every prior term, the span's too: what the
-    /// part's refusal counts contours by (`quality::refuse_part`), as it was calibrated.
+    /// part's doubt counts contours by (`quality::judge_part`), as it was calibrated.
     part_covariance: Option<DMatrix<f64>>,
     /// The residual standard deviation `σ`, mm.
     pub sigma_mm: f64,

@@ -23,7 +23,10 @@
 //!    its residual and its coverage. A contour whose bound exceeds the tolerance, or whose coverage
 //!    or residual fails, is flagged untrustworthy. The opening check then slides each closed
 //!    contour's opening over the raw scan around it; an opening the scan shows elsewhere flags
-//!    its contour and refuses the part (a slide along the part that every match hides).
+//!    its contour and refuses the part (a slide along the part that every match hides). The
+//!    scanned-edge check reads where each strip's edge really is; one off by more than the
+//!    tolerance, or more than half the contours flagged, puts the part in doubt
+//!    (`quality::judge_part`).
 //!
 //! The stages live in the submodules `settings`, `coarse`, `field_fit`, `quality` and
 //! `openings`; their public items are re-exported here by name.
@@ -60,7 +63,7 @@ pub use quality::{
     ContourQuality, END_SUPPORT_MIN_COS, EdgeReading, Flag, GlobalQuality, MATERIAL_BEYOND_MM,
     MODEL_CHECK_SPACING_RATIO, QualityReport, SUPPORT_MIN_COS, is_open, predicted_bound_mm,
 };
-use quality::{contour_quality, material_beyond, refuse_part};
+use quality::{contour_quality, judge_part, material_beyond};
 pub use scanned_edge::{
     EDGE_GAP_SIGMAS, EDGE_STRETCH_MM, EDGE_WINDOW_MM, EdgeFrom, ScannedEdge, scanned_edges,
 };
@@ -462,8 +465,8 @@ pub fn register(
         }
         Ok(())
     })?;
+    let verdict = judge_part(&mut contours, &settings.quality);
     let untrustworthy = contours.iter().filter(|c| !c.trustworthy).count();
-    let refused = refuse_part(&mut contours, &settings.quality);
     let report = QualityReport {
         global: GlobalQuality {
             scan_from_cad: matrix_rows(&scan_from_cad),
@@ -477,7 +480,8 @@ pub fn register(
             field_rmse_mm,
             field_points: field_points.len(),
             untrustworthy,
-            refused,
+            refused: verdict.refused,
+            in_doubt: verdict.in_doubt,
             edge_terms,
         },
         contours,

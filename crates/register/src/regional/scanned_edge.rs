@@ -822,7 +822,7 @@ mod tests {
     #[test]
     fn a_rim_moves_no_field_and_a_strips_gap_before_the_update_counts() {
         // A slid hole's rim shows its gap when checked, but gives the edge terms nothing: its
-        // gap before the update cannot refuse the part.
+        // gap before the update cannot put the part in doubt.
         let (rim, scan) = holed_plate(0.060, 0.010, 150.0, 0);
         let tree = KdTree::build(&scan);
         assert!(widest_gap_um(&scanned_edges(&rim, &scan, &tree)).is_some_and(|g| g > 30.0));

@@ -220,9 +220,16 @@ pub struct QualitySettings {
     /// The surroundings within this (mm) give `support_ratio` and the support distance (capped
     /// at this).
     pub support_radius_mm: f64,
-    /// Refuse the part as a whole (every contour flagged `part_refused`) when more than this
-    /// fraction of its contours is flagged.
+    /// The part is in doubt when more than this fraction of its contours is flagged (or over
+    /// the tolerance by `part_bound_um`); so it is when the scan shows an edge off
+    /// (`edge_off_scan`).
     pub max_untrusted_fraction: f64,
+    /// In a part in doubt, a contour stays trusted only while its bound is within this
+    /// fraction of `tolerance_um`; the others are flagged `part_in_doubt`. 0 flags every
+    /// contour of such a part. Half the tolerance: over the outside generator's tune pool the
+    /// contours over 30 µm that the part's doubt had to catch carried bounds of 21–30 µm
+    /// (DESIGN.md, "Registration", step 5).
+    pub doubt_bound_fraction: f64,
     /// Refuse the whole registration when fewer than this fraction of scan points lie within
     /// `overlap_distance_mm` of the CAD after the coarse stage.
     pub min_overlap: f64,
@@ -252,6 +259,7 @@ impl Default for QualitySettings {
             max_residual_mm: 0.05,
             tolerance_um: 30.0,
             max_untrusted_fraction: 0.5,
+            doubt_bound_fraction: 0.5,
             support_radius_mm: 15.0,
             min_overlap: 0.3,
             overlap_distance_mm: 1.0,
@@ -323,9 +331,12 @@ pub mod gate {
     pub const MIN_COVERAGE: (f64, f64) = (0.2, 1.0);
     /// `quality.min_overlap`: below 0.05 a scan that barely meets the CAD passes.
     pub const MIN_OVERLAP: (f64, f64) = (0.05, 1.0);
-    /// `quality.max_untrusted_fraction`: a stricter part-level gate is always safe (0 refuses
-    /// any part with a flagged contour); 1 never refuses the part as a whole.
+    /// `quality.max_untrusted_fraction`: a stricter part-level gate is always safe (0 doubts
+    /// any part with a flagged contour); 1 never doubts the part for its count of flags.
     pub const MAX_UNTRUSTED_FRACTION: (f64, f64) = (0.0, 1.0);
+    /// `quality.doubt_bound_fraction`: 0 flags every contour of a part in doubt; 1 trusts the
+    /// bounds of a part in doubt as those of any other.
+    pub const DOUBT_BOUND_FRACTION: (f64, f64) = (0.0, 1.0);
     /// `quality.max_residual_mm`: above 0.5 mm a patch that misses the surface passes.
     pub const MAX_RESIDUAL_MM: (f64, f64) = (0.001, 0.5);
     /// `quality.coverage_radius_mm`: above 5 mm any scan point nearby covers a contour.
@@ -491,6 +502,11 @@ impl RegisterSettings {
             "quality.max_untrusted_fraction",
             q.max_untrusted_fraction,
             gate::MAX_UNTRUSTED_FRACTION,
+        )?;
+        within(
+            "quality.doubt_bound_fraction",
+            q.doubt_bound_fraction,
+            gate::DOUBT_BOUND_FRACTION,
         )?;
         Ok(())
     }
