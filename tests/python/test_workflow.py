@@ -68,6 +68,33 @@ def test_registration_lands_on_the_truth(case, registration):
     assert registration.scan_from_cad.shape == (4, 4)
 
 
+def test_a_part_in_doubt_flags_only_the_contours_over_its_share_of_the_tolerance(case):
+    # A stricter part-level gate (any flagged contour puts the part in doubt) and a 12 µm
+    # tolerance: the demo part is in doubt, not refused, and each contour whose bound exceeds
+    # 0.75 of the tolerance (9 µm) is flagged part_in_doubt.
+    quality_keys = {"tolerance_um": 12.0, "max_untrusted_fraction": 0.0,
+                    "doubt_bound_fraction": 0.75}
+    reg = trimctl.register_path(
+        case.cad_points, case.scan, case.path, cad_normals=case.cad_normals,
+        init=case.scan_from_cad_nominal,
+        settings={"cad_sample_points": 60_000, "quality": quality_keys},
+    )
+    assert reg.refused is None
+    assert reg.in_doubt is not None and "quality.max_untrusted_fraction (0 %)" in reg.in_doubt
+    assert "exceeds 9 µm" in reg.in_doubt, reg.in_doubt
+    for q in reg.quality:
+        assert ("part_in_doubt" in q.flags) == (q.predicted_max_error_um > 9.0), q
+        assert q.trustworthy == (not q.flags), q
+    assert reg.report["global"]["untrustworthy"] == sum(not q.trustworthy for q in reg.quality)
+    # Out of range: refused naming the key.
+    with pytest.raises(ValueError, match="quality.doubt_bound_fraction"):
+        trimctl.register_path(
+            case.cad_points, case.scan, case.path, cad_normals=case.cad_normals,
+            init=case.scan_from_cad_nominal,
+            settings={"cad_sample_points": 60_000, "quality": {"doubt_bound_fraction": -0.1}},
+        )
+
+
 def entry_of(registration, contour_id):
     return next(c for c in registration.contours if c["id"] == contour_id)
 
