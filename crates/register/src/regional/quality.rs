@@ -250,7 +250,7 @@ pub(crate) struct PartVerdict {
 ///   [`Flag::PartInDoubt`], and the rest stay trusted. Over the outside generator's tune pool
 ///   (tune, holdout and fresh seeds 4001–4560, 720 cases), the contours over 30 µm these rules
 ///   had to catch carried bounds of 21–30 µm; refusing such parts whole flagged every good
-///   contour in them (a third of all false alarms). DESIGN.md, "Registration", step 5.
+///   contour in them (45 % of all false alarms). DESIGN.md, "Registration", step 5.
 pub(crate) fn judge_part(contours: &mut [ContourQuality], q: &QualitySettings) -> PartVerdict {
     let flagged = contours
         .iter()
