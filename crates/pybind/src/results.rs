@@ -66,9 +66,10 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// contour or a hole's rim, how far it lies beyond the material the scan shows beside it
 /// (negative: no gap; `None` where the scan does not locate its edge); over the tolerance it flags
 /// `edge_off_scan` and puts the part in doubt (every contour whose bound exceeds
-/// `quality.doubt_bound_fraction` of the tolerance is then flagged `part_in_doubt`). `scan_edges`: the scanned-edge readings behind that gap,
-/// one dict per stretch (`at_mm`, `offset_um`, `sigma_um`, `points`, `from`, `flash_share`), as
-/// in registration.json; the edge terms condition the field on a strip's (not a rim's). A strip
+/// `quality.doubt_bound_fraction` of the tolerance is then flagged `part_in_doubt`).
+/// `scan_edges`: the scanned-edge readings behind that gap, one dict per stretch (`at_mm`,
+/// `offset_um`, `sigma_um`, `points`, `from`, `flash_share`), as in registration.json; the
+/// edge terms condition the field on a strip's (not a rim's). A strip
 /// whose readings show more than 20 µm of material beyond it, or a strip sharing an end with
 /// one, is flagged `material_beyond` (the edge may lie inside the material, or a burr stands
 /// there; the part is not refused for it).

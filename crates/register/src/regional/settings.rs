@@ -221,8 +221,8 @@ pub struct QualitySettings {
     /// at this).
     pub support_radius_mm: f64,
     /// The part is in doubt when more than this fraction of its contours is flagged (or over
-    /// the tolerance by `part_bound_um`); so it is when the scan shows an edge off
-    /// (`edge_off_scan`).
+    /// the tolerance by `part_bound_um`). It is also in doubt when a strip's edge lies off the
+    /// scan (`edge_off_scan`).
     pub max_untrusted_fraction: f64,
     /// In a part in doubt, a contour stays trusted only while its bound is within this
     /// fraction of `tolerance_um`; the others are flagged `part_in_doubt`. 0 flags every
@@ -244,9 +244,10 @@ pub struct QualitySettings {
     /// Condition the field on the edges the scan shows (`regional::edge_terms`): each open
     /// contour's stretches, located in the raw scan, observe the displacement across the edge
     /// that the faces do not fix (a strip's slide along the span, a corner's along the chord).
-    /// A part whose scan showed a gap over the tolerance before the terms moved the field is
-    /// still refused when the terms left a reading out (a slide corrected from one end only
-    /// shows its gap there and not after); when they took every reading, the gap after counts.
+    /// A gap over the tolerance that the scan showed before the terms moved the field still
+    /// flags the strip `edge_off_scan` (and puts the part in doubt) when the terms left a
+    /// reading out (a slide corrected from one end only shows its gap there and not after);
+    /// when they took every reading, the gap after counts.
     pub edge_terms: bool,
 }
 
