@@ -43,10 +43,15 @@ use super::scanned_edge::{EdgeFrom, ScannedEdge, widest_gap_um};
 use crate::deformation::{BSplineField, SUPPORT};
 
 /// The scatter of a reading located from the wall about the true edge that its own `σₑ` does
-/// not explain, mm (outside tune seeds 2001–2080: residual SD 3.4 µm at a median σₑ of 2.4 µm).
-pub const EDGE_TERM_WALL_FLOOR_MM: f64 = 0.003;
-/// The same for a reading from the face's end, mm (SD 9.5 µm at a median σₑ of 5.8 µm).
-pub const EDGE_TERM_FACE_FLOOR_MM: f64 = 0.008;
+/// not explain, mm: `√(SD² − mean σₑ²)` of the readings before the update against the truth,
+/// on the outside tune seeds 2001–2080 with the edge terms off. Re-measured 2026-11-29 (1,398
+/// wall readings: residual SD 3.1 µm at an RMS σₑ of 2.5 µm, 1.9 µm; unbiased); 3 µm before
+/// (2026-11-27: SD 3.4 µm at a median σₑ of 2.4 µm, on that day's registration).
+pub const EDGE_TERM_WALL_FLOOR_MM: f64 = 0.002;
+/// The same for a reading from the face's end, mm. Re-measured 2026-11-29 (830 face readings:
+/// SD 6.2 µm at an RMS σₑ of 5.9 µm, 1.9 µm; bias −1.1 µm); 8 µm before (2026-11-27: SD
+/// 9.5 µm at a median σₑ of 5.8 µm).
+pub const EDGE_TERM_FACE_FLOOR_MM: f64 = 0.002;
 /// A reading whose offset lies beyond this many predicted deviations is left out.
 pub const EDGE_TERM_GATE_SIGMAS: f64 = 3.0;
 /// Contour points per stretch whose field rows are averaged into the reading's row (evenly
@@ -381,7 +386,7 @@ mod tests {
         assert_eq!((summary.used, summary.gated), (1, 0));
         assert!(summary.every_reading_used());
         // The reading is the stretch's mean offset. A prior of about 25 µm against a reading
-        // good to 3.6 µm: most of the 40 µm is taken.
+        // good to 2.8 µm: most of the 40 µm is taken.
         let points = path.contours()[0].points();
         let mean =
             -points.iter().map(|p| field.displacement(p).y).sum::<f64>() / points.len() as f64;
@@ -528,14 +533,23 @@ mod tests {
     }
 
     #[test]
-    fn a_face_reading_counts_for_less_than_a_wall_reading() {
-        let moved = |from| {
-            -conditioned(0.015, reading(-0.02, from))
-                .0
-                .displacement(&MID)
-                .y
+    fn a_reading_counts_by_its_own_deviation_wherever_it_was_located() {
+        // The floors measured for the wall and the face are the same (2 µm): what weighs a
+        // reading is its own σₑ, which a face's end (few points at the edge) makes wider.
+        let moved = |from, sigma_mm| {
+            let mut e = reading(-0.02, from);
+            e.sigma_mm = sigma_mm;
+            -conditioned(0.015, e).0.displacement(&MID).y
         };
-        let (wall, face) = (moved(EdgeFrom::Wall), moved(EdgeFrom::Face));
-        assert!(face > 0.0 && face < wall, "face {face:.4}, wall {wall:.4}");
+        let (wall, face) = (moved(EdgeFrom::Wall, 0.002), moved(EdgeFrom::Face, 0.002));
+        assert!(
+            wall > 0.0 && (face - wall).abs() < 1e-12,
+            "face {face:.4}, wall {wall:.4}"
+        );
+        let wider = moved(EdgeFrom::Face, 0.006);
+        assert!(
+            wider > 0.0 && wider < 0.9 * face,
+            "σₑ 6 µm moved {wider:.4}, 2 µm {face:.4}"
+        );
     }
 }
