@@ -15,10 +15,10 @@
 //! K = Σ Hᵀ (H Σ Hᵀ + R)⁻¹,   c ← c + K o,   Σ ← Σ − K H Σ,
 //! ```
 //!
-//! the Kalman update, with `r = σₑ² + floor²` per reading. The floors
-//! ([`EDGE_TERM_WALL_FLOOR_MM`], [`EDGE_TERM_FACE_FLOOR_MM`]) are the readings' scatter about
-//! the truth that their own `σₑ` does not explain, measured on the outside generator's tune
-//! seeds. A reading the posterior finds implausible (`o² > 9·(hΣhᵀ + r)`) is left out: flash
+//! the Kalman update, with `r = σₑ² + floor²` per reading. The floor
+//! ([`EDGE_TERM_FLOOR_MM`]) is the readings' scatter about the truth that their own `σₑ` does
+//! not explain, measured on the outside generator's tune seeds; it is the same for a reading
+//! from the wall and from the face's end. A reading the posterior finds implausible (`o² > 9·(hΣhᵀ + r)`) is left out: flash
 //! standing off the edge reads as material far beyond it, and the laser is there to remove it,
 //! not to follow it; so is a stretch whose face runs on beyond the contour
 //! (`ScannedEdge::flash_share`), where a burr web in the face's plane would bias the reading
@@ -39,19 +39,17 @@ use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 use trim_geom::{Path, Similarity3, Vector3};
 
 use super::field_fit::FieldPosterior;
-use super::scanned_edge::{EdgeFrom, ScannedEdge, widest_gap_um};
+use super::scanned_edge::{ScannedEdge, widest_gap_um};
 use crate::deformation::{BSplineField, SUPPORT};
 
-/// The scatter of a reading located from the wall about the true edge that its own `σₑ` does
-/// not explain, mm: `√(SD² − mean σₑ²)` of the readings before the update against the truth,
-/// on the outside tune seeds 2001–2080 with the edge terms off. Re-measured 2026-11-29 (1,398
-/// wall readings: residual SD 3.1 µm at an RMS σₑ of 2.5 µm, 1.9 µm; unbiased); 3 µm before
-/// (2026-11-27: SD 3.4 µm at a median σₑ of 2.4 µm, on that day's registration).
-pub const EDGE_TERM_WALL_FLOOR_MM: f64 = 0.002;
-/// The same for a reading from the face's end, mm. Re-measured 2026-11-29 (830 face readings:
-/// SD 6.2 µm at an RMS σₑ of 5.9 µm, 1.9 µm; bias −1.1 µm); 8 µm before (2026-11-27: SD
-/// 9.5 µm at a median σₑ of 5.8 µm).
-pub const EDGE_TERM_FACE_FLOOR_MM: f64 = 0.002;
+/// The scatter of a reading about the true edge that its own `σₑ` does not explain, mm:
+/// `√(SD² − mean σₑ²)` of the readings before the update against the truth, on the outside
+/// tune seeds 2001–2080 with the edge terms off. Re-measured 2026-11-29: 1.9 µm both for the
+/// 1,398 readings located from the wall (residual SD 3.1 µm at an RMS σₑ of 2.5 µm; unbiased)
+/// and for the 830 from the face's end (6.2 µm at 5.9 µm; bias −1.1 µm). Until then 3 µm for
+/// the wall and 8 µm for the face (2026-11-27: SD 3.4 µm at a median σₑ of 2.4 µm, and 9.5 µm
+/// at 5.8 µm, on that day's registration).
+pub const EDGE_TERM_FLOOR_MM: f64 = 0.002;
 /// A reading whose offset lies beyond this many predicted deviations is left out.
 pub const EDGE_TERM_GATE_SIGMAS: f64 = 3.0;
 /// Contour points per stretch whose field rows are averaged into the reading's row (evenly
@@ -131,11 +129,11 @@ pub(crate) fn condition_on_edges(
             let Some(row) = reading_row(field, contour, e, scale) else {
                 continue;
             };
-            let floor = match e.from {
-                EdgeFrom::Wall => EDGE_TERM_WALL_FLOOR_MM,
-                EdgeFrom::Face => EDGE_TERM_FACE_FLOOR_MM,
-            };
-            let reading = (row, e.offset_mm, e.sigma_mm.powi(2) + floor * floor);
+            let reading = (
+                row,
+                e.offset_mm,
+                e.sigma_mm.powi(2) + EDGE_TERM_FLOOR_MM * EDGE_TERM_FLOOR_MM,
+            );
             if outward {
                 beyond.push(reading);
             } else {
@@ -534,7 +532,7 @@ mod tests {
 
     #[test]
     fn a_reading_counts_by_its_own_deviation_wherever_it_was_located() {
-        // The floors measured for the wall and the face are the same (2 µm): what weighs a
+        // One floor for the wall and the face (measured the same, 2 µm): what weighs a
         // reading is its own σₑ, which a face's end (few points at the edge) makes wider.
         let moved = |from, sigma_mm| {
             let mut e = reading(-0.02, from);
