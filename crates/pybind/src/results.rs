@@ -59,7 +59,9 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// `support_ratio` the same ratio along that direction over the support radius.
 /// `end_support_mm`: for a strip, how far its ends lie from scan surface facing along it.
 /// `model_disagreement_mm`: how far apart the field and a second fit at 0.75× its control
-/// spacing put the contour (large where the smoothness prior, not the data, places it).
+/// spacing put the contour (large where the smoothness prior, not the data, places it), both
+/// conditioned on the strips' scanned edges; `model_disagreement_faces_mm` the same between the
+/// two fits to the faces alone (what `part_bound_um` and the part's doubt count by).
 /// `opening_slide_mm`, `opening_gain`, `opening_cover_gain`: for a closed contour, the opening
 /// check (how far off the scan shows its opening, and the agreement that gains; a misplaced
 /// opening flags `opening_misplaced` and refuses the part). `scan_edge_gap_um`: for an open
@@ -104,6 +106,8 @@ pub struct ContourQuality {
     /// How far apart the field and the check fit put the contour, mm (0 without
     /// `quality.model_check`).
     pub model_disagreement_mm: f64,
+    /// The same between the two fits to the faces alone, before the edge terms, mm.
+    pub model_disagreement_faces_mm: f64,
     /// The posterior deviation across the contour alone, mm.
     pub cross_sigma_mm: f64,
     /// For an open contour, the posterior deviation at its ends in any direction, mm (0 for a
@@ -175,6 +179,7 @@ impl ContourQuality {
             support_distance_mm: c.support_distance_mm,
             end_support_mm: c.end_support_mm,
             model_disagreement_mm: c.model_disagreement_mm,
+            model_disagreement_faces_mm: c.model_disagreement_faces_mm,
             cross_sigma_mm: c.cross_sigma_mm,
             end_sigma_mm: c.end_sigma_mm,
             opening_slide_mm: c.opening_slide_mm,

@@ -66,6 +66,12 @@ impl BandedCholesky {
         Some(BandedCholesky { n, bw, l })
     }
 
+    /// The matrix's order.
+    #[must_use]
+    pub fn dim(&self) -> usize {
+        self.n
+    }
+
     /// `L[i][k]` for `k` within the band of row `i`.
     fn at(&self, i: usize, k: usize) -> f64 {
         self.l[i * (self.bw + 1) + (k + self.bw - i)]

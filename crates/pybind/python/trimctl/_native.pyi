@@ -131,6 +131,7 @@ class ContourQuality:
     support_distance_mm: float
     end_support_mm: float
     model_disagreement_mm: float
+    model_disagreement_faces_mm: float
     cross_sigma_mm: float
     end_sigma_mm: float
     opening_slide_mm: Optional[float]

@@ -38,7 +38,7 @@
 use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 use trim_geom::{Path, Similarity3, Vector3};
 
-use super::field_fit::FieldPosterior;
+use super::field_fit::{CheckPosterior, FieldPosterior};
 use super::scanned_edge::{ScannedEdge, widest_gap_um};
 use crate::deformation::{BSplineField, SUPPORT};
 
@@ -111,52 +111,13 @@ pub(crate) fn condition_on_edges(
     readings: &[Vec<ScannedEdge>],
     scan_from_cad: &Similarity3,
 ) -> EdgeTermSummary {
-    let scale = scan_from_cad.scaling();
-    // One sparse row per reading: the mean of the stretch's sampled rows. A reading of more
-    // material beyond the strip than the cap (not flash: its face does not run on) is kept
-    // apart: it does not move the field, but widens the posterior by the move it would make.
-    let mut rows: Vec<Row> = Vec::new();
-    let mut beyond: Vec<Row> = Vec::new();
-    let mut flashed = 0;
-    for (contour, edges) in path.contours().iter().zip(readings) {
-        for e in edges {
-            if e.is_flash() {
-                flashed += 1;
-                continue;
-            }
-            let outward = e.shows_material_beyond();
-            flashed += usize::from(outward);
-            let Some(row) = reading_row(field, contour, e, scale) else {
-                continue;
-            };
-            let reading = (
-                row,
-                e.offset_mm,
-                e.sigma_mm.powi(2) + EDGE_TERM_FLOOR_MM * EDGE_TERM_FLOOR_MM,
-            );
-            if outward {
-                beyond.push(reading);
-            } else {
-                rows.push(reading);
-            }
-        }
-    }
-    // Gate each reading on its own predicted spread; a kept reading's column of ΣHᵀ is kept
-    // for the update.
+    let Rows {
+        rows,
+        beyond,
+        flashed,
+    } = rows(field, path, readings, scan_from_cad, None);
     let sigma = posterior.covariance();
-    let mut kept: Vec<Kept<'_>> = Vec::new();
-    let mut columns = Vec::new();
-    let mut gated = 0;
-    for (row, o, r) in &rows {
-        let sh = sigma_h(sigma, row);
-        let hsh: f64 = row.iter().map(|&(j, v)| v * sh[j]).sum();
-        if o * o > EDGE_TERM_GATE_SIGMAS.powi(2) * (hsh + r) {
-            gated += 1;
-            continue;
-        }
-        kept.push((row, *o, *r));
-        columns.push(sh);
-    }
+    let (kept, columns, gated) = gate(&rows, |row| Some(sigma_h(sigma, row)));
     let m = kept.len();
     let (mut used, mut largest_shift_mm) = (0, 0.0);
     if let Some((sht, chol)) = (m > 0).then(|| gain(columns, &kept)).flatten() {
@@ -207,6 +168,120 @@ pub(crate) fn condition_on_edges(
         widened: beyond.len(),
         largest_shift_mm,
     }
+}
+
+/// The model check's field `check` conditioned on the same `readings` as the fit's field,
+/// which they were measured on (`measured_on`), under the check's own posterior: its step only
+/// (the check's posterior is not used after). A reading taken on another field is what it
+/// would have read on this one: `o + h'·c' − h·c`, with `h'`, `c'` the other field's row and
+/// control displacements and `h`, `c` this one's. So the two fields are compared given the same
+/// data, faces and scanned edges alike, and where a strip's readings fix what the prior left
+/// open, both follow them. Returns the readings used.
+pub(crate) fn condition_check_on_edges(
+    check: &mut BSplineField,
+    posterior: &CheckPosterior,
+    path: &Path,
+    readings: &[Vec<ScannedEdge>],
+    scan_from_cad: &Similarity3,
+    measured_on: &BSplineField,
+) -> usize {
+    let Rows { rows, .. } = rows(check, path, readings, scan_from_cad, Some(measured_on));
+    let (kept, columns, _) = gate(&rows, |row| posterior.sigma_h(row));
+    let m = kept.len();
+    let Some((sht, chol)) = (m > 0).then(|| gain(columns, &kept)).flatten() else {
+        return 0;
+    };
+    let o = DVector::from_iterator(m, kept.iter().map(|k| k.1));
+    check.add_step((&sht * chol.solve(&o)).as_slice());
+    m
+}
+
+/// The readings as rows of a field ([`rows`]).
+struct Rows {
+    /// The readings that may move the field.
+    rows: Vec<Row>,
+    /// The readings of more material beyond the strip than the cap.
+    beyond: Vec<Row>,
+    /// Readings left out for the material beyond them.
+    flashed: usize,
+}
+
+/// One sparse row of `field` per reading: the mean of the stretch's sampled rows. A reading of
+/// more material beyond the strip than the cap (not flash: its face does not run on) is kept
+/// apart: it does not move the field, but widens the posterior by the move it would make.
+/// Readings taken on the contours registered with `measured_on` are carried over to `field`
+/// ([`condition_check_on_edges`]).
+fn rows(
+    field: &BSplineField,
+    path: &Path,
+    readings: &[Vec<ScannedEdge>],
+    scan_from_cad: &Similarity3,
+    measured_on: Option<&BSplineField>,
+) -> Rows {
+    let scale = scan_from_cad.scaling();
+    let mut out = Rows {
+        rows: Vec::new(),
+        beyond: Vec::new(),
+        flashed: 0,
+    };
+    for (contour, edges) in path.contours().iter().zip(readings) {
+        for e in edges {
+            if e.is_flash() {
+                out.flashed += 1;
+                continue;
+            }
+            let outward = e.shows_material_beyond();
+            out.flashed += usize::from(outward);
+            let Some(row) = reading_row(field, contour, e, scale) else {
+                continue;
+            };
+            let offset_mm = match measured_on {
+                None => e.offset_mm,
+                Some(other) => {
+                    let Some(other_row) = reading_row(other, contour, e, scale) else {
+                        continue;
+                    };
+                    e.offset_mm + row_value(&other_row, other) - row_value(&row, field)
+                }
+            };
+            let reading = (
+                row,
+                offset_mm,
+                e.sigma_mm.powi(2) + EDGE_TERM_FLOOR_MM * EDGE_TERM_FLOOR_MM,
+            );
+            if outward {
+                out.beyond.push(reading);
+            } else {
+                out.rows.push(reading);
+            }
+        }
+    }
+    out
+}
+
+/// Gates each reading on its own predicted spread (`o² > g²·(hΣhᵀ + r)` leaves it out), with
+/// `sigma_h` giving `Σhᵀ`: the readings kept, their columns of `ΣHᵀ`, and how many were gated.
+fn gate(
+    rows: &[Row],
+    sigma_h: impl Fn(&[(usize, f64)]) -> Option<DVector<f64>>,
+) -> (Vec<Kept<'_>>, Vec<DVector<f64>>, usize) {
+    let mut kept: Vec<Kept<'_>> = Vec::new();
+    let mut columns = Vec::new();
+    let mut gated = 0;
+    for (row, o, r) in rows {
+        let Some(sh) = sigma_h(row) else {
+            gated += 1;
+            continue;
+        };
+        let hsh: f64 = row.iter().map(|&(j, v)| v * sh[j]).sum();
+        if o * o > EDGE_TERM_GATE_SIGMAS.powi(2) * (hsh + r) {
+            gated += 1;
+            continue;
+        }
+        kept.push((row, *o, *r));
+        columns.push(sh);
+    }
+    (kept, columns, gated)
 }
 
 /// The move `Σhᵀ o / (hΣhᵀ + r)` a reading `o` (variance `r`, sparse row `row`) would make
@@ -269,6 +344,12 @@ fn reading_row(
         }
     }
     Some(row)
+}
+
+/// The sparse row `row` applied to `field`'s control displacements, mm.
+fn row_value(row: &[(usize, f64)], field: &BSplineField) -> f64 {
+    let c = field.coefficients();
+    row.iter().map(|&(j, v)| v * c[j / 3][j % 3]).sum()
 }
 
 /// A reading kept: its sparse row, offset (mm) and variance (mm²).
@@ -406,6 +487,62 @@ mod tests {
         // Along the strip and off the face the reading says nothing.
         let along = variance(&field, &posterior, &mid, &Vector3::x());
         assert!((along - before).abs() < 1e-12 * before.max(1.0) + 1e-15);
+    }
+
+    #[test]
+    fn the_model_check_takes_the_fits_readings_as_they_would_read_on_it() {
+        // The fit's field 30 µm along +y (outward) everywhere, the check's at zero, both with
+        // the same wide posterior. The scan shows the edge 40 µm inside the contour as the fit
+        // registered it: 10 µm inside the CAD's, which is what the check must read.
+        let (mut fit, mut posterior, path) = case(0.025);
+        let mut check = fit.clone();
+        let dim = 3 * fit.len();
+        let mut step = vec![0.0; dim];
+        for k in 0..fit.len() {
+            step[3 * k + 1] = 0.03;
+        }
+        fit.add_step(&step);
+        let measured_on = fit.clone();
+        let information = posterior
+            .covariance()
+            .clone()
+            .try_inverse()
+            .expect("a diagonal covariance");
+        let check_posterior = CheckPosterior::new(&information, 0, 1.0).expect("positive definite");
+        let readings = [vec![reading(-0.04, EdgeFrom::Wall)]];
+        let points = path.contours()[0].points();
+        let mean_y = |f: &BSplineField| {
+            points.iter().map(|p| f.displacement(p).y).sum::<f64>() / points.len() as f64
+        };
+        let apart_before = mean_y(&fit) - mean_y(&check);
+        let used = condition_check_on_edges(
+            &mut check,
+            &check_posterior,
+            &path,
+            &readings,
+            &Similarity3::identity(),
+            &measured_on,
+        );
+        condition_on_edges(
+            &mut fit,
+            &mut posterior,
+            &path,
+            &readings,
+            &Similarity3::identity(),
+        );
+        assert_eq!(used, 1);
+        // On its own the check moves toward −10 µm, not toward the −40 µm the fit read.
+        let moved = mean_y(&check);
+        assert!(
+            moved < -0.007 && moved > -0.0105,
+            "the check moved {moved:.4} mm along y"
+        );
+        // Given the same reading, the two fields now nearly agree on the strip.
+        let apart_after = (mean_y(&fit) - mean_y(&check)).abs();
+        assert!(
+            (apart_before - 0.03).abs() < 1e-9 && apart_after < 0.2 * apart_before,
+            "{apart_before:.4} -> {apart_after:.4} mm apart"
+        );
     }
 
     #[test]

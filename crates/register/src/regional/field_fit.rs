@@ -2,7 +2,7 @@
 //! of the B-spline field, and moving contours through it.
 
 use super::settings::DeformationSettings;
-use crate::banded::solve_banded_spd;
+use crate::banded::{BandedCholesky, solve_banded_spd};
 use crate::deformation::{BSplineField, SUPPORT};
 use crate::error::{RegisterError, Result};
 use crate::icp::IcpTarget;
@@ -373,7 +373,40 @@ pub(crate) struct FieldFit {
     pub(crate) field: BSplineField,
     pub(crate) matches: Vec<Match>,
     pub(crate) posterior: Option<FieldPosterior>,
-    pub(crate) check: Option<BSplineField>,
+    pub(crate) check: Option<ModelCheck>,
+}
+
+/// The model check's field (`quality.model_check`, [`check_field`]) and its own posterior, so
+/// that the edge terms condition it as they do the fit.
+pub(crate) struct ModelCheck {
+    pub(crate) field: BSplineField,
+    pub(crate) posterior: Option<CheckPosterior>,
+}
+
+/// The model check's posterior as the fit's is taken ([`FieldPosterior`]: the same share of
+/// the prior and damping), kept factored: the edge terms only need its products with their
+/// rows, `C hᵀ = σ² H⁻¹ hᵀ`, one banded solve each, not the whole inverse.
+pub(crate) struct CheckPosterior {
+    factor: BandedCholesky,
+    sigma2: f64,
+}
+
+impl CheckPosterior {
+    /// The posterior `σ² H⁻¹` of the information matrix `h` (half-bandwidth `bandwidth`);
+    /// `None` when `h` is not positive definite.
+    pub(crate) fn new(h: &DMatrix<f64>, bandwidth: usize, sigma2: f64) -> Option<Self> {
+        BandedCholesky::factor(h, bandwidth).map(|factor| CheckPosterior { factor, sigma2 })
+    }
+
+    /// `C hᵀ` for the sparse row `row` (3 unknowns per control point); `None` when the solve
+    /// fails.
+    pub(crate) fn sigma_h(&self, row: &[(usize, f64)]) -> Option<DVector<f64>> {
+        let mut h = DVector::zeros(self.factor.dim());
+        for &(j, v) in row {
+            h[j] += v;
+        }
+        self.factor.solve(&h).map(|x| x * self.sigma2)
+    }
 }
 
 /// Fits the displacement field (CAD frame) to the scan points `q` (CAD frame), with its final
@@ -472,7 +505,7 @@ fn check_field(
     fitted: &[Option<Matched>],
     target: &IcpTarget,
     settings: &DeformationSettings,
-) -> Result<BSplineField> {
+) -> Result<ModelCheck> {
     let (mut check, prior) = zero_field(target, settings)?;
     let kernel = RobustKernel::Huber {
         k_mm: settings.huber_mm,
@@ -536,7 +569,33 @@ fn check_field(
             &format!("model check, pass {pass}"),
         )?;
     }
-    Ok(check)
+    // Its posterior at its own final residuals and weights, as the fit's is taken: the matrix
+    // carried on once more, by the matches whose weight the last solve changed.
+    let pairs: Vec<(Point3, Vector3, f64, f64)> = base
+        .par_iter()
+        .map(|(c, n, r0, index, value)| {
+            let r = r0 + n.dot(&check.displacement_from(index, value));
+            (*c, *n, r, kernel.weight(r))
+        })
+        .collect();
+    let changed: Vec<(Point3, Vector3, f64, f64)> = pairs
+        .iter()
+        .zip(&weights)
+        .filter(|(p, w)| p.3 != **w)
+        .map(|(&(c, n, r, w), old)| (c, n, r, w - old))
+        .collect();
+    h += field_normal_equations(&check, &changed).0;
+    let information = Information::from_data(h, &pairs, settings);
+    let h = information.with_prior(&check, &prior, &PriorTerm::posterior_share);
+    let posterior = CheckPosterior::new(
+        &h,
+        check.bandwidth_with_prior(PRIOR_REACH),
+        information.sigma2,
+    );
+    Ok(ModelCheck {
+        field: check,
+        posterior,
+    })
 }
 
 /// The displacement field alone (CAD frame), and the prior it was fitted under: the
@@ -823,43 +882,92 @@ fn field_posterior(
         .iter()
         .filter_map(|m| m.map(|(_, c, n, _, r)| (c, n, r, kernel.weight(r))))
         .collect();
-    let dim = 3 * field.len();
-    let (data, _) = field_normal_equations(field, &pairs);
-    let mean_diag = data.diagonal().sum() / dim as f64;
-    let scale = POSTERIOR_PRIOR_SCALE;
-    // The data's matrix with the prior, each term at `share` of its weight, and the damping.
-    let with_prior = |share: &(dyn Fn(&PriorTerm) -> f64 + Sync)| {
-        let mut h = data.clone();
-        let mut g = DVector::zeros(dim);
-        add_prior_weighted(
-            &mut h,
-            &mut g,
-            field,
-            prior,
-            settings.smoothness * mean_diag,
-            share,
-        );
-        for i in 0..dim {
-            h[(i, i)] += scale * FIELD_DAMPING * mean_diag.max(f64::MIN_POSITIVE);
-        }
-        h
-    };
-    let (wr2, w): (f64, f64) = pairs
-        .iter()
-        .fold((0.0, 0.0), |(a, b), p| (a + p.3 * p.2 * p.2, b + p.3));
-    // Residual variance per unit weight, the fitted unknowns' degrees of freedom taken out (at
-    // most `dim`; the prior fixes most of them).
-    let sigma2 = wr2 / (w - dim as f64).max(1.0);
+    posterior_of(field, &pairs, prior, settings)
+}
+
+/// The posterior of `field` at the weighted point-to-plane `pairs` `(CAD point, normal,
+/// residual, weight)` under `prior` ([`FieldPosterior`]), and the part's covariance
+/// ([`FieldPosterior::part_covariance`]). `None` when the matrix cannot be inverted.
+fn posterior_of(
+    field: &BSplineField,
+    pairs: &[(Point3, Vector3, f64, f64)],
+    prior: &[PriorTerm],
+    settings: &DeformationSettings,
+) -> Option<FieldPosterior> {
+    let information = Information::new(field, pairs, settings);
+    let sigma2 = information.sigma2;
     let inverse = |h: DMatrix<f64>| h.cholesky().map(|c| c.inverse() * sigma2);
+    let scale = POSTERIOR_PRIOR_SCALE;
     let (covariance, part_covariance) = rayon::join(
-        || inverse(with_prior(&PriorTerm::posterior_share)),
-        || inverse(with_prior(&|_| scale)),
+        || inverse(information.with_prior(field, prior, &PriorTerm::posterior_share)),
+        || inverse(information.with_prior(field, prior, &|_| scale)),
     );
     Some(FieldPosterior {
         covariance: covariance?,
         part_covariance,
         sigma_mm: sigma2.sqrt(),
     })
+}
+
+/// What weighted point-to-plane pairs tell about a field: the data's Gauss-Newton matrix, its
+/// mean diagonal (the prior's and the damping's unit) and the residual variance per unit weight.
+struct Information {
+    data: DMatrix<f64>,
+    mean_diag: f64,
+    /// The prior's weight: the smoothness × the mean data weight per unknown.
+    smoothness_weight: f64,
+    sigma2: f64,
+}
+
+impl Information {
+    fn new(
+        field: &BSplineField,
+        pairs: &[(Point3, Vector3, f64, f64)],
+        settings: &DeformationSettings,
+    ) -> Self {
+        Information::from_data(field_normal_equations(field, pairs).0, pairs, settings)
+    }
+
+    /// The same from the data's matrix `data` of `pairs`, built already.
+    fn from_data(
+        data: DMatrix<f64>,
+        pairs: &[(Point3, Vector3, f64, f64)],
+        settings: &DeformationSettings,
+    ) -> Self {
+        let dim = data.nrows();
+        let mean_diag = data.diagonal().sum() / dim as f64;
+        let (wr2, w): (f64, f64) = pairs
+            .iter()
+            .fold((0.0, 0.0), |(a, b), p| (a + p.3 * p.2 * p.2, b + p.3));
+        // Residual variance per unit weight, the fitted unknowns' degrees of freedom taken out
+        // (at most `dim`; the prior fixes most of them).
+        let sigma2 = wr2 / (w - dim as f64).max(1.0);
+        Information {
+            data,
+            mean_diag,
+            smoothness_weight: settings.smoothness * mean_diag,
+            sigma2,
+        }
+    }
+
+    /// The data's matrix with the prior, each term at `share` of its weight, and
+    /// [`POSTERIOR_PRIOR_SCALE`] of the fit's damping.
+    fn with_prior(
+        &self,
+        field: &BSplineField,
+        prior: &[PriorTerm],
+        share: &(dyn Fn(&PriorTerm) -> f64 + Sync),
+    ) -> DMatrix<f64> {
+        let dim = self.data.nrows();
+        let mut h = self.data.clone();
+        let mut g = DVector::zeros(dim);
+        add_prior_weighted(&mut h, &mut g, field, prior, self.smoothness_weight, share);
+        for i in 0..dim {
+            h[(i, i)] +=
+                POSTERIOR_PRIOR_SCALE * FIELD_DAMPING * self.mean_diag.max(f64::MIN_POSITIVE);
+        }
+        h
+    }
 }
 
 /// Control points one prior stencil spans beyond its first (third differences).
@@ -1355,7 +1463,8 @@ mod tests {
             ..settings
         };
         let check = check_field(&field, &fitted, &target, &check_settings)
-            .unwrap_or_else(|e| panic!("{e}"));
+            .unwrap_or_else(|e| panic!("{e}"))
+            .field;
 
         // The same passes, the normal equations built from every match each time.
         let (mut rebuilt, prior) =

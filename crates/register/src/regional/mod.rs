@@ -384,6 +384,8 @@ pub fn register(
 
     // The scanned edges as observations of the field (`regional::edge_terms`).
     let fitted_field = field.clone();
+    // The model check's field as fitted to the faces, before the edge terms condition it too.
+    let faces_check = check_field.as_ref().map(|c| c.field.clone());
     let mut edge_terms = None;
     // The strips' gaps the scan showed before the edge terms moved the field, where they still
     // count (`EdgeTermSummary::gaps_before`, `scanned_edge::contour_gap_um`).
@@ -400,6 +402,20 @@ pub fn register(
                 .collect();
             let summary = edge_terms::condition_on_edges(f, post, path, &readings, &scan_from_cad);
             gaps_before = summary.gaps_before(&readings);
+            // The model check takes the same readings, so that the two fields are compared
+            // given the same data: faces and scanned edges.
+            if let (Some(check), Some(measured_on)) = (check_field.as_mut(), fitted_field.as_ref())
+                && let Some(check_post) = check.posterior.as_ref()
+            {
+                edge_terms::condition_check_on_edges(
+                    &mut check.field,
+                    check_post,
+                    path,
+                    &readings,
+                    &scan_from_cad,
+                    measured_on,
+                );
+            }
             Ok(summary)
         })?;
         registered = stage(&mut timings, "apply to path", || apply(Some(f)))?;
@@ -410,7 +426,8 @@ pub fn register(
         Ok(contour_quality(
             path,
             field.as_ref(),
-            check_field.as_ref().zip(fitted_field.as_ref()),
+            check_field.as_ref().map(|c| &c.field).zip(field.as_ref()),
+            faces_check.as_ref().zip(fitted_field.as_ref()),
             posterior.as_ref(),
             &matches,
             &scan_from_cad,

@@ -90,6 +90,12 @@ pub struct ContourQuality {
     /// large where the smoothness prior, not the data, decides the contour's position.
     #[serde(default)]
     pub model_disagreement_mm: f64,
+    /// The same between the two fits to the faces alone, before the edge terms conditioned
+    /// both on the strips' scanned edges (`model_disagreement_mm` is after): what the part's
+    /// doubt counts contours by (`part_bound_um`), since it asks whether the scan's faces fix
+    /// the deformation.
+    #[serde(default)]
+    pub model_disagreement_faces_mm: f64,
     /// The field's posterior deviation across the contour alone (the largest over its points in
     /// the plane normal to it), mm; `field_sigma_mm` is the larger of this and `end_sigma_mm`.
     #[serde(default)]
@@ -554,14 +560,16 @@ pub fn predicted_bound_mm(
         * (1.0 + BOUND_COVERAGE_FACTOR * (1.0 - coverage.clamp(0.0, 1.0)))
 }
 
-/// `check`, when given, is the check field of `quality.model_check` with the field as fitted
-/// to the faces beside it (before the edge terms); their disagreement is measured in the scan
-/// frame (× the similarity's scale).
+/// `check`, when given, is the check field of `quality.model_check` with the field, both
+/// conditioned on the scanned edges (the edge terms), and `faces_check` the same pair before
+/// that, fitted to the faces alone; their disagreements are measured in the scan frame (× the
+/// similarity's scale).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn contour_quality(
     path: &Path,
     field: Option<&BSplineField>,
     check: Option<(&BSplineField, &BSplineField)>,
+    faces_check: Option<(&BSplineField, &BSplineField)>,
     posterior: Option<&FieldPosterior>,
     matches: &[Match],
     scan_from_cad: &Similarity3,
@@ -646,27 +654,29 @@ pub(crate) fn contour_quality(
                     .min(q.support_radius_mm)
             };
             let end_support_mm = end_support_distance(&moved, matches);
-            // Between the two fits to the faces: the edge terms move the first field after
-            // the check was fitted beside it.
-            let model_disagreement_mm = check.map_or(0.0, |(f2, f1)| {
-                scale
-                    * c.points()
-                        .iter()
-                        .map(|p| (f2.apply(p) - f1.apply(p)).norm())
-                        .fold(0.0, f64::max)
-            });
-            let bound_um = |sigma_mm: f64| {
+            let disagreement = |pair: Option<(&BSplineField, &BSplineField)>| {
+                pair.map_or(0.0, |(f2, f1)| {
+                    scale
+                        * c.points()
+                            .iter()
+                            .map(|p| (f2.apply(p) - f1.apply(p)).norm())
+                            .fold(0.0, f64::max)
+                })
+            };
+            let model_disagreement_mm = disagreement(check);
+            let model_disagreement_faces_mm = disagreement(faces_check);
+            let bound_um = |sigma_mm: f64, model_mm: f64| {
                 1e3 * predicted_bound_mm(
                     sigma_mm,
                     residual_rms_mm,
                     field_residual_mm,
                     coverage,
                     support_distance_mm,
-                    model_disagreement_mm,
+                    model_mm,
                 )
             };
-            let predicted_max_error_um = bound_um(field_sigma_mm);
-            let part_bound_um = bound_um(part_deviation.worst);
+            let predicted_max_error_um = bound_um(field_sigma_mm, model_disagreement_mm);
+            let part_bound_um = bound_um(part_deviation.worst, model_disagreement_faces_mm);
             let mut flags = Vec::new();
             if patch.is_empty() {
                 flags.push(Flag::NoScanPoints);
@@ -698,6 +708,7 @@ pub(crate) fn contour_quality(
                 support_distance_mm,
                 end_support_mm,
                 model_disagreement_mm,
+                model_disagreement_faces_mm,
                 cross_sigma_mm: deviation.cross,
                 end_sigma_mm: deviation.end,
                 opening_slide_mm: None,
@@ -734,6 +745,7 @@ mod tests {
             support_distance_mm: 0.0,
             end_support_mm: 0.0,
             model_disagreement_mm: 0.001,
+            model_disagreement_faces_mm: 0.001,
             cross_sigma_mm: 0.005,
             end_sigma_mm: 0.0,
             opening_slide_mm: None,
