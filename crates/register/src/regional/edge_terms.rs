@@ -103,21 +103,29 @@ impl EdgeTermSummary {
 /// Conditions `field` and `posterior` on the scanned edges `readings` (one list per contour of
 /// `path`, measured on the contours registered with `field`). `register` passes the strips'
 /// readings only, a rim's list empty: rims check the registration but do not move the field
-/// (the floors were measured on strips).
+/// (the floors were measured on strips). Returns what the terms did and the readings they
+/// took (one list per contour), for the model check ([`condition_check_on_edges`]).
 pub(crate) fn condition_on_edges(
     field: &mut BSplineField,
     posterior: &mut FieldPosterior,
     path: &Path,
     readings: &[Vec<ScannedEdge>],
     scan_from_cad: &Similarity3,
-) -> EdgeTermSummary {
+) -> (EdgeTermSummary, Vec<Vec<ScannedEdge>>) {
     let Rows {
         rows,
+        taken_from,
         beyond,
         flashed,
     } = rows(field, path, readings, scan_from_cad, None);
     let sigma = posterior.covariance();
-    let (kept, columns, gated) = gate(&rows, |row| Some(sigma_h(sigma, row)));
+    let (kept_at, columns, gated) = gate(&rows, |row| Some(sigma_h(sigma, row)));
+    let kept: Vec<Kept<'_>> = kept_at.iter().map(|&i| kept_row(&rows[i])).collect();
+    let mut taken = vec![Vec::new(); readings.len()];
+    for &i in &kept_at {
+        let (contour, e) = taken_from[i];
+        taken[contour].push(e);
+    }
     let m = kept.len();
     let (mut used, mut largest_shift_mm) = (0, 0.0);
     if let Some((sht, chol)) = (m > 0).then(|| gain(columns, &kept)).flatten() {
@@ -161,32 +169,43 @@ pub(crate) fn condition_on_edges(
             posterior.widen_part(&k);
         }
     }
-    EdgeTermSummary {
+    let summary = EdgeTermSummary {
         used,
         gated,
         flashed,
         widened: beyond.len(),
         largest_shift_mm,
-    }
+    };
+    (summary, if used > 0 { taken } else { vec![Vec::new(); readings.len()] })
 }
 
-/// The model check's field `check` conditioned on the same `readings` as the fit's field,
-/// which they were measured on (`measured_on`), under the check's own posterior: its step only
-/// (the check's posterior is not used after). A reading taken on another field is what it
-/// would have read on this one: `o + h'·c' − h·c`, with `h'`, `c'` the other field's row and
-/// control displacements and `h`, `c` this one's. So the two fields are compared given the same
-/// data, faces and scanned edges alike, and where a strip's readings fix what the prior left
-/// open, both follow them. Returns the readings used.
+/// The model check's field `check` conditioned on the readings `taken` by the fit's field
+/// ([`condition_on_edges`]), which they were measured on (`measured_on`), under the check's own
+/// posterior: its step only (the check's posterior is not used after). A reading taken on
+/// another field is what it would have read on this one: `o + h'·c' − h·c`, with `h'`, `c'` the
+/// other field's row and control displacements and `h`, `c` this one's. The check takes exactly
+/// the fit's readings, with no gate of its own: a reading the fit left out as implausible
+/// would otherwise move the check alone, and the two would part by the reading the fit refused.
+/// So the two fields are compared given the same data, faces and scanned edges alike, and where
+/// a strip's readings fix what the prior left open, both follow them. Returns the readings
+/// used.
 pub(crate) fn condition_check_on_edges(
     check: &mut BSplineField,
     posterior: &CheckPosterior,
     path: &Path,
-    readings: &[Vec<ScannedEdge>],
+    taken: &[Vec<ScannedEdge>],
     scan_from_cad: &Similarity3,
     measured_on: &BSplineField,
 ) -> usize {
-    let Rows { rows, .. } = rows(check, path, readings, scan_from_cad, Some(measured_on));
-    let (kept, columns, _) = gate(&rows, |row| posterior.sigma_h(row));
+    let Rows { rows, .. } = rows(check, path, taken, scan_from_cad, Some(measured_on));
+    let mut kept: Vec<Kept<'_>> = Vec::with_capacity(rows.len());
+    let mut columns = Vec::with_capacity(rows.len());
+    for row in &rows {
+        if let Some(sh) = posterior.sigma_h(&row.0) {
+            kept.push(kept_row(row));
+            columns.push(sh);
+        }
+    }
     let m = kept.len();
     let Some((sht, chol)) = (m > 0).then(|| gain(columns, &kept)).flatten() else {
         return 0;
@@ -200,6 +219,8 @@ pub(crate) fn condition_check_on_edges(
 struct Rows {
     /// The readings that may move the field.
     rows: Vec<Row>,
+    /// For each of `rows`, its contour and reading.
+    taken_from: Vec<(usize, ScannedEdge)>,
     /// The readings of more material beyond the strip than the cap.
     beyond: Vec<Row>,
     /// Readings left out for the material beyond them.
@@ -221,10 +242,11 @@ fn rows(
     let scale = scan_from_cad.scaling();
     let mut out = Rows {
         rows: Vec::new(),
+        taken_from: Vec::new(),
         beyond: Vec::new(),
         flashed: 0,
     };
-    for (contour, edges) in path.contours().iter().zip(readings) {
+    for (index, (contour, edges)) in path.contours().iter().zip(readings).enumerate() {
         for e in edges {
             if e.is_flash() {
                 out.flashed += 1;
@@ -253,6 +275,7 @@ fn rows(
                 out.beyond.push(reading);
             } else {
                 out.rows.push(reading);
+                out.taken_from.push((index, *e));
             }
         }
     }
@@ -260,15 +283,16 @@ fn rows(
 }
 
 /// Gates each reading on its own predicted spread (`o² > g²·(hΣhᵀ + r)` leaves it out), with
-/// `sigma_h` giving `Σhᵀ`: the readings kept, their columns of `ΣHᵀ`, and how many were gated.
+/// `sigma_h` giving `Σhᵀ`: the indices of the readings kept, their columns of `ΣHᵀ`, and how
+/// many were gated.
 fn gate(
     rows: &[Row],
     sigma_h: impl Fn(&[(usize, f64)]) -> Option<DVector<f64>>,
-) -> (Vec<Kept<'_>>, Vec<DVector<f64>>, usize) {
-    let mut kept: Vec<Kept<'_>> = Vec::new();
+) -> (Vec<usize>, Vec<DVector<f64>>, usize) {
+    let mut kept = Vec::new();
     let mut columns = Vec::new();
     let mut gated = 0;
-    for (row, o, r) in rows {
+    for (i, (row, o, r)) in rows.iter().enumerate() {
         let Some(sh) = sigma_h(row) else {
             gated += 1;
             continue;
@@ -278,10 +302,15 @@ fn gate(
             gated += 1;
             continue;
         }
-        kept.push((row, *o, *r));
+        kept.push(i);
         columns.push(sh);
     }
     (kept, columns, gated)
+}
+
+/// A row as the update takes it.
+fn kept_row(row: &Row) -> Kept<'_> {
+    (&row.0, row.1, row.2)
 }
 
 /// The move `Σhᵀ o / (hΣhᵀ + r)` a reading `o` (variance `r`, sparse row `row`) would make
@@ -430,7 +459,7 @@ mod tests {
     /// [`case`] conditioned on the one reading `e`: the field after, and what the terms did.
     fn conditioned(sd_mm: f64, e: ScannedEdge) -> (BSplineField, EdgeTermSummary) {
         let (mut field, mut posterior, path) = case(sd_mm);
-        let summary = condition_on_edges(
+        let (summary, _) = condition_on_edges(
             &mut field,
             &mut posterior,
             &path,
@@ -455,7 +484,7 @@ mod tests {
         let before = variance(&field, &posterior, &mid, &Vector3::y());
         // The scan shows the edge 40 µm short of the registered one (the contour lies beyond
         // the material, −y).
-        let summary = condition_on_edges(
+        let (summary, _) = condition_on_edges(
             &mut field,
             &mut posterior,
             &path,
@@ -515,20 +544,21 @@ mod tests {
             points.iter().map(|p| f.displacement(p).y).sum::<f64>() / points.len() as f64
         };
         let apart_before = mean_y(&fit) - mean_y(&check);
-        let used = condition_check_on_edges(
-            &mut check,
-            &check_posterior,
-            &path,
-            &readings,
-            &Similarity3::identity(),
-            &measured_on,
-        );
-        condition_on_edges(
+        let (summary, taken) = condition_on_edges(
             &mut fit,
             &mut posterior,
             &path,
             &readings,
             &Similarity3::identity(),
+        );
+        assert_eq!((summary.used, taken.as_slice()), (1, readings.as_slice()));
+        let used = condition_check_on_edges(
+            &mut check,
+            &check_posterior,
+            &path,
+            &taken,
+            &Similarity3::identity(),
+            &measured_on,
         );
         assert_eq!(used, 1);
         // On its own the check moves toward −10 µm, not toward the −40 µm the fit read.
@@ -543,6 +573,43 @@ mod tests {
             (apart_before - 0.03).abs() < 1e-9 && apart_after < 0.2 * apart_before,
             "{apart_before:.4} -> {apart_after:.4} mm apart"
         );
+    }
+
+    #[test]
+    fn the_model_check_takes_no_reading_the_fit_left_out() {
+        // The fit's posterior narrow (10 µm), the check's wide (100 µm): the scan shows the edge
+        // 200 µm inside, which the fit's gate leaves out as implausible and the check's own
+        // gate would have kept. The check must not move by it, or the two would part by the
+        // reading the fit refused.
+        let (mut fit, mut posterior, path) = case(0.01);
+        let (mut check, wide, _) = case(0.1);
+        let information = wide
+            .covariance()
+            .clone()
+            .try_inverse()
+            .expect("a diagonal covariance");
+        let check_posterior = CheckPosterior::new(&information, 0, 1.0).expect("positive definite");
+        let measured_on = fit.clone();
+        let readings = [vec![reading(-0.2, EdgeFrom::Face)]];
+        let (summary, taken) = condition_on_edges(
+            &mut fit,
+            &mut posterior,
+            &path,
+            &readings,
+            &Similarity3::identity(),
+        );
+        assert_eq!((summary.used, summary.gated), (0, 1));
+        assert!(taken.iter().all(Vec::is_empty));
+        let used = condition_check_on_edges(
+            &mut check,
+            &check_posterior,
+            &path,
+            &taken,
+            &Similarity3::identity(),
+            &measured_on,
+        );
+        assert_eq!(used, 0);
+        assert_eq!(check.displacement(&MID), Vector3::zeros());
     }
 
     #[test]
@@ -571,7 +638,7 @@ mod tests {
         // been taken: 25/15 of what a 15 µm reading (under the cap, taken) moves the middle.
         let (mut field, mut posterior, path) = case(0.025);
         let before = variance(&field, &posterior, &MID, &Vector3::y());
-        let summary = condition_on_edges(
+        let (summary, _) = condition_on_edges(
             &mut field,
             &mut posterior,
             &path,
@@ -594,7 +661,7 @@ mod tests {
             flash_share: 0.1,
             ..reading(0.025, EdgeFrom::Wall)
         };
-        let summary = condition_on_edges(
+        let (summary, _) = condition_on_edges(
             &mut field,
             &mut posterior,
             &path,

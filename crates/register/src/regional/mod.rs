@@ -400,10 +400,11 @@ pub fn register(
                 .par_iter()
                 .map(|c| scanned_edge::strip_edges(c, scan.points(), &scan_tree))
                 .collect();
-            let summary = edge_terms::condition_on_edges(f, post, path, &readings, &scan_from_cad);
+            let (summary, taken) =
+                edge_terms::condition_on_edges(f, post, path, &readings, &scan_from_cad);
             gaps_before = summary.gaps_before(&readings);
-            // The model check takes the same readings, so that the two fields are compared
-            // given the same data: faces and scanned edges.
+            // The model check takes the readings the fit took, so that the two fields are
+            // compared given the same data: faces and scanned edges.
             if let (Some(check), Some(measured_on)) = (check_field.as_mut(), fitted_field.as_ref())
                 && let Some(check_post) = check.posterior.as_ref()
             {
@@ -411,7 +412,7 @@ pub fn register(
                     &mut check.field,
                     check_post,
                     path,
-                    &readings,
+                    &taken,
                     &scan_from_cad,
                     measured_on,
                 );
