@@ -140,6 +140,10 @@ pub struct ContourQuality {
     /// `predicted_max_error_um` where there is no field.
     #[serde(default)]
     pub part_bound_um: f64,
+    /// The contour's own bound at [`PART_BOUND_SIGMA_FACTOR`], µm: what the part's rules take
+    /// in its place ([`judge_part`]). Not reported.
+    #[serde(skip)]
+    pub doubt_bound_um: f64,
     /// What was found wrong.
     pub flags: Vec<Flag>,
     /// Whether the planner may use the contour.
@@ -258,9 +262,14 @@ pub(crate) struct PartVerdict {
 ///   had to catch carried bounds of 21–30 µm; refusing such parts whole flagged every good
 ///   contour in them (45 % of all false alarms). DESIGN.md, "Registration", step 5.
 pub(crate) fn judge_part(contours: &mut [ContourQuality], q: &QualitySettings) -> PartVerdict {
+    // Flagged as the rule was chosen: by every flag but the contour's own bound, and by its
+    // bound at the part's factor (or the part's bound) over the tolerance.
     let flagged = contours
         .iter()
-        .filter(|c| !c.trustworthy || c.part_bound_um > q.tolerance_um)
+        .filter(|c| {
+            c.flags.iter().any(|f| *f != Flag::PredictedError)
+                || c.doubt_bound_um.max(c.part_bound_um) > q.tolerance_um
+        })
         .count();
     let n = contours.len();
     let misplaced: Vec<String> = contours
@@ -320,7 +329,7 @@ pub(crate) fn judge_part(contours: &mut [ContourQuality], q: &QualitySettings) -
     let limit_um = q.doubt_bound_fraction * q.tolerance_um;
     let mut doubted = 0;
     for c in contours.iter_mut() {
-        if c.predicted_max_error_um > limit_um {
+        if c.doubt_bound_um > limit_um {
             c.flags.push(Flag::PartInDoubt);
             c.trustworthy = false;
             doubted += 1;
@@ -377,6 +386,12 @@ pub(crate) fn translational_degeneracy(
 /// factor at 1.5 that trusts no contour over 30 µm there (2.03, holdout part 3065's lower
 /// root corner, 31.8 µm; every other needs at most 1.91), rounded up to 2.1.
 pub const BOUND_SIGMA_FACTOR: f64 = 2.1;
+/// The multiple of the posterior deviation in the bounds the part's rules take
+/// ([`judge_part`]: the share of contours over the tolerance, and which contours a part in
+/// doubt flags): 1.5, the factor they were chosen with. Taking 2.1 there too put 13 of the 80
+/// parts of a new outside range in doubt (fresh 5281–5360), 6 of them with no contour over
+/// 30 µm, and their good contours, whose bounds sit near half the tolerance, flagged.
+pub const PART_BOUND_SIGMA_FACTOR: f64 = 1.5;
 /// The bias floor the posterior does not see (correspondence bias at rims and walls), mm.
 pub const BOUND_BIAS_MM: f64 = 0.004;
 /// Multiple of the patch residual beyond the field's residual deviation (a misfit the field
@@ -556,8 +571,29 @@ pub fn predicted_bound_mm(
     support_distance_mm: f64,
     model_disagreement_mm: f64,
 ) -> f64 {
+    bound_mm(
+        BOUND_SIGMA_FACTOR,
+        field_sigma_mm,
+        residual_rms_mm,
+        field_residual_mm,
+        coverage,
+        support_distance_mm,
+        model_disagreement_mm,
+    )
+}
+
+/// [`predicted_bound_mm`] with `sigma_factor` for [`BOUND_SIGMA_FACTOR`].
+fn bound_mm(
+    sigma_factor: f64,
+    field_sigma_mm: f64,
+    residual_rms_mm: Option<f64>,
+    field_residual_mm: f64,
+    coverage: f64,
+    support_distance_mm: f64,
+    model_disagreement_mm: f64,
+) -> f64 {
     let excess = residual_rms_mm.map_or(0.0, |r| (r - field_residual_mm).max(0.0));
-    (BOUND_SIGMA_FACTOR * field_sigma_mm
+    (sigma_factor * field_sigma_mm
         + BOUND_BIAS_MM
         + BOUND_RESIDUAL_FACTOR * excess
         + BOUND_DISTANCE_SLOPE * support_distance_mm
@@ -670,8 +706,9 @@ pub(crate) fn contour_quality(
             };
             let model_disagreement_mm = disagreement(check);
             let model_disagreement_faces_mm = disagreement(faces_check);
-            let bound_um = |sigma_mm: f64, model_mm: f64| {
-                1e3 * predicted_bound_mm(
+            let bound_um = |factor: f64, sigma_mm: f64, model_mm: f64| {
+                1e3 * bound_mm(
+                    factor,
                     sigma_mm,
                     residual_rms_mm,
                     field_residual_mm,
@@ -680,8 +717,18 @@ pub(crate) fn contour_quality(
                     model_mm,
                 )
             };
-            let predicted_max_error_um = bound_um(field_sigma_mm, model_disagreement_mm);
-            let part_bound_um = bound_um(part_deviation.worst, model_disagreement_faces_mm);
+            let predicted_max_error_um =
+                bound_um(BOUND_SIGMA_FACTOR, field_sigma_mm, model_disagreement_mm);
+            let doubt_bound_um = bound_um(
+                PART_BOUND_SIGMA_FACTOR,
+                field_sigma_mm,
+                model_disagreement_mm,
+            );
+            let part_bound_um = bound_um(
+                PART_BOUND_SIGMA_FACTOR,
+                part_deviation.worst,
+                model_disagreement_faces_mm,
+            );
             let mut flags = Vec::new();
             if patch.is_empty() {
                 flags.push(Flag::NoScanPoints);
@@ -722,6 +769,7 @@ pub(crate) fn contour_quality(
                 scan_edge_gap_um: None,
                 scan_edges: Vec::new(),
                 predicted_max_error_um,
+                doubt_bound_um,
                 part_bound_um,
                 flags,
                 trustworthy,
@@ -759,6 +807,7 @@ mod tests {
             scan_edge_gap_um: gap_um,
             scan_edges: Vec::new(),
             predicted_max_error_um: 12.0,
+            doubt_bound_um: 12.0,
             part_bound_um: 12.0,
             trustworthy: flags.is_empty(),
             flags,
@@ -775,8 +824,11 @@ mod tests {
             .map(|i| contour(i, Some(-5.0), Vec::new()))
             .collect();
         contours[3] = contour(3, Some(41.6), vec![Flag::EdgeOffScan]);
-        contours[5].predicted_max_error_um = 15.0;
-        contours[6].predicted_max_error_um = 16.0;
+        contours[5].doubt_bound_um = 15.0;
+        contours[6].doubt_bound_um = 16.0;
+        // A contour's own bound (at the wider factor) does not decide which a part in doubt
+        // flags.
+        contours[7].predicted_max_error_um = 19.0;
         let verdict = judge_part(&mut contours, &q);
         assert!(verdict.refused.is_none());
         let reason = verdict.in_doubt.expect("the part is in doubt");
@@ -844,13 +896,17 @@ mod tests {
             (0..10)
                 .map(|i| {
                     let mut c = if i < 4 {
-                        contour(i, None, vec![Flag::PredictedError])
+                        let mut c = contour(i, None, vec![Flag::PredictedError]);
+                        c.predicted_max_error_um = 40.0;
+                        c.part_bound_um = 36.0;
+                        c
                     } else {
                         contour(i, None, Vec::new())
                     };
                     if (4..4 + wide).contains(&i) {
                         c.part_bound_um = 34.0;
-                        c.predicted_max_error_um = 22.0;
+                        c.predicted_max_error_um = 26.0;
+                        c.doubt_bound_um = 22.0;
                     }
                     c
                 })
@@ -868,6 +924,40 @@ mod tests {
         assert_eq!(six.iter().filter(|c| c.trustworthy).count(), 4);
         assert!(six[4].flags.contains(&Flag::PartInDoubt));
         assert!(six[5].flags.contains(&Flag::PartInDoubt));
+    }
+
+    /// The part's rules count a contour flagged only by its own bound (at
+    /// `BOUND_SIGMA_FACTOR`) by its bound at `PART_BOUND_SIGMA_FACTOR` instead: six of ten
+    /// over the tolerance by their own bound, but under it at the part's factor, leave the
+    /// part trusted as it is, those six still flagged by their own bound.
+    #[test]
+    fn the_part_counts_a_contour_by_its_bound_at_the_parts_factor() {
+        let q = QualitySettings::default();
+        let mut contours: Vec<ContourQuality> = (0..10)
+            .map(|i| {
+                if i < 6 {
+                    let mut c = contour(i, None, vec![Flag::PredictedError]);
+                    c.predicted_max_error_um = 33.0;
+                    c.doubt_bound_um = 27.0;
+                    c.part_bound_um = 29.0;
+                    c
+                } else {
+                    contour(i, None, Vec::new())
+                }
+            })
+            .collect();
+        contours_unchanged(&mut contours, &q);
+        assert_eq!(contours.iter().filter(|c| c.trustworthy).count(), 4);
+        // Five of them over the tolerance at the part's factor too (one by the part's bound):
+        // not more than half. Six: the part is in doubt.
+        for c in &mut contours[..4] {
+            c.doubt_bound_um = 31.0;
+        }
+        contours[4].part_bound_um = 31.0;
+        contours_unchanged(&mut contours, &q);
+        contours[5].doubt_bound_um = 31.0;
+        let reason = judge_part(&mut contours, &q).in_doubt.expect("in doubt");
+        assert!(reason.contains("6 of 10"), "{reason}");
     }
 
     fn edge(offset_mm: f64, flash_share: f64) -> ScannedEdge {
