@@ -176,7 +176,11 @@ pub(crate) fn condition_on_edges(
         widened: beyond.len(),
         largest_shift_mm,
     };
-    (summary, if used > 0 { taken } else { vec![Vec::new(); readings.len()] })
+    if used == 0 {
+        // The update failed (S not positive definite): nothing was taken.
+        taken.iter_mut().for_each(Vec::clear);
+    }
+    (summary, taken)
 }
 
 /// The model check's field `check` conditioned on the readings `taken` by the fit's field
