@@ -380,11 +380,12 @@ pub(crate) fn translational_degeneracy(
 /// were calibrated on the seeded synthetic cores 101–124 (disjoint from the test seeds).
 ///
 /// Multiple of the field's posterior deviation across the contour. 1.5 until 2026-11-29, when
-/// the model check took the edge terms' readings too and its disagreement fell where they fix a
-/// strip's end: then chosen again, replaying the reports of the outside sets run before
-/// (tune 2001–2160, holdout, report and fresh 4641–5200), as the smallest factor with the model
-/// factor at 1.5 that trusts no contour over 30 µm there (2.03, holdout part 3065's lower
-/// root corner, 31.8 µm; every other needs at most 1.91), rounded up to 2.1.
+/// the model check took the readings the edge terms took too and its disagreement fell where
+/// they fix a strip's end: then chosen again, replaying the reports of the outside sets run
+/// before (tune 2001–2160, holdout, report and fresh 4641–5360), as the smallest factor with
+/// the model factor at 1.5 that trusts no contour over 30 µm there (2.03, holdout part 3065's
+/// lower root corner, 31.8 µm; every other needs at most 1.91), rounded up to 2.1. Checked on
+/// fresh 5361–5520, run after: 0 silent.
 pub const BOUND_SIGMA_FACTOR: f64 = 2.1;
 /// The multiple of the posterior deviation in the bounds the part's rules take
 /// ([`judge_part`]: the share of contours over the tolerance, and which contours a part in
