@@ -61,7 +61,7 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// `model_disagreement_mm`: how far apart the field and a second fit at 0.75× its control
 /// spacing put the contour (large where the smoothness prior, not the data, places it), both
 /// conditioned on the strips' scanned edges; `model_disagreement_faces_mm` the same between the
-/// two fits to the faces alone (what `part_bound_um` and the part's doubt count by).
+/// two fits to the faces alone (how much the readings brought them together).
 /// `opening_slide_mm`, `opening_gain`, `opening_cover_gain`: for a closed contour, the opening
 /// check (how far off the scan shows its opening, and the agreement that gains; a misplaced
 /// opening flags `opening_misplaced` and refuses the part). `scan_edge_gap_um`: for an open

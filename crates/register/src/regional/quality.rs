@@ -91,9 +91,9 @@ pub struct ContourQuality {
     #[serde(default)]
     pub model_disagreement_mm: f64,
     /// The same between the two fits to the faces alone, before the edge terms conditioned
-    /// both on the strips' scanned edges (`model_disagreement_mm` is after): what the part's
-    /// doubt counts contours by (`part_bound_um`), since it asks whether the scan's faces fix
-    /// the deformation.
+    /// both on the strips' scanned edges (`model_disagreement_mm` is after): how much the
+    /// readings brought the two together. Reported, not used: until 2026-11-29 (last) the
+    /// part's doubt counted contours by it (`part_bound_um`).
     #[serde(default)]
     pub model_disagreement_faces_mm: f64,
     /// The field's posterior deviation across the contour alone (the largest over its points in
@@ -728,7 +728,7 @@ pub(crate) fn contour_quality(
             let part_bound_um = bound_um(
                 PART_BOUND_SIGMA_FACTOR,
                 part_deviation.worst,
-                model_disagreement_faces_mm,
+                model_disagreement_mm,
             );
             let mut flags = Vec::new();
             if patch.is_empty() {
@@ -931,6 +931,65 @@ mod tests {
     /// `BOUND_SIGMA_FACTOR`) by its bound at `PART_BOUND_SIGMA_FACTOR` instead: six of ten
     /// over the tolerance by their own bound, but under it at the part's factor, leave the
     /// part trusted as it is, those six still flagged by their own bound.
+    #[test]
+    fn the_parts_bound_takes_the_check_given_the_readings_not_the_faces_alone() {
+        // A strip on the face z = 5 of a 40 × 20 × 10 mm box, scanned all along. Fitted to the
+        // faces alone the check parts from the field by 20 µm across the strip; given the
+        // readings the two agree. The part's rules must count the contour by the agreement
+        // the readings brought, and the faces' disagreement is reported beside it.
+        let zero = BSplineField::zero(
+            &Point3::new(0.0, 0.0, 0.0),
+            &Point3::new(40.0, 20.0, 10.0),
+            5.0,
+        );
+        let mut apart = zero.clone();
+        let mut step = vec![0.0; 3 * zero.len()];
+        for k in 0..zero.len() {
+            step[3 * k + 1] = 0.02;
+        }
+        apart.add_step(&step);
+        let strip: Vec<Point3> = (0..=100)
+            .map(|i| Point3::new(10.0 + 0.2 * f64::from(i), 10.0, 5.0))
+            .collect();
+        let path = Path::new(vec![
+            trim_geom::Contour::new(0, strip.clone(), Vector3::z()).expect("a contour"),
+        ])
+        .expect("a path");
+        let matches: Vec<Match> = strip
+            .iter()
+            .flat_map(|p| {
+                [-0.3, 0.0, 0.3].map(|dy| Match {
+                    q: Point3::new(p.x, p.y + dy, p.z),
+                    n: Vector3::z(),
+                    r: 0.005,
+                })
+            })
+            .collect();
+        let q = QualitySettings::default();
+        let out = contour_quality(
+            &path,
+            Some(&zero),
+            Some((&zero, &zero)),
+            Some((&apart, &zero)),
+            None,
+            &matches,
+            &Similarity3::identity(),
+            &q,
+        );
+        let c = &out[0];
+        assert!((c.model_disagreement_faces_mm - 0.02).abs() < 1e-9, "{c:?}");
+        assert!(c.model_disagreement_mm.abs() < 1e-12, "{c:?}");
+        // No posterior: the part's bound is the contour's own at the part's factor.
+        assert!(
+            (c.part_bound_um - c.doubt_bound_um).abs() < 1e-9
+                && (c.part_bound_um - c.predicted_max_error_um).abs() < 1e-9,
+            "part {} own {} reported {}",
+            c.part_bound_um,
+            c.doubt_bound_um,
+            c.predicted_max_error_um
+        );
+    }
+
     #[test]
     fn the_part_counts_a_contour_by_its_bound_at_the_parts_factor() {
         let q = QualitySettings::default();
