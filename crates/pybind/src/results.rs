@@ -67,8 +67,9 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// opening flags `opening_misplaced` and refuses the part). `scan_edge_gap_um`: for an open
 /// contour or a hole's rim, how far it lies beyond the material the scan shows beside it
 /// (negative: no gap; `None` where the scan does not locate its edge); over the tolerance it flags
-/// `edge_off_scan` and puts the part in doubt (every contour whose bound exceeds
-/// `quality.doubt_bound_fraction` of the tolerance is then flagged `part_in_doubt`).
+/// `edge_off_scan` and puts the part in doubt (every contour whose `doubt_bound_um`, its bound
+/// at 1.5σ, exceeds `quality.doubt_bound_fraction` of the tolerance is then flagged
+/// `part_in_doubt`).
 /// `scan_edges`: the scanned-edge readings behind that gap, one dict per stretch (`at_mm`,
 /// `offset_um`, `sigma_um`, `points`, `from`, `flash_share`), as in registration.json; the
 /// edge terms condition the field on a strip's (not a rim's). A strip
@@ -137,6 +138,8 @@ pub struct ContourQuality {
     /// as flagged by (more than `max_untrusted_fraction` of the contours over the tolerance by
     /// this or flagged puts the part in doubt).
     pub part_bound_um: f64,
+    /// The contour's own bound at 1.5σ, µm: what the part's rules count it by.
+    pub doubt_bound_um: f64,
     /// What was found wrong (the report's flag names).
     pub flags: Py<pyo3::types::PyTuple>,
     /// Whether the planner may use the contour.
@@ -196,6 +199,7 @@ impl ContourQuality {
             .unbind(),
             predicted_max_error_um: c.predicted_max_error_um,
             part_bound_um: c.part_bound_um,
+            doubt_bound_um: c.doubt_bound_um,
             flags: pyo3::types::PyTuple::new(py, flags)?.unbind(),
             trustworthy: c.trustworthy,
         })

@@ -141,6 +141,7 @@ class ContourQuality:
     scan_edges: Tuple[Dict[str, Any], ...]
     predicted_max_error_um: float
     part_bound_um: float
+    doubt_bound_um: float
     flags: Tuple[str, ...]
     trustworthy: bool
 

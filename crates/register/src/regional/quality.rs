@@ -140,9 +140,12 @@ pub struct ContourQuality {
     /// `predicted_max_error_um` where there is no field.
     #[serde(default)]
     pub part_bound_um: f64,
-    /// The contour's own bound at [`PART_BOUND_SIGMA_FACTOR`], µm: what the part's rules take
-    /// in its place ([`judge_part`]). Not reported.
-    #[serde(skip)]
+    /// The contour's own bound at [`PART_BOUND_SIGMA_FACTOR`] (1.5σ, the factor the part's
+    /// rules were chosen with), µm: what the part's rules take in place of
+    /// `predicted_max_error_um` ([`judge_part`]): whether the contour counts as flagged, and in
+    /// a part in doubt whether it is flagged `part_in_doubt` (over
+    /// `quality.doubt_bound_fraction` of the tolerance).
+    #[serde(default)]
     pub doubt_bound_um: f64,
     /// What was found wrong.
     pub flags: Vec<Flag>,
@@ -214,8 +217,9 @@ pub struct GlobalQuality {
     /// `part_refused`), or `null`.
     #[serde(default)]
     pub refused: Option<String>,
-    /// Why the part is in doubt (then every contour whose bound exceeds
-    /// `quality.doubt_bound_fraction` of the tolerance is flagged `part_in_doubt`), or `null`.
+    /// Why the part is in doubt (then every contour whose bound at 1.5σ, `doubt_bound_um`,
+    /// exceeds `quality.doubt_bound_fraction` of the tolerance is flagged `part_in_doubt`), or
+    /// `null`.
     #[serde(default)]
     pub in_doubt: Option<String>,
     /// What the edge terms did (`quality.edge_terms`); `null` when off or in global mode.
@@ -338,8 +342,9 @@ pub(crate) fn judge_part(contours: &mut [ContourQuality], q: &QualitySettings) -
     PartVerdict {
         refused: None,
         in_doubt: Some(format!(
-            "{why}; so every contour whose bound exceeds {limit_um:.0} µm \
-             (quality.doubt_bound_fraction {:.2} of the tolerance) is flagged part_in_doubt \
+            "{why}; so every contour whose bound at 1.5σ (doubt_bound_um) exceeds \
+             {limit_um:.0} µm (quality.doubt_bound_fraction {:.2} of the tolerance) is flagged \
+             part_in_doubt \
              ({doubted} of {n}; check the fixture pose and that the scanner saw both ends of the \
              part, its edges and its holes, then rescan to trim them)",
             q.doubt_bound_fraction
