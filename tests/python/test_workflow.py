@@ -109,10 +109,13 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
         assert isinstance(q.predicted_max_error_um, float)
         assert np.isfinite(q.predicted_max_error_um) and q.predicted_max_error_um > 0.0
         assert bounds[q.id] == q.predicted_max_error_um
-        # The part's bound keeps a tenth of every prior term, the contour's the span's whole:
-        # the part's posterior is the wider, so is its bound.
-        assert q.part_bound_um >= q.predicted_max_error_um - 1e-6
+        # The part's rules count a contour at 1.5 sigma (doubt_bound_um), the reported bound is
+        # at 2.1 sigma. The part's bound keeps a tenth of every prior term, the contour's the
+        # span's whole: the part's posterior is the wider, so at the same factor is its bound.
+        assert 0.0 < q.doubt_bound_um <= q.predicted_max_error_um + 1e-6
+        assert q.part_bound_um >= q.doubt_bound_um - 1e-6
         assert q.part_bound_um == entry_of(registration, q.id)["part_bound_um"]
+        assert q.doubt_bound_um == entry_of(registration, q.id)["doubt_bound_um"]
         assert q.field_weak_direction.shape == (3,)
         assert abs(np.linalg.norm(q.field_weak_direction) - 1.0) < 1e-6
         # Built in Rust with every field of registration.json's entry.
