@@ -290,8 +290,9 @@ class Registration:
     def in_doubt(self) -> Optional[str]:
         """Why the part is in doubt (an edge off the scan, or more than
         ``max_untrusted_fraction`` of its contours flagged), or ``None``. In a part in doubt
-        every contour whose bound exceeds ``quality.doubt_bound_fraction`` of the tolerance
-        is flagged ``part_in_doubt``; the others stay trusted."""
+        every contour whose bound at 1.5 sigma (``ContourQuality.doubt_bound_um``; the
+        reported bound is at 2.1 sigma) exceeds ``quality.doubt_bound_fraction`` of the
+        tolerance is flagged ``part_in_doubt``; the others stay trusted."""
         return self.report["global"].get("in_doubt")
 
 

@@ -119,7 +119,7 @@ pub(crate) fn condition_on_edges(
         flashed,
     } = rows(field, path, readings, scan_from_cad, None);
     let sigma = posterior.covariance();
-    let (kept_at, columns, gated) = gate(&rows, |row| Some(sigma_h(sigma, row)));
+    let (kept_at, columns, gated) = gate(&rows, sigma);
     let kept: Vec<Kept<'_>> = kept_at.iter().map(|&i| kept_row(&rows[i])).collect();
     let mut taken = vec![Vec::new(); readings.len()];
     for &i in &kept_at {
@@ -286,21 +286,15 @@ fn rows(
     out
 }
 
-/// Gates each reading on its own predicted spread (`o² > g²·(hΣhᵀ + r)` leaves it out), with
-/// `sigma_h` giving `Σhᵀ`: the indices of the readings kept, their columns of `ΣHᵀ`, and how
-/// many were gated.
-fn gate(
-    rows: &[Row],
-    sigma_h: impl Fn(&[(usize, f64)]) -> Option<DVector<f64>>,
-) -> (Vec<usize>, Vec<DVector<f64>>, usize) {
+/// Gates each reading on its own predicted spread under the covariance `sigma`
+/// (`o² > g²·(hΣhᵀ + r)` leaves it out): the indices of the readings kept, their columns of
+/// `ΣHᵀ`, and how many were gated.
+fn gate(rows: &[Row], sigma: &DMatrix<f64>) -> (Vec<usize>, Vec<DVector<f64>>, usize) {
     let mut kept = Vec::new();
     let mut columns = Vec::new();
     let mut gated = 0;
     for (i, (row, o, r)) in rows.iter().enumerate() {
-        let Some(sh) = sigma_h(row) else {
-            gated += 1;
-            continue;
-        };
+        let sh = sigma_h(sigma, row);
         let hsh: f64 = row.iter().map(|&(j, v)| v * sh[j]).sum();
         if o * o > EDGE_TERM_GATE_SIGMAS.powi(2) * (hsh + r) {
             gated += 1;
@@ -522,6 +516,40 @@ mod tests {
         assert!((along - before).abs() < 1e-12 * before.max(1.0) + 1e-15);
     }
 
+    /// The check's posterior with the information of `posterior` (no band: diagonal).
+    fn check_posterior_of(posterior: &FieldPosterior) -> CheckPosterior {
+        let information = posterior
+            .covariance()
+            .clone()
+            .try_inverse()
+            .expect("a diagonal covariance");
+        CheckPosterior::new(&information, 0, 1.0).expect("positive definite")
+    }
+
+    /// The fit conditioned on `readings`, then the check on the readings the fit took, as
+    /// `register` does: what the fit did, what it took, and how many the check used.
+    fn condition_both(
+        fit: &mut BSplineField,
+        posterior: &mut FieldPosterior,
+        check: &mut BSplineField,
+        check_posterior: &CheckPosterior,
+        path: &Path,
+        readings: &[Vec<ScannedEdge>],
+    ) -> (EdgeTermSummary, Vec<Vec<ScannedEdge>>, usize) {
+        let measured_on = fit.clone();
+        let identity = Similarity3::identity();
+        let (summary, taken) = condition_on_edges(fit, posterior, path, readings, &identity);
+        let used = condition_check_on_edges(
+            check,
+            check_posterior,
+            path,
+            &taken,
+            &identity,
+            &measured_on,
+        );
+        (summary, taken, used)
+    }
+
     #[test]
     fn the_model_check_takes_the_fits_readings_as_they_would_read_on_it() {
         // The fit's field 30 µm along +y (outward) everywhere, the check's at zero, both with
@@ -535,35 +563,22 @@ mod tests {
             step[3 * k + 1] = 0.03;
         }
         fit.add_step(&step);
-        let measured_on = fit.clone();
-        let information = posterior
-            .covariance()
-            .clone()
-            .try_inverse()
-            .expect("a diagonal covariance");
-        let check_posterior = CheckPosterior::new(&information, 0, 1.0).expect("positive definite");
+        let check_posterior = check_posterior_of(&posterior);
         let readings = [vec![reading(-0.04, EdgeFrom::Wall)]];
         let points = path.contours()[0].points();
         let mean_y = |f: &BSplineField| {
             points.iter().map(|p| f.displacement(p).y).sum::<f64>() / points.len() as f64
         };
         let apart_before = mean_y(&fit) - mean_y(&check);
-        let (summary, taken) = condition_on_edges(
+        let (summary, taken, used) = condition_both(
             &mut fit,
             &mut posterior,
-            &path,
-            &readings,
-            &Similarity3::identity(),
-        );
-        assert_eq!((summary.used, taken.as_slice()), (1, readings.as_slice()));
-        let used = condition_check_on_edges(
             &mut check,
             &check_posterior,
             &path,
-            &taken,
-            &Similarity3::identity(),
-            &measured_on,
+            &readings,
         );
+        assert_eq!((summary.used, taken.as_slice()), (1, readings.as_slice()));
         assert_eq!(used, 1);
         // On its own the check moves toward −10 µm, not toward the −40 µm the fit read.
         let moved = mean_y(&check);
@@ -587,31 +602,18 @@ mod tests {
         // reading the fit refused.
         let (mut fit, mut posterior, path) = case(0.01);
         let (mut check, wide, _) = case(0.1);
-        let information = wide
-            .covariance()
-            .clone()
-            .try_inverse()
-            .expect("a diagonal covariance");
-        let check_posterior = CheckPosterior::new(&information, 0, 1.0).expect("positive definite");
-        let measured_on = fit.clone();
+        let check_posterior = check_posterior_of(&wide);
         let readings = [vec![reading(-0.2, EdgeFrom::Face)]];
-        let (summary, taken) = condition_on_edges(
+        let (summary, taken, used) = condition_both(
             &mut fit,
             &mut posterior,
-            &path,
-            &readings,
-            &Similarity3::identity(),
-        );
-        assert_eq!((summary.used, summary.gated), (0, 1));
-        assert!(taken.iter().all(Vec::is_empty));
-        let used = condition_check_on_edges(
             &mut check,
             &check_posterior,
             &path,
-            &taken,
-            &Similarity3::identity(),
-            &measured_on,
+            &readings,
         );
+        assert_eq!((summary.used, summary.gated), (0, 1));
+        assert!(taken.iter().all(Vec::is_empty));
         assert_eq!(used, 0);
         assert_eq!(check.displacement(&MID), Vector3::zeros());
     }

@@ -61,7 +61,8 @@ pub use quality::{
     BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_MODEL_FACTOR,
     BOUND_RESIDUAL_FACTOR, BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS,
     ContourQuality, END_SUPPORT_MIN_COS, EdgeReading, Flag, GlobalQuality, MATERIAL_BEYOND_MM,
-    MODEL_CHECK_SPACING_RATIO, QualityReport, SUPPORT_MIN_COS, is_open, predicted_bound_mm,
+    MODEL_CHECK_SPACING_RATIO, PART_BOUND_SIGMA_FACTOR, QualityReport, SUPPORT_MIN_COS, is_open,
+    predicted_bound_mm,
 };
 use quality::{contour_quality, judge_part, material_beyond};
 pub use scanned_edge::{

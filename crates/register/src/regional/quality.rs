@@ -932,10 +932,6 @@ mod tests {
         assert!(six[5].flags.contains(&Flag::PartInDoubt));
     }
 
-    /// The part's rules count a contour flagged only by its own bound (at
-    /// `BOUND_SIGMA_FACTOR`) by its bound at `PART_BOUND_SIGMA_FACTOR` instead: six of ten
-    /// over the tolerance by their own bound, but under it at the part's factor, leave the
-    /// part trusted as it is, those six still flagged by their own bound.
     #[test]
     fn the_parts_bound_takes_the_check_given_the_readings_not_the_faces_alone() {
         // A strip on the face z = 5 of a 40 × 20 × 10 mm box, scanned all along. Fitted to the
@@ -995,6 +991,10 @@ mod tests {
         );
     }
 
+    /// The part's rules count a contour flagged only by its own bound (at
+    /// `BOUND_SIGMA_FACTOR`) by its bound at `PART_BOUND_SIGMA_FACTOR` instead: six of ten
+    /// over the tolerance by their own bound, but under it at the part's factor, leave the
+    /// part trusted as it is, those six still flagged by their own bound.
     #[test]
     fn the_part_counts_a_contour_by_its_bound_at_the_parts_factor() {
         let q = QualitySettings::default();
