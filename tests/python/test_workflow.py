@@ -153,6 +153,10 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
     # Nor is it in doubt; a doubt would name its reason and flag contours part_in_doubt.
     assert registration.in_doubt is None
     assert not any("part_in_doubt" in q.flags for q in quality)
+    # Nor are its edges (DESIGN.md, "An edge in doubt"), as registration.json says.
+    assert registration.edges_in_doubt is None
+    assert registration.edges_in_doubt == registration.report["global"]["edges_in_doubt"]
+    assert not any("edge_in_doubt" in q.flags for q in quality)
     # The bound covers the actual largest cross-edge error on most contours of the demo case
     # (the calibration test asserts >= 95 % on the seeded cases; here a few contours only).
     truth = {cid: case.truth.points[case.truth.ids == cid] for cid in bounds}

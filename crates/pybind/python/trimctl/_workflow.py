@@ -295,6 +295,15 @@ class Registration:
         tolerance is flagged ``part_in_doubt``; the others stay trusted."""
         return self.report["global"].get("in_doubt")
 
+    @property
+    def edges_in_doubt(self) -> Optional[str]:
+        """Why some edges of a part that is not in doubt are (more than half of the strips
+        joined end to end along an edge off by more than 4/3 of the tolerance), or ``None``.
+        Each other strip of such an edge that joins one of those and whose bound at 1.5 sigma
+        (``ContourQuality.doubt_bound_um``) exceeds ``quality.doubt_bound_fraction`` of the
+        tolerance is flagged ``edge_in_doubt``."""
+        return self.report["global"].get("edges_in_doubt")
+
 
 def register_path(
     cad: np.ndarray,

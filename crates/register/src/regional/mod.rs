@@ -64,7 +64,7 @@ pub use quality::{
     MODEL_CHECK_SPACING_RATIO, PART_BOUND_SIGMA_FACTOR, QualityReport, SUPPORT_MIN_COS, is_open,
     predicted_bound_mm,
 };
-use quality::{contour_quality, judge_part, material_beyond};
+use quality::{contour_quality, judge_edges, judge_part, material_beyond, strips_sharing_ends};
 pub use scanned_edge::{
     EDGE_GAP_SIGMAS, EDGE_STRETCH_MM, EDGE_WINDOW_MM, EdgeFrom, ScannedEdge, scanned_edges,
 };
@@ -460,6 +460,7 @@ pub fn register(
         }
         Ok(())
     })?;
+    let strips: Vec<&[Point3]> = path.contours().iter().map(|c| c.points()).collect();
     stage(&mut timings, "scanned edges", || {
         let readings: Vec<Vec<ScannedEdge>> = registered
             .contours()
@@ -475,8 +476,7 @@ pub fn register(
                 c.trustworthy = false;
             }
         }
-        let points: Vec<&[Point3]> = path.contours().iter().map(|c| c.points()).collect();
-        for (c, beyond) in contours.iter_mut().zip(material_beyond(&points, &readings)) {
+        for (c, beyond) in contours.iter_mut().zip(material_beyond(&strips, &readings)) {
             if beyond {
                 c.flags.push(Flag::MaterialBeyond);
                 c.trustworthy = false;
@@ -485,6 +485,15 @@ pub fn register(
         Ok(())
     })?;
     let verdict = judge_part(&mut contours, &settings.quality);
+    let edges_in_doubt = (verdict.refused.is_none() && verdict.in_doubt.is_none())
+        .then(|| {
+            judge_edges(
+                &mut contours,
+                &strips_sharing_ends(&strips),
+                &settings.quality,
+            )
+        })
+        .flatten();
     let untrustworthy = contours.iter().filter(|c| !c.trustworthy).count();
     let report = QualityReport {
         global: GlobalQuality {
@@ -501,6 +510,7 @@ pub fn register(
             untrustworthy,
             refused: verdict.refused,
             in_doubt: verdict.in_doubt,
+            edges_in_doubt,
             edge_terms,
         },
         contours,
