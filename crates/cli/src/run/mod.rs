@@ -905,12 +905,12 @@ fn trusted_contours(
     if untrusted.is_empty() {
         return Ok(registration.path.clone());
     }
-    let doubt = registration
-        .report
-        .global
-        .in_doubt
-        .as_ref()
-        .map_or(String::new(), |r| format!(" (the part is in doubt: {r})"));
+    let global = &registration.report.global;
+    let doubt = match (&global.in_doubt, &global.edges_in_doubt) {
+        (Some(r), _) => format!(" (the part is in doubt: {r})"),
+        (None, Some(r)) => format!(" (edges in doubt: {r})"),
+        (None, None) => String::new(),
+    };
     if !args.skip_untrusted {
         return Err(Failure::with_exit(
             Exit::Refused,
