@@ -3,6 +3,7 @@
 //! deformation field's normal equations, whose control points couple only within a cell.
 
 use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
 
 /// `Σ xᵢ yᵢ` over two slices of one length, in four running sums (the compiler keeps one strict
 /// sum in order and cannot vectorise it; four independent ones it can): most of the factor's
@@ -106,6 +107,58 @@ impl BandedCholesky {
     }
 }
 
+impl BandedCholesky {
+    /// The dense inverse `A⁻¹` (symmetric). Column `j` of the inverse is `L⁻ᵀ L⁻¹ eⱼ`; its
+    /// entries from row `j` down need only the rows of `L` from `j` on (`L⁻¹ eⱼ` is zero above
+    /// `j`), and both substitutions run within the band: about `n² · bandwidth`
+    /// multiply-adds, a third of a dense Cholesky inverse's `n³` at the field's bandwidths. The
+    /// columns are independent and solved in parallel; the upper triangle is mirrored.
+    #[must_use]
+    pub fn inverse(&self) -> DMatrix<f64> {
+        let (n, bw) = (self.n, self.bw);
+        let w = bw + 1;
+        // `Lᵀ` within the band by rows: row `i` holds `L[i ..= i + bw][i]` contiguously
+        // (zero past the last row), so that the backward substitution reads one contiguous
+        // slice per entry as the forward one does.
+        let mut lt = vec![0.0; n * w];
+        for i in 0..n {
+            for k in i..(i + w).min(n) {
+                lt[i * w + (k - i)] = self.at(k, i);
+            }
+        }
+        let columns: Vec<Vec<f64>> = (0..n)
+            .into_par_iter()
+            .map(|j| {
+                // y = L⁻¹ eⱼ, from row j on (y[0] is row j).
+                let m = n - j;
+                let mut y = vec![0.0; m];
+                y[0] = 1.0 / self.at(j, j);
+                for i in j + 1..n {
+                    let lo = i.saturating_sub(bw).max(j);
+                    let row = &self.l[i * w + (lo + bw - i)..i * w + bw];
+                    y[i - j] = -dot(row, &y[lo - j..i - j]) / self.at(i, i);
+                }
+                // x = L⁻ᵀ y, from the last row back to row j (x overwrites y).
+                for i in (j..n).rev() {
+                    let hi = (i + w).min(n);
+                    let col = &lt[i * w + 1..i * w + (hi - i)];
+                    let s = y[i - j] - dot(col, &y[i + 1 - j..hi - j]);
+                    y[i - j] = s / self.at(i, i);
+                }
+                y
+            })
+            .collect();
+        let mut inv = DMatrix::zeros(n, n);
+        for (j, x) in columns.iter().enumerate() {
+            for (k, &v) in x.iter().enumerate() {
+                inv[(j + k, j)] = v;
+                inv[(j, j + k)] = v;
+            }
+        }
+        inv
+    }
+}
+
 /// Solves `A x = b` for symmetric positive-definite `A` with half-bandwidth `bandwidth`
 /// (reading only the lower triangle within the band). `None` if `A` is not positive definite.
 #[must_use]
@@ -148,6 +201,10 @@ mod tests {
         let x2 = factor.solve(&b2).unwrap();
         assert!((&a * x2 - b2).amax() < 1e-10);
         assert!(factor.solve(&DVector::zeros(n + 1)).is_none());
+        let inverse = factor.inverse();
+        let dense_inverse = a.clone().cholesky().unwrap().inverse();
+        assert!((&inverse - &dense_inverse).amax() < 1e-12);
+        assert_eq!(inverse, inverse.transpose());
         let mut bad = a.clone();
         bad[(3, 3)] = -1.0;
         assert!(solve_banded_spd(&bad, &b, bw).is_none());
