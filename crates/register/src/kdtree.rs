@@ -186,7 +186,7 @@ impl KdTree {
         let q = [query.x, query.y, query.z];
         let mut found = Nearests {
             k,
-            max_distance_sq,
+            bound: max_distance_sq,
             found: &mut scratch.found,
         };
         self.search(&q, &mut found, &mut scratch.stack);
@@ -383,26 +383,26 @@ impl Visitor for Nearest {
     }
 }
 
-/// The `k` least `(d², index)` within `max_distance_sq`, sorted.
+/// The `k` least `(d², index)` within the bound, sorted.
 struct Nearests<'a> {
     k: usize,
-    max_distance_sq: f64,
+    /// The search's bound: the maximum distance until `k` are found, then the `k`-th's
+    /// distance (kept here, not read from `found`: every cell and point is tested against it).
+    bound: f64,
     found: &'a mut Vec<Neighbour>,
 }
 
 impl Visitor for Nearests<'_> {
     #[inline]
     fn bound(&self) -> f64 {
-        if self.found.len() == self.k {
-            self.found[self.k - 1].distance_sq
-        } else {
-            self.max_distance_sq
-        }
+        self.bound
     }
 
+    #[inline]
     fn visit(&mut self, distance_sq: &[f64], index: &[u32]) {
         for (&d, &i) in distance_sq.iter().zip(index) {
-            if d > self.max_distance_sq {
+            // Beyond the bound: neither within the maximum distance nor better than the k-th.
+            if d > self.bound {
                 continue;
             }
             if self.found.len() == self.k {
@@ -425,6 +425,9 @@ impl Visitor for Nearests<'_> {
                     distance_sq: d,
                 },
             );
+            if self.found.len() == self.k {
+                self.bound = self.found[self.k - 1].distance_sq;
+            }
         }
     }
 }
