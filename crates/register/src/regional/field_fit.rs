@@ -201,9 +201,8 @@ pub(crate) struct Match {
     pub(crate) r: f64,
 }
 
-/// A scan point's match: CAD index, CAD point, carried normal, field Jacobian at the CAD point,
-/// residual (mm).
-pub(crate) type Matched = (usize, Point3, Vector3, Matrix3<f64>, f64);
+/// A scan point's match: CAD index, CAD point, carried normal, residual (mm).
+pub(crate) type Matched = (usize, Point3, Vector3, f64);
 
 /// A field point's CAD candidates from its last neighbour search: where the search was made
 /// (CAD frame), within which squared distance (mm²), and the candidates found.
@@ -297,7 +296,7 @@ pub(crate) fn match_points(
             // Of the nearest CAD points, the one whose surface passes closest to q: near an
             // edge the nearest sample may lie on the other face (a top-face scan point 0.1 mm
             // from a rim finds a wall sample), and its plane would pull sideways.
-            let mut best: Option<(f64, usize, Point3, Vector3, Matrix3<f64>, f64)> = None;
+            let mut best: Option<(f64, usize, Point3, Vector3, f64)> = None;
             // The field at the nearest candidate; the others (within a millimetre) use its
             // first-order expansion `d(c) ≈ d₀ + J₀ (c − c₀)` and its normal map.
             let mut at_nearest: Option<(Point3, Vector3, Matrix3<f64>, Matrix3<f64>)> = None;
@@ -317,23 +316,23 @@ pub(crate) fn match_points(
                 let n = (normal_map * n0)
                     .try_normalize(f64::MIN_POSITIVE)
                     .unwrap_or(n0);
-                // Distance to the osculating quadric (see `shape_operators`).
                 let diff = q - (c + d);
                 let t = diff - n * n.dot(&diff);
-                let s = shapes
-                    .get(nb_index)
-                    .map_or_else(Matrix3::zeros, |l| l.operator);
-                let r = -(n.dot(&diff) + 0.5 * (t.transpose() * s * t)[(0, 0)]);
                 // A scan point beyond the CAD surface's extent (over its edge or an opening)
                 // does not lie on it, however near its plane.
                 if tangent2 > 0.0 && t.norm_squared() > tangent2 {
                     continue;
                 }
+                // Distance to the osculating quadric (see `shape_operators`).
+                let s = shapes
+                    .get(nb_index)
+                    .map_or_else(Matrix3::zeros, |l| l.operator);
+                let r = -(n.dot(&diff) + 0.5 * (t.transpose() * s * t)[(0, 0)]);
                 if best.is_none_or(|b| r.abs() < b.0) {
-                    best = Some((r.abs(), nb_index, c, n, j, r));
+                    best = Some((r.abs(), nb_index, c, n, r));
                 }
             }
-            let (_, index, c, n, j, r) = best?;
+            let (_, index, c, n, r) = best?;
             if gates.exclude_edges && shapes.get(index).is_some_and(|l| l.near_edge) {
                 return None;
             }
@@ -344,7 +343,7 @@ pub(crate) fn match_points(
             {
                 return None;
             }
-            Some((index, c, n, j, r))
+            Some((index, c, n, r))
         })
         .collect()
 }
@@ -364,7 +363,7 @@ pub(crate) fn final_matches(
     match_points(points, &gates, target, shapes, field, max_distance_mm, None)
         .into_iter()
         .zip(points)
-        .filter_map(|(m, q)| m.map(|(_, _, n, _, r)| Match { q: *q, n, r }))
+        .filter_map(|(m, q)| m.map(|(_, _, n, r)| Match { q: *q, n, r }))
         .collect()
 }
 
@@ -473,7 +472,7 @@ pub(crate) fn fit_field(
     let matches = matched
         .into_iter()
         .zip(points)
-        .filter_map(|(m, q)| m.map(|(_, _, n, _, r)| Match { q: *q, n, r }))
+        .filter_map(|(m, q)| m.map(|(_, _, n, r)| Match { q: *q, n, r }))
         .collect();
     Ok(FieldFit {
         field,
@@ -515,7 +514,7 @@ fn check_field(
     let base: Vec<CheckMatch> = fitted
         .par_iter()
         .filter_map(|m| {
-            m.map(|(_, c, n, _, r)| {
+            m.map(|(_, c, n, r)| {
                 let (index, value) = check.values(&c);
                 (c, n, r - n.dot(&field.displacement(&c)), index, value)
             })
@@ -666,7 +665,7 @@ fn solve_field(
         let matched = match_points(sample, &gates, target, shapes, Some(&field), max_d, cache);
         let pairs: Vec<(Point3, Vector3, f64, f64)> = matched
             .iter()
-            .filter_map(|m| m.map(|(_, c, n, _, r)| (c, n, r, kernel.weight(r))))
+            .filter_map(|m| m.map(|(_, c, n, r)| (c, n, r, kernel.weight(r))))
             .collect();
         let needed = 3 * SUPPORT;
         if pairs.len() < needed {
@@ -880,7 +879,7 @@ fn field_posterior(
     };
     let pairs: Vec<(Point3, Vector3, f64, f64)> = matched
         .iter()
-        .filter_map(|m| m.map(|(_, c, n, _, r)| (c, n, r, kernel.weight(r))))
+        .filter_map(|m| m.map(|(_, c, n, r)| (c, n, r, kernel.weight(r))))
         .collect();
     posterior_of(field, &pairs, prior, settings)
 }
@@ -1459,7 +1458,7 @@ mod tests {
                 } else {
                     0.005 * ((i as f64) * 0.11).cos()
                 };
-                Some((i, *c, *n, Matrix3::identity(), r))
+                Some((i, *c, *n, r))
             })
             .collect();
         let check_settings = DeformationSettings {
@@ -1482,7 +1481,7 @@ mod tests {
             let pairs: Vec<(Point3, Vector3, f64, f64)> = fitted
                 .iter()
                 .flatten()
-                .map(|&(_, c, n, _, r)| {
+                .map(|&(_, c, n, r)| {
                     let r = r - n.dot(&field.displacement(&c)) + n.dot(&rebuilt.displacement(&c));
                     (c, n, r, kernel.weight(r))
                 })
