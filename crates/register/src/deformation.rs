@@ -140,6 +140,7 @@ impl BSplineField {
     }
 
     /// The cell of `x` (per axis) and its 1-D basis values and derivatives (per mm).
+    #[inline]
     fn locate(&self, x: &Point3) -> ([usize; 3], [[f64; 3]; 3], [[f64; 3]; 3]) {
         let h = self.spacing_mm;
         let mut cell = [0usize; 3];
@@ -158,6 +159,7 @@ impl BSplineField {
 
     /// The flat-index step of one control point along each axis (x, y, z): [`Self::flat`] is
     /// `i·s₀ + j·s₁ + k·s₂`.
+    #[inline]
     fn strides(&self) -> [usize; 3] {
         let d = self.dims();
         let [a, b, c] = self.order;
@@ -178,6 +180,7 @@ impl BSplineField {
     /// The control indices and basis values at `x` (as [`Weights::index`] and
     /// [`Weights::value`], without the gradients).
     #[must_use]
+    #[inline]
     pub fn values(&self, x: &Point3) -> ([usize; SUPPORT], [f64; SUPPORT]) {
         let (cell, b, _) = self.locate(x);
         let s = self.strides();
@@ -227,34 +230,61 @@ impl BSplineField {
         w
     }
 
-    /// The displacement `d(x)`, mm.
+    /// The displacement `d(x)`, mm. Summed over the control points as [`Self::values`] lists
+    /// them, the same terms in the same order as [`Self::displacement_from`], without building
+    /// the 27 indices and values first (returned by value, they were copied on every call).
     #[must_use]
     pub fn displacement(&self, x: &Point3) -> Vector3 {
-        let (index, value) = self.values(x);
-        self.displacement_from(&index, &value)
+        let (cell, b, _) = self.locate(x);
+        let s = self.strides();
+        let base = cell[0] * s[0] + cell[1] * s[1] + cell[2] * s[2];
+        let mut d = Vector3::zeros();
+        for k in 0..3 {
+            for j in 0..3 {
+                for i in 0..3 {
+                    let value = b[0][i] * b[1][j] * b[2][k];
+                    d += value * self.coefficients[base + i * s[0] + j * s[1] + k * s[2]];
+                }
+            }
+        }
+        d
     }
 
     /// The displacement at a point whose control indices and basis values ([`Self::values`])
     /// were taken before, mm: the same field evaluated again without locating the point.
     #[must_use]
+    #[inline]
     pub fn displacement_from(&self, index: &[usize; SUPPORT], value: &[f64; SUPPORT]) -> Vector3 {
         (0..SUPPORT)
             .map(|n| value[n] * self.coefficients[index[n]])
             .sum()
     }
 
-    /// The displacement and its Jacobian `∂d/∂x` at `x`.
+    /// The displacement and its Jacobian `∂d/∂x` at `x`: the terms of [`Self::weights`] in its
+    /// order, without building them first (as [`Self::displacement`]).
     #[must_use]
     pub fn displacement_and_jacobian(&self, x: &Point3) -> (Vector3, Matrix3<f64>) {
-        let w = self.weights(x);
+        let (cell, b, db) = self.locate(x);
+        let s = self.strides();
+        let base = cell[0] * s[0] + cell[1] * s[1] + cell[2] * s[2];
         let mut d = Vector3::zeros();
-        let mut j = Matrix3::zeros();
-        for n in 0..SUPPORT {
-            let c = self.coefficients[w.index[n]];
-            d += w.value[n] * c;
-            j += c * w.gradient[n].transpose();
+        let mut jac = Matrix3::zeros();
+        for k in 0..3 {
+            for j in 0..3 {
+                for i in 0..3 {
+                    let c = self.coefficients[base + i * s[0] + j * s[1] + k * s[2]];
+                    let value = b[0][i] * b[1][j] * b[2][k];
+                    let gradient = Vector3::new(
+                        db[0][i] * b[1][j] * b[2][k],
+                        b[0][i] * db[1][j] * b[2][k],
+                        b[0][i] * b[1][j] * db[2][k],
+                    );
+                    d += value * c;
+                    jac += c * gradient.transpose();
+                }
+            }
         }
-        (d, j)
+        (d, jac)
     }
 
     /// `F(x) = x + d(x)`.
