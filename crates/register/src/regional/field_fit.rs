@@ -850,20 +850,28 @@ impl FieldPosterior {
     }
 }
 
-/// `Σₐ Σᵦ Bₐ(x) Bᵦ(x) Cₐᵦ`: the covariance of `d(x)` from the control displacements' `c`.
+/// `Σₐ Σᵦ Bₐ(x) Bᵦ(x) Cₐᵦ`: the covariance of `d(x)` from the control displacements' `c`
+/// (symmetric). Each pair `a < b` is read once, `Cᵦₐ = Cₐᵦᵀ`: half the 3 × 3 blocks gathered
+/// from the dense matrix, which is what the sum costs.
 pub(crate) fn block_covariance(c: &DMatrix<f64>, field: &BSplineField, x: &Point3) -> Matrix3<f64> {
     let (index, value) = field.values(x);
-    let mut out = Matrix3::zeros();
+    let mut diagonal = Matrix3::zeros();
+    let mut upper = Matrix3::zeros();
     for a in 0..SUPPORT {
-        for b in 0..SUPPORT {
+        if value[a] == 0.0 {
+            continue;
+        }
+        let ra = 3 * index[a];
+        diagonal += c.fixed_view::<3, 3>(ra, ra) * (value[a] * value[a]);
+        for b in a + 1..SUPPORT {
             let w = value[a] * value[b];
             if w == 0.0 {
                 continue;
             }
-            out += c.fixed_view::<3, 3>(3 * index[a], 3 * index[b]) * w;
+            upper += c.fixed_view::<3, 3>(ra, 3 * index[b]) * w;
         }
     }
-    out
+    diagonal + upper + upper.transpose()
 }
 
 /// The posterior of the field at its last matches (see [`FieldPosterior`]); `None` when the
