@@ -410,14 +410,20 @@ impl CheckPosterior {
 
 /// Fits the displacement field (CAD frame) to the scan points `q` (CAD frame), with its final
 /// matches and its posterior; with `check`, also the model check's field (see [`check_field`]).
-pub(crate) fn fit_field(
+///
+/// `beside` is work of the caller's that needs nothing of the fit: it runs after the
+/// posterior, on the core the posterior leaves while the model check's solves (one core,
+/// most of its time) go on, and its result is returned with the fit.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn fit_field<T: Send>(
     points: &[Point3],
     scan_normals: &[Vector3],
     target: &IcpTarget,
     shapes: &[LocalShape],
     settings: &DeformationSettings,
     check: Option<&DeformationSettings>,
-) -> Result<FieldFit> {
+    beside: impl FnOnce() -> T + Send,
+) -> Result<(FieldFit, T)> {
     let tangent_mm = TANGENT_GATE_SPACINGS * cad_spacing_mm(target);
     let mut candidates = vec![Candidates::default(); points.len()];
     let (field, prior) = solve_field(
@@ -456,9 +462,10 @@ pub(crate) fn fit_field(
             })
         })
         .collect();
-    // The check's solves and the posterior's inverse are independent: one core each.
+    // The check's solves and the posterior's inverse (then `beside`) are independent: one
+    // core each.
     let cancel = trim_geom::cancel::current();
-    let (check, posterior) = rayon::join(
+    let (check, (posterior, beside)) = rayon::join(
         || {
             cancel.run(|| {
                 check
@@ -466,7 +473,10 @@ pub(crate) fn fit_field(
                     .transpose()
             })
         },
-        || field_posterior(&field, &fitted, &prior, settings),
+        || {
+            let posterior = field_posterior(&field, &fitted, &prior, settings);
+            (posterior, beside())
+        },
     );
     let check = check?;
     let matches = matched
@@ -474,12 +484,15 @@ pub(crate) fn fit_field(
         .zip(points)
         .filter_map(|(m, q)| m.map(|(_, _, n, r)| Match { q: *q, n, r }))
         .collect();
-    Ok(FieldFit {
-        field,
-        matches,
-        posterior,
-        check,
-    })
+    Ok((
+        FieldFit {
+            field,
+            matches,
+            posterior,
+            check,
+        },
+        beside,
+    ))
 }
 
 /// One match of the model check: its CAD point, carried normal, residual without the fit's

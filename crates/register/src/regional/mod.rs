@@ -326,6 +326,8 @@ pub fn register(
 
     let mut check_field = None;
     let mut scan_tree = None;
+    // The openings' kd-tree of the whole CAD, built beside the model check when there is one.
+    let mut cad_tree = None;
     let (mut field, matches, mut posterior) = match settings.mode {
         Mode::Global => (
             None,
@@ -357,7 +359,7 @@ pub fn register(
                 ))
             })?;
             scan_tree = Some(tree);
-            let fit = stage(&mut timings, name, || {
+            let (fit, tree) = stage(&mut timings, name, || {
                 fit_field(
                     &field_points,
                     &normals,
@@ -365,8 +367,10 @@ pub fn register(
                     &shapes,
                     &settings.field,
                     settings.quality.model_check.then_some(&check_settings),
+                    || kdtree::KdTree::build(cad.points()),
                 )
             })?;
+            cad_tree = Some(tree);
             check_field = fit.check;
             (Some(fit.field), fit.matches, fit.posterior)
         }
@@ -441,7 +445,7 @@ pub fn register(
         (matches.iter().map(|m| m.r * m.r).sum::<f64>() / n).sqrt()
     });
     stage(&mut timings, "openings", || {
-        let cad_tree = kdtree::KdTree::build(cad.points());
+        let cad_tree = cad_tree.unwrap_or_else(|| kdtree::KdTree::build(cad.points()));
         let checks = check_openings(
             path,
             field.as_ref(),
