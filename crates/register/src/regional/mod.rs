@@ -465,6 +465,7 @@ pub fn register(
         Ok(())
     })?;
     let strips: Vec<&[Point3]> = path.contours().iter().map(|c| c.points()).collect();
+    let joins = strips_sharing_ends(&strips);
     stage(&mut timings, "scanned edges", || {
         let readings: Vec<Vec<ScannedEdge>> = registered
             .contours()
@@ -480,7 +481,10 @@ pub fn register(
                 c.trustworthy = false;
             }
         }
-        for (c, beyond) in contours.iter_mut().zip(material_beyond(&strips, &readings)) {
+        for (c, beyond) in contours
+            .iter_mut()
+            .zip(material_beyond(&strips, &joins, &readings))
+        {
             if beyond {
                 c.flags.push(Flag::MaterialBeyond);
                 c.trustworthy = false;
@@ -490,13 +494,7 @@ pub fn register(
     })?;
     let verdict = judge_part(&mut contours, &settings.quality);
     let edges_in_doubt = (verdict.refused.is_none() && verdict.in_doubt.is_none())
-        .then(|| {
-            judge_edges(
-                &mut contours,
-                &strips_sharing_ends(&strips),
-                &settings.quality,
-            )
-        })
+        .then(|| judge_edges(&mut contours, &joins, &settings.quality))
         .flatten();
     let untrustworthy = contours.iter().filter(|c| !c.trustworthy).count();
     let report = QualityReport {

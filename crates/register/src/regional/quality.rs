@@ -277,14 +277,9 @@ pub(crate) struct PartVerdict {
 ///   had to catch carried bounds of 21–30 µm; refusing such parts whole flagged every good
 ///   contour in them (45 % of all false alarms). DESIGN.md, "Registration", step 5.
 pub(crate) fn judge_part(contours: &mut [ContourQuality], q: &QualitySettings) -> PartVerdict {
-    // Flagged as the rule was chosen: by every flag but the contour's own bound, and by its
-    // bound at the part's factor (or the part's bound) over the tolerance.
     let flagged = contours
         .iter()
-        .filter(|c| {
-            c.flags.iter().any(|f| *f != Flag::PredictedError)
-                || c.doubt_bound_um.max(c.part_bound_um) > q.tolerance_um
-        })
+        .filter(|c| off_by_more_than(c, q.tolerance_um))
         .count();
     let n = contours.len();
     let misplaced: Vec<String> = contours
@@ -361,6 +356,14 @@ pub(crate) fn judge_part(contours: &mut [ContourQuality], q: &QualitySettings) -
             q.doubt_bound_fraction
         )),
     }
+}
+
+/// Whether the part's rules count a contour as off by more than `limit_um`, as they were
+/// chosen: flagged for anything but its own bound, or its bound at the part's factor
+/// (`doubt_bound_um`) or the part's bound over the limit.
+fn off_by_more_than(c: &ContourQuality, limit_um: f64) -> bool {
+    c.flags.iter().any(|f| *f != Flag::PredictedError)
+        || c.doubt_bound_um.max(c.part_bound_um) > limit_um
 }
 
 /// `λmin/λmax` and the weakest direction of `Σ n nᵀ` (unit weights), or `(0, z)` when empty.
@@ -526,7 +529,7 @@ pub const MATERIAL_BEYOND_MM: f64 = 0.020;
 pub const STRIP_JOIN_MM: f64 = 0.5;
 
 /// Which contours [`Flag::MaterialBeyond`] takes: each strip (open contour of `contours`, CAD
-/// frame) one of whose scanned edges (`readings`, registered) shows more than
+/// frame; `joins` from [`strips_sharing_ends`]) one of whose scanned edges (`readings`, registered) shows more than
 /// [`MATERIAL_BEYOND_MM`] of material beyond it, flash aside (over
 /// [`super::scanned_edge::EDGE_FLASH_SHARE`] of its face beyond: a burr), and each strip that
 /// shares an end with such a strip: where a strip lies inside the material across its edge,
@@ -535,13 +538,17 @@ pub const STRIP_JOIN_MM: f64 = 0.5;
 /// material (`edge_off_scan`). Rims are not taken: a burr into a small hole moves the whole rim's fit
 /// without reading as flash (own cores, seeds 600–679: 8 % of the good rims flagged).
 #[must_use]
-pub fn material_beyond(contours: &[&[Point3]], readings: &[Vec<ScannedEdge>]) -> Vec<bool> {
+pub fn material_beyond(
+    contours: &[&[Point3]],
+    joins: &[Vec<usize>],
+    readings: &[Vec<ScannedEdge>],
+) -> Vec<bool> {
     let beyond: Vec<bool> = contours
         .iter()
         .zip(readings)
         .map(|(p, r)| is_strip(p) && r.iter().any(ScannedEdge::shows_material_beyond))
         .collect();
-    strips_sharing_ends(contours)
+    joins
         .iter()
         .enumerate()
         .map(|(i, joined)| beyond[i] || joined.iter().any(|&j| beyond[j]))
@@ -608,10 +615,7 @@ pub(crate) fn judge_edges(
     let far_um = EDGE_FAR_OFF_FRACTION * q.tolerance_um;
     let far: Vec<bool> = contours
         .iter()
-        .map(|c| {
-            c.flags.iter().any(|f| *f != Flag::PredictedError)
-                || c.doubt_bound_um.max(c.part_bound_um) > far_um
-        })
+        .map(|c| off_by_more_than(c, far_um))
         .collect();
     let limit_um = q.doubt_bound_fraction * q.tolerance_um;
     let mut edges = Vec::new();
@@ -1188,10 +1192,11 @@ mod tests {
             .collect();
         let contours = [line(o, x), line(o, y), line(far, far + (x - o)), rim];
         let points: Vec<&[Point3]> = contours.iter().map(Vec::as_slice).collect();
+        let joins = strips_sharing_ends(&points);
         let flags = |readings: [f64; 4], flash: f64| {
             let readings: Vec<Vec<ScannedEdge>> =
                 readings.iter().map(|&r| vec![edge(r, flash)]).collect();
-            material_beyond(&points, &readings)
+            material_beyond(&points, &joins, &readings)
         };
         // The first strip reads 25 µm beyond: it and the strip meeting it at the origin.
         assert_eq!(
@@ -1243,8 +1248,8 @@ mod tests {
 
     /// An edge more than half of whose strips are far off (outside fresh 5602: an along-span
     /// slide growing toward the root past most of its strips' bounds) flags the strip that
-    /// joins them and whose bound at 1.5σ exceeds half the tolerance, and no other; half far
-    /// off is not enough, and a part in doubt is left to `judge_part`.
+    /// joins them and whose bound at 1.5σ exceeds half the tolerance, and no other (the far-off
+    /// strips keep their own flags); half far off is not enough.
     #[test]
     fn an_edge_mostly_far_off_flags_the_strip_beside_the_far_ones_over_half_the_tolerance() {
         let contours = an_edge_and_a_rim();
@@ -1272,6 +1277,7 @@ mod tests {
         let mut five = edge([120.0, 90.0, 45.0, 20.0, 20.0, 10.0]);
         let reason = judge_edges(&mut five, &joins, &q).expect("the edge is in doubt");
         assert_eq!(five[3].flags, vec![Flag::EdgeInDoubt], "{reason}");
+        assert!(five[..3].iter().all(|c| c.flags == [Flag::PredictedError]));
         assert!(!five[3].trustworthy);
         assert!(five[4].trustworthy && five[4].flags.is_empty());
         assert!(five[5].trustworthy, "the rim is no strip of the edge");
