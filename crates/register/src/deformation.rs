@@ -452,6 +452,11 @@ mod tests {
         assert!((w.value.iter().sum::<f64>() - 1.0).abs() < 1e-12);
         for p in [Point3::new(3.3, -7.1, 1.2), Point3::new(-17.0, 44.0, -3.0)] {
             let (d, j) = f.displacement_and_jacobian(&p);
+            // The three evaluations sum the same terms in the same order: equal to the bit
+            // (the fit's thresholds amplify a last-bit difference).
+            let (index, value) = f.values(&p);
+            assert_eq!(d, f.displacement(&p));
+            assert_eq!(d, f.displacement_from(&index, &value));
             assert!((d - target(&p)).norm() < 1e-6, "{d} vs {}", target(&p));
             let e = 1e-5;
             let fd = (f.displacement(&(p + Vector3::x() * e))
