@@ -41,7 +41,7 @@ pub use part::{
     CAMBER_MM, Cutout, DESIGN_TWIST_DEG, Deformation, LENGTH_MM, THICKNESS_MM, WIDTH_MM, cutouts,
     demo_hatch_boundary, design_point,
 };
-pub use scanner::ScanView;
+pub use scanner::{DEMO_SCANNER_VIEWS, ScanView};
 
 #[cfg(test)]
 mod tests;

@@ -33,6 +33,11 @@ pub const VIEW_TILT_RANGE_DEG: [f64; 2] = [10.0, 55.0];
 /// The seeded jitter of the views' azimuths after the first (± this about the even spread), degrees.
 pub const VIEW_AZIMUTH_JITTER_DEG: f64 = 20.0;
 
+/// Views of the built-in demo's scanner (`trimctl run`'s twin): a cell's scanner fixed to the
+/// machine, looking from three directions, two on the top side and one below (with one view the
+/// ends of the demo's long strips are fixed by the field alone and registration flags them).
+pub const DEMO_SCANNER_VIEWS: usize = 3;
+
 /// One view of the scanner. Views are fixed to the machine: defined in the scan frame about the
 /// fixture's *nominal* pose of the part, whatever its true pose.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -7,7 +7,7 @@ use anyhow::{Context, bail};
 use trim_geom::formats;
 use trim_geom::math::Similarity3;
 use trim_geom::{Path as TrimPath, PointCloud};
-use trim_synth::{SynthParams, generate};
+use trim_synth::{DEMO_SCANNER_VIEWS, SynthParams, generate};
 
 use super::files;
 use crate::cad::load_cad;
@@ -75,9 +75,6 @@ pub(super) fn load_inputs(
         let burred = spec.burred;
         let params = SynthParams {
             seed: spec.seed,
-            // A cell's scanner fixed to the machine, looking from three directions (two on the
-            // top side, one below): with one view the ends of the demo's long strips are fixed
-            // by the field alone and registration flags them.
             scanner_views: DEMO_SCANNER_VIEWS,
             burr_fraction: if burred { DEMO_VERIFY_BURRS } else { 0.0 },
             blockage_fraction: spec.blockages,
@@ -192,9 +189,6 @@ const DEMO_HATCH_BOUNDARY: &str = "hatch_boundary.csv";
 /// The demo region's hatching: 0.05 mm pitch across the top face's camber (the planner splits
 /// tracks where the incidence limit requires), points placed by a 2 µm chord tolerance (vector
 /// marking).
-/// Views of the built-in demo's scanner.
-pub const DEMO_SCANNER_VIEWS: usize = 3;
-
 fn demo_hatch_settings() -> trim_plan::hatch::HatchSettings {
     trim_plan::hatch::HatchSettings {
         pitch_mm: 0.05,
