@@ -137,14 +137,10 @@ pub const SCAN_NORMAL_NEIGHBOURS: usize = 12;
 /// …found within this, mm (fewer than six: no normal, the point matched as before).
 pub const SCAN_NORMAL_RADIUS_MM: f64 = 0.3;
 
-/// Each field point's surface normal from the scan around it (`picked` indexes `scan`), turned
-/// by `rotation` (into the CAD frame); the zero vector where too few scan points lie near. Also
-/// returns the kd-tree of the whole scan (scan frame) it searched.
-pub(crate) fn scan_normals(
-    scan: &[Point3],
-    picked: &[usize],
-    rotation: &nalgebra::UnitQuaternion<f64>,
-) -> (Vec<Vector3>, kdtree::KdTree) {
+/// Each field point's surface normal from the scan around it (`picked` indexes `scan`), in the
+/// scan frame; the zero vector where too few scan points lie near. Also returns the kd-tree of
+/// the whole scan (scan frame) it searched. [`turn_normals`] carries them into the CAD frame.
+pub(crate) fn scan_normals(scan: &[Point3], picked: &[usize]) -> (Vec<Vector3>, kdtree::KdTree) {
     let tree = kdtree::KdTree::build(scan);
     let d2 = SCAN_NORMAL_RADIUS_MM * SCAN_NORMAL_RADIUS_MM;
     let normals = picked
@@ -157,10 +153,28 @@ pub(crate) fn scan_normals(
             let pts: Vec<Point3> = nb.iter().map(|n| scan[n.index]).collect();
             let (_, cov) = super::coarse::moments(&pts);
             let eig = SymmetricEigen::new(cov);
-            rotation * eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned()
+            eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned()
         })
         .collect();
     (normals, tree)
+}
+
+/// [`scan_normals`]' normals turned by `rotation` (into the CAD frame), the zero vectors (no
+/// normal) left as they are.
+pub(crate) fn turn_normals(
+    normals: &[Vector3],
+    rotation: &nalgebra::UnitQuaternion<f64>,
+) -> Vec<Vector3> {
+    normals
+        .par_iter()
+        .map(|n| {
+            if *n == Vector3::zeros() {
+                *n
+            } else {
+                rotation * n
+            }
+        })
+        .collect()
 }
 
 /// The CAD sample's typical spacing: the median distance from a point to its nearest other

@@ -51,7 +51,7 @@ pub use field_fit::{
     SCAN_NORMAL_NEIGHBOURS, SCAN_NORMAL_RADIUS_MM, TANGENT_GATE_SPACINGS, WARMUP_REACH_FACTOR,
     WARMUP_STRIDE, local_shapes,
 };
-use field_fit::{final_matches, fit_field, move_contour, scan_normals};
+use field_fit::{final_matches, fit_field, move_contour, scan_normals, turn_normals};
 pub use openings::{
     OPENING_BAND_MM, OPENING_CELL_MM, OPENING_CLEAR_MM, OPENING_COVER_SHARE, OPENING_FACE_MIN_COS,
     OPENING_MIN_CELLS, OPENING_MIN_SLIDE_MM, OPENING_MISMATCH_SHARE, OPENING_PROBE_RADIUS_MM,
@@ -203,6 +203,61 @@ fn matrix_rows(s: &Similarity3) -> [[f64; 4]; 4] {
     [0, 1, 2, 3].map(|i| [0, 1, 2, 3].map(|j| m[(i, j)]))
 }
 
+/// What the coarse fit yields: the capture, the CAD the scanner saw (with its kd-tree), the
+/// coarse similarity and the CAD's local shapes (empty unless `Mode::Regional`).
+type CoarseStages = (Capture, IcpTarget, IcpResult, Vec<LocalShape>);
+
+/// The coarse stages, each timed into `timings`: the capture from the fixture's nominal pose,
+/// the CAD the scanner saw at the captured pose, then scan → CAD point-to-plane with scale down
+/// the scan pyramid (the CAD's local shapes, for the field's matching, worked out beside it).
+fn coarse_stages(
+    cad: &PointCloud,
+    pyramid: &VoxelPyramid<'_>,
+    capture_target: &IcpTarget,
+    cad_from_scan_initial: &Similarity3,
+    settings: &RegisterSettings,
+    timings: &mut Vec<(String, f64)>,
+) -> Result<CoarseStages> {
+    let captured = stage(timings, "coarse capture", || {
+        capture(
+            pyramid,
+            capture_target,
+            cad_from_scan_initial,
+            &settings.coarse,
+        )
+    })?;
+    // What the scanner saw, at the captured pose: the CAD points with scan data near them
+    // (`Visibility::Support`), or those facing an assumed view (`Visibility::View`, the
+    // captured pose's: with the nominal pose's, a part 10° off keeps walls the scanner never
+    // saw and drops some it did).
+    let target = stage(timings, "cad visibility + kd-tree", || {
+        match settings.visibility {
+            Visibility::Support => supported_target(
+                cad,
+                pyramid,
+                &captured.fit.target_from_source,
+                &settings.coarse,
+                settings.visible_within_mm,
+            ),
+            Visibility::View => visible_target(
+                cad,
+                view_in_cad(settings, &captured.fit.target_from_source),
+                settings.facing_min_cos,
+            ),
+        }
+    })?;
+    let regional = settings.mode == Mode::Regional;
+    let (coarse, shapes) = stage(timings, "coarse similarity + cad curvature", || {
+        let cancel = trim_geom::cancel::current();
+        let (coarse, shapes) = rayon::join(
+            || cancel.run(|| refine(pyramid, &target, &captured, &settings.coarse)),
+            || regional.then(|| local_shapes(target.cloud(), target.tree())),
+        );
+        Ok((coarse?, shapes.unwrap_or_default()))
+    })?;
+    Ok((captured, target, coarse, shapes))
+}
+
 /// Registers `path` (CAD frame) onto `scan` (scan frame), starting from the fixture's
 /// `initial_scan_from_cad`. `cad` must carry outward normals.
 pub fn register(
@@ -261,48 +316,36 @@ pub fn register(
             Ok((capture_target?, pyramid?, picked?))
         })?;
 
-    // Coarse: the capture from the fixture's nominal pose, then scan → CAD point-to-plane with
-    // scale down the scan pyramid.
-    let captured = stage(&mut timings, "coarse capture", || {
-        capture(
-            &pyramid,
-            &capture_target,
-            &cad_from_scan_initial,
-            &settings.coarse,
-        )
-    })?;
-    // What the scanner saw, at the captured pose: the CAD points with scan data near them
-    // (`Visibility::Support`), or those facing an assumed view (`Visibility::View`, the
-    // captured pose's: with the nominal pose's, a part 10° off keeps walls the scanner never
-    // saw and drops some it did).
-    let target = stage(
-        &mut timings,
-        "cad visibility + kd-tree",
-        || match settings.visibility {
-            Visibility::Support => supported_target(
-                cad,
-                &pyramid,
-                &captured.fit.target_from_source,
-                &settings.coarse,
-                settings.visible_within_mm,
-            ),
-            Visibility::View => visible_target(
-                cad,
-                view_in_cad(settings, &captured.fit.target_from_source),
-                settings.facing_min_cos,
-            ),
-        },
-    )?;
-    // The CAD's local shapes (the field's matching) are worked out beside the refinement.
     let regional = settings.mode == Mode::Regional;
-    let (coarse, shapes) = stage(&mut timings, "coarse similarity + cad curvature", || {
-        let cancel = trim_geom::cancel::current();
-        let (coarse, shapes) = rayon::join(
-            || cancel.run(|| refine(&pyramid, &target, &captured, &settings.coarse)),
-            || regional.then(|| local_shapes(target.cloud(), target.tree())),
-        );
-        Ok((coarse?, shapes.unwrap_or_default()))
-    })?;
+    // The field's scan normals (scan frame) and the scan's kd-tree need only the scan: they are
+    // worked out beside the coarse stages below, which leave a core idle at times, and turned
+    // into the CAD frame once the coarse fit is known.
+    let cancel = trim_geom::cancel::current();
+    let (coarse_stages, normals) = rayon::join(
+        || {
+            cancel.run(|| {
+                coarse_stages(
+                    cad,
+                    &pyramid,
+                    &capture_target,
+                    &cad_from_scan_initial,
+                    settings,
+                    &mut timings,
+                )
+            })
+        },
+        || {
+            regional.then(|| {
+                cancel.run(|| {
+                    let t0 = Instant::now();
+                    let normals = scan_normals(scan.points(), &picked);
+                    (normals, t0.elapsed().as_secs_f64())
+                })
+            })
+        },
+    );
+    let (captured, target, coarse, shapes) = coarse_stages?;
+    let mut scan_normals_beside = normals;
     let cad_from_scan = coarse.target_from_source;
     let scan_from_cad = cad_from_scan.inverse();
 
@@ -351,12 +394,12 @@ pub fn register(
             } else {
                 "deformation field"
             };
-            let (normals, tree) = stage(&mut timings, "scan normals", || {
-                Ok(scan_normals(
-                    scan.points(),
-                    &picked,
-                    &cad_from_scan.isometry.rotation,
-                ))
+            let ((normals, tree), beside_s) = scan_normals_beside
+                .take()
+                .expect("the scan normals are worked out in regional mode");
+            timings.push(("scan normals (beside the coarse stages)".into(), beside_s));
+            let normals = stage(&mut timings, "scan normals into the cad frame", || {
+                Ok(turn_normals(&normals, &cad_from_scan.isometry.rotation))
             })?;
             scan_tree = Some(tree);
             let (fit, tree) = stage(&mut timings, name, || {
