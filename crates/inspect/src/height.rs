@@ -65,9 +65,19 @@ const EDGE_SHARES: [f64; 11] = [
     0.01, 0.02, 0.04, 0.07, 0.1, 0.15, 0.22, 0.32, 0.5, 0.75, 1.0,
 ];
 
-/// The web thicknesses the likelihood is profiled over, mm (the webs are 20–100 µm
-/// thick; a thicker one reads as the thickest here, its edge's rise a little too dense).
-const WEB_THICKNESSES_MM: [f64; 4] = [0.02, 0.04, 0.07, 0.12];
+/// The web thicknesses the likelihood is profiled over, mm: the 20–100 µm and a little
+/// more (a thicker web reads as the thickest here, its edge's rise a little too dense), in
+/// steps of the scan noise where the underside is seen (its readings lie a thickness below the
+/// face within σ, so a coarser grid misplaces them: on [`EDGE_THICKNESSES`]' a 50 µm web read
+/// 6 µm high on average in draws from the model).
+const THICKNESSES_MM: [f64; 11] = [
+    0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.09, 0.1, 0.11, 0.12,
+];
+
+/// The thicknesses (indices into [`THICKNESSES_MM`]: 20, 40, 70 and 120 µm) a free edge seen
+/// without the underside is profiled over: its rise is uniform over the thickness, and a
+/// coarser grid serves.
+const EDGE_THICKNESSES: [usize; 4] = [0, 2, 5, 10];
 
 /// The lower side's shares of the two sides' readings the likelihood is profiled over, above 0
 /// (a scan that looks from below as well as from above sees the web's underside: the synthetic
@@ -75,19 +85,11 @@ const WEB_THICKNESSES_MM: [f64; 4] = [0.02, 0.04, 0.07, 0.12];
 /// there).
 const LOWER_SHARES: [f64; 4] = [0.15, 0.3, 0.5, 0.7];
 
-/// The web thicknesses profiled over where its underside is seen, mm: the 20–100 µm and
-/// a little more, in steps of the scan noise (the underside's readings lie a thickness below
-/// the face within σ, so a coarser grid misplaces them: with [`WEB_THICKNESSES_MM`] a 50 µm web
-/// read 6 µm high on average in draws from the model).
-const LOWER_THICKNESSES_MM: [f64; 11] = [
-    0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.09, 0.1, 0.11, 0.12,
-];
-
 /// The likelihood's variants: the edge unseen, then each (edge share, thickness), then for each
 /// (lower share, thickness) the edge unseen and each edge share.
 const VARIANTS: usize = 1
-    + EDGE_SHARES.len() * WEB_THICKNESSES_MM.len()
-    + LOWER_SHARES.len() * LOWER_THICKNESSES_MM.len() * (1 + EDGE_SHARES.len());
+    + EDGE_SHARES.len() * EDGE_THICKNESSES.len()
+    + LOWER_SHARES.len() * THICKNESSES_MM.len() * (1 + EDGE_SHARES.len());
 
 /// What each variant pays for its parameters beyond the height (Akaike's penalty, one a
 /// parameter): the edge's share and the web's thickness ([`EDGE_PENALTY`]), the lower side's
@@ -96,9 +98,9 @@ const PENALTIES: [f64; VARIANTS] = {
     let mut p = [0.0; VARIANTS];
     let mut v = 1;
     while v < VARIANTS {
-        let lower = v > EDGE_SHARES.len() * WEB_THICKNESSES_MM.len();
+        let lower = v > EDGE_SHARES.len() * EDGE_THICKNESSES.len();
         let edge = !lower
-            || !(v - 1 - EDGE_SHARES.len() * WEB_THICKNESSES_MM.len())
+            || !(v - 1 - EDGE_SHARES.len() * EDGE_THICKNESSES.len())
                 .is_multiple_of(1 + EDGE_SHARES.len());
         p[v] = match (edge, lower) {
             (true, true) => EDGE_PENALTY + LOWER_PENALTY - 1.0,
@@ -168,14 +170,11 @@ struct BinReadings {
     distances: Vec<f64>,
     /// Their rises' density under the upper side, `φ(z/σ)/σ`, 1/mm.
     side_rise: Vec<f64>,
-    /// Their rises' density under the free edge, per thickness of [`WEB_THICKNESSES_MM`], 1/mm.
-    edge_rise: Vec<[f64; WEB_THICKNESSES_MM.len()]>,
+    /// Their rises' density under the free edge, per thickness of [`THICKNESSES_MM`], 1/mm.
+    edge_rise: Vec<[f64; THICKNESSES_MM.len()]>,
     /// Their rises' density under the lower side, `φ((z + T)/σ)/σ`, per thickness `T` of
-    /// [`LOWER_THICKNESSES_MM`], 1/mm.
-    lower_rise: Vec<[f64; LOWER_THICKNESSES_MM.len()]>,
-    /// Their rises' density under the free edge, per thickness of [`LOWER_THICKNESSES_MM`]
-    /// (the free edge of a web whose underside is seen), 1/mm.
-    lower_edge_rise: Vec<[f64; LOWER_THICKNESSES_MM.len()]>,
+    /// [`THICKNESSES_MM`], 1/mm.
+    lower_rise: Vec<[f64; THICKNESSES_MM.len()]>,
     /// The truncation level `L`, mm.
     floor: f64,
     /// The `rank`-th largest distance, mm (where the search starts).
@@ -223,15 +222,11 @@ impl BinReadings {
                 .collect(),
             edge_rise: kept
                 .iter()
-                .map(|r| WEB_THICKNESSES_MM.map(|t| edge_rise_density(r.rise_mm, t, sigma)))
+                .map(|r| THICKNESSES_MM.map(|t| edge_rise_density(r.rise_mm, t, sigma)))
                 .collect(),
             lower_rise: kept
                 .iter()
-                .map(|r| LOWER_THICKNESSES_MM.map(|t| normal_pdf((r.rise_mm + t) / sigma) / sigma))
-                .collect(),
-            lower_edge_rise: kept
-                .iter()
-                .map(|r| LOWER_THICKNESSES_MM.map(|t| edge_rise_density(r.rise_mm, t, sigma)))
+                .map(|r| THICKNESSES_MM.map(|t| normal_pdf((r.rise_mm + t) / sigma) / sigma))
                 .collect(),
             floor,
             seed,
@@ -243,9 +238,9 @@ impl BinReadings {
     }
 
     /// `ℓ(h, a, c, T)` in the order of [`VARIANTS`]: the sides seen from above only, the edge
-    /// unseen (first); each share of [`EDGE_SHARES`] and thickness of [`WEB_THICKNESSES_MM`]
+    /// unseen (first); each share of [`EDGE_SHARES`] and thickness of [`EDGE_THICKNESSES`]
     /// (share-major); then each share of [`LOWER_SHARES`] and thickness of
-    /// [`LOWER_THICKNESSES_MM`], the edge unseen and each edge share. The log-likelihood of the
+    /// [`THICKNESSES_MM`], the edge unseen and each edge share. The log-likelihood of the
     /// bin's readings under a free edge at `h` (mm).
     fn log_likelihoods(&self, h: f64) -> [f64; VARIANTS] {
         let (sigma, floor) = (self.sigma, self.floor);
@@ -285,13 +280,14 @@ impl BinReadings {
             products[0] *= keep * side / s_side + self.outlier;
             let mut v = 1;
             for (w_side, w_edge) in weights {
-                for g in self.edge_rise[i] {
+                for t in EDGE_THICKNESSES {
+                    let g = self.edge_rise[i][t];
                     products[v] *= w_side * side + w_edge * edge_r * g + self.outlier;
                     v += 1;
                 }
             }
             for c in LOWER_SHARES {
-                for (g, under) in self.lower_edge_rise[i].iter().zip(&self.lower_rise[i]) {
+                for (g, under) in self.edge_rise[i].iter().zip(&self.lower_rise[i]) {
                     let sides = (1.0 - c) * side + c * reach * under;
                     products[v] *= keep * sides / s_side + self.outlier;
                     v += 1;
@@ -705,8 +701,8 @@ mod tests {
     fn each_variant_pays_for_what_it_sees() {
         let count = |p: f64| PENALTIES.iter().filter(|&&x| x == p).count();
         let (edges, lowers) = (
-            EDGE_SHARES.len() * WEB_THICKNESSES_MM.len(),
-            LOWER_SHARES.len() * LOWER_THICKNESSES_MM.len(),
+            EDGE_SHARES.len() * EDGE_THICKNESSES.len(),
+            LOWER_SHARES.len() * THICKNESSES_MM.len(),
         );
         assert_eq!(PENALTIES[0], 0.0);
         assert_eq!(count(0.0), 1);

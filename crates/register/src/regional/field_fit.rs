@@ -1243,10 +1243,7 @@ const BATCH: usize = 4;
 /// replaces kept their bounds and zip bookkeeping in the loop (8 % of the normal equations'
 /// samples) and the compiler did not vectorise it.
 #[inline]
-fn add_batch(row: &mut [f64], bb: &[[f64; BASIS_PAIRS]; BATCH], s: &[f64; BATCH]) {
-    let Ok(row) = <&mut [f64; BASIS_PAIRS]>::try_from(row) else {
-        return;
-    };
+fn add_batch(row: &mut [f64; BASIS_PAIRS], bb: &[[f64; BASIS_PAIRS]; BATCH], s: &[f64; BATCH]) {
     let [b0, b1, b2, b3] = bb;
     let [s0, s1, s2, s3] = *s;
     for m in 0..BASIS_PAIRS {
@@ -1307,8 +1304,8 @@ pub(crate) fn field_normal_equations(
                         sw[q][j] = w * nrm[x] * nrm[y];
                     }
                 }
-                for (q, s) in sw.iter().enumerate() {
-                    let row = &mut acc[q * BASIS_PAIRS..(q + 1) * BASIS_PAIRS];
+                let (rows, _) = acc.as_chunks_mut::<BASIS_PAIRS>();
+                for (row, s) in rows.iter_mut().zip(&sw) {
                     if batch.len() == BATCH {
                         add_batch(row, &bb, s);
                     } else {

@@ -345,7 +345,6 @@ pub fn register(
         },
     );
     let (captured, target, coarse, shapes) = coarse_stages?;
-    let mut scan_normals_beside = normals;
     let cad_from_scan = coarse.target_from_source;
     let scan_from_cad = cad_from_scan.inverse();
 
@@ -371,8 +370,9 @@ pub fn register(
     let mut scan_tree = None;
     // The openings' kd-tree of the whole CAD, built beside the model check when there is one.
     let mut cad_tree = None;
-    let (mut field, matches, mut posterior) = match settings.mode {
-        Mode::Global => (
+    // The scan normals were worked out in regional mode only.
+    let (mut field, matches, mut posterior) = match normals {
+        None => (
             None,
             final_matches(
                 &field_points,
@@ -383,7 +383,7 @@ pub fn register(
             ),
             None,
         ),
-        Mode::Regional => {
+        Some(((normals, tree), beside_s)) => {
             // The check field (`quality.model_check`), fitted to the fit's final matches.
             let check_settings = DeformationSettings {
                 spacing_mm: settings.field.spacing_mm * MODEL_CHECK_SPACING_RATIO,
@@ -394,9 +394,6 @@ pub fn register(
             } else {
                 "deformation field"
             };
-            let ((normals, tree), beside_s) = scan_normals_beside
-                .take()
-                .expect("the scan normals are worked out in regional mode");
             timings.push(("scan normals (beside the coarse stages)".into(), beside_s));
             let normals = stage(&mut timings, "scan normals into the cad frame", || {
                 Ok(turn_normals(&normals, &cad_from_scan.isometry.rotation))

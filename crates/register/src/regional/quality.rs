@@ -529,8 +529,8 @@ pub const MATERIAL_BEYOND_MM: f64 = 0.020;
 pub const STRIP_JOIN_MM: f64 = 0.5;
 
 /// Which contours [`Flag::MaterialBeyond`] takes: each strip (open contour of `contours`, CAD
-/// frame; `joins` from [`strips_sharing_ends`]) one of whose scanned edges (`readings`, registered) shows more than
-/// [`MATERIAL_BEYOND_MM`] of material beyond it, flash aside (over
+/// frame; `joins` from [`strips_sharing_ends`]) one of whose scanned edges (`readings`,
+/// registered) shows more than [`MATERIAL_BEYOND_MM`] of material beyond it, flash aside (over
 /// [`super::scanned_edge::EDGE_FLASH_SHARE`] of its face beyond: a burr), and each strip that
 /// shares an end with such a strip: where a strip lies inside the material across its edge,
 /// the strip meeting it at a corner is off by as much along itself there. Material beyond
