@@ -76,7 +76,9 @@ fn detection_settings() -> InspectSettings {
     InspectSettings::default()
 }
 
-fn run(case: &SynthCase, settings: &InspectSettings) -> Inspection {
+/// The case inspected at its registration, or the registration's reason for refusing the part
+/// (a refused part is not inspected: `run --verify` stops there, and the operator rescans).
+fn run(case: &SynthCase, settings: &InspectSettings) -> Result<Inspection, String> {
     let reg_settings = RegisterSettings {
         scanner_viewpoint_mm: Some(case.scanner_in_scan.coords.into()),
         ..RegisterSettings::default()
@@ -89,15 +91,18 @@ fn run(case: &SynthCase, settings: &InspectSettings) -> Inspection {
         &reg_settings,
     )
     .unwrap();
+    if let Some(reason) = reg.report.global.refused {
+        return Err(reason);
+    }
     let mesh = case.cad_mesh().unwrap();
-    inspect(
+    Ok(inspect(
         &mesh,
         &case.path,
         case.scan.points(),
         &Placement::from_registration(&reg),
         settings,
     )
-    .unwrap()
+    .unwrap())
 }
 
 #[derive(Debug, Default)]
@@ -111,6 +116,8 @@ struct Tally {
     misses: Vec<String>,
     alarm_list: Vec<String>,
     height_list: Vec<String>,
+    /// Seeds whose part the registration refused (not inspected), with the reason.
+    refused: Vec<String>,
 }
 
 fn evaluate(seeds: &[u64], views: usize) -> Tally {
@@ -118,7 +125,13 @@ fn evaluate(seeds: &[u64], views: usize) -> Tally {
     let mut t = Tally::default();
     for &seed in seeds {
         let case = generate(&params(seed, views)).unwrap();
-        let result = run(&case, &settings);
+        let result = match run(&case, &settings) {
+            Ok(result) => result,
+            Err(reason) => {
+                t.refused.push(format!("seed {seed}: {reason}"));
+                continue;
+            }
+        };
         let blocked: BTreeSet<i64> = case.blockages.iter().map(|b| b.contour).collect();
         let mut burrs: BTreeMap<i64, Vec<_>> = BTreeMap::new();
         for b in &case.burrs {
@@ -233,7 +246,14 @@ fn report(t: &Tally) {
         abs_max(&t.share_errors),
         t.share_errors.len()
     );
-    for line in t.misses.iter().chain(&t.alarm_list).chain(&t.height_list) {
+    eprintln!("parts refused by the registration: {}", t.refused.len());
+    for line in t
+        .refused
+        .iter()
+        .chain(&t.misses)
+        .chain(&t.alarm_list)
+        .chain(&t.height_list)
+    {
         eprintln!("  {line}");
     }
 }
@@ -241,6 +261,7 @@ fn report(t: &Tally) {
 /// The targets on `t` (the heights' within [`MIN_WITHIN_SHARE`] and
 /// [`WORST_HEIGHT_ERROR_UM`]).
 fn assert_targets(t: &Tally) {
+    assert!(t.refused.is_empty(), "{:#?}", t.refused);
     assert!(t.burrs >= 40, "too few burrs to judge: {}", t.burrs);
     let recall = t.found as f64 / t.burrs as f64;
     assert!(recall >= MIN_RECALL, "recall {recall}: {:#?}", t.misses);
@@ -315,7 +336,7 @@ fn webs_on_the_rims_of_open_holes_do_not_read_as_covers() {
     })
     .unwrap();
     let settings = detection_settings();
-    let result = run(&case, &settings);
+    let result = run(&case, &settings).unwrap();
     let burred: BTreeSet<i64> = case.burrs.iter().map(|b| b.contour).collect();
     let webbed: Vec<(i64, f64)> = result
         .contours
