@@ -31,6 +31,27 @@ pub fn registration(report: &QualityReport) -> String {
         g.untrustworthy,
         report.contours.len()
     );
+    if let Some(r) = &g.slide_retry {
+        let outcome = if r.taken {
+            format!(
+                "a coarse start {:+.1} mm along the part's long axis fits better (coarse rmse {:.1} → {:.1} µm) and is not refused: taken",
+                r.shift_mm,
+                r.first_coarse_rmse_mm * 1e3,
+                g.coarse_rmse_mm * 1e3
+            )
+        } else if r.shift_mm == 0.0 {
+            "no start slid along the part's long axis fits better: the refusal stands".to_string()
+        } else {
+            format!(
+                "the start {:+.1} mm along the part's long axis fits better but is refused too: the first registration stands",
+                r.shift_mm
+            )
+        };
+        let _ = writeln!(
+            s,
+            "  the first registration was refused and retried: {outcome}"
+        );
+    }
     if let Some(reason) = &g.in_doubt {
         let _ = writeln!(s, "  part in doubt: {reason}");
     }

@@ -304,6 +304,15 @@ class Registration:
         tolerance is flagged ``edge_in_doubt``."""
         return self.report["global"].get("edges_in_doubt")
 
+    @property
+    def slide_retry(self) -> Optional[Dict[str, Any]]:
+        """What the retry after a refusal did (``coarse.slide_retry``), or ``None`` when the
+        first registration was not refused: ``first_refusal`` (its reason),
+        ``first_coarse_rmse_mm``, ``shift_mm`` (the start along the part's long axis the
+        retry's best coarse fit came from; 0 when the captured pose fitted best again) and
+        ``taken`` (the retry is this registration; otherwise the refused first one is)."""
+        return self.report["global"].get("slide_retry")
+
 
 def register_path(
     cad: np.ndarray,

@@ -43,7 +43,8 @@ use coarse::overlap_fraction;
 pub use coarse::{
     CAPTURE_ACCEPT_SCORE, CAPTURE_INLIER_MM, CAPTURE_MARGIN_DEG, CAPTURE_MARGIN_MM,
     CAPTURE_MIN_SCORE, CAPTURE_STEP_DEG, Capture, MAX_COARSE_LOG_SCALE_CHANGE,
-    MIN_AXIS_VARIANCE_RATIO, PoseOffset, capture, coarse_fit, refine, scan_pyramid,
+    MIN_AXIS_VARIANCE_RATIO, PoseOffset, SLIDE_SHIFTS_MM, capture, coarse_fit, refine,
+    refine_across_slides, scan_pyramid,
 };
 pub use field_fit::{
     CURVATURE_NEIGHBOURS, EARLY_STRIDE, FIELD_DAMPING, FieldPosterior, LocalShape,
@@ -61,8 +62,8 @@ pub use quality::{
     BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_MODEL_FACTOR,
     BOUND_RESIDUAL_FACTOR, BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS,
     ContourQuality, END_SUPPORT_MIN_COS, EdgeReading, Flag, GlobalQuality, MATERIAL_BEYOND_MM,
-    MODEL_CHECK_SPACING_RATIO, PART_BOUND_SIGMA_FACTOR, QualityReport, SUPPORT_MIN_COS, is_open,
-    predicted_bound_mm,
+    MODEL_CHECK_SPACING_RATIO, PART_BOUND_SIGMA_FACTOR, QualityReport, SUPPORT_MIN_COS, SlideRetry,
+    is_open, predicted_bound_mm,
 };
 use quality::{contour_quality, judge_edges, judge_part, material_beyond, strips_sharing_ends};
 pub use scanned_edge::{
@@ -204,8 +205,9 @@ fn matrix_rows(s: &Similarity3) -> [[f64; 4]; 4] {
 }
 
 /// What the coarse fit yields: the capture, the CAD the scanner saw (with its kd-tree), the
-/// coarse similarity and the CAD's local shapes (empty unless `Mode::Regional`).
-type CoarseStages = (Capture, IcpTarget, IcpResult, Vec<LocalShape>);
+/// coarse similarity with the shift along the long axis its refinement started from
+/// ([`refine_across_slides`]), and the CAD's local shapes (empty unless `Mode::Regional`).
+type CoarseStages = (Capture, IcpTarget, (IcpResult, f64), Vec<LocalShape>);
 
 /// The coarse stages, each timed into `timings`: the capture from the fixture's nominal pose,
 /// the CAD the scanner saw at the captured pose, then scan → CAD point-to-plane with scale down
@@ -216,6 +218,7 @@ fn coarse_stages(
     capture_target: &IcpTarget,
     cad_from_scan_initial: &Similarity3,
     settings: &RegisterSettings,
+    slide_shifts_mm: &[f64],
     timings: &mut Vec<(String, f64)>,
 ) -> Result<CoarseStages> {
     let captured = stage(timings, "coarse capture", || {
@@ -250,7 +253,17 @@ fn coarse_stages(
     let (coarse, shapes) = stage(timings, "coarse similarity + cad curvature", || {
         let cancel = trim_geom::cancel::current();
         let (coarse, shapes) = rayon::join(
-            || cancel.run(|| refine(pyramid, &target, &captured, &settings.coarse)),
+            || {
+                cancel.run(|| {
+                    refine_across_slides(
+                        pyramid,
+                        &target,
+                        &captured,
+                        &settings.coarse,
+                        slide_shifts_mm,
+                    )
+                })
+            },
             || regional.then(|| local_shapes(target.cloud(), target.tree())),
         );
         Ok((coarse?, shapes.unwrap_or_default()))
@@ -260,6 +273,12 @@ fn coarse_stages(
 
 /// Registers `path` (CAD frame) onto `scan` (scan frame), starting from the fixture's
 /// `initial_scan_from_cad`. `cad` must carry outward normals.
+///
+/// A part refused as a whole (`GlobalQuality::refused`) is registered once more with the coarse
+/// refinement also started [`SLIDE_SHIFTS_MM`] along the part's long axis
+/// (`coarse.slide_retry`): the retry is taken when its best start is not the captured pose and
+/// it is not refused itself; either way `GlobalQuality::slide_retry` says what happened, and the
+/// stage timings are the kept registration's with the other's wall time as a line of its own.
 pub fn register(
     cad: &PointCloud,
     scan: &PointCloud,
@@ -267,6 +286,67 @@ pub fn register(
     initial_scan_from_cad: &Similarity3,
     settings: &RegisterSettings,
 ) -> Result<Registration> {
+    let t0 = Instant::now();
+    let (mut first, _) = register_once(cad, scan, path, initial_scan_from_cad, settings, &[])?;
+    let first_s = t0.elapsed().as_secs_f64();
+    let Some(first_refusal) = first.report.global.refused.clone() else {
+        return Ok(first);
+    };
+    if !settings.coarse.slide_retry {
+        return Ok(first);
+    }
+    let t0 = Instant::now();
+    let retry = register_once(
+        cad,
+        scan,
+        path,
+        initial_scan_from_cad,
+        settings,
+        &SLIDE_SHIFTS_MM,
+    );
+    let retry_s = t0.elapsed().as_secs_f64();
+    let (shift_mm, retry) = match retry {
+        Ok((retry, shift)) => (shift, Some(retry)),
+        // A retry that fails outright leaves the first registration as it was.
+        Err(_) => (0.0, None),
+    };
+    let summary = |taken| SlideRetry {
+        first_refusal: first_refusal.clone(),
+        first_coarse_rmse_mm: first.report.global.coarse_rmse_mm,
+        shift_mm,
+        taken,
+    };
+    // The stages listed are the kept registration's; the other's wall time is a line of its own.
+    Ok(match retry {
+        Some(mut retry) if shift_mm != 0.0 && retry.report.global.refused.is_none() => {
+            retry.report.global.slide_retry = Some(summary(true));
+            retry
+                .report
+                .timings_s
+                .push(("first registration (refused, retried)".into(), first_s));
+            retry
+        }
+        _ => {
+            first.report.global.slide_retry = Some(summary(false));
+            first
+                .report
+                .timings_s
+                .push(("slide retry (after a refusal)".into(), retry_s));
+            first
+        }
+    })
+}
+
+/// One registration, the coarse refinement also started at `slide_shifts_mm`
+/// ([`refine_across_slides`]); with the shift its kept start came from.
+fn register_once(
+    cad: &PointCloud,
+    scan: &PointCloud,
+    path: &Path,
+    initial_scan_from_cad: &Similarity3,
+    settings: &RegisterSettings,
+    slide_shifts_mm: &[f64],
+) -> Result<(Registration, f64)> {
     settings.validate()?;
     if cad.is_empty() {
         return Err(RegisterError::EmptyCloud { which: "CAD" });
@@ -330,6 +410,7 @@ pub fn register(
                     &capture_target,
                     &cad_from_scan_initial,
                     settings,
+                    slide_shifts_mm,
                     &mut timings,
                 )
             })
@@ -344,7 +425,7 @@ pub fn register(
             })
         },
     );
-    let (captured, target, coarse, shapes) = coarse_stages?;
+    let (captured, target, (coarse, slide_shift_mm), shapes) = coarse_stages?;
     let cad_from_scan = coarse.target_from_source;
     let scan_from_cad = cad_from_scan.inverse();
 
@@ -554,15 +635,19 @@ pub fn register(
             in_doubt: verdict.in_doubt,
             edges_in_doubt,
             edge_terms,
+            slide_retry: None,
         },
         contours,
         timings_s: timings,
     };
-    Ok(Registration {
-        path: registered,
-        scan_from_cad,
-        field,
-        coarse,
-        report,
-    })
+    Ok((
+        Registration {
+            path: registered,
+            scan_from_cad,
+            field,
+            coarse,
+            report,
+        },
+        slide_shift_mm,
+    ))
 }

@@ -236,6 +236,26 @@ pub struct GlobalQuality {
     /// What the edge terms did (`quality.edge_terms`); `null` when off or in global mode.
     #[serde(default)]
     pub edge_terms: Option<super::edge_terms::EdgeTermSummary>,
+    /// The second registration after a refusal (`coarse.slide_retry`), or `null` when the
+    /// first was not refused (or the retry is off).
+    #[serde(default)]
+    pub slide_retry: Option<SlideRetry>,
+}
+
+/// A registration retried after a refusal with the coarse refinement also started slid along
+/// the part's long axis (`coarse.slide_retry`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SlideRetry {
+    /// Why the first registration was refused.
+    pub first_refusal: String,
+    /// The first registration's coarse RMS residual, mm.
+    pub first_coarse_rmse_mm: f64,
+    /// The shift along the long axis the retry's kept coarse fit started from, mm (0: the
+    /// captured pose refined best again, and the retry is the first registration).
+    pub shift_mm: f64,
+    /// Whether the retry was taken: it started elsewhere and was not refused. Otherwise the
+    /// report is the first registration's, refused.
+    pub taken: bool,
 }
 
 /// The quality report: global figures and one entry per contour, in path order.

@@ -98,6 +98,12 @@ pub struct CoarseSettings {
     pub with_scale: bool,
     /// Huber threshold as a fraction of each level's maximum distance.
     pub huber_fraction: f64,
+    /// When the part is refused (`GlobalQuality::refused`), register it once more with the
+    /// coarse refinement also started 1.5 and 3 mm either way along the part's long axis, the
+    /// best fitting start kept, and take that registration when it is not refused
+    /// (`GlobalQuality::slide_retry`): a coarse fit slid along the span is refused by the
+    /// openings check, and most settle back from a start nearer the truth.
+    pub slide_retry: bool,
 }
 
 impl Default for CoarseSettings {
@@ -119,6 +125,7 @@ impl Default for CoarseSettings {
             ],
             with_scale: true,
             huber_fraction: 0.25,
+            slide_retry: true,
         }
     }
 }
