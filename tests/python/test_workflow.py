@@ -157,6 +157,9 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
     assert registration.edges_in_doubt is None
     assert registration.edges_in_doubt == registration.report["global"]["edges_in_doubt"]
     assert not any("edge_in_doubt" in q.flags for q in quality)
+    # A part not refused is not retried (DESIGN.md, "A slide along the span, retried").
+    assert registration.slide_retry is None
+    assert "slide_retry" in registration.report["global"]
     # The bound covers the actual largest cross-edge error on most contours of the demo case
     # (the calibration test asserts >= 95 % on the seeded cases; here a few contours only).
     truth = {cid: case.truth.points[case.truth.ids == cid] for cid in bounds}
