@@ -307,6 +307,10 @@ pub fn register(
     let retry_s = t0.elapsed().as_secs_f64();
     let (shift_mm, retry) = match retry {
         Ok((retry, shift)) => (shift, Some(retry)),
+        // A cancelled retry is a cancelled registration.
+        Err(RegisterError::Geom(trim_geom::GeomError::Cancelled)) => {
+            return Err(RegisterError::Geom(trim_geom::GeomError::Cancelled));
+        }
         // A retry that fails outright leaves the first registration as it was.
         Err(_) => (0.0, None),
     };
