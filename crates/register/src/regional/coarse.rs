@@ -312,11 +312,9 @@ pub fn refine_across_slides(
                 .par_iter()
                 .map(|&shift| {
                     let mut moved = captured.clone();
-                    moved.fit.target_from_source = Similarity3::from_parts(
-                        nalgebra::Translation3::from(captured.long_axis * shift),
-                        Rotation3::identity(),
-                        1.0,
-                    ) * captured.fit.target_from_source;
+                    moved.fit.target_from_source =
+                        nalgebra::Translation3::from(captured.long_axis * shift)
+                            * captured.fit.target_from_source;
                     (refine(scan, target, &moved, settings), shift)
                 })
                 .collect::<Vec<_>>()

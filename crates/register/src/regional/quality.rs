@@ -251,7 +251,8 @@ pub struct SlideRetry {
     /// The first registration's coarse RMS residual, mm.
     pub first_coarse_rmse_mm: f64,
     /// The shift along the long axis the retry's kept coarse fit started from, mm (0: the
-    /// captured pose refined best again, and the retry is the first registration).
+    /// captured pose refined best again, or the retry failed outright; either way the report is
+    /// the first registration's).
     pub shift_mm: f64,
     /// Whether the retry was taken: it started elsewhere and was not refused. Otherwise the
     /// report is the first registration's, refused.
