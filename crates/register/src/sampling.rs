@@ -193,11 +193,20 @@ impl<'a> VoxelPyramid<'a> {
     /// above 1 may differ in the last bits, as its sums are taken in another order), else from
     /// the points.
     pub fn dense_centroids(&self, voxel_mm: f64, min_count: usize) -> Result<Vec<Point3>> {
+        Ok(self
+            .dense_counted(voxel_mm, min_count)?
+            .into_iter()
+            .map(|(p, _)| p)
+            .collect())
+    }
+
+    /// [`Self::dense_centroids`] with each voxel's point count.
+    pub fn dense_counted(&self, voxel_mm: f64, min_count: usize) -> Result<Vec<(Point3, usize)>> {
         let ratio = voxel_mm / self.base_mm;
         let m = ratio.round();
         let power_of_two = m >= 1.0 && m <= f64::from(1u32 << 20) && (m as u64).is_power_of_two();
         if !(power_of_two && (ratio - m).abs() <= 1e-12 * m) {
-            return dense_voxel_centroids(self.points, voxel_mm, min_count);
+            return VoxelPyramid::new(self.points, voxel_mm)?.dense_counted(voxel_mm, min_count);
         }
         let m = m as i64;
         let mut coarse: Vec<([i64; 3], usize)> = self
@@ -215,7 +224,7 @@ impl<'a> VoxelPyramid<'a> {
                 let (sum, count) = group.iter().fold((Vector3::zeros(), 0), |(s, c), &(_, i)| {
                     (s + self.voxels[i].1, c + self.voxels[i].2)
                 });
-                (count >= min_count).then(|| Point3::from(sum / count as f64))
+                (count >= min_count).then(|| (Point3::from(sum / count as f64), count))
             })
             .collect())
     }

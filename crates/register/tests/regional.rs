@@ -341,7 +341,7 @@ fn with_edge_terms_burrs_still_do_not_pull_the_field() {
     assert_burrs_do_not_pull(&c, &reg);
 }
 
-/// No contour over 30 µm, none of them trusted, at most 12 flagged and the trusted ones'
+/// No contour over 30 µm, none of them trusted, at most 13 flagged and the trusted ones'
 /// cross-edge P95 within 12 µm.
 #[expect(
     clippy::unwrap_used,
@@ -380,9 +380,11 @@ fn assert_burrs_do_not_pull(c: &SynthCase, reg: &Registration) {
     };
     let e = path_errors(&reg.path, &c.truth, trusted).unwrap();
     // Measured: 0 over 30 µm, the trusted worst 11.6 µm (P95 5.2 µm); 10 of 52 flagged by the
-    // bound.
+    // bound. Since the capture scores a start by the share of the scan's points on the whole
+    // CAD (it kept its first start here, not the best of eight by the old score), 0 over
+    // 30 µm, the trusted worst 6.9 µm (P95 3.8 µm), 13 flagged (two of them by 2 µm).
     assert!(
-        over == 0 && silent == 0 && flagged <= 12 && e.cross_edge_p95_mm <= 0.012,
+        over == 0 && silent == 0 && flagged <= 13 && e.cross_edge_p95_mm <= 0.012,
         "{over} contours over 30 µm ({silent} trusted), {flagged} flagged, trusted {e:?}:\n{}",
         report.join("\n")
     );

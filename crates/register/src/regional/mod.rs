@@ -44,7 +44,7 @@ pub use coarse::{
     CAPTURE_ACCEPT_SCORE, CAPTURE_INLIER_MM, CAPTURE_MARGIN_DEG, CAPTURE_MARGIN_MM,
     CAPTURE_MIN_SCORE, CAPTURE_STEP_DEG, Capture, MAX_COARSE_LOG_SCALE_CHANGE,
     MIN_AXIS_VARIANCE_RATIO, PoseOffset, SLIDE_SHIFTS_MM, capture, coarse_fit, refine,
-    refine_across_slides, scan_pyramid,
+    refine_across_slides, scan_pyramid, scan_voxels,
 };
 pub use field_fit::{
     CURVATURE_NEIGHBOURS, EARLY_STRIDE, FIELD_DAMPING, FieldPosterior, LocalShape,
@@ -159,10 +159,9 @@ fn supported_target(
         .iter()
         .map(|l| l.voxel_mm)
         .fold(f64::INFINITY, f64::min);
-    let voxels: Vec<Point3> = pyramid
-        .dense_centroids(finest, coarse.min_voxel_points)?
+    let voxels: Vec<Point3> = scan_voxels(pyramid, finest, coarse)?
         .iter()
-        .map(|p| cad_from_scan * p)
+        .map(|(p, _)| cad_from_scan * p)
         .collect();
     let tree = kdtree::KdTree::build(&voxels);
     let d2 = distance_mm * distance_mm;
@@ -215,7 +214,7 @@ type CoarseStages = (Capture, IcpTarget, (IcpResult, f64), Vec<LocalShape>);
 fn coarse_stages(
     cad: &PointCloud,
     pyramid: &VoxelPyramid<'_>,
-    capture_target: &IcpTarget,
+    (capture_target, part): (&IcpTarget, &kdtree::KdTree),
     cad_from_scan_initial: &Similarity3,
     settings: &RegisterSettings,
     slide_shifts_mm: &[f64],
@@ -225,6 +224,7 @@ fn coarse_stages(
         capture(
             pyramid,
             capture_target,
+            part,
             cad_from_scan_initial,
             &settings.coarse,
         )
@@ -386,18 +386,20 @@ fn register_once(
                         || {
                             let every: Vec<usize> =
                                 (0..cad.len()).step_by(capture_stride).collect();
-                            visible_target(
-                                &cad.select(&every)?,
-                                view_nominal,
-                                settings.facing_min_cos,
-                            )
+                            let sparse = cad.select(&every)?;
+                            // Every face, for the capture's score.
+                            let part = kdtree::KdTree::build(sparse.points());
+                            let target =
+                                visible_target(&sparse, view_nominal, settings.facing_min_cos)?;
+                            Ok::<_, RegisterError>((target, part))
                         },
                         || scan_pyramid(scan, &settings.coarse),
                     )
                 },
                 || voxel_pick(scan.points(), settings.field.voxel_mm),
             );
-            Ok((capture_target?, pyramid?, picked?))
+            let (capture_target, part) = capture_target?;
+            Ok(((capture_target, part), pyramid?, picked?))
         })?;
 
     let regional = settings.mode == Mode::Regional;
@@ -411,7 +413,7 @@ fn register_once(
                 coarse_stages(
                     cad,
                     &pyramid,
-                    &capture_target,
+                    (&capture_target.0, &capture_target.1),
                     &cad_from_scan_initial,
                     settings,
                     slide_shifts_mm,
