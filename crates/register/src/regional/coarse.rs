@@ -34,8 +34,8 @@ pub const CAPTURE_MARGIN_DEG: f64 = 1.0;
 /// faces lie farther off it).
 pub const CAPTURE_MARGIN_MM: f64 = 1.5;
 
-/// A start is scored by the fraction of the top level's scan voxels within this distance of the
-/// CAD after its fit, mm: above the rigid top level's misfit on a deformed part (bend ≤ 0.5 mm),
+/// A start is scored by the share of the scan's points (its top-level voxels, each weighted by
+/// its points) within this distance of the CAD after its fit, mm: above the rigid top level's misfit on a deformed part (bend ≤ 0.5 mm),
 /// below what a start that slid or turned off the part leaves.
 pub const CAPTURE_INLIER_MM: f64 = 1.0;
 
@@ -96,8 +96,8 @@ impl PoseOffset {
 pub struct Capture {
     /// The top level's fit from the kept start (`target_from_source` is `cad_from_scan`).
     pub fit: IcpResult,
-    /// Its score: the fraction of the top level's scan voxels within [`CAPTURE_INLIER_MM`] of
-    /// the CAD.
+    /// Its score: the share of the scan's points (top-level voxels weighted by their points)
+    /// within [`CAPTURE_INLIER_MM`] of the whole CAD.
     pub score: f64,
     /// Starts fitted (1 when the first was kept at once).
     pub starts: usize,
@@ -190,8 +190,9 @@ pub fn scan_voxels(
 /// with the centroids matched) are fitted too and the best kept: a fit within the capture range
 /// before one beyond it, then the best score, the earliest on a tie. Deterministic.
 ///
-/// A fit's score is the share of the top level's scan voxels within [`CAPTURE_INLIER_MM`] of
-/// `part`, the whole CAD (every face, not only those `target` keeps toward the assumed view): a
+/// A fit's score is the share of the scan's points (the top level's voxels, each weighted by its
+/// points) within [`CAPTURE_INLIER_MM`] of `part`, the whole CAD (every face, not only those
+/// `target` keeps toward the assumed view): a
 /// scanner that also looks from below sees faces the view culls, and scored against the culled
 /// CAD the project's three-view core (two views above, one below) scored 0.74 at 500k points and
 /// 0.57 at 1M, refused below [`CAPTURE_MIN_SCORE`] for being scanned more densely. Scored
@@ -235,24 +236,29 @@ pub fn capture(
             .sum();
         near as f64 / total.max(1) as f64
     };
-    let within = |fit: &IcpResult| {
-        PoseOffset::between(
+    // Starts are ranked by (within the capture range, score).
+    let rank = |fit: &IcpResult| {
+        let within = PoseOffset::between(
             &scan_from_cad_nominal,
             &fit.target_from_source.inverse(),
             &frame.cad_centroid,
         )
-        .within(settings)
+        .within(settings);
+        (within, score(fit))
     };
 
     let first = frame.first_start(settings, cad_from_scan_nominal);
     let mut tried: Vec<Option<Rotation3>> = vec![first.0];
     let mut first_error = None;
-    let mut best: Option<(f64, IcpResult)> = None;
+    let mut best: Option<((bool, f64), IcpResult)> = None;
     match fit_level(0, level, last, &source, target, &first.1, settings) {
-        Ok(fit) => best = Some((score(&fit), fit)),
+        Ok(fit) => best = Some((rank(&fit), fit)),
         Err(e) => first_error = Some(e),
     }
-    if best.as_ref().is_none_or(|(s, _)| *s < CAPTURE_ACCEPT_SCORE) {
+    if best
+        .as_ref()
+        .is_none_or(|((_, s), _)| *s < CAPTURE_ACCEPT_SCORE)
+    {
         for rotation in frame.further_rotations() {
             trim_geom::cancel::check()?;
             if tried
@@ -265,22 +271,15 @@ pub fn capture(
             let start = frame.start(&rotation, cad_from_scan_nominal);
             // A start that cannot be fitted (too few correspondences) is a start that failed.
             if let Ok(fit) = fit_level(0, level, last, &source, target, &start, settings) {
-                let s = score(&fit);
-                let better =
-                    best.as_ref()
-                        .is_none_or(|(b, kept)| match (within(&fit), within(kept)) {
-                            (true, false) => true,
-                            (false, true) => false,
-                            _ => s > *b,
-                        });
-                if better {
-                    best = Some((s, fit));
+                let r = rank(&fit);
+                if best.as_ref().is_none_or(|(b, _)| r > *b) {
+                    best = Some((r, fit));
                 }
             }
         }
     }
     let starts = tried.len();
-    let Some((score, fit)) = best else {
+    let Some(((_, score), fit)) = best else {
         return Err(first_error.unwrap_or(RegisterError::NotCaptured {
             score_pct: 0.0,
             distance_mm: CAPTURE_INLIER_MM,

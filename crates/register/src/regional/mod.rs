@@ -378,7 +378,7 @@ fn register_once(
     // Side by side (each sort leaves a sequential pass the other core can fill): the capture's
     // CAD (on 2 mm scan voxels every CAPTURE_CAD_STRIDE-th CAD point is plenty), the scan's
     // voxel sums for the coarse pyramid, and the field's points (one real scan point per voxel).
-    let (capture_target, pyramid, picked) =
+    let ((capture_target, part), pyramid, picked) =
         stage(&mut timings, "scan voxels + capture cad", || {
             let ((capture_target, pyramid), picked) = rayon::join(
                 || {
@@ -398,8 +398,7 @@ fn register_once(
                 },
                 || voxel_pick(scan.points(), settings.field.voxel_mm),
             );
-            let (capture_target, part) = capture_target?;
-            Ok(((capture_target, part), pyramid?, picked?))
+            Ok((capture_target?, pyramid?, picked?))
         })?;
 
     let regional = settings.mode == Mode::Regional;
@@ -413,7 +412,7 @@ fn register_once(
                 coarse_stages(
                     cad,
                     &pyramid,
-                    (&capture_target.0, &capture_target.1),
+                    (&capture_target, &part),
                     &cad_from_scan_initial,
                     settings,
                     slide_shifts_mm,

@@ -206,8 +206,8 @@ pub struct GlobalQuality {
     pub fixture_offset: PoseOffset,
     /// Starts the coarse capture fitted (1: the first start was kept).
     pub coarse_starts: usize,
-    /// The kept start's score: the share of the scan (top pyramid level) within 1 mm of the
-    /// CAD after its top-level fit.
+    /// The kept start's score: the share of the scan's points (top pyramid level) within 1 mm
+    /// of the whole CAD, every face, after its top-level fit.
     pub capture_score: f64,
     /// Coarse RMS point-to-plane residual, mm.
     pub coarse_rmse_mm: f64,

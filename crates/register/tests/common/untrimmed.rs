@@ -6,13 +6,9 @@
 use trim_register::regional::{RegisterSettings, Registration, register};
 use trim_synth::{SynthCase, SynthParams, generate};
 
-/// The case of `seed`.
-#[expect(
-    clippy::unwrap_used,
-    reason = "a test helper: a generator failure must fail the test"
-)]
-pub fn untrimmed_case(seed: u64) -> SynthCase {
-    generate(&SynthParams {
+/// The parameters of the case of `seed`.
+pub fn untrimmed_params(seed: u64) -> SynthParams {
+    SynthParams {
         seed,
         scan_points: 500_000,
         dropouts: 0,
@@ -21,8 +17,16 @@ pub fn untrimmed_case(seed: u64) -> SynthCase {
         burr_thickness_mm: [0.02, 0.1],
         blockage_fraction: 0.15,
         ..SynthParams::default()
-    })
-    .unwrap()
+    }
+}
+
+/// The case of `seed`.
+#[expect(
+    clippy::unwrap_used,
+    reason = "a test helper: a generator failure must fail the test"
+)]
+pub fn untrimmed_case(seed: u64) -> SynthCase {
+    generate(&untrimmed_params(seed)).unwrap()
 }
 
 /// Its registration with the default settings, the scanner's position given, from the
