@@ -61,7 +61,7 @@ pub fn registration(report: &QualityReport) -> String {
     if let Some(e) = &g.edge_terms {
         let _ = writeln!(
             s,
-            "  scanned edges in the field: {} stretches used, {} implausible (widening the bounds), {} with material beyond ({} of them widening the bounds); moved the path up to {:.1} µm",
+            "  scanned edges in the field: {} stretches used, {} implausible, {} with material beyond ({} of them widening the bounds); moved the path up to {:.1} µm",
             e.used,
             e.gated,
             e.flashed,
