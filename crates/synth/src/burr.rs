@@ -92,10 +92,25 @@ pub(crate) fn draw_burrs(
     burrs
 }
 
-/// Samples the burrs' surfaces uniformly in (arc length, height) and (arc length, thickness).
+/// Samples the burrs' surfaces by area. A proposal is drawn uniformly over each web's strip
+/// (arc length × reach for its two sides, arc length × depth for its free edge; the webs
+/// picked by their strips' areas), and a proposal off an arc of curvature `κ` stands for only
+/// `1 − κt` of the strip's area at reach `t` (the free edge's `1 − κh`): a web reaching into a
+/// hole narrows toward its free edge. Such a proposal is *kept* with that probability, decided
+/// by the draw that chose its side (uniform within the side, independent of the point), so a
+/// proposal takes the same draws whether kept or not and a seed's scan is the strip's scan less
+/// the proposals an area-true web does not have. What is kept is uniform over the web's true
+/// area, at the density of the rest of the part (the strips' areas are what the scanner's
+/// draws are shared by; what the thinning removes is their excess over the true area).
 pub(crate) struct BurrSampler {
     webs: Vec<(Edge, Burr)>,
     areas: AreaTable,
+}
+
+/// A proposal on a web, and whether the web's true area holds it.
+pub(crate) struct WebProposal {
+    pub(crate) sample: DomainSample,
+    pub(crate) kept: bool,
 }
 
 impl BurrSampler {
@@ -110,48 +125,197 @@ impl BurrSampler {
             else {
                 continue;
             };
-            areas.push(web_area(b));
+            areas.push(strip_area(b));
             webs.push((*edge, *b));
         }
         BurrSampler { webs, areas }
     }
 
-    /// The sampled area (upper side, underside, free edge), mm².
+    /// The proposals' area (each web's strip: upper side, underside, free edge), mm².
     pub(crate) fn area(&self) -> f64 {
         self.areas.total()
     }
 
-    /// One sample (domain point and normal). Only called when [`Self::area`] is positive.
-    pub(crate) fn sample(&self, rng: &mut impl Rng) -> DomainSample {
+    /// One proposal (domain point and normal) and whether it is kept. Only called when
+    /// [`Self::area`] is positive.
+    pub(crate) fn sample(&self, rng: &mut impl Rng) -> WebProposal {
         let (edge, b) = &self.webs[self.areas.pick(rng)];
         let length = b.end_mm - b.start_mm;
         let top = THICKNESS_MM / 2.0;
         let s = b.start_mm + length * rng.random_range(0.0..1.0);
         let (e, m) = edge.at(s);
         let face = length * b.height_mm;
-        let piece = rng.random_range(0.0..web_area(b));
+        let piece = rng.random_range(0.0..strip_area(b));
+        // The share of the strip's area the proposal stands for, and a uniform draw within its
+        // side (the position of `piece` there) that keeps it.
+        let narrowing = |reach: f64| {
+            if edge.on_arc(s) {
+                1.0 - edge.arc_curvature() * reach
+            } else {
+                1.0
+            }
+        };
         if piece < 2.0 * face {
             let t = b.height_mm * rng.random_range(0.0..1.0);
-            let (w, normal) = if piece < face {
-                (top, 1.0)
+            let (w, normal, within) = if piece < face {
+                (top, 1.0, piece / face)
             } else {
-                (top - b.thickness_mm, -1.0)
+                (top - b.thickness_mm, -1.0, (piece - face) / face)
             };
-            DomainSample {
-                point: Point3::new(e[0] + t * m[0], e[1] + t * m[1], w),
-                normal: Vector3::new(0.0, 0.0, normal),
+            WebProposal {
+                sample: DomainSample {
+                    point: Point3::new(e[0] + t * m[0], e[1] + t * m[1], w),
+                    normal: Vector3::new(0.0, 0.0, normal),
+                },
+                kept: within < narrowing(t),
             }
         } else {
             let w = top - b.thickness_mm * rng.random_range(0.0..1.0);
-            DomainSample {
-                point: Point3::new(e[0] + b.height_mm * m[0], e[1] + b.height_mm * m[1], w),
-                normal: Vector3::new(m[0], m[1], 0.0),
+            let edge_area = length * b.thickness_mm;
+            WebProposal {
+                sample: DomainSample {
+                    point: Point3::new(e[0] + b.height_mm * m[0], e[1] + b.height_mm * m[1], w),
+                    normal: Vector3::new(m[0], m[1], 0.0),
+                },
+                kept: (piece - 2.0 * face) / edge_area < narrowing(b.height_mm),
             }
         }
     }
 }
 
-/// Upper side + underside + free edge, mm².
-fn web_area(b: &Burr) -> f64 {
+/// The strip a web's proposals are drawn over (upper side + underside + free edge), mm².
+fn strip_area(b: &Burr) -> f64 {
     (b.end_mm - b.start_mm) * (2.0 * b.height_mm + b.thickness_mm)
+}
+
+/// A web's true areas, mm²: each of its two sides (`face`) and its free edge. Over the
+/// stretch's straight part a strip; over its arcs (curvature κ) a strip narrowing as `1 − κt`:
+/// `h − κh²/2` per mm of foot for a side, `thickness · (1 − κh)` for the free edge.
+#[cfg(test)]
+fn true_area(edge: &Edge, b: &Burr) -> (f64, f64) {
+    let length = b.end_mm - b.start_mm;
+    let arc = edge.arc_length_within(b.start_mm, b.end_mm);
+    let kappa = edge.arc_curvature();
+    let h = b.height_mm;
+    (
+        h * length - kappa * h * h / 2.0 * arc,
+        b.thickness_mm * (length - kappa * h * arc),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::SeedableRng;
+
+    use super::*;
+    use crate::part::Cutout;
+
+    fn web(edge: &Edge, height_mm: f64) -> Burr {
+        Burr {
+            contour: 1,
+            start_mm: 0.0,
+            end_mm: edge.length(),
+            first_point: 0,
+            last_point: 0,
+            height_mm,
+            thickness_mm: 0.05,
+        }
+    }
+
+    fn hole(radius_mm: f64, half_length_mm: f64) -> Edge {
+        Edge::Rim(Cutout {
+            u_mm: 0.0,
+            v_mm: 0.0,
+            radius_mm,
+            half_length_mm,
+        })
+    }
+
+    /// A web all round a round hole is an annulus: what the sampler keeps is uniform over it
+    /// (its sides' area `π(r² − (r − h)²)`, not the strip's `2πr·h`), so its points thin toward
+    /// the free edge as `1 − t/r`, at the density of a strip off a straight edge.
+    #[test]
+    fn a_web_into_a_hole_is_sampled_by_its_true_area() {
+        let (r, h) = (1.2, 0.6);
+        let rim = hole(r, 0.0);
+        let b = web(&rim, h);
+        let pi = std::f64::consts::PI;
+        let annulus = pi * (r * r - (r - h) * (r - h));
+        let (face, free) = true_area(&rim, &b);
+        assert!((face - annulus).abs() < 1e-9, "{face} vs {annulus}");
+        assert!((free - 2.0 * pi * (r - h) * b.thickness_mm).abs() < 1e-9);
+
+        let sampler = BurrSampler::new(&[rim], &[b]);
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
+        let draws = 60_000;
+        let (mut upper, mut outer_half, mut free_kept, mut kept) = (0usize, 0usize, 0usize, 0);
+        for _ in 0..draws {
+            let p = sampler.sample(&mut rng);
+            let reach = r - p.sample.point.x.hypot(p.sample.point.y);
+            assert!((-1e-12..=h + 1e-12).contains(&reach), "{reach}");
+            if !p.kept {
+                continue;
+            }
+            kept += 1;
+            if p.sample.normal.z > 0.5 {
+                upper += 1;
+                if reach > h / 2.0 {
+                    outer_half += 1;
+                }
+            } else if p.sample.normal.z.abs() < 0.5 {
+                free_kept += 1;
+            }
+        }
+        // The kept share is the true area over the strip's (2σ of a binomial share over 60k
+        // draws is under 0.005).
+        let share = kept as f64 / draws as f64;
+        let expected = (2.0 * face + free) / sampler.area();
+        assert!((share - expected).abs() < 0.008, "{share} vs {expected}");
+        // Beyond half the reach lie radii r−h … r−h/2 of the annulus.
+        let inner = r - h / 2.0;
+        let expected = (inner * inner - (r - h) * (r - h)) / (r * r - (r - h) * (r - h));
+        let outer = outer_half as f64 / upper as f64;
+        assert!((outer - expected).abs() < 0.012, "{outer} vs {expected}");
+        // A strip would put half there.
+        assert!(expected < 0.42);
+        // The sides and the free edge in proportion to their true areas.
+        let edge_share = free_kept as f64 / kept as f64;
+        let expected = free / (2.0 * face + free);
+        assert!(
+            (edge_share - expected).abs() < 0.006,
+            "{edge_share} vs {expected}"
+        );
+    }
+
+    /// Off a straight edge, and off a slot's straight sides, the web is a strip: every
+    /// proposal is kept (the draws and the scan as before arcs were taken).
+    #[test]
+    fn a_web_off_a_straight_edge_keeps_every_proposal() {
+        let slot = hole(1.0, 5.0);
+        assert!(!slot.on_arc(3.0) && slot.on_arc(11.0) && slot.on_arc(slot.length() - 0.1));
+        let side = Burr {
+            end_mm: 9.0,
+            ..web(&slot, 0.4)
+        };
+        let segment = Edge::Segment([0.0, 0.0], [10.0, 0.0]);
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
+        for (edge, b) in [(segment, web(&segment, 0.4)), (slot, side)] {
+            let (face, free) = true_area(&edge, &b);
+            assert!((2.0 * face + free - strip_area(&b)).abs() < 1e-12);
+            let sampler = BurrSampler::new(&[edge], &[b]);
+            assert!((0..2000).all(|_| sampler.sample(&mut rng).kept));
+        }
+        // A slot's round end is half an annulus.
+        let round = Burr {
+            start_mm: 10.0,
+            end_mm: 10.0 + std::f64::consts::PI,
+            ..web(&slot, 0.4)
+        };
+        let (face, _) = true_area(&slot, &round);
+        let half_annulus = std::f64::consts::PI / 2.0 * (1.0 - 0.6 * 0.6);
+        assert!(
+            (face - half_annulus).abs() < 1e-9,
+            "{face} vs {half_annulus}"
+        );
+    }
 }

@@ -395,6 +395,42 @@ impl Edge {
         }
     }
 
+    /// The curvature of the arcs, 1/mm: a rim's arcs bend toward the side out of the material,
+    /// so a strip reaching out by `t` from them is `1 − κt` as long as its foot; 0 for a
+    /// segment.
+    pub(crate) fn arc_curvature(&self) -> f64 {
+        match self {
+            Edge::Rim(c) => 1.0 / c.radius_mm,
+            Edge::Segment(..) => 0.0,
+        }
+    }
+
+    /// Whether arc length `s` (mm from the start, `0 ≤ s ≤` the length) lies on an arc (of
+    /// curvature [`Self::arc_curvature`]) rather than on a straight stretch.
+    pub(crate) fn on_arc(&self, s: f64) -> bool {
+        match self {
+            Edge::Rim(c) => {
+                let (a, half_arc) = (c.half_length_mm, std::f64::consts::PI * c.radius_mm);
+                let s = s.rem_euclid(c.perimeter());
+                (2.0 * a..2.0 * a + half_arc).contains(&s) || s >= 4.0 * a + half_arc
+            }
+            Edge::Segment(..) => false,
+        }
+    }
+
+    /// How much of `[s0, s1]` (`0 ≤ s0 ≤ s1 ≤` the length) lies on the arcs, mm.
+    #[cfg(test)]
+    pub(crate) fn arc_length_within(&self, s0: f64, s1: f64) -> f64 {
+        match self {
+            Edge::Rim(c) => {
+                let (a, half_arc) = (c.half_length_mm, std::f64::consts::PI * c.radius_mm);
+                let overlap = |lo: f64, hi: f64| (s1.min(hi) - s0.max(lo)).max(0.0);
+                overlap(2.0 * a, 2.0 * a + half_arc) + overlap(4.0 * a + half_arc, c.perimeter())
+            }
+            Edge::Segment(..) => 0.0,
+        }
+    }
+
     /// The point `k / n` of the way along (and the normal), computed as the template path
     /// always has (bit for bit).
     pub(crate) fn at_step(&self, k: usize, n: usize) -> ([f64; 2], [f64; 2]) {

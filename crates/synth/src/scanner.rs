@@ -146,6 +146,11 @@ pub(crate) fn scan_part(
     let (part_area, burr_area, film_area) = (sampler.area(), burrs.area(), films.area());
 
     let mut visible = Vec::with_capacity(params.scan_points);
+    // Whether each visible sample is on the part (false: a web proposal its true area does
+    // not hold, `BurrSampler`). Such samples keep their place until the draws that follow
+    // them (dropout centres by index, noise per sample, the outliers' box) are made, and are
+    // dropped after: the scan is the one the webs' strips gave, less what they do not have.
+    let mut kept = Vec::with_capacity(params.scan_points);
     let max_attempts = params.scan_points.saturating_mul(20);
     let mut attempts = 0usize;
     while visible.len() < params.scan_points && attempts < max_attempts {
@@ -154,15 +159,19 @@ pub(crate) fn scan_part(
         // are what they were.
         let defect_area = burr_area + film_area;
         let pick = (defect_area > 0.0).then(|| rng.random_range(0.0..part_area + defect_area));
-        let s = match pick {
-            Some(x) if x < burr_area => burrs.sample(rng),
-            Some(x) if x < defect_area => films.sample(rng),
-            _ => sampler.sample(rng),
+        let (s, on_part) = match pick {
+            Some(x) if x < burr_area => {
+                let w = burrs.sample(rng);
+                (w.sample, w.kept)
+            }
+            Some(x) if x < defect_area => (films.sample(rng), true),
+            _ => (sampler.sample(rng), true),
         };
         let p = scan_from_domain(&s.point);
         let n = mapped_normal(&scan_from_domain, &s.point, &s.normal);
         if seen(&p, &n) {
             visible.push(p);
+            kept.push(on_part);
         }
     }
     if visible.len() < params.scan_points {
@@ -199,15 +208,25 @@ pub(crate) fn scan_part(
                 .collect()
         }
     };
-    visible.retain(|p| holes.iter().all(|(c, r)| (p - c).norm() > *r));
+    let (visible, kept): (Vec<Point3>, Vec<bool>) = visible
+        .into_iter()
+        .zip(kept)
+        .filter(|(p, _)| holes.iter().all(|(c, r)| (p - c).norm() > *r))
+        .unzip();
     let noise = Normal::new(0.0, params.noise_mm.max(0.0))
         .map_err(|e| GeomError::invalid("noise_mm", e.to_string()))?;
-    let mut scan_pts: Vec<Point3> = visible
+    let noisy: Vec<Point3> = visible
         .iter()
         .map(|p| p + Vector3::new(noise.sample(rng), noise.sample(rng), noise.sample(rng)))
         .collect();
-    let n_outliers = (params.outlier_fraction * scan_pts.len() as f64).round() as usize;
-    if let Some(bounds) = trim_geom::Aabb::around(&scan_pts) {
+    let n_outliers = (params.outlier_fraction * noisy.len() as f64).round() as usize;
+    let bounds = trim_geom::Aabb::around(&noisy);
+    let mut scan_pts: Vec<Point3> = noisy
+        .into_iter()
+        .zip(kept)
+        .filter_map(|(p, on_part)| on_part.then_some(p))
+        .collect();
+    if let Some(bounds) = bounds {
         let lo = bounds.min - Vector3::repeat(2.0);
         let hi = bounds.max + Vector3::repeat(2.0);
         for _ in 0..n_outliers {
