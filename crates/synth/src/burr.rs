@@ -6,8 +6,9 @@
 //! out of the material away from the edge (into a hole or slot, or beyond the outer boundary)
 //! by its *height* and hanging its *thickness* below the face, over a *stretch* of the edge.
 //! The web is deformed and placed with the part. The scanner samples its upper side, its
-//! underside and its free edge (not its two end faces, each a height × thickness sliver) under
-//! the part's visibility rule; it hides nothing (occlusion is the part's mesh alone).
+//! underside and its free edge by their true area (a web off a hole's rim narrows toward its
+//! free edge; not its two end faces, each a height × thickness sliver) under the part's
+//! visibility rule; it hides nothing (occlusion is the part's mesh alone).
 
 use rand::Rng;
 use rand_xoshiro::Xoshiro256PlusPlus;
