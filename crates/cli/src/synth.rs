@@ -49,7 +49,8 @@ pub struct Args {
     /// Scan noise (standard deviation per coordinate), mm.
     #[arg(long = "noise", default_value_t = SynthParams::default().noise_mm)]
     pub noise_mm: f64,
-    /// Scan points.
+    /// Scan points drawn (before dropouts and the burr webs' thinning remove some, and the
+    /// outliers are added).
     #[arg(long, default_value_t = SynthParams::default().scan_points)]
     pub scan_points: usize,
     /// Fixture rotation error, degrees.

@@ -60,7 +60,9 @@ pub struct SynthParams {
     pub pressing_tilt_deg: f64,
     /// Standard deviation of the Gaussian scan noise per coordinate, mm.
     pub noise_mm: f64,
-    /// Number of scan points (before outliers are added).
+    /// Number of visible samples drawn: the scan holds fewer where dropout patches remove
+    /// some and where a burr web's true area thins its proposals (`burr::BurrSampler`), and the
+    /// outliers are added on top.
     pub scan_points: usize,
     /// Number of CAD points.
     pub cad_points: usize,
