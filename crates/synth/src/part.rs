@@ -171,6 +171,16 @@ impl Cutout {
         4.0 * self.half_length_mm + 2.0 * std::f64::consts::PI * self.radius_mm
     }
 
+    /// The two half-circle arcs of the rim as `[start, end)` in arc length ([`Cutout::rim`]'s
+    /// order: right side, top arc, left side, bottom arc), mm.
+    fn arcs(&self) -> [(f64, f64); 2] {
+        let (a, half_arc) = (self.half_length_mm, std::f64::consts::PI * self.radius_mm);
+        [
+            (2.0 * a, 2.0 * a + half_arc),
+            (4.0 * a + half_arc, self.perimeter()),
+        ]
+    }
+
     /// The rim point at arc length `s` (counter-clockwise in `(u, v)` starting at `+u`), and the
     /// unit normal pointing out of the material (into the cutout).
     pub(crate) fn rim(&self, s: f64) -> ([f64; 2], [f64; 2]) {
@@ -410,9 +420,8 @@ impl Edge {
     pub(crate) fn on_arc(&self, s: f64) -> bool {
         match self {
             Edge::Rim(c) => {
-                let (a, half_arc) = (c.half_length_mm, std::f64::consts::PI * c.radius_mm);
                 let s = s.rem_euclid(c.perimeter());
-                (2.0 * a..2.0 * a + half_arc).contains(&s) || s >= 4.0 * a + half_arc
+                c.arcs().iter().any(|&(lo, hi)| (lo..hi).contains(&s))
             }
             Edge::Segment(..) => false,
         }
@@ -422,11 +431,11 @@ impl Edge {
     #[cfg(test)]
     pub(crate) fn arc_length_within(&self, s0: f64, s1: f64) -> f64 {
         match self {
-            Edge::Rim(c) => {
-                let (a, half_arc) = (c.half_length_mm, std::f64::consts::PI * c.radius_mm);
-                let overlap = |lo: f64, hi: f64| (s1.min(hi) - s0.max(lo)).max(0.0);
-                overlap(2.0 * a, 2.0 * a + half_arc) + overlap(4.0 * a + half_arc, c.perimeter())
-            }
+            Edge::Rim(c) => c
+                .arcs()
+                .iter()
+                .map(|&(lo, hi)| (s1.min(hi) - s0.max(lo)).max(0.0))
+                .sum(),
             Edge::Segment(..) => 0.0,
         }
     }
