@@ -18,6 +18,7 @@ mod inspect;
 mod plan;
 mod progress;
 mod register;
+mod registration_svg;
 mod report_cmd;
 mod run;
 #[cfg(feature = "sim")]

@@ -35,6 +35,11 @@ pub struct Args {
     /// Where to write the quality report (JSON).
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Where to write the registration's picture (SVG): the registered contours over the scan,
+    /// coloured by their predicted error bound, the flagged ones red and dashed with their id,
+    /// and the part's verdict. Not with --datums (a datum fit has no per-contour bounds).
+    #[arg(long, value_name = "FILE", conflicts_with = "datums")]
+    pub svg: Option<PathBuf>,
     /// A job.toml whose `[register]` table sets the registration and whose
     /// `[part.scan_from_cad]` is the fixture's nominal pose (unless --initial is given).
     #[arg(long)]
@@ -120,6 +125,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         std::fs::write(report, serde_json::to_string_pretty(&registration.report)?)
             .with_context(|| format!("writing {}", report.display()))?;
     }
+    if let Some(svg) = &args.svg {
+        write_svg(svg, &registration, &scan, settings.quality.tolerance_um)?;
+    }
     eprintln!("stage timings:");
     eprintln!("  {:<28} {:>8.3} s", "read inputs", t_read);
     for (name, s) in &registration.report.timings_s {
@@ -132,6 +140,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Writes the registration's picture (`crate::registration_svg`) to `file`.
+pub(crate) fn write_svg(
+    file: &std::path::Path,
+    registration: &trim_register::regional::Registration,
+    scan: &PointCloud,
+    tolerance_um: f64,
+) -> anyhow::Result<()> {
+    use crate::registration_svg::{part_view, render, views};
+    let report = &registration.report;
+    let svg = render(
+        &views(&registration.path, report),
+        &part_view(report, tolerance_um),
+        scan.points(),
+    );
+    std::fs::write(file, svg).with_context(|| format!("writing {}", file.display()))
 }
 
 /// The six-point datum fit as the positioning mode: a rigid pose from the datums, applied to the

@@ -1,7 +1,8 @@
 //! A part in doubt (`registration.json`'s `global.in_doubt`): `trimctl register` writes its
 //! outputs, exits 0, names the reason in its summary, and flags `part_in_doubt` every contour
 //! whose bound exceeds `quality.doubt_bound_fraction` of the tolerance, the others trusted; an
-//! out-of-range fraction is refused naming the key.
+//! out-of-range fraction is refused naming the key. Its picture (`--svg`) draws every contour,
+//! the flagged ones as such, under the part's verdict.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -9,6 +10,10 @@ use std::process::{Command, Output};
 const TRIMCTL: &str = env!("CARGO_BIN_EXE_trimctl");
 
 fn register(case: &Path, config: Option<&Path>, report: &Path) -> Output {
+    register_with(case, config, report, &[])
+}
+
+fn register_with(case: &Path, config: Option<&Path>, report: &Path, extra: &[&str]) -> Output {
     let mut cmd = Command::new(TRIMCTL);
     cmd.arg("register")
         .arg("--cad")
@@ -24,6 +29,7 @@ fn register(case: &Path, config: Option<&Path>, report: &Path) -> Output {
     if let Some(c) = config {
         cmd.arg("--config").arg(c);
     }
+    cmd.args(extra);
     cmd.output().expect("trimctl register runs")
 }
 
@@ -55,7 +61,13 @@ fn a_part_in_doubt_keeps_the_contours_whose_bound_is_within_half_the_tolerance()
     let job = tmp.path().join("job.toml");
     std::fs::write(&job, "[register.quality]\nmax_untrusted_fraction = 0.05\n").unwrap();
     let doubted = tmp.path().join("doubted.json");
-    let out = register(&case, Some(&job), &doubted);
+    let picture = tmp.path().join("doubted.svg");
+    let out = register_with(
+        &case,
+        Some(&job),
+        &doubted,
+        &["--svg", picture.to_str().unwrap()],
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
@@ -102,6 +114,25 @@ fn a_part_in_doubt_keeps_the_contours_whose_bound_is_within_half_the_tolerance()
         report["global"]["untrustworthy"].as_u64().unwrap() as usize,
         contours.len() - trusted_n
     );
+    // The picture: every contour once, the flagged ones marked and listed, the verdict above.
+    let svg = std::fs::read_to_string(&picture).unwrap();
+    assert_eq!(svg.matches(r#"class="contour "#).count(), contours.len());
+    assert_eq!(
+        svg.matches(r#"class="contour flagged""#).count(),
+        contours.len() - trusted_n
+    );
+    assert!(svg.contains(&format!(
+        "{trusted_n} of {} contours trusted (tolerance 30 µm)",
+        contours.len()
+    )));
+    assert!(svg.contains("part in doubt: "), "the verdict line");
+    for c in contours
+        .iter()
+        .filter(|c| !c["trustworthy"].as_bool().unwrap())
+    {
+        let id = c["id"].as_i64().unwrap();
+        assert!(svg.contains(&format!(r#"class="contour flagged" data-id="{id}""#)));
+    }
 
     // Out of range: refused naming the key, nothing registered.
     std::fs::write(&job, "[register.quality]\ndoubt_bound_fraction = 1.5\n").unwrap();
@@ -111,4 +142,19 @@ fn a_part_in_doubt_keeps_the_contours_whose_bound_is_within_half_the_tolerance()
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("quality.doubt_bound_fraction"), "{stderr}");
     assert!(!bad.exists());
+
+    // A datum fit has no per-contour bounds to draw: the two are refused together.
+    let out = register_with(
+        &case,
+        None,
+        &bad,
+        &["--svg", "x.svg", "--datums", "datums.txt"],
+    );
+    // A usage error (trimctl's exit 1, clap's message).
+    assert_eq!(out.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("--svg") && stderr.contains("--datums"),
+        "{stderr}"
+    );
 }

@@ -88,6 +88,7 @@ fn demo_runs_to_the_end_and_leaves_a_complete_run_folder() {
         "job.toml",
         "registered.csv",
         "registration.json",
+        "registration.svg",
         "plan.json",
         "plan.svg",
         "journal.jsonl",
@@ -125,6 +126,13 @@ fn demo_runs_to_the_end_and_leaves_a_complete_run_folder() {
             .unwrap();
     let contours = quality["contours"].as_array().unwrap();
     assert!(!contours.is_empty());
+    // The registration's picture draws every contour, all trusted on the demo.
+    let picture = std::fs::read_to_string(out.join("registration.svg")).unwrap();
+    assert_eq!(
+        picture.matches(r#"class="contour trusted""#).count(),
+        contours.len()
+    );
+    assert!(picture.contains("the part as a whole: accepted"));
     assert!(report.contains("predicted max error µm"), "{report}");
     for c in contours {
         let bound = c["predicted_max_error_um"].as_f64().unwrap();

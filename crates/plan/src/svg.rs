@@ -90,11 +90,18 @@ impl Bounds {
     }
 }
 
-fn polyline(out: &mut String, points: &[(f64, f64)], colour: &str, width: f64) {
+/// The `d` attribute of an SVG path through `points` (px), `M x,y L x,y …`.
+#[must_use]
+pub fn path_data(points: &[(f64, f64)]) -> String {
     let mut d = String::new();
     for (i, (x, y)) in points.iter().enumerate() {
         let _ = write!(d, "{}{x:.2},{y:.2}", if i == 0 { "M" } else { " L" });
     }
+    d
+}
+
+fn polyline(out: &mut String, points: &[(f64, f64)], colour: &str, width: f64) {
+    let d = path_data(points);
     let _ = writeln!(
         out,
         r#"<path d="{d}" fill="none" stroke="{colour}" stroke-width="{width}"/>"#
@@ -104,7 +111,10 @@ fn polyline(out: &mut String, points: &[(f64, f64)], colour: &str, width: f64) {
 /// The colour of zones no pose within the axis limits reaches.
 const UNREACHABLE_COLOUR: &str = "#d00000";
 
-fn xml_escape(text: &str) -> String {
+/// `text` with the characters XML gives a meaning (`& < > "`) escaped, for SVG text and
+/// attributes.
+#[must_use]
+pub fn xml_escape(text: &str) -> String {
     text.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")

@@ -75,6 +75,8 @@ pub mod files {
     pub const REGISTERED: &str = "registered.csv";
     /// The registration quality report.
     pub const REGISTRATION: &str = "registration.json";
+    /// The registration's picture: contours by predicted bound, the flagged ones marked.
+    pub const REGISTRATION_SVG: &str = "registration.svg";
     /// The planned job.
     pub const PLAN: &str = "plan.json";
     /// The plan's picture.
@@ -875,13 +877,20 @@ fn register_part(
         run_dir.join(files::REGISTRATION),
         serde_json::to_string_pretty(&registration.report)?,
     )?;
+    crate::register::write_svg(
+        &run_dir.join(files::REGISTRATION_SVG),
+        &registration,
+        &inputs.scan,
+        config.register.quality.tolerance_um,
+    )?;
     print!("{}", summary::registration(&registration.report));
     if let Some(reason) = &registration.report.global.refused {
         return Err(Failure::with_exit(
             Exit::Refused,
             anyhow::anyhow!(
-                "registration refuses the part: {reason} (see {}); --skip-untrusted does not override this",
-                run_dir.join(files::REGISTRATION).display()
+                "registration refuses the part: {reason} (see {} and the picture {}); --skip-untrusted does not override this",
+                run_dir.join(files::REGISTRATION).display(),
+                run_dir.join(files::REGISTRATION_SVG).display()
             ),
         ));
     }
@@ -915,9 +924,10 @@ fn trusted_contours(
         return Err(Failure::with_exit(
             Exit::Refused,
             anyhow::anyhow!(
-                "registration flags {} contour(s) untrustworthy: {untrusted:?}{doubt} (see {}); refusing to start. Check the scan, or pass --skip-untrusted to trim the others",
+                "registration flags {} contour(s) untrustworthy: {untrusted:?}{doubt} (see {}, and {} for where they are); refusing to start. Check the scan, or pass --skip-untrusted to trim the others",
                 untrusted.len(),
-                run_dir.join(files::REGISTRATION).display()
+                run_dir.join(files::REGISTRATION).display(),
+                run_dir.join(files::REGISTRATION_SVG).display()
             ),
         ));
     }
