@@ -6,10 +6,9 @@
 
 use std::fmt::Write as _;
 
-use nalgebra::{Matrix3, SymmetricEigen};
 use trim_geom::{Path, Point3, Vector3};
 use trim_plan::svg::{path_data, xml_escape};
-use trim_register::regional::QualityReport;
+use trim_register::regional::{QualityReport, moments, principal_axes};
 
 /// The picture's width (px).
 const WIDTH_PX: f64 = 1000.0;
@@ -101,26 +100,20 @@ pub fn part_view(report: &QualityReport, tolerance_um: f64) -> PartView {
 }
 
 /// The two axes the picture shows: the path's two principal directions (largest spread
-/// right, the next up), each signed so that its largest component is positive; the view looks
-/// along the path's thinnest direction.
+/// right, the next up; `trim_register::regional::principal_axes`), each signed so that its
+/// largest component is positive; the view looks along the path's thinnest direction.
 fn view_axes(points: &[Point3]) -> (Vector3, Vector3, Point3) {
-    let n = points.len().max(1) as f64;
-    let centre = Point3::from(points.iter().map(|p| p.coords).sum::<Vector3>() / n);
-    let mut cov = Matrix3::zeros();
-    for p in points {
-        let d = p - centre;
-        cov += d * d.transpose();
-    }
-    let eig = SymmetricEigen::new(cov / n);
-    let mut order = [0, 1, 2];
-    order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+    let (centre, cov) = moments(points);
+    let (axes, _) = principal_axes(&cov);
     let signed = |v: Vector3| {
         let k = v.iamax();
         if v[k] < 0.0 { -v } else { v }
     };
-    let e1 = signed(eig.eigenvectors.column(order[0]).into_owned());
-    let e2 = signed(eig.eigenvectors.column(order[1]).into_owned());
-    if e1.iter().chain(e2.iter()).all(|v| v.is_finite()) && e1.norm() > 0.5 {
+    let (e1, e2) = (
+        signed(axes.column(0).into_owned()),
+        signed(axes.column(1).into_owned()),
+    );
+    if e1.iter().chain(e2.iter()).all(|v| v.is_finite()) {
         (e1, e2, centre)
     } else {
         (Vector3::x(), Vector3::y(), centre)

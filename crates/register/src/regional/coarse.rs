@@ -593,7 +593,8 @@ fn nearest_axes_rotation(es: &Matrix3<f64>, ec: &Matrix3<f64>) -> Rotation3 {
 }
 
 /// Centroid and covariance of points.
-pub(crate) fn moments(points: &[Point3]) -> (Point3, Matrix3<f64>) {
+#[must_use]
+pub fn moments(points: &[Point3]) -> (Point3, Matrix3<f64>) {
     let n = points.len().max(1) as f64;
     let c: Vector3 = points.iter().map(|p| p.coords).sum::<Vector3>() / n;
     let cov: Matrix3<f64> = points
@@ -606,7 +607,8 @@ pub(crate) fn moments(points: &[Point3]) -> (Point3, Matrix3<f64>) {
 
 /// Principal axes (columns, by descending variance) and whether their variances are distinct
 /// enough (ratio ≥ [`MIN_AXIS_VARIANCE_RATIO`]) for the axes to be defined.
-pub(crate) fn principal_axes(cov: &Matrix3<f64>) -> (Matrix3<f64>, bool) {
+#[must_use]
+pub fn principal_axes(cov: &Matrix3<f64>) -> (Matrix3<f64>, bool) {
     let eig = SymmetricEigen::new(*cov);
     let mut order = [0usize, 1, 2];
     order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));

@@ -43,8 +43,8 @@ use coarse::overlap_fraction;
 pub use coarse::{
     CAPTURE_ACCEPT_SCORE, CAPTURE_INLIER_MM, CAPTURE_MARGIN_DEG, CAPTURE_MARGIN_MM,
     CAPTURE_MIN_SCORE, CAPTURE_STEP_DEG, Capture, MAX_COARSE_LOG_SCALE_CHANGE,
-    MIN_AXIS_VARIANCE_RATIO, PoseOffset, SLIDE_SHIFTS_MM, capture, coarse_fit, refine,
-    refine_across_slides, scan_pyramid, scan_voxels,
+    MIN_AXIS_VARIANCE_RATIO, PoseOffset, SLIDE_SHIFTS_MM, capture, coarse_fit, moments,
+    principal_axes, refine, refine_across_slides, scan_pyramid, scan_voxels,
 };
 pub use field_fit::{
     CURVATURE_NEIGHBOURS, EARLY_STRIDE, FIELD_DAMPING, FieldPosterior, LocalShape,
