@@ -236,6 +236,7 @@ def run_case(args, scorer, p):
         part_refused=rep["global"].get("refused"),
         part_in_doubt=rep["global"].get("in_doubt"),
         edges_in_doubt=rep["global"].get("edges_in_doubt"),
+        region_in_doubt=rep["global"].get("region_in_doubt"),
         p95_um=1e3 * float(np.percentile(pts, 95)) if len(pts) else float("nan"),
         max_um=max((c["true_um"] for c in trusted), default=float("nan")),
         worst_contour_p95_um=max((c["cross_p95_um"] for c in trusted), default=float("nan")),
@@ -333,6 +334,7 @@ def main():
             ("  PART REFUSED" if row["part_refused"] else "")
             + ("  PART IN DOUBT" if row.get("part_in_doubt") else "")
             + ("  EDGE IN DOUBT" if row.get("edges_in_doubt") else "")
+            + ("  STRETCH IN DOUBT" if row.get("region_in_doubt") else "")
             + ("  silent %s" % row["silent_ids"][:6] if row["silent"] else "")),
             flush=True)
     ok = [r for r in rows if not r["refused"]]

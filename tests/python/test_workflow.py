@@ -156,6 +156,8 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
     # Nor are its edges (DESIGN.md, "An edge in doubt"), as registration.json says.
     assert registration.edges_in_doubt is None
     assert registration.edges_in_doubt == registration.report["global"]["edges_in_doubt"]
+    assert registration.region_in_doubt is None
+    assert registration.region_in_doubt == registration.report["global"]["region_in_doubt"]
     assert not any("edge_in_doubt" in q.flags for q in quality)
     # A part not refused is not retried (DESIGN.md, "A slide along the span, retried").
     assert registration.slide_retry is None

@@ -55,6 +55,8 @@ pub struct PartView {
     pub in_doubt: Option<String>,
     /// Which edges are in doubt, if any.
     pub edges_in_doubt: Option<String>,
+    /// Which stretch of the part's long axis is in doubt, if any.
+    pub region_in_doubt: Option<String>,
 }
 
 /// The views of a registered `path` and its quality `report` (contours matched by id).
@@ -96,6 +98,7 @@ pub fn part_view(report: &QualityReport, tolerance_um: f64) -> PartView {
         refused: report.global.refused.clone(),
         in_doubt: report.global.in_doubt.clone(),
         edges_in_doubt: report.global.edges_in_doubt.clone(),
+        region_in_doubt: report.global.region_in_doubt.clone(),
     }
 }
 
@@ -220,11 +223,19 @@ pub fn render(contours: &[ContourView<'_>], part: &PartView, scan: &[Point3]) ->
         contours.len(),
         part.tolerance_um
     );
-    let verdict = match (&part.refused, &part.in_doubt, &part.edges_in_doubt) {
-        (Some(r), ..) => Some(("PART REFUSED", r)),
-        (None, Some(r), _) => Some(("part in doubt", r)),
-        (None, None, Some(r)) => Some(("edges in doubt", r)),
-        (None, None, None) => None,
+    let local;
+    let verdict = match (&part.refused, &part.in_doubt) {
+        (Some(r), _) => Some(("PART REFUSED", r)),
+        (None, Some(r)) => Some(("part in doubt", r)),
+        (None, None) => match (&part.edges_in_doubt, &part.region_in_doubt) {
+            (Some(r), None) => Some(("edges in doubt", r)),
+            (None, Some(r)) => Some(("a stretch of the part in doubt", r)),
+            (Some(e), Some(r)) => {
+                local = format!("{e}; {r}");
+                Some(("edges and a stretch of the part in doubt", &local))
+            }
+            (None, None) => None,
+        },
     };
     match verdict {
         Some((what, why)) => {
@@ -430,12 +441,34 @@ mod tests {
             refused: Some(reason.clone()),
             in_doubt: Some("ignored when refused".into()),
             edges_in_doubt: None,
+            region_in_doubt: None,
         };
         let svg = render(&[view(4, &a, 90.0, &["opening_misplaced"])], &part, &[]);
         assert!(svg.contains("PART REFUSED: contour 4's opening"));
         assert!(svg.contains(&format!("<title>{}</title>", xml_escape(&reason))));
         assert!(svg.contains('…'), "the verdict line is shortened");
         assert!(!svg.contains("ignored when refused"));
+    }
+
+    /// A stretch in doubt, alone or with an edge in doubt, is the verdict, with both reasons.
+    #[test]
+    fn a_stretch_in_doubt_is_the_verdict_with_an_edge_in_doubt_beside_it() {
+        let a = strip(0.0, 10);
+        let mut part = PartView {
+            tolerance_um: 30.0,
+            refused: None,
+            in_doubt: None,
+            edges_in_doubt: None,
+            region_in_doubt: Some("5 contours off between 10 and 40 mm".into()),
+        };
+        let contours = [view(4, &a, 20.0, &["region_in_doubt"])];
+        let svg = render(&contours, &part, &[]);
+        assert!(svg.contains("a stretch of the part in doubt: 5 contours off"));
+        part.edges_in_doubt = Some("the edge of strips 1–3".into());
+        let svg = render(&contours, &part, &[]);
+        assert!(svg.contains(
+            "edges and a stretch of the part in doubt: the edge of strips 1–3; 5 contours off"
+        ));
     }
 
     #[test]

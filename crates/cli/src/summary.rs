@@ -58,6 +58,9 @@ pub fn registration(report: &QualityReport) -> String {
     if let Some(reason) = &g.edges_in_doubt {
         let _ = writeln!(s, "  edges in doubt: {reason}");
     }
+    if let Some(reason) = &g.region_in_doubt {
+        let _ = writeln!(s, "  a stretch of the part in doubt: {reason}");
+    }
     if let Some(e) = &g.edge_terms {
         let _ = writeln!(
             s,

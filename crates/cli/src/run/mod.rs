@@ -915,10 +915,18 @@ fn trusted_contours(
         return Ok(registration.path.clone());
     }
     let global = &registration.report.global;
-    let doubt = match (&global.in_doubt, &global.edges_in_doubt) {
-        (Some(r), _) => format!(" (the part is in doubt: {r})"),
-        (None, Some(r)) => format!(" (edges in doubt: {r})"),
-        (None, None) => String::new(),
+    let doubt = match (
+        &global.in_doubt,
+        &global.edges_in_doubt,
+        &global.region_in_doubt,
+    ) {
+        (Some(r), ..) => format!(" (the part is in doubt: {r})"),
+        (None, Some(e), Some(r)) => {
+            format!(" (edges in doubt: {e}; a stretch of the part in doubt: {r})")
+        }
+        (None, Some(e), None) => format!(" (edges in doubt: {e})"),
+        (None, None, Some(r)) => format!(" (a stretch of the part in doubt: {r})"),
+        (None, None, None) => String::new(),
     };
     if !args.skip_untrusted {
         return Err(Failure::with_exit(

@@ -305,6 +305,15 @@ class Registration:
         return self.report["global"].get("edges_in_doubt")
 
     @property
+    def region_in_doubt(self) -> Optional[str]:
+        """Why a stretch of a part that is not in doubt is (at least five contours off by
+        more than 1.5 times the tolerance by their bounds), or ``None``. Each other contour
+        reaching into their extent along the part's long axis (widened by 5 mm) whose bound at
+        1.5 sigma (``ContourQuality.doubt_bound_um``) exceeds two thirds of the tolerance is
+        flagged ``region_in_doubt``."""
+        return self.report["global"].get("region_in_doubt")
+
+    @property
     def slide_retry(self) -> Optional[Dict[str, Any]]:
         """What the retry after a refusal did (``coarse.slide_retry``), or ``None`` when the
         first registration was not refused: ``first_refusal`` (its reason),

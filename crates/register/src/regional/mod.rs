@@ -65,7 +65,9 @@ pub use quality::{
     MODEL_CHECK_SPACING_RATIO, PART_BOUND_SIGMA_FACTOR, QualityReport, SUPPORT_MIN_COS, SlideRetry,
     is_open, predicted_bound_mm,
 };
-use quality::{contour_quality, judge_edges, judge_part, material_beyond, strips_sharing_ends};
+use quality::{
+    contour_quality, judge_edges, judge_part, judge_region, material_beyond, strips_sharing_ends,
+};
 pub use scanned_edge::{
     EDGE_GAP_SIGMAS, EDGE_STRETCH_MM, EDGE_WINDOW_MM, EdgeFrom, ScannedEdge, scanned_edges,
 };
@@ -619,8 +621,12 @@ fn register_once(
         Ok(())
     })?;
     let verdict = judge_part(&mut contours, &settings.quality);
-    let edges_in_doubt = (verdict.refused.is_none() && verdict.in_doubt.is_none())
+    let whole = verdict.refused.is_none() && verdict.in_doubt.is_none();
+    let edges_in_doubt = whole
         .then(|| judge_edges(&mut contours, &joins, &settings.quality))
+        .flatten();
+    let region_in_doubt = whole
+        .then(|| judge_region(&mut contours, &strips, &settings.quality))
         .flatten();
     let untrustworthy = contours.iter().filter(|c| !c.trustworthy).count();
     let report = QualityReport {
@@ -639,6 +645,7 @@ fn register_once(
             refused: verdict.refused,
             in_doubt: verdict.in_doubt,
             edges_in_doubt,
+            region_in_doubt,
             edge_terms,
             slide_retry: None,
         },

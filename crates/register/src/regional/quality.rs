@@ -1,7 +1,7 @@
 //! Per-contour quality: coverage, residual, the predicted error bound (and, informational, the
 //! translational degeneracy and support), and the flags that make a contour untrustworthy.
 
-use super::coarse::PoseOffset;
+use super::coarse::{PoseOffset, moments, principal_axes};
 use super::field_fit::{FieldPosterior, Match, block_covariance};
 use super::scanned_edge::ScannedEdge;
 use super::settings::QualitySettings;
@@ -50,6 +50,12 @@ pub enum Flag {
     /// where it grows past the bounds of most of the edge, the bound of the strip next to them
     /// is not taken at face value.
     EdgeInDoubt,
+    /// The contour lies along the part's long axis where at least [`REGION_MIN_FAR_OFF`]
+    /// contours are off by well over the tolerance ([`judge_region`]), and its bound at 1.5σ
+    /// exceeds [`REGION_DOUBT_FRACTION`] of the tolerance: the error of a misregistered end of the
+    /// part is continuous, and where it grows past the bounds of several contours there, the
+    /// bounds of the others there are not taken at face value.
+    RegionInDoubt,
 }
 
 /// The quality of one registered contour (report JSON).
@@ -233,6 +239,11 @@ pub struct GlobalQuality {
     /// the tolerance, are flagged `edge_in_doubt`), or `null`.
     #[serde(default)]
     pub edges_in_doubt: Option<String>,
+    /// Why a stretch of the part's long axis is in doubt in a part that is not (then the other
+    /// contours there, with a bound at 1.5σ over `quality.doubt_bound_fraction` of the
+    /// tolerance, are flagged `region_in_doubt`), or `null`.
+    #[serde(default)]
+    pub region_in_doubt: Option<String>,
     /// What the edge terms did (`quality.edge_terms`); `null` when off or in global mode.
     #[serde(default)]
     pub edge_terms: Option<super::edge_terms::EdgeTermSummary>,
@@ -670,6 +681,108 @@ pub(crate) fn judge_edges(
             "{} (check that the scanner saw both ends of the part and its edges, then rescan \
              to trim them)",
             edges.join("; ")
+        )
+    })
+}
+
+/// A contour counts toward a stretch of the part in doubt ([`judge_region`]) when its bound at
+/// 1.5σ (`doubt_bound_um`) or the part's bound exceeds this multiple of the tolerance…
+///
+/// Chosen (2026-12-02) with [`REGION_MIN_FAR_OFF`], [`REGION_MARGIN_MM`] and
+/// [`REGION_DOUBT_FRACTION`] on the outside generator's fresh 7601–7680 (its part 7648's upper
+/// slot rim 20 trusted at 33 µm under a bound of 29 µm, at the misregistered tip, where 10
+/// contours were off by bounds over 45 µm), tune 2001–2080, and fresh 7681–7760 and
+/// 7761–7840, replayed from their `registration.json`; checked on fresh 7841–7920, run after
+/// (DESIGN.md, "Registration", step 5, *A stretch in doubt*).
+pub const REGION_FAR_OFF_FRACTION: f64 = 1.5;
+
+/// …and the stretch is in doubt when at least this many contours are.
+pub const REGION_MIN_FAR_OFF: usize = 5;
+
+/// The stretch in doubt: the far-off contours' extent along the part's long axis, widened by
+/// this at each end, mm.
+pub const REGION_MARGIN_MM: f64 = 5.0;
+
+/// In a stretch in doubt, a contour whose bound at 1.5σ exceeds this share of the tolerance
+/// (20 µm) is flagged: more than the part's and the edge's `doubt_bound_fraction` (15 µm),
+/// which flagged 0.5–0.7 % more good contours on two of the four sets it was chosen on
+/// against 0.1–0.4 % (7648's rim reads 26 µm at 1.5σ).
+pub const REGION_DOUBT_FRACTION: f64 = 2.0 / 3.0;
+
+/// The region check, for a part neither refused nor in doubt ([`judge_part`]): when at least
+/// [`REGION_MIN_FAR_OFF`] contours are far off (their bound at 1.5σ, or the part's bound, over
+/// [`REGION_FAR_OFF_FRACTION`] of the tolerance), every other contour that reaches into their
+/// extent along the part's long axis (`strips`, the path in the CAD frame, give it; widened by
+/// [`REGION_MARGIN_MM`]) and whose bound at 1.5σ exceeds [`REGION_DOUBT_FRACTION`] of the
+/// tolerance is flagged [`Flag::RegionInDoubt`]. A misregistered end of the part is off along the whole
+/// stretch; where the field's posterior falls short of it (outside fresh 7648: the tip off by
+/// 26–75 µm, 10 contours there with bounds over 45 µm and its slot rim 33 µm off under a bound
+/// of 29 µm), it falls short on the others there too. Only bounds count: a contour flagged for
+/// material beyond it may carry a burr, not an error. Returns the reason, or `None` when no
+/// contour is flagged by it.
+pub(crate) fn judge_region(
+    contours: &mut [ContourQuality],
+    strips: &[&[Point3]],
+    q: &QualitySettings,
+) -> Option<String> {
+    let far_um = REGION_FAR_OFF_FRACTION * q.tolerance_um;
+    let far: Vec<bool> = contours
+        .iter()
+        .map(|c| c.doubt_bound_um.max(c.part_bound_um) > far_um)
+        .collect();
+    let n_far = far.iter().filter(|&&f| f).count();
+    if n_far < REGION_MIN_FAR_OFF || strips.len() != contours.len() {
+        return None;
+    }
+    let all: Vec<Point3> = strips.iter().flat_map(|s| s.iter().copied()).collect();
+    let (centre, cov) = moments(&all);
+    let (axes, _) = principal_axes(&cov);
+    let axis: Vector3 = axes.column(0).into_owned();
+    let extent = |s: &[Point3]| {
+        s.iter()
+            .map(|p| (p - centre).dot(&axis))
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), t| {
+                (lo.min(t), hi.max(t))
+            })
+    };
+    let (lo, hi) = strips
+        .iter()
+        .zip(&far)
+        .filter(|(_, f)| **f)
+        .map(|(s, _)| extent(s))
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (a, b)| {
+            (lo.min(a), hi.max(b))
+        });
+    if !(lo.is_finite() && hi.is_finite()) {
+        return None;
+    }
+    let (lo, hi) = (lo - REGION_MARGIN_MM, hi + REGION_MARGIN_MM);
+    let limit_um = REGION_DOUBT_FRACTION * q.tolerance_um;
+    let mut doubted = Vec::new();
+    for ((c, s), f) in contours.iter_mut().zip(strips).zip(&far) {
+        let (a, b) = extent(s);
+        if !f && b >= lo && a <= hi && c.doubt_bound_um > limit_um {
+            c.flags.push(Flag::RegionInDoubt);
+            c.trustworthy = false;
+            doubted.push(c.id.to_string());
+        }
+    }
+    let far_ids: Vec<String> = contours
+        .iter()
+        .zip(&far)
+        .filter(|(_, f)| **f)
+        .map(|(c, _)| c.id.to_string())
+        .collect();
+    (!doubted.is_empty()).then(|| {
+        format!(
+            "{n_far} contours ({}) are off by more than {far_um:.0} µm by their bounds between \
+             {lo:.1} and {hi:.1} mm along the part's long axis (theirs widened by {REGION_MARGIN_MM:.0} mm): \
+             that stretch of the part may be misregistered, so contour{} {} there (bound at 1.5σ \
+             over {limit_um:.0} µm) flagged region_in_doubt (check that the scanner saw that stretch \
+             of the part, the part's ends and its edges, then rescan to trim them)",
+            far_ids.join(", "),
+            if doubted.len() > 1 { "s" } else { "" },
+            doubted.join(", ")
         )
     })
 }
@@ -1174,6 +1287,76 @@ mod tests {
         contours[5].doubt_bound_um = 31.0;
         let reason = judge_part(&mut contours, &q).in_doubt.expect("in doubt");
         assert!(reason.contains("6 of 10"), "{reason}");
+    }
+
+    /// Ten strips side by side along x (the part's long axis), 10 mm apart, each 2 mm long
+    /// across it.
+    fn strips_along_x() -> Vec<Vec<Point3>> {
+        (0..10)
+            .map(|i| {
+                let x = 10.0 * f64::from(i);
+                (0..=10)
+                    .map(|k| Point3::new(x, 0.2 * f64::from(k), 0.0))
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// Five contours at one end off by bounds over 45 µm flag the others within 5 mm of their
+    /// stretch whose bound at 1.5σ exceeds 20 µm, and name them; four do not, nor do five
+    /// flagged for material beyond them (a burr), and a contour beyond the stretch or under
+    /// 15 µm stays trusted.
+    #[test]
+    fn contours_far_off_at_one_end_put_that_stretch_in_doubt() {
+        let strips = strips_along_x();
+        let points: Vec<&[Point3]> = strips.iter().map(Vec::as_slice).collect();
+        let q = QualitySettings::default();
+        let part = |far: usize| -> Vec<ContourQuality> {
+            (0..10)
+                .map(|i| {
+                    let mut c = contour(i, None, vec![]);
+                    // Contours 0–4 at x 0–40 mm are far off (50 µm); 5 (x 50 mm, 10 mm past the
+                    // stretch) and the rest read 22 µm.
+                    c.doubt_bound_um = if (i as usize) < far { 50.0 } else { 22.0 };
+                    c
+                })
+                .collect()
+        };
+        let mut four = part(4);
+        assert_eq!(judge_region(&mut four, &points, &q), None);
+        assert!(four.iter().all(|c| c.flags.is_empty()));
+
+        // Contour 5 (x = 50 mm) lies 10 mm beyond the stretch; here it reaches back to 44 mm.
+        let mut five = part(5);
+        let mut near = strips.clone();
+        near[5].push(Point3::new(44.0, 0.0, 0.0));
+        let near_points: Vec<&[Point3]> = near.iter().map(Vec::as_slice).collect();
+        let mut under = five.clone();
+        let reason = judge_region(&mut five, &near_points, &q).expect("a stretch in doubt");
+        assert!(reason.contains("5 contours (0, 1, 2, 3, 4)"), "{reason}");
+        assert!(reason.contains("so contour 5 there"), "{reason}");
+        assert_eq!(five[5].flags, vec![Flag::RegionInDoubt]);
+        assert!(!five[5].trustworthy);
+        assert!(
+            five[6..]
+                .iter()
+                .all(|c| c.flags.is_empty() && c.trustworthy)
+        );
+        assert!(five[..5].iter().all(|c| c.flags.is_empty()));
+        // Under 20 µm at 1.5σ (over the part's 15 µm) it stays trusted, and nothing is said.
+        under[5].doubt_bound_um = 19.0;
+        assert_eq!(judge_region(&mut under, &near_points, &q), None);
+        // Beyond the stretch's 5 mm (x = 50 mm, 10 mm past contour 4): trusted.
+        let mut beyond = part(5);
+        assert_eq!(judge_region(&mut beyond, &points, &q), None);
+
+        // Five flagged for material beyond them, with small bounds: a burr, not an error.
+        let mut burred: Vec<ContourQuality> = part(0);
+        for c in &mut burred[..5] {
+            c.flags.push(Flag::MaterialBeyond);
+            c.trustworthy = false;
+        }
+        assert_eq!(judge_region(&mut burred, &near_points, &q), None);
     }
 
     fn edge(offset_mm: f64, flash_share: f64) -> ScannedEdge {
