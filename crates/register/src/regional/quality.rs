@@ -730,49 +730,48 @@ pub(crate) fn judge_region(
         .iter()
         .map(|c| c.doubt_bound_um.max(c.part_bound_um) > far_um)
         .collect();
-    let n_far = far.iter().filter(|&&f| f).count();
-    if n_far < REGION_MIN_FAR_OFF || strips.len() != contours.len() {
-        return None;
-    }
-    let all: Vec<Point3> = strips.iter().flat_map(|s| s.iter().copied()).collect();
-    let (centre, cov) = moments(&all);
-    let (axes, _) = principal_axes(&cov);
-    let axis: Vector3 = axes.column(0).into_owned();
-    let extent = |s: &[Point3]| {
-        s.iter()
-            .map(|p| (p - centre).dot(&axis))
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), t| {
-                (lo.min(t), hi.max(t))
-            })
-    };
-    let (lo, hi) = strips
-        .iter()
-        .zip(&far)
-        .filter(|(_, f)| **f)
-        .map(|(s, _)| extent(s))
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (a, b)| {
-            (lo.min(a), hi.max(b))
-        });
-    if !(lo.is_finite() && hi.is_finite()) {
-        return None;
-    }
-    let (lo, hi) = (lo - REGION_MARGIN_MM, hi + REGION_MARGIN_MM);
-    let limit_um = REGION_DOUBT_FRACTION * q.tolerance_um;
-    let mut doubted = Vec::new();
-    for ((c, s), f) in contours.iter_mut().zip(strips).zip(&far) {
-        let (a, b) = extent(s);
-        if !f && b >= lo && a <= hi && c.doubt_bound_um > limit_um {
-            c.flags.push(Flag::RegionInDoubt);
-            c.trustworthy = false;
-            doubted.push(c.id.to_string());
-        }
-    }
     let far_ids: Vec<String> = contours
         .iter()
         .zip(&far)
         .filter(|(_, f)| **f)
         .map(|(c, _)| c.id.to_string())
         .collect();
+    let n_far = far_ids.len();
+    if n_far < REGION_MIN_FAR_OFF || strips.len() != contours.len() {
+        return None;
+    }
+    // Each contour's extent along the path's long axis.
+    let all: Vec<Point3> = strips.iter().flat_map(|s| s.iter().copied()).collect();
+    let (centre, cov) = moments(&all);
+    let (axes, _) = principal_axes(&cov);
+    let axis: Vector3 = axes.column(0).into_owned();
+    let extents: Vec<(f64, f64)> = strips
+        .iter()
+        .map(|s| {
+            s.iter()
+                .map(|p| (p - centre).dot(&axis))
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), t| {
+                    (lo.min(t), hi.max(t))
+                })
+        })
+        .collect();
+    let (lo, hi) = extents.iter().zip(&far).filter(|(_, f)| **f).fold(
+        (f64::INFINITY, f64::NEG_INFINITY),
+        |(lo, hi), ((a, b), _)| (lo.min(*a), hi.max(*b)),
+    );
+    if !(lo.is_finite() && hi.is_finite()) {
+        return None;
+    }
+    let (lo, hi) = (lo - REGION_MARGIN_MM, hi + REGION_MARGIN_MM);
+    let limit_um = REGION_DOUBT_FRACTION * q.tolerance_um;
+    let mut doubted = Vec::new();
+    for ((c, &(a, b)), f) in contours.iter_mut().zip(&extents).zip(&far) {
+        if !f && b >= lo && a <= hi && c.doubt_bound_um > limit_um {
+            c.flags.push(Flag::RegionInDoubt);
+            c.trustworthy = false;
+            doubted.push(c.id.to_string());
+        }
+    }
     (!doubted.is_empty()).then(|| {
         format!(
             "{n_far} contours ({}) are off by more than {far_um:.0} µm by their bounds between \
