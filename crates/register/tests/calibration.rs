@@ -7,7 +7,10 @@ mod cases;
 
 use trim_geom::PointCloud;
 use trim_register::eval::path_errors;
-use trim_register::regional::{Flag, RegisterSettings, register};
+use trim_register::regional::{
+    Flag, REGION_DOUBT_FRACTION, REGION_FAR_OFF_FRACTION, REGION_MIN_FAR_OFF, RegisterSettings,
+    register,
+};
 use trim_synth::{SynthCase, SynthParams, generate};
 
 /// Test seeds (4 and 8 take the far end of every range).
@@ -218,6 +221,55 @@ fn contours_in_a_region_the_scanner_cannot_see_are_flagged_when_they_err() {
         over.iter().any(|o| o.3 == [Flag::PredictedError]),
         "none flagged by the bound alone: {over:?}"
     );
+    // The unseen end is a stretch of the part in doubt (`region_in_doubt`): the contours far
+    // off by their bounds there are named, and so is every contour flagged for reaching into
+    // that stretch, each with a bound at 1.5σ over two thirds of the tolerance.
+    let region = reg
+        .report
+        .global
+        .region_in_doubt
+        .as_deref()
+        .expect("the unseen end in doubt");
+    let far: Vec<i64> = reg
+        .report
+        .contours
+        .iter()
+        .filter(|q| q.doubt_bound_um.max(q.part_bound_um) > REGION_FAR_OFF_FRACTION * tolerance_um)
+        .map(|q| q.id)
+        .collect();
+    assert!(far.len() >= REGION_MIN_FAR_OFF, "{far:?}");
+    let named = |from: &str, to: &str| -> Vec<i64> {
+        // "contour 7 there" or "contours 7, 9 there".
+        let list = region.split(from).nth(1).and_then(|s| s.split(to).next());
+        list.unwrap_or_else(|| panic!("{region}"))
+            .trim_start_matches("s ")
+            .split(", ")
+            .map(|id| id.parse().unwrap_or_else(|_| panic!("{region}")))
+            .collect()
+    };
+    assert_eq!(named("contours (", ")"), far, "{region}");
+    let stretched: Vec<i64> = reg
+        .report
+        .contours
+        .iter()
+        .filter(|q| q.flags.contains(&Flag::RegionInDoubt))
+        .map(|q| q.id)
+        .collect();
+    assert!(!stretched.is_empty(), "{region}");
+    assert_eq!(named("so contour", " there"), stretched, "{region}");
+    for q in reg
+        .report
+        .contours
+        .iter()
+        .filter(|q| stretched.contains(&q.id))
+    {
+        assert!(
+            q.doubt_bound_um > REGION_DOUBT_FRACTION * tolerance_um && !far.contains(&q.id),
+            "{}: {:.1} µm",
+            q.id,
+            q.doubt_bound_um
+        );
+    }
 }
 
 /// The in-plane bend case: the bend turned this far from the thickness axis toward the chord.

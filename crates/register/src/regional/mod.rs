@@ -62,8 +62,9 @@ pub use quality::{
     BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_MODEL_FACTOR,
     BOUND_RESIDUAL_FACTOR, BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS,
     ContourQuality, END_SUPPORT_MIN_COS, EdgeReading, Flag, GlobalQuality, MATERIAL_BEYOND_MM,
-    MODEL_CHECK_SPACING_RATIO, PART_BOUND_SIGMA_FACTOR, QualityReport, SUPPORT_MIN_COS, SlideRetry,
-    is_open, predicted_bound_mm,
+    MODEL_CHECK_SPACING_RATIO, PART_BOUND_SIGMA_FACTOR, QualityReport, REGION_DOUBT_FRACTION,
+    REGION_FAR_OFF_FRACTION, REGION_MIN_FAR_OFF, SUPPORT_MIN_COS, SlideRetry, is_open,
+    predicted_bound_mm,
 };
 use quality::{
     contour_quality, judge_edges, judge_part, judge_region, material_beyond, strips_sharing_ends,
