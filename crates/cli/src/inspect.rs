@@ -11,8 +11,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use trim_cell::cell_model::{ScanChain, ScanPose};
-use trim_geom::formats::{Geometry, read_geometry, read_path, read_points};
+use trim_geom::formats::{Geometry, read_geometry, read_path};
 use trim_geom::mesh::Mesh;
 use trim_geom::{Path as TrimPath, Point3, PointCloud, Similarity3, Vector3};
 use trim_inspect::{InspectSettings, Inspection, Placement, Verdict, inspect, signed_distances};
@@ -108,7 +107,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let cad_points = mesh.sample_area_weighted(reg_settings.cad_sample_points, CAD_SAMPLE_SEED);
     let path = read_path(&args.path).with_context(|| format!("reading {}", args.path.display()))?;
-    let scan = merged_scan(&args, config.as_ref())?;
+    let scan = crate::scans::merged(&args.scan, args.poses.as_deref(), config.as_ref())?;
     drop(spinner);
 
     let spinner = stage("fitting the scan to the CAD");
@@ -227,68 +226,6 @@ pub(crate) fn write_inspection(
     )?;
     drop(spinner);
     write_outputs(dir, result)
-}
-
-/// The scans as one cloud in the work-piece frame.
-fn merged_scan(args: &Args, config: Option<&JobConfig>) -> anyhow::Result<PointCloud> {
-    let read = |p: &PathBuf| read_points(p).with_context(|| format!("reading {}", p.display()));
-    let Some(poses_file) = &args.poses else {
-        if args.scan.len() > 1 {
-            bail!(
-                "{} scans without --poses: several scans merge only through their machine poses (poses.csv)",
-                args.scan.len()
-            );
-        }
-        let scan = read(&args.scan[0])?;
-        return match config {
-            Some(c) => c.workpiece_from_scan(&scan),
-            None => Ok(scan),
-        };
-    };
-    let (names, poses, kind) = crate::calibrate_cell::read_poses(poses_file)?;
-    let defaults = JobConfig::default();
-    let job = config.unwrap_or(&defaults);
-    if job.plan.machine.kinematics != kind {
-        bail!(
-            "{}: the header names a {} cell, the job's [machine] is {}",
-            poses_file.display(),
-            kind.name(),
-            job.plan.machine.kinematics.name()
-        );
-    }
-    let plan = &job.plan;
-    let mut points = Vec::new();
-    for file in &args.scan {
-        let name = file
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let Some(k) = names.iter().position(|n| *n == name) else {
-            bail!(
-                "{}: no pose for scan {name} in {}",
-                file.display(),
-                poses_file.display()
-            );
-        };
-        let chain = ScanChain {
-            table: plan.table(),
-            scanner: job.plan.calibration.scanner(),
-            pose: ScanPose {
-                xyz_mm: poses[k].xyz_mm,
-                tilt_deg: poses[k].tilt_deg,
-                c_deg: poses[k].c_deg,
-            },
-            workpiece_origin_mm: plan.machine.workpiece_origin_mm.into(),
-        };
-        let scan = read(file)?
-            .transformed(&Similarity3::from_isometry(
-                chain.workpiece_from_scanner(),
-                1.0,
-            ))
-            .with_context(|| format!("{} through [calibration] at its pose", file.display()))?;
-        points.extend_from_slice(scan.points());
-    }
-    Ok(PointCloud::new(points)?)
 }
 
 /// The contour fields of inspection.json and inspection.csv, in order. The film's two come

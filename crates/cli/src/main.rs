@@ -21,6 +21,7 @@ mod register;
 mod registration_svg;
 mod report_cmd;
 mod run;
+mod scans;
 #[cfg(feature = "sim")]
 mod sim;
 mod simulated;

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use trim_geom::formats::{read_path, read_points, write_path};
+use trim_geom::formats::{read_path, write_path};
 use trim_geom::transform::similarity_from_matrix;
 use trim_geom::{Point3, PointCloud, Similarity3, Vector3};
 use trim_register::datum::datum_fit;
@@ -24,8 +24,15 @@ pub struct Args {
     #[arg(long)]
     pub cad: PathBuf,
     /// The scan of the clamped part (PLY/PCD/XYZ), scan frame, mm. Normals are not needed.
+    /// Several, with --poses, merge into one cloud in the work-piece frame: a second machine
+    /// pose shows the walls and end faces the first did not see.
+    #[arg(long, required = true)]
+    pub scan: Vec<PathBuf>,
+    /// The machine pose of each scan: CSV `scan,x,y,z,a,c` (or `b`) as `calibrate cell` reads,
+    /// `scan` the scan's file name. Each scan goes into the work-piece frame through the job's
+    /// `[calibration]` and `[machine]` at its pose (the nominal cell without --config).
     #[arg(long)]
-    pub scan: PathBuf,
+    pub poses: Option<PathBuf>,
     /// The template path CSV, CAD frame.
     #[arg(long)]
     pub path: PathBuf,
@@ -91,28 +98,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         (None, Some(c)) => c.part.scan_from_cad.scan_from_cad("part.scan_from_cad")?,
         (None, None) => Similarity3::identity(),
     };
-    // The CAD (parsed and sampled) and the scan (parsed) are read side by side.
+    // The CAD (parsed and sampled) and the scans (parsed) are read side by side. With a job
+    // file, one scan (scanner frame) goes into the work-piece frame through its [calibration]
+    // and [part.scan_pose], as `trimctl run` does; several through their --poses.
     let (cad, scan) = std::thread::scope(|s| {
-        let scan = s.spawn(|| {
-            read_points(&args.scan).with_context(|| format!("reading {}", args.scan.display()))
-        });
+        let scan =
+            s.spawn(|| crate::scans::merged(&args.scan, args.poses.as_deref(), config.as_ref()));
         let cad = load_cad(&args.cad, "--cad", settings.cad_sample_points)
             .with_context(|| format!("reading {}", args.cad.display()));
-        let scan = scan.join().unwrap_or_else(|_| {
-            Err(anyhow::anyhow!(
-                "reading {}: the reader panicked",
-                args.scan.display()
-            ))
-        });
+        let scan = scan
+            .join()
+            .unwrap_or_else(|_| Err(anyhow::anyhow!("reading the scans: the reader panicked")));
         (cad, scan)
     });
     let (cad, scan) = (cad?, scan?);
-    // With a job file, the scan (scanner frame) goes into the work-piece frame through its
-    // [calibration] and [part.scan_pose], as `trimctl run` does.
-    let scan = match &config {
-        Some(c) => c.workpiece_from_scan(&scan)?,
-        None => scan,
-    };
     let path = read_path(&args.path).with_context(|| format!("reading {}", args.path.display()))?;
     let t_read = t0.elapsed().as_secs_f64();
     if let Some(datums_file) = &args.datums {
