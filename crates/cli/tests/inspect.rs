@@ -11,10 +11,12 @@
 use std::path::Path;
 use std::process::Command;
 
-use trim_cell::cell_model::{ScanChain, ScanPose, ScannerPose, TableModel};
-use trim_cell::kinematics::MachineSettings;
-use trim_geom::formats::{PlyEncoding, read_points, write_ply};
-use trim_geom::{PointCloud, Similarity3};
+use trim_cell::cell_model::ScanPose;
+use trim_geom::formats::read_points;
+
+#[path = "support/scans_at_poses.rs"]
+mod scans_at_poses;
+use scans_at_poses::write_scans_at_poses;
 
 const TRIMCTL: &str = env!("CARGO_BIN_EXE_trimctl");
 
@@ -202,13 +204,6 @@ fn inspect_writes_the_four_outputs_and_fails_the_burred_contours() {
     // Two scans taken at two machine poses, merged through the nominal cell: the same
     // verdicts as the one scan they came from.
     let scan = read_points(&case.join("scan.ply")).unwrap();
-    let machine = MachineSettings::default();
-    let chain = |pose: ScanPose| ScanChain {
-        table: TableModel::nominal(&machine),
-        scanner: ScannerPose::identity(),
-        pose,
-        workpiece_origin_mm: machine.workpiece_origin_mm.into(),
-    };
     let poses = [
         ScanPose {
             xyz_mm: [5.0, -3.0, 20.0],
@@ -221,34 +216,17 @@ fn inspect_writes_the_four_outputs_and_fails_the_burred_contours() {
             c_deg: 40.0,
         },
     ];
-    let mut csv = String::from("scan,x,y,z,a,c\n");
-    let mut files = Vec::new();
-    for (k, pose) in poses.iter().enumerate() {
-        let scanner_from_workpiece =
-            Similarity3::from_isometry(chain(*pose).workpiece_from_scanner().inverse(), 1.0);
-        let half: Vec<_> = scan
-            .points()
-            .iter()
-            .skip(k)
-            .step_by(2)
-            .map(|p| scanner_from_workpiece * p)
-            .collect();
-        let name = format!("view{k}.ply");
-        let file = tmp.path().join(&name);
-        write_ply(
-            &file,
-            &PointCloud::new(half).unwrap(),
-            PlyEncoding::BinaryLittleEndian,
-        )
-        .unwrap();
-        csv.push_str(&format!(
-            "{name},{},{},{},{},{}\n",
-            pose.xyz_mm[0], pose.xyz_mm[1], pose.xyz_mm[2], pose.tilt_deg, pose.c_deg
-        ));
-        files.push(file);
-    }
-    let poses_file = tmp.path().join("poses.csv");
-    std::fs::write(&poses_file, csv).unwrap();
+    let parts: Vec<_> = poses
+        .iter()
+        .enumerate()
+        .map(|(k, pose)| {
+            (
+                *pose,
+                scan.points().iter().skip(k).step_by(2).copied().collect(),
+            )
+        })
+        .collect();
+    let (files, poses_file) = write_scans_at_poses(tmp.path(), "view", &parts);
     let merged_out = tmp.path().join("merged");
     let refs: Vec<&Path> = files.iter().map(std::path::PathBuf::as_path).collect();
     let run = inspect(&case, &refs, Some(&poses_file), &merged_out);

@@ -12,11 +12,13 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use trim_cell::cell_model::{ScanChain, ScanPose, ScannerPose, TableModel};
-use trim_cell::kinematics::MachineSettings;
-use trim_geom::formats::{PlyEncoding, read_path, read_points, write_ply};
-use trim_geom::{PointCloud, Similarity3};
+use trim_cell::cell_model::ScanPose;
+use trim_geom::formats::{read_path, read_points};
 use trim_register::regional::{moments, principal_axes};
+
+#[path = "support/scans_at_poses.rs"]
+mod scans_at_poses;
+use scans_at_poses::write_scans_at_poses;
 
 const TRIMCTL: &str = env!("CARGO_BIN_EXE_trimctl");
 
@@ -93,7 +95,6 @@ fn two_scans_at_two_machine_poses_register_as_the_whole_scan() {
     let scan = read_points(&case.join("scan.ply")).unwrap();
     let (centre, cov) = moments(scan.points());
     let thickness = principal_axes(&cov).0.column(2).into_owned();
-    let machine = MachineSettings::default();
     let poses = [
         ScanPose {
             xyz_mm: [5.0, -3.0, 20.0],
@@ -106,39 +107,20 @@ fn two_scans_at_two_machine_poses_register_as_the_whole_scan() {
             c_deg: 140.0,
         },
     ];
-    let mut csv = String::from("scan,x,y,z,a,c\n");
-    let mut files: Vec<PathBuf> = Vec::new();
-    for (k, pose) in poses.iter().enumerate() {
-        let chain = ScanChain {
-            table: TableModel::nominal(&machine),
-            scanner: ScannerPose::identity(),
-            pose: *pose,
-            workpiece_origin_mm: machine.workpiece_origin_mm.into(),
-        };
-        let scanner_from_workpiece =
-            Similarity3::from_isometry(chain.workpiece_from_scanner().inverse(), 1.0);
-        let side: Vec<_> = scan
-            .points()
-            .iter()
-            .filter(|p| ((*p - centre).dot(&thickness) >= 0.0) == (k == 0))
-            .map(|p| scanner_from_workpiece * p)
-            .collect();
-        let name = format!("pose{k}.ply");
-        let file = tmp.path().join(&name);
-        write_ply(
-            &file,
-            &PointCloud::new(side).unwrap(),
-            PlyEncoding::BinaryLittleEndian,
-        )
-        .unwrap();
-        csv.push_str(&format!(
-            "{name},{},{},{},{},{}\n",
-            pose.xyz_mm[0], pose.xyz_mm[1], pose.xyz_mm[2], pose.tilt_deg, pose.c_deg
-        ));
-        files.push(file);
-    }
-    let poses_file = tmp.path().join("poses.csv");
-    std::fs::write(&poses_file, &csv).unwrap();
+    let parts: Vec<_> = poses
+        .iter()
+        .enumerate()
+        .map(|(k, pose)| {
+            let side = scan
+                .points()
+                .iter()
+                .filter(|p| ((*p - centre).dot(&thickness) >= 0.0) == (k == 0))
+                .copied()
+                .collect();
+            (*pose, side)
+        })
+        .collect();
+    let (files, poses_file) = write_scans_at_poses(tmp.path(), "pose", &parts);
     let refs: Vec<&Path> = files.iter().map(PathBuf::as_path).collect();
 
     // Merged: the whole scan's registration.
@@ -187,6 +169,7 @@ fn two_scans_at_two_machine_poses_register_as_the_whole_scan() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("2 scans without --poses"), "{err}");
+    let csv = std::fs::read_to_string(&poses_file).unwrap();
     std::fs::write(
         &poses_file,
         csv.lines().take(2).collect::<Vec<_>>().join("\n"),
