@@ -5,6 +5,7 @@ import copy
 import json
 import os
 import pathlib
+import re
 import subprocess
 
 import numpy as np
@@ -71,7 +72,8 @@ def test_registration_lands_on_the_truth(case, registration):
 def test_a_part_in_doubt_flags_only_the_contours_over_its_share_of_the_tolerance(case):
     # A stricter part-level gate (any flagged contour puts the part in doubt) and a 12 µm
     # tolerance: the demo part is in doubt, not refused, and each contour whose bound exceeds
-    # 0.75 of the tolerance (9 µm) is flagged part_in_doubt.
+    # 0.75 of the tolerance (9 µm) is flagged part_in_doubt, and so is each strip the reason
+    # names as sharing an end with an untrusted strip.
     quality_keys = {"tolerance_um": 12.0, "max_untrusted_fraction": 0.0,
                     "doubt_bound_fraction": 0.75}
     reg = trimctl.register_path(
@@ -82,8 +84,12 @@ def test_a_part_in_doubt_flags_only_the_contours_over_its_share_of_the_tolerance
     assert reg.refused is None
     assert reg.in_doubt is not None and "quality.max_untrusted_fraction (0 %)" in reg.in_doubt
     assert "exceeds 9 µm" in reg.in_doubt, reg.in_doubt
+    named = re.search(r"strips? ([\d, ]+) beside an untrusted strip", reg.in_doubt)
+    beside = {int(i) for i in named.group(1).split(", ")} if named else set()
     for q in reg.quality:
-        assert ("part_in_doubt" in q.flags) == (q.predicted_max_error_um > 9.0), q
+        assert ("part_in_doubt" in q.flags) == (q.doubt_bound_um > 9.0 or q.id in beside), q
+        if q.id in beside:
+            assert q.doubt_bound_um <= 9.0 and q.flags == ["part_in_doubt"], q
         assert q.trustworthy == (not q.flags), q
     assert reg.report["global"]["untrustworthy"] == sum(not q.trustworthy for q in reg.quality)
     # Out of range: refused naming the key.

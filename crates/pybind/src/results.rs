@@ -69,7 +69,7 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// (negative: no gap; `None` where the scan does not locate its edge); over the tolerance it flags
 /// `edge_off_scan` and puts the part in doubt (every contour whose `doubt_bound_um`, its bound
 /// at 1.5σ, exceeds `quality.doubt_bound_fraction` of the tolerance is then flagged
-/// `part_in_doubt`).
+/// `part_in_doubt`, and so is every strip sharing an end with a strip then untrusted).
 /// `scan_edges`: the scanned-edge readings behind that gap, one dict per stretch (`at_mm`,
 /// `offset_um`, `sigma_um`, `points`, `from`, `flash_share`), as in registration.json; the
 /// edge terms condition the field on a strip's (not a rim's). A strip

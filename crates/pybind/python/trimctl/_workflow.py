@@ -292,7 +292,9 @@ class Registration:
         ``max_untrusted_fraction`` of its contours flagged), or ``None``. In a part in doubt
         every contour whose bound at 1.5 sigma (``ContourQuality.doubt_bound_um``; the
         reported bound is at 2.1 sigma) exceeds ``quality.doubt_bound_fraction`` of the
-        tolerance is flagged ``part_in_doubt``; the others stay trusted."""
+        tolerance is flagged ``part_in_doubt``, and so is every strip that shares an end with
+        a strip then untrusted (a slide along an edge carries over the shared end; the reason
+        names them); the others stay trusted."""
         return self.report["global"].get("in_doubt")
 
     @property

@@ -63,12 +63,10 @@ pub use quality::{
     BOUND_RESIDUAL_FACTOR, BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS,
     ContourQuality, END_SUPPORT_MIN_COS, EdgeReading, Flag, GlobalQuality, MATERIAL_BEYOND_MM,
     MODEL_CHECK_SPACING_RATIO, PART_BOUND_SIGMA_FACTOR, QualityReport, REGION_DOUBT_FRACTION,
-    REGION_FAR_OFF_FRACTION, REGION_MIN_FAR_OFF, SUPPORT_MIN_COS, SlideRetry, is_open,
-    predicted_bound_mm,
+    REGION_FAR_OFF_FRACTION, REGION_MIN_FAR_OFF, STRIP_JOIN_MM, SUPPORT_MIN_COS, SlideRetry,
+    is_open, predicted_bound_mm, strips_sharing_ends,
 };
-use quality::{
-    contour_quality, judge_edges, judge_part, judge_region, material_beyond, strips_sharing_ends,
-};
+use quality::{contour_quality, judge_edges, judge_part, judge_region, material_beyond};
 pub use scanned_edge::{
     EDGE_GAP_SIGMAS, EDGE_STRETCH_MM, EDGE_WINDOW_MM, EdgeFrom, ScannedEdge, scanned_edges,
 };
@@ -621,7 +619,7 @@ fn register_once(
         }
         Ok(())
     })?;
-    let verdict = judge_part(&mut contours, &settings.quality);
+    let verdict = judge_part(&mut contours, &joins, &settings.quality);
     let whole = verdict.refused.is_none() && verdict.in_doubt.is_none();
     let edges_in_doubt = whole
         .then(|| judge_edges(&mut contours, &joins, &settings.quality))

@@ -41,8 +41,9 @@ pub enum Flag {
     PartRefused,
     /// The part is in doubt (`GlobalQuality::in_doubt`: an edge lies off the scan, or more than
     /// `max_untrusted_fraction` of its contours are flagged), and this contour's bound exceeds
-    /// `doubt_bound_fraction` of the tolerance: in such a part a bound is not taken at face
-    /// value.
+    /// `doubt_bound_fraction` of the tolerance, or it is a strip that shares an end with an
+    /// untrusted strip: in such a part a bound is not taken at face value, and a slide along
+    /// an edge carries over the shared end.
     PartInDoubt,
     /// The contour joins, end to end, a strip of an edge more than half of whose strips are
     /// off by well over the tolerance ([`judge_edges`]), and its bound at 1.5σ exceeds
@@ -304,11 +305,21 @@ pub(crate) struct PartVerdict {
 ///   flagged a third to two thirds of their contours and erred by up to 0.4 mm on some they
 ///   trusted). In such a part a contour's bound is not taken at face value: every contour whose
 ///   bound exceeds `doubt_bound_fraction` of the tolerance (half: 15 µm) is flagged
-///   [`Flag::PartInDoubt`], and the rest stay trusted. Over the outside generator's tune pool
+///   [`Flag::PartInDoubt`], and so is every strip that shares an end (`joins`,
+///   [`strips_sharing_ends`]) with a strip then untrusted: the slide along an edge is
+///   continuous across the shared end, and a part in doubt has shown that its field errs
+///   where its posterior does not see it (outside fresh 8062 at 500k, as generated on
+///   2026-12-01: a leading-edge strip 31.7 µm off along itself under a bound of 17.7 µm,
+///   under 15 µm at 1.5σ, beside the flagged strip 27, 44 µm off). The rest stay trusted.
+///   Over the outside generator's tune pool
 ///   (tune, holdout and fresh seeds 4001–4560, 720 cases), the contours over 30 µm these rules
 ///   had to catch carried bounds of 21–30 µm; refusing such parts whole flagged every good
 ///   contour in them (45 % of all false alarms). DESIGN.md, "Registration", step 5.
-pub(crate) fn judge_part(contours: &mut [ContourQuality], q: &QualitySettings) -> PartVerdict {
+pub(crate) fn judge_part(
+    contours: &mut [ContourQuality],
+    joins: &[Vec<usize>],
+    q: &QualitySettings,
+) -> PartVerdict {
     let flagged = contours
         .iter()
         .filter(|c| off_by_more_than(c, q.tolerance_um))
@@ -377,14 +388,35 @@ pub(crate) fn judge_part(contours: &mut [ContourQuality], q: &QualitySettings) -
             doubted += 1;
         }
     }
+    let beside: Vec<bool> = contours
+        .iter()
+        .zip(joins)
+        .map(|(c, joined)| c.trustworthy && joined.iter().any(|&j| !contours[j].trustworthy))
+        .collect();
+    let mut alongside = Vec::new();
+    for (c, _) in contours.iter_mut().zip(&beside).filter(|(_, b)| **b) {
+        c.flags.push(Flag::PartInDoubt);
+        c.trustworthy = false;
+        alongside.push(c.id.to_string());
+    }
+    let along = if alongside.is_empty() {
+        String::new()
+    } else {
+        format!(
+            ", and strip{} {} beside an untrusted strip (a slide along an edge carries over the \
+             end they share)",
+            plural(&alongside),
+            alongside.join(", ")
+        )
+    };
     PartVerdict {
         refused: None,
         in_doubt: Some(format!(
             "{why}; so every contour whose bound at 1.5σ (doubt_bound_um) exceeds \
              {limit_um:.0} µm (quality.doubt_bound_fraction {:.2} of the tolerance) is flagged \
              part_in_doubt \
-             ({doubted} of {n}; check the fixture pose and that the scanner saw both ends of the \
-             part, its edges and its holes, then rescan to trim them)",
+             ({doubted} of {n}){along}; check the fixture pose and that the scanner saw both \
+             ends of the part, its edges and its holes, then rescan to trim them",
             q.doubt_bound_fraction
         )),
     }
@@ -1098,7 +1130,7 @@ mod tests {
         // A contour's own bound (at the wider factor) does not decide which a part in doubt
         // flags.
         contours[7].predicted_max_error_um = 19.0;
-        let verdict = judge_part(&mut contours, &q);
+        let verdict = judge_part(&mut contours, &apart(10), &q);
         assert!(verdict.refused.is_none());
         let reason = verdict.in_doubt.expect("the part is in doubt");
         assert!(reason.contains("contour 3 (42 µm)"), "{reason}");
@@ -1122,7 +1154,11 @@ mod tests {
             doubt_bound_fraction: 0.0,
             ..q
         };
-        assert!(judge_part(&mut strict, &zero).in_doubt.is_some());
+        assert!(
+            judge_part(&mut strict, &apart(10), &zero)
+                .in_doubt
+                .is_some()
+        );
         assert!(strict.iter().all(|c| !c.trustworthy));
         // Without the flag, nothing is in doubt.
         let mut clean: Vec<ContourQuality> = (0..10)
@@ -1131,9 +1167,71 @@ mod tests {
         contours_unchanged(&mut clean, &q);
     }
 
+    /// No contour shares an end with another.
+    fn apart(n: usize) -> Vec<Vec<usize>> {
+        vec![Vec::new(); n]
+    }
+
+    /// In a part in doubt, a strip that shares an end with an untrusted strip is flagged
+    /// whatever its bound: the slide along an edge carries over the shared end. One step only:
+    /// the strip beyond it, and a rim, keep their own bounds.
+    #[test]
+    fn a_part_in_doubt_flags_the_strips_beside_an_untrusted_one() {
+        let q = QualitySettings::default();
+        // Six strips end to end along x, 2 mm each, then a rim; strip 5 is off the scan.
+        let mut points: Vec<Vec<Point3>> = (0..6)
+            .map(|i| {
+                (0..=10)
+                    .map(|k| Point3::new(2.0 * f64::from(i) + 0.2 * f64::from(k), 0.0, 0.0))
+                    .collect()
+            })
+            .collect();
+        points.push(
+            (0..=12)
+                .map(|k| {
+                    let t = std::f64::consts::TAU * f64::from(k) / 12.0;
+                    Point3::new(3.0 + t.cos(), 5.0 + t.sin(), 0.0)
+                })
+                .collect(),
+        );
+        let refs: Vec<&[Point3]> = points.iter().map(Vec::as_slice).collect();
+        let joins = strips_sharing_ends(&refs);
+        let mut contours: Vec<ContourQuality> =
+            (0..7).map(|i| contour(i, Some(-5.0), Vec::new())).collect();
+        contours[5] = contour(5, Some(41.6), vec![Flag::EdgeOffScan]);
+        // Strip 2 over the doubt limit; strips 1, 3 and 4 beside an untrusted one.
+        contours[2].doubt_bound_um = 23.0;
+        let reason = judge_part(&mut contours, &joins, &q)
+            .in_doubt
+            .expect("in doubt");
+        let trusted: Vec<ContourId> = contours
+            .iter()
+            .filter(|c| c.trustworthy)
+            .map(|c| c.id)
+            .collect();
+        assert_eq!(trusted, vec![0, 6]);
+        for i in [1, 3, 4] {
+            assert_eq!(contours[i].flags, vec![Flag::PartInDoubt], "strip {i}");
+        }
+        assert!(
+            reason.contains("(1 of 7), and strips 1, 3, 4 beside"),
+            "{reason}"
+        );
+        // Not in doubt: the same bounds leave strips 1, 3 and 4 trusted.
+        let mut whole: Vec<ContourQuality> =
+            (0..7).map(|i| contour(i, Some(-5.0), Vec::new())).collect();
+        whole[2].doubt_bound_um = 23.0;
+        whole[5] = contour(5, None, vec![Flag::PredictedError]);
+        assert_eq!(judge_part(&mut whole, &joins, &q), PartVerdict::default());
+        assert_eq!(whole.iter().filter(|c| c.trustworthy).count(), 6);
+    }
+
     fn contours_unchanged(contours: &mut [ContourQuality], q: &QualitySettings) {
         let before = contours.to_vec();
-        assert_eq!(judge_part(contours, q), PartVerdict::default());
+        assert_eq!(
+            judge_part(contours, &apart(contours.len()), q),
+            PartVerdict::default()
+        );
         assert_eq!(contours, &before[..]);
     }
 
@@ -1144,7 +1242,7 @@ mod tests {
         let mut contours: Vec<ContourQuality> =
             (0..10).map(|i| contour(i, None, Vec::new())).collect();
         contours[7] = contour(7, None, vec![Flag::OpeningMisplaced]);
-        let verdict = judge_part(&mut contours, &q);
+        let verdict = judge_part(&mut contours, &apart(10), &q);
         let reason = verdict.refused.expect("refused");
         assert!(reason.contains("opening of contour 7 "), "{reason}");
         assert!(verdict.in_doubt.is_none());
@@ -1185,9 +1283,11 @@ mod tests {
         contours_unchanged(&mut five, &q);
         assert_eq!(five.iter().filter(|c| c.trustworthy).count(), 6);
         let mut six = part(2);
-        let reason = judge_part(&mut six, &q).in_doubt.expect("in doubt");
+        let reason = judge_part(&mut six, &apart(10), &q)
+            .in_doubt
+            .expect("in doubt");
         assert!(reason.contains("6 of 10"), "{reason}");
-        assert!(reason.contains("(2 of 10;"), "{reason}");
+        assert!(reason.contains("(2 of 10);"), "{reason}");
         // The two counted by their wider bound (22 µm, over half the tolerance) are flagged;
         // the four with bounds of 12 µm stay trusted.
         assert_eq!(six.iter().filter(|c| c.trustworthy).count(), 4);
@@ -1284,7 +1384,9 @@ mod tests {
         contours[4].part_bound_um = 31.0;
         contours_unchanged(&mut contours, &q);
         contours[5].doubt_bound_um = 31.0;
-        let reason = judge_part(&mut contours, &q).in_doubt.expect("in doubt");
+        let reason = judge_part(&mut contours, &apart(10), &q)
+            .in_doubt
+            .expect("in doubt");
         assert!(reason.contains("6 of 10"), "{reason}");
     }
 
