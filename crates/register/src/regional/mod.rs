@@ -63,8 +63,8 @@ pub use quality::{
     BOUND_RESIDUAL_FACTOR, BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS,
     ContourQuality, END_SUPPORT_MIN_COS, EdgeReading, Flag, GlobalQuality, MATERIAL_BEYOND_MM,
     MODEL_CHECK_SPACING_RATIO, PART_BOUND_SIGMA_FACTOR, QualityReport, REGION_DOUBT_FRACTION,
-    REGION_FAR_OFF_FRACTION, REGION_MIN_FAR_OFF, STRIP_JOIN_MM, SUPPORT_MIN_COS, SlideRetry,
-    is_open, predicted_bound_mm, strips_sharing_ends,
+    REGION_FAR_OFF_FRACTION, REGION_MIN_FAR_OFF, SUPPORT_MIN_COS, SlideRetry, is_open,
+    predicted_bound_mm, strips_sharing_ends,
 };
 use quality::{contour_quality, judge_edges, judge_part, judge_region, material_beyond};
 pub use scanned_edge::{
