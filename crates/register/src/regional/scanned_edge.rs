@@ -183,7 +183,7 @@ pub(crate) fn strip_edges(contour: &Contour, scan: &[Point3], tree: &KdTree) -> 
 /// its strip readings before them (`before`, [`widest_gap_um`] of [`strip_edges`]). A part the
 /// terms correct from one end only (a reading of material beyond the contour is left out as
 /// possible flash) shows its gap there before and no longer after, so both count; `register`
-/// passes no `before` when the terms took every reading
+/// passes no `before` unless the terms left a reading out for the material beyond it
 /// (`EdgeTermSummary::gaps_before`).
 pub(crate) fn contour_gap_um(after: &[ScannedEdge], before: Option<f64>) -> Option<f64> {
     widest_gap_um(after)

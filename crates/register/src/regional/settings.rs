@@ -253,8 +253,9 @@ pub struct QualitySettings {
     /// that the faces do not fix (a strip's slide along the span, a corner's along the chord).
     /// A gap over the tolerance that the scan showed before the terms moved the field still
     /// flags the strip `edge_off_scan` (and puts the part in doubt) when the terms left a
-    /// reading out (a slide corrected from one end only shows its gap there and not after);
-    /// when they took every reading, the gap after counts.
+    /// reading out for the material beyond it (a slide corrected from one end only shows its
+    /// gap there and not after, and the end left out shows no gap of its own) or did not run;
+    /// otherwise the gap after counts (a reading gated as implausible is read again after).
     pub edge_terms: bool,
 }
 
