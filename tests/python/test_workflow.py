@@ -150,6 +150,11 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
             assert r["from"] in ("wall", "face"), r
             assert np.isfinite(r["offset_um"]) and r["sigma_um"] > 0.0 and r["points"] > 0, r
             assert 0.0 <= r["flash_share"] <= 1.0, r
+            assert np.isfinite(r["size_um"]), r
+        # The slide's part of the gap, as in registration.json; a strip's is its gap.
+        assert q.scan_slide_gap_um == entry.get("scan_slide_gap_um"), q
+        if all(r["size_um"] >= 0.0 for r in q.scan_edges):
+            assert q.scan_slide_gap_um == q.scan_edge_gap_um, q
     # Some strips' edges are located even in this sparse scan (5 of 52 contours on this seed,
     # all strips: no hole has the 100 face points a rim's edge needs).
     assert sum(bool(q.scan_edges) for q in quality) >= 3

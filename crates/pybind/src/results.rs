@@ -67,11 +67,14 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// opening flags `opening_misplaced` and refuses the part). `scan_edge_gap_um`: for an open
 /// contour or a hole's rim, how far it lies beyond the material the scan shows beside it
 /// (negative: no gap; `None` where the scan does not locate its edge); over the tolerance it flags
-/// `edge_off_scan` and puts the part in doubt (every contour whose `doubt_bound_um`, its bound
-/// at 1.5σ, exceeds `quality.doubt_bound_fraction` of the tolerance is then flagged
+/// `edge_off_scan`. `scan_slide_gap_um`: the part of that gap a misregistration can make (a
+/// strip's gap; for a rim the scan reads larger all round, its slide's alone: the field cannot
+/// resize a hole); over the tolerance it puts the part in doubt (every contour whose `doubt_bound_um`,
+/// its bound at 1.5σ, exceeds `quality.doubt_bound_fraction` of the tolerance is then flagged
 /// `part_in_doubt`, and so is every strip sharing an end with a strip then untrusted).
 /// `scan_edges`: the scanned-edge readings behind that gap, one dict per stretch (`at_mm`,
-/// `offset_um`, `sigma_um`, `points`, `from`, `flash_share`), as in registration.json; the
+/// `offset_um`, `sigma_um`, `points`, `from`, `flash_share`, `size_um`: a rim's change of
+/// size, 0 for a strip), as in registration.json; the
 /// edge terms condition the field on a strip's (not a rim's). A strip
 /// whose readings show more than 20 µm of material beyond it, or a strip sharing an end with
 /// one, is flagged `material_beyond` (the edge may lie inside the material, or a burr stands
@@ -126,9 +129,14 @@ pub struct ContourQuality {
     /// than a hole's, a rim under a film, or an edge the scan does not locate (flag
     /// `edge_off_scan`).
     pub scan_edge_gap_um: Option<f64>,
+    /// The part of `scan_edge_gap_um` a misregistration can make, µm: a strip's gap; for a
+    /// rim the scan reads larger all round, its slide's alone; over the tolerance the part is
+    /// in doubt.
+    pub scan_slide_gap_um: Option<f64>,
     /// The scanned-edge readings along the contour, one dict per stretch: `at_mm` (arc
     /// length of its middle), `offset_um` (negative: the contour lies beyond the material),
-    /// `sigma_um`, `points`, `from` (`wall` or `face`), `flash_share`; for a hole's rim, one per
+    /// `sigma_um`, `points`, `from` (`wall` or `face`), `flash_share`, `size_um` (a rim's
+    /// change of size, the same on every arc; 0 for a strip); for a hole's rim, one per
     /// arc of the edge fitted over the whole rim. Empty where the scan does not locate the
     /// edge.
     pub scan_edges: Py<pyo3::types::PyTuple>,
@@ -189,6 +197,7 @@ impl ContourQuality {
             opening_gain: c.opening_gain,
             opening_cover_gain: c.opening_cover_gain,
             scan_edge_gap_um: c.scan_edge_gap_um,
+            scan_slide_gap_um: c.scan_slide_gap_um,
             scan_edges: pyo3::types::PyTuple::new(
                 py,
                 c.scan_edges

@@ -138,6 +138,7 @@ class ContourQuality:
     opening_gain: Optional[float]
     opening_cover_gain: Optional[float]
     scan_edge_gap_um: Optional[float]
+    scan_slide_gap_um: Optional[float]
     scan_edges: Tuple[Dict[str, Any], ...]
     predicted_max_error_um: float
     part_bound_um: float

@@ -457,6 +457,8 @@ mod tests {
             gap_sigmas: crate::regional::EDGE_GAP_SIGMAS,
             // t × f = x × z = −y: outward is +y.
             outward: -1.0,
+            size_mm: 0.0,
+            slide_sigma_mm: 0.002,
         }
     }
 

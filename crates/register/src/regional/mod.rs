@@ -603,6 +603,7 @@ fn register_once(
             let gap = scanned_edge::contour_gap_um(edges, *before);
             c.scan_edges = edges.iter().map(quality::EdgeReading::from).collect();
             c.scan_edge_gap_um = gap;
+            c.scan_slide_gap_um = scanned_edge::contour_slide_gap_um(edges, *before);
             if gap.is_some_and(|g| g > settings.quality.tolerance_um) {
                 c.flags.push(Flag::EdgeOffScan);
                 c.trustworthy = false;

@@ -30,7 +30,8 @@ pub enum Flag {
     /// The scan shows the contour's edge inside where the registration puts it by more than
     /// the tolerance (`scan_edge_gap_um`, `regional::scanned_edge`). The part is then in doubt
     /// ([`Flag::PartInDoubt`]): the smooth field may have moved the part's other edges along
-    /// the same direction too.
+    /// the same direction too; but not for a hole's rim that the scan reads off by its size
+    /// alone, not its slide (`scan_slide_gap_um`): the field cannot resize a hole.
     EdgeOffScan,
     /// The scan shows more than [`MATERIAL_BEYOND_MM`] of material beyond this strip, or beyond
     /// a strip that shares an end with it (`material_beyond`): the registration may have put
@@ -134,9 +135,17 @@ pub struct ContourQuality {
     /// registered contour lies beyond the material the scan shows next to it, at
     /// [`crate::regional::EDGE_GAP_SIGMAS`] confidence, over its stretches; negative when no
     /// stretch shows a gap, `null` when the scan locates no stretch's edge. Over
-    /// `tolerance_um` the contour is flagged `edge_off_scan` and the part is in doubt.
+    /// `tolerance_um` the contour is flagged `edge_off_scan`.
     #[serde(default)]
     pub scan_edge_gap_um: Option<f64>,
+    /// The part of that gap a misregistration can make, µm
+    /// (`regional::ScannedEdge::slide_gap_mm`): for a strip the gap itself; for a hole's rim
+    /// that the scan reads larger than registered all round (`size_um` of its readings under
+    /// 0), the gap its slide alone shows, since the field cannot resize a hole. Over
+    /// `tolerance_um` the part is in doubt; a rim flagged `edge_off_scan` by its size alone
+    /// is flagged, but says nothing about where the rest of the part lies.
+    #[serde(default)]
+    pub scan_slide_gap_um: Option<f64>,
     /// The scanned-edge check's readings, one per stretch the scan shows; for a hole's rim
     /// (a closed contour up to `RIM_MAX_LENGTH_MM`), one per arc of the edge fitted over the
     /// whole rim. Empty for a longer closed contour, a rim under a film, or an edge the scan
@@ -185,6 +194,11 @@ pub struct EdgeReading {
     /// above 2 %, and the reading then does not move the field.
     #[serde(default)]
     pub flash_share: f64,
+    /// For a hole's rim, the part of `offset_um` that is the rim's change of size, µm (the
+    /// same on every arc; negative: the scan reads the opening larger than the registered
+    /// rim); 0 for a strip. `offset_um − size_um` is the rim's slide.
+    #[serde(default)]
+    pub size_um: f64,
 }
 
 impl From<&super::scanned_edge::ScannedEdge> for EdgeReading {
@@ -196,6 +210,7 @@ impl From<&super::scanned_edge::ScannedEdge> for EdgeReading {
             points: e.points,
             from: e.from,
             flash_share: e.flash_share,
+            size_um: 1e3 * e.size_mm,
         }
     }
 }
@@ -330,14 +345,18 @@ pub(crate) fn judge_part(
         .filter(|c| c.flags.contains(&Flag::OpeningMisplaced))
         .map(|c| c.id.to_string())
         .collect();
+    // A rim flagged by its change of size alone does not count (`scan_slide_gap_um`).
     let off_scan: Vec<String> = contours
         .iter()
-        .filter(|c| c.flags.contains(&Flag::EdgeOffScan))
+        .filter(|c| {
+            c.flags.contains(&Flag::EdgeOffScan)
+                && c.scan_slide_gap_um.is_some_and(|g| g > q.tolerance_um)
+        })
         .map(|c| {
             format!(
                 "{} ({:.0} µm)",
                 c.id,
-                c.scan_edge_gap_um.unwrap_or(f64::NAN)
+                c.scan_slide_gap_um.unwrap_or(f64::NAN)
             )
         })
         .collect();
@@ -1068,6 +1087,7 @@ pub(crate) fn contour_quality(
                 opening_gain: None,
                 opening_cover_gain: None,
                 scan_edge_gap_um: None,
+                scan_slide_gap_um: None,
                 scan_edges: Vec::new(),
                 predicted_max_error_um,
                 doubt_bound_um,
@@ -1106,6 +1126,7 @@ mod tests {
             opening_gain: None,
             opening_cover_gain: None,
             scan_edge_gap_um: gap_um,
+            scan_slide_gap_um: gap_um,
             scan_edges: Vec::new(),
             predicted_max_error_um: 12.0,
             doubt_bound_um: 12.0,
@@ -1175,6 +1196,32 @@ mod tests {
     /// In a part in doubt, a strip that shares an end with an untrusted strip is flagged
     /// whatever its bound: the slide along an edge carries over the shared end. One step only:
     /// the strip beyond it, and a rim, keep their own bounds.
+    #[test]
+    fn a_rim_off_the_scan_by_its_size_alone_puts_no_part_in_doubt() {
+        // A rim read 45 µm beyond the material by its whole offset, 10 µm by its slide: it is
+        // flagged (by `register`), but the part is not in doubt, and no bound over 15 µm
+        // is flagged for it. Its slide over the tolerance puts the part in doubt.
+        let q = QualitySettings::default();
+        let mut contours: Vec<ContourQuality> = (0..10)
+            .map(|i| contour(i, Some(-5.0), Vec::new()))
+            .collect();
+        contours[3] = ContourQuality {
+            scan_slide_gap_um: Some(10.0),
+            ..contour(3, Some(45.0), vec![Flag::EdgeOffScan])
+        };
+        contours[6].doubt_bound_um = 16.0;
+        let verdict = judge_part(&mut contours, &apart(10), &q);
+        assert_eq!(verdict, PartVerdict::default());
+        assert_eq!(contours[3].flags, vec![Flag::EdgeOffScan]);
+        assert!(contours[6].trustworthy);
+        contours[3].scan_slide_gap_um = Some(31.0);
+        let reason = judge_part(&mut contours, &apart(10), &q)
+            .in_doubt
+            .expect("the part is in doubt by the rim's slide");
+        assert!(reason.contains("contour 3 (31 µm)"), "{reason}");
+        assert_eq!(contours[6].flags, vec![Flag::PartInDoubt]);
+    }
+
     #[test]
     fn a_part_in_doubt_flags_the_strips_beside_an_untrusted_one() {
         let q = QualitySettings::default();
@@ -1472,6 +1519,8 @@ mod tests {
             flash_share,
             outward: 1.0,
             gap_sigmas: crate::regional::EDGE_GAP_SIGMAS,
+            size_mm: 0.0,
+            slide_sigma_mm: 0.005,
         }
     }
 

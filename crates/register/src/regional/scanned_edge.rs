@@ -24,7 +24,8 @@
 //!
 //! A hole's rim (a closed contour up to [`RIM_MAX_LENGTH_MM`]) is read as one edge fitted over
 //! the whole rim, slid and resized ([`rim_edges`]), and reported in arcs like a strip's
-//! stretches.
+//! stretches. Only the slide says where the part lies ([`ScannedEdge::slide_gap_mm`]): the
+//! field cannot resize a hole.
 
 use rayon::prelude::*;
 use trim_geom::stats::{golden_section_min, normal_cdf, normal_cdf_integral};
@@ -132,6 +133,14 @@ pub struct ScannedEdge {
     /// The confidence its gap is taken at, standard deviations: [`EDGE_GAP_SIGMAS`] for a
     /// strip's stretch, `RIM_GAP_SIGMAS` for a rim's arc.
     pub gap_sigmas: f64,
+    /// For a rim's arc, the part of the offset that is the rim's change of size (`c` of
+    /// [`rim_edges`], the same on every arc; negative: the scan reads the opening larger than
+    /// the registered rim); 0 for a strip's stretch. The rest, `offset_mm − size_mm`, is the
+    /// rim's slide.
+    pub size_mm: f64,
+    /// The standard deviation of the slide's part, `offset_mm − size_mm`, mm: `sigma_mm` for a
+    /// strip's stretch.
+    pub slide_sigma_mm: f64,
 }
 
 impl ScannedEdge {
@@ -140,6 +149,27 @@ impl ScannedEdge {
     #[must_use]
     pub fn gap_mm(&self) -> f64 {
         -self.offset_mm - self.gap_sigmas * self.sigma_mm
+    }
+
+    /// The part of [`ScannedEdge::gap_mm`] a misregistration can make, mm. For a strip's
+    /// stretch it is the gap. For the arc of a rim that the scan reads larger than the
+    /// registered one all round (`size_mm < 0`: points lost at its edge, or the part's own
+    /// hole), it is the gap its slide alone shows, at the slide's own deviation, where that is
+    /// narrower than the gap: the field cannot resize a hole, so that size says nothing about
+    /// where the part lies (outside
+    /// fresh part 8188 at 500k: a lower hole rim 4 µm off read 35 µm larger than registered
+    /// and 48 µm slid, a gap of 42 µm; its slide's alone is under the tolerance). A rim read
+    /// smaller keeps its whole gap: material beyond a rim may be a burr, which proves nothing
+    /// (a web on one side of a hole fits as a smaller rim slid toward it, and the slide alone
+    /// would read a gap on the other side).
+    #[must_use]
+    pub fn slide_gap_mm(&self) -> f64 {
+        let gap = self.gap_mm();
+        if self.size_mm < 0.0 {
+            gap.min(-(self.offset_mm - self.size_mm) - self.gap_sigmas * self.slide_sigma_mm)
+        } else {
+            gap
+        }
     }
 
     /// Whether the stretch's face runs on beyond the contour ([`ScannedEdge::flash_share`] over
@@ -163,7 +193,20 @@ impl ScannedEdge {
 /// The widest gap over `edges`, µm ([`ScannedEdge::gap_mm`]); `None` without readings.
 #[must_use]
 pub fn widest_gap_um(edges: &[ScannedEdge]) -> Option<f64> {
-    edges.iter().map(|e| 1e3 * e.gap_mm()).reduce(f64::max)
+    widest_um(edges, ScannedEdge::gap_mm, None)
+}
+
+/// The widest of `gap` over `edges` and of `before`, µm; `None` without either.
+fn widest_um(
+    edges: &[ScannedEdge],
+    gap: impl Fn(&ScannedEdge) -> f64,
+    before: Option<f64>,
+) -> Option<f64> {
+    edges
+        .iter()
+        .map(|e| 1e3 * gap(e))
+        .chain(before)
+        .reduce(f64::max)
 }
 
 /// The readings that may move the field (`edge_terms`) and whose gap before the update counts:
@@ -186,10 +229,13 @@ pub(crate) fn strip_edges(contour: &Contour, scan: &[Point3], tree: &KdTree) -> 
 /// passes no `before` unless the terms left a reading out for the material beyond it
 /// (`EdgeTermSummary::gaps_before`).
 pub(crate) fn contour_gap_um(after: &[ScannedEdge], before: Option<f64>) -> Option<f64> {
-    widest_gap_um(after)
-        .into_iter()
-        .chain(before)
-        .reduce(f64::max)
+    widest_um(after, ScannedEdge::gap_mm, before)
+}
+
+/// The same over the slides' gaps ([`ScannedEdge::slide_gap_mm`]): what puts the part in
+/// doubt. `before` is a strip's, whose slide gap is its gap.
+pub(crate) fn contour_slide_gap_um(after: &[ScannedEdge], before: Option<f64>) -> Option<f64> {
+    widest_um(after, ScannedEdge::slide_gap_mm, before)
 }
 
 /// The scanned edges of every stretch of `contour` (scan frame, with its per-point feature
@@ -312,6 +358,8 @@ pub fn scanned_edges(contour: &Contour, scan: &[Point3], tree: &KdTree) -> Vec<S
                 flash_share: l.flash_share,
                 outward: l.outward,
                 gap_sigmas: EDGE_GAP_SIGMAS,
+                size_mm: 0.0,
+                slide_sigma_mm: l.sigma_mm,
             })
         })
         .collect()
@@ -414,7 +462,8 @@ fn step_nll(e: f64, b: f64, sigma: f64) -> f64 {
 /// deviation of `e` there from the fit's curvature. A slot slid along its axis shows the slide
 /// at its ends' arcs, but only there, and those few points misread it: rims longer than
 /// [`RIM_MAX_LENGTH_MM`] are not read. The widest gap over the arcs' middles is short of the
-/// model's widest by at most `|δ|(1 − cos(π/arcs))`.
+/// model's widest by at most `|δ|(1 − cos(π/arcs))`. Each arc carries `c` as its
+/// [`ScannedEdge::size_mm`] and the deviation of `δ·u` alone as its `slide_sigma_mm`.
 fn rim_edges(
     contour: &Contour,
     across: &[Option<Vector3>],
@@ -432,7 +481,9 @@ fn rim_edges(
             let v = fit.row(across[m]?);
             let offset_mm = v.dot(&fit.theta);
             let var = (v.transpose() * fit.cov * v)[(0, 0)];
-            (offset_mm.is_finite() && var > 0.0).then(|| ScannedEdge {
+            let slide = nalgebra::Vector3::new(0.0, v[1], v[2]);
+            let slide_var = (slide.transpose() * fit.cov * slide)[(0, 0)];
+            (offset_mm.is_finite() && var > 0.0 && slide_var >= 0.0).then(|| ScannedEdge {
                 at_mm: s[m],
                 offset_mm,
                 sigma_mm: var.sqrt(),
@@ -443,6 +494,8 @@ fn rim_edges(
                 flash_share: fit.flash_share,
                 outward: fit.sign,
                 gap_sigmas: RIM_GAP_SIGMAS,
+                size_mm: fit.theta[0],
+                slide_sigma_mm: slide_var.sqrt(),
             })
         })
         .collect()
@@ -745,6 +798,17 @@ mod tests {
     /// `density` per mm² with noise `sigma`, and the registered rim: the hole's circle about
     /// the origin (feature vector +z).
     fn holed_plate(centre: f64, sigma: f64, density: f64, seed: u64) -> (Contour, Vec<Point3>) {
+        holed_plate_grown(centre, 0.0, sigma, density, seed)
+    }
+
+    /// [`holed_plate`] with the scan's hole `grown` mm wider in radius than the rim.
+    fn holed_plate_grown(
+        centre: f64,
+        grown: f64,
+        sigma: f64,
+        density: f64,
+        seed: u64,
+    ) -> (Contour, Vec<Point3>) {
         let r = 1.5;
         let rim: Vec<Point3> = (0..=300)
             .map(|i| {
@@ -758,7 +822,7 @@ mod tests {
         let mut scan = Vec::new();
         for _ in 0..(density * 36.0) as usize {
             let (x, y) = (rng.random_range(-3.0..3.0), rng.random_range(-3.0..3.0));
-            if (x - centre).hypot(y) < r {
+            if (x - centre).hypot(y) < r + grown {
                 continue;
             }
             scan.push(Point3::new(
@@ -786,6 +850,16 @@ mod tests {
                 assert_eq!(e.gap_sigmas, RIM_GAP_SIGMAS);
                 let gap = -e.offset_mm - RIM_GAP_SIGMAS * e.sigma_mm;
                 assert!((e.gap_mm() - gap).abs() < 1e-15, "seed {seed}: {e:?}");
+                // The slide's gap leaves out a size read larger than the rim, not smaller.
+                let slide = if e.size_mm < 0.0 {
+                    gap.min(-(e.offset_mm - e.size_mm) - RIM_GAP_SIGMAS * e.slide_sigma_mm)
+                } else {
+                    gap
+                };
+                assert!(
+                    (e.slide_gap_mm() - slide).abs() < 1e-15,
+                    "seed {seed}: {e:?}"
+                );
                 assert!(e.offset_mm.abs() < 3.5 * e.sigma_mm, "seed {seed}: {e:?}");
                 assert!(e.gap_mm() < 0.020, "seed {seed}: {e:?}");
                 sum += e.offset_mm;
@@ -841,6 +915,47 @@ mod tests {
         assert_eq!(contour_gap_um(&after, before), before);
         assert_eq!(contour_gap_um(&after, None), widest_gap_um(&after));
         assert_eq!(contour_gap_um(&[], None), None);
+    }
+
+    #[test]
+    fn a_rim_read_larger_all_round_shows_its_size_and_no_slide() {
+        // The scan's hole 60 µm wider in radius than the rim (its points lost at the edge, or
+        // the part's own hole): every arc reads the rim beyond the material, by its size; the
+        // slide alone shows no gap. Slid 100 µm as well, the slide shows on the side it left.
+        // Read smaller (60 µm less in radius: material beyond the rim all round, as a burr
+        // ring would show), the slide's gap is the whole gap: none.
+        for seed in 0..5 {
+            let (rim, scan) = holed_plate_grown(0.0, -0.060, 0.010, 150.0, seed);
+            let found = edges(&rim, &scan);
+            assert_eq!(found.len(), RIM_STRETCHES, "seed {seed}");
+            for e in &found {
+                assert!(e.size_mm > 0.045, "seed {seed}: size {} mm", e.size_mm);
+                assert_eq!(e.slide_gap_mm(), e.gap_mm());
+                assert!(e.gap_mm() < 0.0, "seed {seed}: {e:?}");
+            }
+        }
+        for seed in 0..5 {
+            let (rim, scan) = holed_plate_grown(0.0, 0.060, 0.010, 150.0, seed);
+            let found = edges(&rim, &scan);
+            assert_eq!(found.len(), RIM_STRETCHES, "seed {seed}");
+            for e in &found {
+                assert!(
+                    (e.size_mm + 0.060).abs() < 0.015,
+                    "seed {seed}: size {} mm",
+                    e.size_mm
+                );
+                assert!(e.gap_mm() > 0.030, "seed {seed}: gap {} mm", e.gap_mm());
+                assert!(
+                    e.slide_gap_mm() < 0.015,
+                    "seed {seed}: slide gap {} mm: {e:?}",
+                    e.slide_gap_mm()
+                );
+                assert!(e.slide_sigma_mm > 0.0 && e.slide_sigma_mm <= e.sigma_mm + 1e-12);
+            }
+            let (rim, scan) = holed_plate_grown(0.100, 0.060, 0.010, 150.0, seed);
+            let slid = contour_slide_gap_um(&edges(&rim, &scan), None);
+            assert!(slid.is_some_and(|g| g > 30.0), "seed {seed}: {slid:?}");
+        }
     }
 
     #[test]
