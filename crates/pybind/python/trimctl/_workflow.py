@@ -288,8 +288,10 @@ class Registration:
 
     @property
     def in_doubt(self) -> Optional[str]:
-        """Why the part is in doubt (an edge off the scan, or more than
-        ``max_untrusted_fraction`` of its contours flagged), or ``None``. In a part in doubt
+        """Why the part is in doubt (a strip's edge, or a hole's rim slid, off the scan by more
+        than the tolerance: ``ContourQuality.scan_slide_gap_um``; a rim the scan reads larger
+        all round, not slid, is flagged ``edge_off_scan`` but puts no part in doubt; or more
+        than ``max_untrusted_fraction`` of its contours flagged), or ``None``. In a part in doubt
         every contour whose bound at 1.5 sigma (``ContourQuality.doubt_bound_um``; the
         reported bound is at 2.1 sigma) exceeds ``quality.doubt_bound_fraction`` of the
         tolerance is flagged ``part_in_doubt``, and so is every strip that shares an end with

@@ -1193,9 +1193,6 @@ mod tests {
         vec![Vec::new(); n]
     }
 
-    /// In a part in doubt, a strip that shares an end with an untrusted strip is flagged
-    /// whatever its bound: the slide along an edge carries over the shared end. One step only:
-    /// the strip beyond it, and a rim, keep their own bounds.
     #[test]
     fn a_rim_off_the_scan_by_its_size_alone_puts_no_part_in_doubt() {
         // A rim read 45 µm beyond the material by its whole offset, 10 µm by its slide: it is
@@ -1222,6 +1219,9 @@ mod tests {
         assert_eq!(contours[6].flags, vec![Flag::PartInDoubt]);
     }
 
+    /// In a part in doubt, a strip that shares an end with an untrusted strip is flagged
+    /// whatever its bound: the slide along an edge carries over the shared end. One step only:
+    /// the strip beyond it, and a rim, keep their own bounds.
     #[test]
     fn a_part_in_doubt_flags_the_strips_beside_an_untrusted_one() {
         let q = QualitySettings::default();

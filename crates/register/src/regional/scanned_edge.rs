@@ -156,9 +156,9 @@ impl ScannedEdge {
     /// registered one all round (`size_mm < 0`: points lost at its edge, or the part's own
     /// hole), it is the gap its slide alone shows, at the slide's own deviation, where that is
     /// narrower than the gap: the field cannot resize a hole, so that size says nothing about
-    /// where the part lies (outside
-    /// fresh part 8188 at 500k: a lower hole rim 4 µm off read 35 µm larger than registered
-    /// and 48 µm slid, a gap of 42 µm; its slide's alone is under the tolerance). A rim read
+    /// where the part lies (outside fresh part 8188 at 500k: a lower hole rim 4 µm off read
+    /// 35 µm larger than registered and 48 µm slid, a gap of 42 µm; its slide's alone is under
+    /// the tolerance). A rim read
     /// smaller keeps its whole gap: material beyond a rim may be a burr, which proves nothing
     /// (a web on one side of a hole fits as a smaller rim slid toward it, and the slide alone
     /// would read a gap on the other side).
