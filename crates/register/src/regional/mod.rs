@@ -626,7 +626,7 @@ fn register_once(
         .then(|| judge_edges(&mut contours, &joins, &settings.quality))
         .flatten();
     let region_in_doubt = whole
-        .then(|| judge_region(&mut contours, &strips, &settings.quality))
+        .then(|| judge_region(&mut contours, &strips, &joins, &settings.quality))
         .flatten();
     let untrustworthy = contours.iter().filter(|c| !c.trustworthy).count();
     let report = QualityReport {

@@ -56,7 +56,9 @@ pub enum Flag {
     /// contours are off by well over the tolerance ([`judge_region`]), and its bound at 1.5σ
     /// exceeds [`REGION_DOUBT_FRACTION`] of the tolerance: the error of a misregistered end of the
     /// part is continuous, and where it grows past the bounds of several contours there, the
-    /// bounds of the others there are not taken at face value.
+    /// bounds of the others there are not taken at face value. So is a strip, whatever its
+    /// bound, that shares an end with an untrusted strip reaching into that stretch: the slide
+    /// along an edge carries over the shared end, past the stretch's end too.
     RegionInDoubt,
 }
 
@@ -769,11 +771,18 @@ pub const REGION_DOUBT_FRACTION: f64 = 2.0 / 3.0;
 /// stretch; where the field's posterior falls short of it (outside fresh 7648: the tip off by
 /// 26–75 µm, 10 contours there with bounds over 45 µm and its slot rim 33 µm off under a bound
 /// of 29 µm), it falls short on the others there too. Only bounds count: a contour flagged for
-/// material beyond it may carry a burr, not an error. Returns the reason, or `None` when no
-/// contour is flagged by it.
+/// material beyond it may carry a burr, not an error. Then, as in a part in doubt
+/// ([`judge_part`]), every strip still trusted that shares an end (`joins`,
+/// [`strips_sharing_ends`]) with a strip then untrusted that reaches into the stretch is
+/// flagged too, whatever its bound: the slide along an edge carries over the shared end, and
+/// the stretch's own end is no wall to it (outside fresh 8551 at 200k: a trailing edge slid
+/// along the span from the root, its strips 115, 87, 62 and 42 µm off; the third was flagged
+/// in the stretch, the fourth, past it under a bound of 27.5 µm, was trusted). One step only.
+/// Returns the reason, or `None` when no contour is flagged by it.
 pub(crate) fn judge_region(
     contours: &mut [ContourQuality],
     strips: &[&[Point3]],
+    joins: &[Vec<usize>],
     q: &QualitySettings,
 ) -> Option<String> {
     let far_um = REGION_FAR_OFF_FRACTION * q.tolerance_um;
@@ -788,7 +797,8 @@ pub(crate) fn judge_region(
         .map(|(c, _)| c.id.to_string())
         .collect();
     let n_far = far_ids.len();
-    if n_far < REGION_MIN_FAR_OFF || strips.len() != contours.len() {
+    if n_far < REGION_MIN_FAR_OFF || strips.len() != contours.len() || joins.len() != contours.len()
+    {
         return None;
     }
     // Each contour's extent along the path's long axis.
@@ -815,24 +825,58 @@ pub(crate) fn judge_region(
     }
     let (lo, hi) = (lo - REGION_MARGIN_MM, hi + REGION_MARGIN_MM);
     let limit_um = REGION_DOUBT_FRACTION * q.tolerance_um;
+    let inside = |&(a, b): &(f64, f64)| b >= lo && a <= hi;
     let mut doubted = Vec::new();
-    for ((c, &(a, b)), f) in contours.iter_mut().zip(&extents).zip(&far) {
-        if !f && b >= lo && a <= hi && c.doubt_bound_um > limit_um {
+    for ((c, extent), f) in contours.iter_mut().zip(&extents).zip(&far) {
+        if !f && inside(extent) && c.doubt_bound_um > limit_um {
             c.flags.push(Flag::RegionInDoubt);
             c.trustworthy = false;
             doubted.push(c.id.to_string());
         }
     }
-    (!doubted.is_empty()).then(|| {
+    // The strips beside an untrusted one in the stretch, from the flags as they now stand.
+    let beside: Vec<bool> = contours
+        .iter()
+        .zip(joins)
+        .map(|(c, joined)| {
+            c.trustworthy
+                && joined
+                    .iter()
+                    .any(|&j| !contours[j].trustworthy && inside(&extents[j]))
+        })
+        .collect();
+    let mut alongside = Vec::new();
+    for (c, _) in contours.iter_mut().zip(&beside).filter(|(_, b)| **b) {
+        c.flags.push(Flag::RegionInDoubt);
+        c.trustworthy = false;
+        alongside.push(c.id.to_string());
+    }
+    let plural = |names: &[String]| if names.len() > 1 { "s" } else { "" };
+    let mut flagged = Vec::new();
+    if !doubted.is_empty() {
+        flagged.push(format!(
+            "contour{} {} there (bound at 1.5σ over {limit_um:.0} µm)",
+            plural(&doubted),
+            doubted.join(", ")
+        ));
+    }
+    if !alongside.is_empty() {
+        flagged.push(format!(
+            "strip{} {} beside an untrusted strip there (a slide along an edge carries over the \
+             end they share)",
+            plural(&alongside),
+            alongside.join(", ")
+        ));
+    }
+    (!flagged.is_empty()).then(|| {
         format!(
             "{n_far} contours ({}) are off by more than {far_um:.0} µm by their bounds between \
              {lo:.1} and {hi:.1} mm along the part's long axis (theirs widened by {REGION_MARGIN_MM:.0} mm): \
-             that stretch of the part may be misregistered, so contour{} {} there (bound at 1.5σ \
-             over {limit_um:.0} µm) flagged region_in_doubt (check that the scanner saw that stretch \
-             of the part, the part's ends and its edges, then rescan to trim them)",
+             that stretch of the part may be misregistered, so {} flagged region_in_doubt (check \
+             that the scanner saw that stretch of the part, the part's ends and its edges, then \
+             rescan to trim them)",
             far_ids.join(", "),
-            if doubted.len() > 1 { "s" } else { "" },
-            doubted.join(", ")
+            flagged.join(", and ")
         )
     })
 }
@@ -1471,7 +1515,7 @@ mod tests {
                 .collect()
         };
         let mut four = part(4);
-        assert_eq!(judge_region(&mut four, &points, &q), None);
+        assert_eq!(judge_region(&mut four, &points, &apart(10), &q), None);
         assert!(four.iter().all(|c| c.flags.is_empty()));
 
         // Contour 5 (x = 50 mm) lies 10 mm beyond the stretch; here it reaches back to 44 mm.
@@ -1480,7 +1524,8 @@ mod tests {
         near[5].push(Point3::new(44.0, 0.0, 0.0));
         let near_points: Vec<&[Point3]> = near.iter().map(Vec::as_slice).collect();
         let mut under = five.clone();
-        let reason = judge_region(&mut five, &near_points, &q).expect("a stretch in doubt");
+        let reason =
+            judge_region(&mut five, &near_points, &apart(10), &q).expect("a stretch in doubt");
         assert!(reason.contains("5 contours (0, 1, 2, 3, 4)"), "{reason}");
         assert!(reason.contains("so contour 5 there"), "{reason}");
         assert_eq!(five[5].flags, vec![Flag::RegionInDoubt]);
@@ -1493,10 +1538,10 @@ mod tests {
         assert!(five[..5].iter().all(|c| c.flags.is_empty()));
         // Under 20 µm at 1.5σ (over the part's 15 µm) it stays trusted, and nothing is said.
         under[5].doubt_bound_um = 19.0;
-        assert_eq!(judge_region(&mut under, &near_points, &q), None);
+        assert_eq!(judge_region(&mut under, &near_points, &apart(10), &q), None);
         // Beyond the stretch's 5 mm (x = 50 mm, 10 mm past contour 4): trusted.
         let mut beyond = part(5);
-        assert_eq!(judge_region(&mut beyond, &points, &q), None);
+        assert_eq!(judge_region(&mut beyond, &points, &apart(10), &q), None);
 
         // Five flagged for material beyond them, with small bounds: a burr, not an error.
         let mut burred: Vec<ContourQuality> = part(0);
@@ -1504,7 +1549,69 @@ mod tests {
             c.flags.push(Flag::MaterialBeyond);
             c.trustworthy = false;
         }
-        assert_eq!(judge_region(&mut burred, &near_points, &q), None);
+        assert_eq!(
+            judge_region(&mut burred, &near_points, &apart(10), &q),
+            None
+        );
+    }
+
+    /// An edge of eight strips end to end along x (the part's long axis), 10 mm each, slid
+    /// along itself from one end (outside fresh 8551): strips 0–4 are off by bounds over 45 µm
+    /// and flagged by them, so 0–55 mm is in doubt. Strip 5 (50–60 mm) is flagged there by its
+    /// bound; strip 6 (60–70 mm), past the stretch and under every bound, shares an end with it
+    /// and is flagged beside it; strip 7 keeps its own bound (one step). Without the joins,
+    /// strip 6 stays trusted.
+    #[test]
+    fn a_stretch_in_doubt_flags_the_strip_beside_an_untrusted_one_past_its_end() {
+        let strips: Vec<Vec<Point3>> = (0..8)
+            .map(|i| {
+                (0..=10)
+                    .map(|k| Point3::new(10.0 * f64::from(i) + f64::from(k), 0.0, 0.0))
+                    .collect()
+            })
+            .collect();
+        let points: Vec<&[Point3]> = strips.iter().map(Vec::as_slice).collect();
+        let joins = strips_sharing_ends(&points);
+        assert_eq!(joins[6], vec![5, 7]);
+        let q = QualitySettings::default();
+        let part = || -> Vec<ContourQuality> {
+            (0..8)
+                .map(|i| {
+                    let mut c = contour(i, None, vec![]);
+                    c.doubt_bound_um = match i {
+                        0..=4 => 50.0,
+                        5 => 25.0,
+                        _ => 12.0,
+                    };
+                    if i <= 4 {
+                        c.flags.push(Flag::PredictedError);
+                        c.trustworthy = false;
+                    }
+                    c
+                })
+                .collect()
+        };
+        let mut slid = part();
+        let reason = judge_region(&mut slid, &points, &joins, &q).expect("a stretch in doubt");
+        assert!(reason.contains("so contour 5 there"), "{reason}");
+        assert!(
+            reason.contains("and strip 6 beside an untrusted strip"),
+            "{reason}"
+        );
+        assert_eq!(slid[5].flags, vec![Flag::RegionInDoubt]);
+        assert_eq!(slid[6].flags, vec![Flag::RegionInDoubt]);
+        assert!(!slid[6].trustworthy);
+        assert!(slid[7].flags.is_empty() && slid[7].trustworthy);
+        let mut apart_strips = part();
+        judge_region(&mut apart_strips, &points, &apart(8), &q).expect("a stretch in doubt");
+        assert!(apart_strips[6].trustworthy && apart_strips[6].flags.is_empty());
+        // Strip 5 under the region's 20 µm: nothing in the stretch is flagged by its bound, but
+        // strip 5 still shares an end with strip 4, untrusted there, and strip 6 keeps its own.
+        let mut under = part();
+        under[5].doubt_bound_um = 12.0;
+        let reason = judge_region(&mut under, &points, &joins, &q).expect("a stretch in doubt");
+        assert!(reason.contains("so strip 5 beside"), "{reason}");
+        assert!(under[6].trustworthy);
     }
 
     fn edge(offset_mm: f64, flash_share: f64) -> ScannedEdge {
