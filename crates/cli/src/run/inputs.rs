@@ -1,5 +1,5 @@
 //! The part's inputs for `trimctl run`: the built-in demo part (written into the run folder),
-//! or the job's CAD, scan and path files.
+//! or the job's CAD, path and scan files (one scan, or scans at several machine poses merged).
 
 use std::path::Path;
 
@@ -14,7 +14,7 @@ use crate::cad::load_cad;
 use crate::config::{HatchRegion, JobConfig};
 
 /// The part's inputs: CAD cloud with outward normals, the scan mapped into the work-piece
-/// frame through `[calibration]`, template path, the fixture's nominal pose
+/// frame through `[calibration]` (`part.scans` each at its pose, merged), template path, the fixture's nominal pose
 /// (`[part.scan_from_cad]`).
 pub(super) struct Inputs {
     pub(super) cad: PointCloud,
@@ -152,15 +152,26 @@ pub(super) fn load_inputs(
             demo,
         });
     }
-    let (Some(cad_file), Some(path_file), Some(scan_file)) =
-        (&config.part.cad, &config.part.path, &config.part.scan)
-    else {
-        bail!("part: give all of cad, path and scan");
+    let (Some(cad_file), Some(path_file)) = (&config.part.cad, &config.part.path) else {
+        bail!("part: give all of cad, path and scan (or scans with poses)");
+    };
+    let scanned = match (&config.part.scan, config.part.poses.as_deref()) {
+        (Some(scan_file), _) => format!("scan {}", scan_file.display()),
+        (None, Some(poses_file)) => format!(
+            "scans {} at the poses of {}",
+            config
+                .part
+                .scans
+                .iter()
+                .map(|f| f.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+            poses_file.display()
+        ),
+        (None, None) => bail!("part: give all of cad, path and scan (or scans with poses)"),
     };
     let cad = load_cad(cad_file, "part.cad", config.register.cad_sample_points)?;
-    let scan = config
-        .workpiece_from_scan(&formats::read_points(scan_file)?)
-        .with_context(|| format!("part.scan {}", scan_file.display()))?;
+    let scan = config.part_scan_in_workpiece()?;
     let path = formats::read_path(path_file)?;
     if !config.hatch.is_empty() {
         crate::hatch::check_path_ids(&path, path_file)?;
@@ -168,11 +179,10 @@ pub(super) fn load_inputs(
     Ok(Inputs {
         hatch: config.hatch.clone(),
         description: format!(
-            "CAD {}, path {} ({} contours), scan {} ({} points)",
+            "CAD {}, path {} ({} contours), {scanned} ({} points)",
             cad_file.display(),
             path_file.display(),
             path.len(),
-            scan_file.display(),
             scan.len()
         ),
         cad,

@@ -90,12 +90,18 @@ pub(super) fn record_inputs(
     Ok(())
 }
 
-/// The calibration, the lens and the scan pose the run used (`/calibration`).
+/// The calibration, the lens and the scan pose the run used (`/calibration`); with
+/// `part.scans`, each scan's file and machine pose too (`scan_poses`).
 pub(super) fn record_calibration(
     rec: &SharedRecorder,
     config: &JobConfig,
     job: &Job,
 ) -> anyhow::Result<()> {
+    let scan_poses: Vec<serde_json::Value> = config
+        .part_scan_poses()?
+        .into_iter()
+        .map(|(file, pose)| serde_json::json!({"scan": file, "pose": pose}))
+        .collect();
     rec.lock()
         .map_err(|_| anyhow::anyhow!("recorder lock poisoned"))?
         .json(
@@ -106,6 +112,7 @@ pub(super) fn record_calibration(
                 "calibration": config.plan.calibration,
                 "lens": job.settings.lens,
                 "scan_pose": config.part.scan_pose,
+                "scan_poses": scan_poses,
             }),
         )?;
     Ok(())
