@@ -137,6 +137,9 @@ pub struct PartConfig {
     pub scan_from_cad: FixturePose,
 }
 
+/// Each of `[part] scans` with the machine pose it was taken at (its row of `[part] poses`).
+pub type ScanPoses = Vec<(PathBuf, ScanPose)>;
+
 /// A rigid pose given by angles and a translation (job.toml `[part.scan_from_cad]`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
@@ -449,29 +452,26 @@ impl JobConfig {
 
     /// The part's scan in the work-piece frame: `part.scan` at `[part.scan_pose]`
     /// ([`JobConfig::workpiece_from_scan`]), or `part.scans` each at its row of `part.poses`,
-    /// merged (`trim_cell::scans_at_poses`). Errors name the key and the file.
-    pub fn part_scan_in_workpiece(&self) -> anyhow::Result<trim_geom::PointCloud> {
+    /// merged (`trim_cell::scans_at_poses`); and each of `part.scans` with the pose it was
+    /// carried at (empty with `part.scan`), for the record. Errors name the key and the file.
+    pub fn part_scan_in_workpiece(&self) -> anyhow::Result<(trim_geom::PointCloud, ScanPoses)> {
         if let Some(scan_file) = &self.part.scan {
-            return self
+            let scan = self
                 .workpiece_from_scan(&trim_geom::formats::read_points(scan_file)?)
-                .with_context(|| format!("part.scan {}", scan_file.display()));
+                .with_context(|| format!("part.scan {}", scan_file.display()))?;
+            return Ok((scan, Vec::new()));
         }
         let poses = self.part_poses()?;
-        scans_at_poses::merge_files(&self.part.scans, &poses, &self.plan).context("part.scans")
-    }
-
-    /// Each of `part.scans` with the machine pose `part.poses` gives it (empty with
-    /// `part.scan`): what the run records of where its scans were taken.
-    pub fn part_scan_poses(&self) -> anyhow::Result<Vec<(PathBuf, ScanPose)>> {
-        if self.part.scans.is_empty() {
-            return Ok(Vec::new());
-        }
-        let poses = self.part_poses()?;
-        self.part
+        let cloud = scans_at_poses::merge_files(&self.part.scans, &poses, &self.plan)
+            .context("part.scans")?;
+        let at = self
+            .part
             .scans
             .iter()
-            .map(|f| Ok((f.clone(), poses.pose_of(f).context("part.scans")?)))
-            .collect()
+            .map(|f| Ok((f.clone(), poses.pose_of(f)?)))
+            .collect::<Result<_, scans_at_poses::ScansError>>()
+            .context("part.scans")?;
+        Ok((cloud, at))
     }
 
     /// `part.poses`, read and checked against `[machine]`.
@@ -1163,7 +1163,7 @@ mod tests {
         assert_eq!(c.part.poses, Some(scans.join("poses.csv")));
         // The nominal cell: a scanner point s is at (X, Y, Z) + s, and the table at C = 90°
         // turns the work piece under it, so the work-piece point is Rot_C(−90°)·(s + (X, Y, Z)).
-        let merged = c.part_scan_in_workpiece().unwrap();
+        let (merged, at) = c.part_scan_in_workpiece().unwrap();
         let expected = [[2.0, 2.0, 3.0], [5.0, 4.0, 16.0]];
         assert_eq!(merged.len(), 2);
         for (got, want) in merged.points().iter().zip(expected) {
@@ -1172,9 +1172,8 @@ mod tests {
                 "{got} vs {want:?}"
             );
         }
-        let recorded = c.part_scan_poses().unwrap();
-        assert_eq!(recorded[1].0, scans.join("b.ply"));
-        assert_eq!(recorded[1].1.c_deg, 90.0);
+        assert_eq!(at[1].0, scans.join("b.ply"));
+        assert_eq!(at[1].1.c_deg, 90.0);
         // A B/C cell's job refuses the A/C poses file, naming it.
         let mut bc = c.clone();
         bc.plan.machine.kinematics = trim_cell::KinematicsKind::XyzbcTrt;

@@ -296,6 +296,14 @@ fn run_registers_a_part_scanned_at_two_machine_poses_from_the_merged_cloud() {
     }
     assert!(worst_um <= SAME_PATH_UM, "{worst_um:.2} µm apart");
 
+    // The record's /calibration says where each scan was taken (the MCAP is uncompressed).
+    let record = std::fs::read(run_dir.join("run.mcap")).unwrap();
+    let holds = |text: &str| record.windows(text.len()).any(|w| w == text.as_bytes());
+    assert!(
+        holds("\"scan_poses\"") && holds("side1.ply") && holds("\"c_deg\":215.0"),
+        "no scan poses in /calibration"
+    );
+
     // The run folder's job names the scans and poses absolutely, so it resumes from anywhere.
     let effective = std::fs::read_to_string(run_dir.join("job.toml")).unwrap();
     let effective: toml::Table = toml::from_str(&effective).unwrap();

@@ -11,7 +11,7 @@ use trim_synth::{DEMO_SCANNER_VIEWS, SynthParams, generate};
 
 use super::files;
 use crate::cad::load_cad;
-use crate::config::{HatchRegion, JobConfig};
+use crate::config::{HatchRegion, JobConfig, ScanPoses};
 
 /// The part's inputs: CAD cloud with outward normals, the scan mapped into the work-piece
 /// frame through `[calibration]` (`part.scans` each at its pose, merged), template path, the fixture's nominal pose
@@ -19,6 +19,8 @@ use crate::config::{HatchRegion, JobConfig};
 pub(super) struct Inputs {
     pub(super) cad: PointCloud,
     pub(super) scan: PointCloud,
+    /// Each of `[part] scans` with the machine pose it was carried at (empty for one scan).
+    pub(super) scan_poses: ScanPoses,
     pub(super) path: TrimPath,
     /// The regions to hatch: `[[hatch]]`, or the demo part's own region.
     pub(super) hatch: Vec<HatchRegion>,
@@ -147,6 +149,7 @@ pub(super) fn load_inputs(
             ),
             cad: case.cad_points,
             scan: config.workpiece_from_scan(&scan_in_scanner)?,
+            scan_poses: Vec::new(),
             path: case.path,
             scan_from_cad_initial: case.scan_from_cad_nominal,
             demo,
@@ -171,7 +174,7 @@ pub(super) fn load_inputs(
         (None, None) => bail!("part: give all of cad, path and scan (or scans with poses)"),
     };
     let cad = load_cad(cad_file, "part.cad", config.register.cad_sample_points)?;
-    let scan = config.part_scan_in_workpiece()?;
+    let (scan, scan_poses) = config.part_scan_in_workpiece()?;
     let path = formats::read_path(path_file)?;
     if !config.hatch.is_empty() {
         crate::hatch::check_path_ids(&path, path_file)?;
@@ -187,6 +190,7 @@ pub(super) fn load_inputs(
         ),
         cad,
         scan,
+        scan_poses,
         path,
         scan_from_cad_initial: fixture,
         demo: None,

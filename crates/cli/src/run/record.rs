@@ -18,7 +18,7 @@ use trim_register::regional::Registration;
 use super::files;
 use super::inputs::Inputs;
 use super::report::SpotReport;
-use crate::config::JobConfig;
+use crate::config::{JobConfig, ScanPoses};
 
 /// `/progress` is written at most this often while a layer's vectors are counted up (every
 /// layer start, phase and end is written).
@@ -91,15 +91,16 @@ pub(super) fn record_inputs(
 }
 
 /// The calibration, the lens and the scan pose the run used (`/calibration`); with
-/// `part.scans`, each scan's file and machine pose too (`scan_poses`).
+/// `[part] scans`, each scan's file and machine pose too (`scan_poses`: the inputs', so a
+/// resumed run's record, which records no inputs, has none).
 pub(super) fn record_calibration(
     rec: &SharedRecorder,
     config: &JobConfig,
     job: &Job,
+    scan_poses: &ScanPoses,
 ) -> anyhow::Result<()> {
-    let scan_poses: Vec<serde_json::Value> = config
-        .part_scan_poses()?
-        .into_iter()
+    let scan_poses: Vec<serde_json::Value> = scan_poses
+        .iter()
         .map(|(file, pose)| serde_json::json!({"scan": file, "pose": pose}))
         .collect();
     rec.lock()
