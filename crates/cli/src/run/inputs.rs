@@ -14,8 +14,8 @@ use crate::cad::load_cad;
 use crate::config::{HatchRegion, JobConfig, ScanPoses};
 
 /// The part's inputs: CAD cloud with outward normals, the scan mapped into the work-piece
-/// frame through `[calibration]` (`part.scans` each at its pose, merged), template path, the fixture's nominal pose
-/// (`[part.scan_from_cad]`).
+/// frame through `[calibration]` (`part.scans` each at its pose, merged), template path, the
+/// fixture's nominal pose (`[part.scan_from_cad]`).
 pub(super) struct Inputs {
     pub(super) cad: PointCloud,
     pub(super) scan: PointCloud,
