@@ -12,7 +12,7 @@ use std::path::Path;
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};
 use rand_xoshiro::Xoshiro256PlusPlus;
-use trim_cell::cell_model::{ScannerPose, TableModel};
+use trim_cell::cell_model::{ScanPose, ScannerPose, TableModel};
 use trim_cell::kinematics::KinematicsKind;
 use trim_geom::{Point3, PointCloud, Vector3};
 
@@ -28,16 +28,9 @@ const TABLE_POINTS: usize = 1500;
 /// Outliers, as a fraction of the scan.
 const OUTLIER_FRACTION: f64 = 0.02;
 
-/// One machine pose of the calibration: joints X, Y, Z (mm), tilt and C (degrees).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct CalPose {
-    /// X, Y, Z joint positions (mm).
-    pub xyz_mm: [f64; 3],
-    /// The tilting axis, A or B (degrees).
-    pub tilt_deg: f64,
-    /// C (degrees).
-    pub c_deg: f64,
-}
+/// One machine pose of the calibration: joints X, Y, Z (mm), tilt and C (degrees). The cell's
+/// scan pose, as a row of poses.csv reads it (`trim_cell::scans_at_poses`).
+pub type CalPose = ScanPose;
 
 /// Where in the scanner's view the sphere is put, pose by pose (mm, scanner frame, added to
 /// the stand-off): spread across the view so the scanner's rotation is determined (a sphere

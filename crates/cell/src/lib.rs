@@ -13,7 +13,10 @@
 //! - [`process`]: job.toml `[process]`, the ablation figures (depth per pass, kerf width).
 //! - [`job`]: the Job model, the planner's output and the executor's input.
 //! - [`truth`]: job.toml `[sim.truth]`, the true cell the digital twin carries.
-//! - [`error`]: the error type, [`CellError`].
+//! - [`scans_at_poses`]: poses.csv and scans taken at several machine poses merged into one
+//!   cloud in the work-piece frame ([`ScansError`]).
+//! - [`error`]: the settings error, [`CellError`] (a field correction file fails with
+//!   [`lens::LensError`], poses.csv and scans at poses with [`ScansError`]).
 
 pub mod beam;
 pub mod cell_model;
@@ -25,6 +28,7 @@ pub mod kinematics;
 pub mod lens;
 pub mod plan_settings;
 pub mod process;
+pub mod scans_at_poses;
 pub mod truth;
 
 pub use beam::{Beam, BeamReport, LaserLimits};
@@ -33,3 +37,4 @@ pub use galvo_timing::{ListComposition, TimingSettings};
 pub use job::{Frame, GalvoSettings, Job, JobSettings, Layer, LayerKey, Polyline, Pose, Zone};
 pub use kinematics::{AxisPose, KinematicsKind, MachineSettings, MoveModel, PoseMode};
 pub use process::ProcessSettings;
+pub use scans_at_poses::ScansError;

@@ -6,7 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::beam::Beam;
-use crate::cell_model::{Calibration, TableModel};
+use crate::cell_model::{Calibration, ScanChain, ScanPose, TableModel};
 use crate::error::{CellError, require_open_closed, require_range};
 use crate::galvo_timing::TimingSettings;
 use crate::job::{FieldCorrectionRecord, GalvoSettings, LensRecord};
@@ -476,6 +476,19 @@ impl PlanSettings {
     #[must_use]
     pub fn table(&self) -> TableModel {
         self.calibration.table(&self.machine)
+    }
+
+    /// The chain from the scanner to the work-piece frame with the machine at `pose`: the
+    /// table and the scanner's pose on the head as `[calibration]` says (nominal where it says
+    /// nothing), the work-piece origin of `[machine]`.
+    #[must_use]
+    pub fn scan_chain(&self, pose: ScanPose) -> ScanChain {
+        ScanChain {
+            table: self.table(),
+            scanner: self.calibration.scanner(),
+            pose,
+            workpiece_origin_mm: self.machine.workpiece_origin_mm.into(),
+        }
     }
 }
 

@@ -2,13 +2,14 @@
 //! the rotary axis lines and the scanner's pose on the head (`trim_calib::cell_calibration`).
 
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use trim_calib::artefact::{CalPose, fit_observations};
 use trim_calib::cell_calibration::calibrate_cell;
 use trim_cell::cell_model::{Calibration, TableModel};
-use trim_cell::kinematics::{KinematicsKind, MachineSettings};
+use trim_cell::kinematics::MachineSettings;
+use trim_cell::scans_at_poses::read_poses;
 use trim_geom::Point3;
 
 use crate::config::JobConfig;
@@ -39,69 +40,6 @@ pub struct Args {
     pub job: Option<PathBuf>,
 }
 
-/// Reads poses.csv: the poses, the scan file names, and the kinematics its header implies.
-pub(crate) fn read_poses(
-    path: &Path,
-) -> anyhow::Result<(Vec<String>, Vec<CalPose>, KinematicsKind)> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
-    let Some((hl, header)) = lines.next() else {
-        bail!(
-            "{}: empty file: expected the header scan,x,y,z,a,c",
-            path.display()
-        );
-    };
-    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
-    let kind = match cols.as_slice() {
-        ["scan", "x", "y", "z", "a", "c"] => KinematicsKind::XyzacTrt,
-        ["scan", "x", "y", "z", "b", "c"] => KinematicsKind::XyzbcTrt,
-        _ => bail!(
-            "{}:{}: expected the header scan,x,y,z,a,c (or scan,x,y,z,b,c), got {header:?}",
-            path.display(),
-            hl + 1
-        ),
-    };
-    let (mut names, mut poses) = (Vec::new(), Vec::new());
-    for (i, line) in lines {
-        let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        if f.len() != 6 {
-            bail!(
-                "{}:{}: expected 6 columns, got {}",
-                path.display(),
-                i + 1,
-                f.len()
-            );
-        }
-        let mut v = [0.0; 5];
-        for (k, s) in f[1..].iter().enumerate() {
-            v[k] = s
-                .parse()
-                .ok()
-                .filter(|x: &f64| x.is_finite())
-                .with_context(|| {
-                    format!(
-                        "{}:{}: column {} ({}): {s:?} is not a finite number",
-                        path.display(),
-                        i + 1,
-                        k + 2,
-                        cols[k + 1]
-                    )
-                })?;
-        }
-        names.push(f[0].to_owned());
-        poses.push(CalPose {
-            xyz_mm: [v[0], v[1], v[2]],
-            tilt_deg: v[3],
-            c_deg: v[4],
-        });
-    }
-    Ok((names, poses, kind))
-}
-
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
     if args.tool_mark.len() != 3 {
@@ -117,19 +55,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     let tool_mark = Point3::new(args.tool_mark[0], args.tool_mark[1], args.tool_mark[2]);
-    let (names, poses, kind) = read_poses(&args.poses)?;
+    let pose_rows = read_poses(&args.poses)?;
     let machine = match &args.job {
         Some(j) => JobConfig::load(j)?.plan.machine,
         None => MachineSettings::default(),
     };
-    if machine.kinematics != kind {
-        bail!(
-            "{}: the header names a {} cell, the job's [machine] is {}",
-            args.poses.display(),
-            kind.name(),
-            machine.kinematics.name()
-        );
-    }
+    pose_rows.require_kinematics(machine.kinematics)?;
+    let kind = pose_rows.kinematics;
+    let (names, poses): (Vec<String>, Vec<CalPose>) =
+        pose_rows.rows.into_iter().map(|r| (r.scan, r.pose)).unzip();
     let spinner = stage("reading the sphere scans");
     let scans = names
         .iter()

@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 use toml::Value;
 use trim_cell::cell_model::Calibration;
 use trim_cell::cell_model::ScanPose;
+use trim_cell::scans_at_poses;
 use trim_cell::truth::{MOVED_TRUTH_KEYS, TruthSettings};
 use trim_plan::hatch::HatchSettings;
 use trim_plan::planner::PlanSettings;
@@ -108,12 +109,25 @@ pub struct PartConfig {
     pub cad: Option<PathBuf>,
     /// CAM template path: CSV with columns contour,x,y,z,u,v,w (mm, unit feature vector).
     pub path: Option<PathBuf>,
-    /// Scan of the clamped part: PLY, PCD or XYZ (normals optional).
+    /// Scan of the clamped part: PLY, PCD or XYZ (normals optional), in the scanner frame at
+    /// scan_pose. For scans taken at several machine poses give scans and poses instead.
     pub scan: Option<PathBuf>,
+    /// Scans of the clamped part taken at several machine poses (PLY, PCD or XYZ, scanner
+    /// frame), instead of scan: each is carried into the work-piece frame through
+    /// [calibration] and [machine] at its row of poses, and the clouds are merged into the one
+    /// the run registers on. Relative to this file, like scan.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub scans: Vec<PathBuf>,
+    /// The machine pose of each of scans: a CSV with the header scan,x,y,z,a,c (scan,x,y,z,b,c
+    /// on a B/C cell; the format `trimctl calibrate cell` reads), one row per scan naming its
+    /// file by file name, X, Y, Z joint positions in mm, the rotary axes in degrees. Relative to
+    /// this file. Needed with scans, refused without them.
+    pub poses: Option<PathBuf>,
     /// Where the machine stood when the scan was taken (the scanner's pose, not the part's):
     /// linear joint positions (the tool point, machine frame) and rotary axes. The scan is
     /// mapped into the work-piece frame through [calibration]. The part's pose in the fixture is
-    /// scan_from_cad.
+    /// scan_from_cad. With scans, each scan's pose is its row of poses; this one is where a
+    /// `run --verify` rescan is taken.
     pub scan_pose: ScanPose,
     /// The fixture's nominal pose of the part (not the machine's: that is scan_pose): where the
     /// CAD frame sits in the work-piece frame the scan is mapped into, scan_from_cad = T·R.
@@ -122,6 +136,9 @@ pub struct PartConfig {
     /// frame on the work-piece frame. `trimctl register --initial FILE` overrides it.
     pub scan_from_cad: FixturePose,
 }
+
+/// Each of `[part] scans` with the machine pose it was taken at (its row of `[part] poses`).
+pub type ScanPoses = Vec<(PathBuf, ScanPose)>;
 
 /// A rigid pose given by angles and a translation (job.toml `[part.scan_from_cad]`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -281,6 +298,7 @@ impl JobConfig {
             &mut config.part.cad,
             &mut config.part.path,
             &mut config.part.scan,
+            &mut config.part.poses,
         ]
         .into_iter()
         .chain([
@@ -288,6 +306,7 @@ impl JobConfig {
             &mut config.sim.truth.path,
         ])
         .flatten()
+        .chain(&mut config.part.scans)
         {
             if p.is_relative() {
                 *p = base.join(&*p);
@@ -374,10 +393,34 @@ impl JobConfig {
             .scan_pose
             .validate()
             .map_err(|e| anyhow::anyhow!("{e}"))?;
-        let parts = [&self.part.cad, &self.part.path, &self.part.scan];
-        let given = parts.iter().filter(|p| p.is_some()).count();
+        let part = &self.part;
+        if part.scan.is_some() && !part.scans.is_empty() {
+            bail!(
+                "part.scan and part.scans: give one scan (scan, at scan_pose) or scans at their poses (scans and poses), not both"
+            );
+        }
+        if !part.scans.is_empty() && part.poses.is_none() {
+            bail!(
+                "part.scans: needs part.poses, the CSV (scan,x,y,z,a,c) of the machine pose each scan was taken at"
+            );
+        }
+        if part.scans.is_empty()
+            && let Some(poses) = &part.poses
+        {
+            bail!(
+                "part.poses {}: given without part.scans (the scans it holds the poses of)",
+                poses.display()
+            );
+        }
+        let scanned = part.scan.is_some() || !part.scans.is_empty();
+        let given = [part.cad.is_some(), part.path.is_some(), scanned]
+            .iter()
+            .filter(|g| **g)
+            .count();
         if given != 0 && given != 3 {
-            bail!("part: give all of cad, path and scan, or none (for the built-in demo part)");
+            bail!(
+                "part: give all of cad, path and scan (or scans with poses), or none (for the built-in demo part)"
+            );
         }
         if self.plan.trim.only_detected
             && let Some(cad) = &self.part.cad
@@ -403,19 +446,46 @@ impl JobConfig {
             .scan_pose
             .validate()
             .map_err(|e| anyhow::anyhow!("{e}"))?;
-        let settings = &self.plan;
-        let chain = trim_cell::cell_model::ScanChain {
-            table: settings.table(),
-            scanner: settings.calibration.scanner(),
-            pose: self.part.scan_pose,
-            workpiece_origin_mm: settings.machine.workpiece_origin_mm.into(),
-        };
-        scan_in_scanner
-            .transformed(&trim_geom::math::Similarity3::from_isometry(
-                chain.workpiece_from_scanner(),
-                1.0,
-            ))
+        scans_at_poses::workpiece_from_scanner_at(&self.plan, self.part.scan_pose, scan_in_scanner)
             .context("the scan through [calibration] at [part.scan_pose] into the work-piece frame")
+    }
+
+    /// The part's scan in the work-piece frame: `part.scan` at `[part.scan_pose]`
+    /// ([`JobConfig::workpiece_from_scan`]), or `part.scans` each at its row of `part.poses`,
+    /// merged (`trim_cell::scans_at_poses`); and each of `part.scans` with the pose it was
+    /// carried at (empty with `part.scan`), for the record. Errors name the key and the file.
+    pub fn part_scan_in_workpiece(&self) -> anyhow::Result<(trim_geom::PointCloud, ScanPoses)> {
+        if let Some(scan_file) = &self.part.scan {
+            let scan = self
+                .workpiece_from_scan(&trim_geom::formats::read_points(scan_file)?)
+                .with_context(|| format!("part.scan {}", scan_file.display()))?;
+            return Ok((scan, Vec::new()));
+        }
+        let poses = self.part_poses()?;
+        let cloud = scans_at_poses::merge_files(&self.part.scans, &poses, &self.plan)
+            .context("part.scans")?;
+        let at = self
+            .part
+            .scans
+            .iter()
+            .map(|f| Ok((f.clone(), poses.pose_of(f)?)))
+            .collect::<Result<_, scans_at_poses::ScansError>>()
+            .context("part.scans")?;
+        Ok((cloud, at))
+    }
+
+    /// `part.poses`, read and checked against `[machine]`.
+    fn part_poses(&self) -> anyhow::Result<scans_at_poses::Poses> {
+        let file = self
+            .part
+            .poses
+            .as_deref()
+            .context("part.scans: needs part.poses")?;
+        let poses = scans_at_poses::read_poses(file).context("part.poses")?;
+        poses
+            .require_kinematics(self.plan.machine.kinematics)
+            .context("part.poses")?;
+        Ok(poses)
     }
 
     /// Whether the job runs the built-in demo part.
@@ -544,6 +614,8 @@ const EXAMPLES: &[(&str, &str)] = &[
     ("part.cad", "\"cad.stl\""),
     ("part.path", "\"path.csv\""),
     ("part.scan", "\"scan.ply\""),
+    ("part.scans", "[\"side_a.ply\", \"side_b.ply\"]"),
+    ("part.poses", "\"poses.csv\""),
     ("calibration.a_axis_point_mm", "[0.0, 20.0, 10.0]"),
     ("calibration.a_axis_direction", "[1.0, 0.0, 0.0]"),
     ("calibration.b_axis_point_mm", "[-20.0, 0.0, -15.0]"),
@@ -1016,6 +1088,101 @@ mod tests {
         // The same files without only_detected are a job (registration takes a cloud).
         JobConfig::parse("[part]\ncad = \"cad.xyz\"\npath = \"p.csv\"\nscan = \"s.ply\"\n")
             .unwrap();
+    }
+
+    #[test]
+    fn part_scans_need_poses_and_exclude_scan() {
+        let files = "[part]\ncad = \"cad.stl\"\npath = \"path.csv\"\n";
+        let c = JobConfig::parse(&format!(
+            "{files}scans = [\"a.ply\", \"b.ply\"]\nposes = \"poses.csv\"\n"
+        ))
+        .unwrap();
+        assert_eq!(
+            c.part.scans,
+            vec![PathBuf::from("a.ply"), PathBuf::from("b.ply")]
+        );
+        assert_eq!(c.part.poses, Some(PathBuf::from("poses.csv")));
+        assert!(!c.is_demo());
+        // The effective job file a run writes reads back the same.
+        assert_eq!(JobConfig::parse(&toml::to_string(&c).unwrap()).unwrap(), c);
+        for (text, expected) in [
+            (
+                format!("{files}scan = \"s.ply\"\nscans = [\"a.ply\"]\nposes = \"p.csv\"\n"),
+                "part.scan and part.scans: give one scan",
+            ),
+            (
+                format!("{files}scans = [\"a.ply\", \"b.ply\"]\n"),
+                "part.scans: needs part.poses",
+            ),
+            (
+                format!("{files}scan = \"s.ply\"\nposes = \"p.csv\"\n"),
+                "part.poses p.csv: given without part.scans",
+            ),
+            (
+                "[part]\nscans = [\"a.ply\"]\nposes = \"p.csv\"\n".to_owned(),
+                "part: give all of cad, path and scan (or scans with poses), or none",
+            ),
+            (
+                format!("{files}scans = \"a.ply\"\nposes = \"p.csv\"\n"),
+                "line 4: part.scans: invalid type",
+            ),
+        ] {
+            let e = format!("{:#}", JobConfig::parse(&text).unwrap_err());
+            assert!(e.starts_with(expected), "{text}: {e}");
+        }
+    }
+
+    #[test]
+    fn part_scans_and_poses_are_read_relative_to_the_job_file_and_merged() {
+        let dir = tempfile::tempdir().unwrap();
+        let scans = dir.path().join("scans");
+        std::fs::create_dir_all(&scans).unwrap();
+        let at =
+            |p: [f64; 3]| trim_geom::PointCloud::new(vec![trim_geom::Point3::from(p)]).unwrap();
+        for (name, p) in [("a.ply", [1.0, 2.0, 3.0]), ("b.ply", [-4.0, 5.0, 6.0])] {
+            trim_geom::formats::write_ply(
+                &scans.join(name),
+                &at(p),
+                trim_geom::formats::PlyEncoding::Ascii,
+            )
+            .unwrap();
+        }
+        std::fs::write(
+            scans.join("poses.csv"),
+            "scan,x,y,z,a,c\nb.ply,0,0,10,0,90\na.ply,1,0,0,0,0\n",
+        )
+        .unwrap();
+        let job = dir.path().join("job.toml");
+        std::fs::write(
+            &job,
+            "[part]\ncad = \"cad.stl\"\npath = \"path.csv\"\nscans = [\"scans/a.ply\", \"scans/b.ply\"]\nposes = \"scans/poses.csv\"\n",
+        )
+        .unwrap();
+        let c = JobConfig::load(&job).unwrap();
+        assert_eq!(c.part.scans[1], scans.join("b.ply"));
+        assert_eq!(c.part.poses, Some(scans.join("poses.csv")));
+        // The nominal cell: a scanner point s is at (X, Y, Z) + s, and the table at C = 90°
+        // turns the work piece under it, so the work-piece point is Rot_C(−90°)·(s + (X, Y, Z)).
+        let (merged, at) = c.part_scan_in_workpiece().unwrap();
+        let expected = [[2.0, 2.0, 3.0], [5.0, 4.0, 16.0]];
+        assert_eq!(merged.len(), 2);
+        for (got, want) in merged.points().iter().zip(expected) {
+            assert!(
+                (got - trim_geom::Point3::from(want)).norm() < 1e-12,
+                "{got} vs {want:?}"
+            );
+        }
+        assert_eq!(at[1].0, scans.join("b.ply"));
+        assert_eq!(at[1].1.c_deg, 90.0);
+        // A B/C cell's job refuses the A/C poses file, naming it.
+        let mut bc = c.clone();
+        bc.plan.machine.kinematics = trim_cell::KinematicsKind::XyzbcTrt;
+        let e = format!("{:#}", bc.part_scan_in_workpiece().unwrap_err());
+        assert!(
+            e.starts_with("part.poses: ")
+                && e.contains("poses.csv: the header names a xyzac-trt cell"),
+            "{e}"
+        );
     }
 
     #[test]

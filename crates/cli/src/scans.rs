@@ -1,17 +1,14 @@
-//! Scans of one clamped part taken at several machine poses, as one cloud in the work-piece
-//! frame (`trimctl register` and `trimctl inspect`; DESIGN.md "Inspection", *Merge and fit*).
-//!
-//! A scanner fixed to the machine sees the part from where the machine puts it. What one pose
-//! cannot see (the wall below an edge, an end face) another can, and the cell knows each pose:
-//! every scan goes into the work-piece frame through the job's `[calibration]` and `[machine]`
-//! at its own pose (`poses.csv` as `calibrate cell` reads it), and the clouds are concatenated.
+//! The scans `trimctl register` and `trimctl inspect` are given (`--scan`, `--poses`) as one
+//! cloud in the work-piece frame (DESIGN.md "Inspection", *Merge and fit*). The merge of scans
+//! at machine poses is trim-cell's (`trim_cell::scans_at_poses`); this module picks it or the
+//! single scan from the command line's flags.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use trim_cell::cell_model::{ScanChain, ScanPose};
+use trim_cell::scans_at_poses::{merge_files, read_poses};
+use trim_geom::PointCloud;
 use trim_geom::formats::read_points;
-use trim_geom::{PointCloud, Similarity3};
 
 use crate::config::JobConfig;
 
@@ -24,11 +21,11 @@ pub(crate) fn merged(
     poses: Option<&Path>,
     config: Option<&JobConfig>,
 ) -> anyhow::Result<PointCloud> {
-    let read = |p: &PathBuf| read_points(p).with_context(|| format!("reading {}", p.display()));
     let Some(poses_file) = poses else {
         match files {
             [one] => {
-                let scan = read(one)?;
+                let scan =
+                    read_points(one).with_context(|| format!("reading {}", one.display()))?;
                 return match config {
                     Some(c) => c.workpiece_from_scan(&scan),
                     None => Ok(scan),
@@ -40,48 +37,9 @@ pub(crate) fn merged(
             ),
         }
     };
-    let (names, poses, kind) = crate::calibrate_cell::read_poses(poses_file)?;
+    let poses = read_poses(poses_file)?;
     let defaults = JobConfig::default();
     let job = config.unwrap_or(&defaults);
-    if job.plan.machine.kinematics != kind {
-        bail!(
-            "{}: the header names a {} cell, the job's [machine] is {}",
-            poses_file.display(),
-            kind.name(),
-            job.plan.machine.kinematics.name()
-        );
-    }
-    let plan = &job.plan;
-    let mut points = Vec::new();
-    for file in files {
-        let name = file
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let Some(k) = names.iter().position(|n| *n == name) else {
-            bail!(
-                "{}: no pose for scan {name} in {}",
-                file.display(),
-                poses_file.display()
-            );
-        };
-        let chain = ScanChain {
-            table: plan.table(),
-            scanner: plan.calibration.scanner(),
-            pose: ScanPose {
-                xyz_mm: poses[k].xyz_mm,
-                tilt_deg: poses[k].tilt_deg,
-                c_deg: poses[k].c_deg,
-            },
-            workpiece_origin_mm: plan.machine.workpiece_origin_mm.into(),
-        };
-        let scan = read(file)?
-            .transformed(&Similarity3::from_isometry(
-                chain.workpiece_from_scanner(),
-                1.0,
-            ))
-            .with_context(|| format!("{} through [calibration] at its pose", file.display()))?;
-        points.extend_from_slice(scan.points());
-    }
-    Ok(PointCloud::new(points)?)
+    poses.require_kinematics(job.plan.machine.kinematics)?;
+    Ok(merge_files(files, &poses, &job.plan)?)
 }

@@ -2,7 +2,8 @@
 //! one side of the part at each machine pose. The two scans, each carried into the work-piece
 //! frame through the cell at its own pose, register as the whole scan does; one side alone
 //! leaves the other side's contours without data. Two scans without poses, and a scan the poses
-//! file does not name, are refused naming what is missing.
+//! file does not name, are refused naming what is missing. `trimctl run` takes the same scans
+//! as job.toml's `[part] scans` and `poses`.
 
 #![expect(
     clippy::unwrap_used,
@@ -179,4 +180,164 @@ fn two_scans_at_two_machine_poses_register_as_the_whole_scan() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("no pose for scan pose1.ply"), "{err}");
+}
+
+/// `trimctl run` on a job naming its own files, its part scanned as `[part] scans` at the
+/// machine poses of `[part] poses`: the run registers on the merged cloud, as `register` does
+/// on the whole scan, through the built-in simulated cell to the end. A scan without a row is
+/// refused naming it, before anything moves.
+#[test]
+fn run_registers_a_part_scanned_at_two_machine_poses_from_the_merged_cloud() {
+    let tmp = tempfile::tempdir().unwrap();
+    let case = tmp.path().join("case");
+    let status = Command::new(TRIMCTL)
+        .args([
+            "synth",
+            "--seed",
+            "5",
+            "--views",
+            "3",
+            "--scan-points",
+            "150000",
+            "--out",
+        ])
+        .arg(&case)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let whole = tmp.path().join("whole.json");
+    let out = register(&[&case.join("scan.ply")], None, &whole);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+
+    // The two sides, each as the scanner saw it at its pose, in a folder of their own.
+    let scan = read_points(&case.join("scan.ply")).unwrap();
+    let (centre, cov) = moments(scan.points());
+    let thickness = principal_axes(&cov).0.column(2).into_owned();
+    let poses = [
+        ScanPose {
+            xyz_mm: [-4.0, 6.0, 25.0],
+            tilt_deg: 10.0,
+            c_deg: -30.0,
+        },
+        ScanPose {
+            xyz_mm: [9.0, -2.0, 40.0],
+            tilt_deg: -35.0,
+            c_deg: 215.0,
+        },
+    ];
+    let parts: Vec<_> = poses
+        .iter()
+        .enumerate()
+        .map(|(k, pose)| {
+            let side = scan
+                .points()
+                .iter()
+                .filter(|p| ((*p - centre).dot(&thickness) >= 0.0) == (k == 0))
+                .copied()
+                .collect();
+            (*pose, side)
+        })
+        .collect();
+    let scans = tmp.path().join("scans");
+    std::fs::create_dir_all(&scans).unwrap();
+    let (files, poses_file) = write_scans_at_poses(&scans, "side", &parts);
+    assert!(files.iter().all(|f| f.starts_with(&scans)));
+    assert_eq!(poses_file, scans.join("poses.csv"));
+    // Relative to the job file, as every [part] file.
+    let job = tmp.path().join("job.toml");
+    let part = "[part]\ncad = \"case/cad.stl\"\npath = \"case/path.csv\"\n";
+    std::fs::write(
+        &job,
+        format!("{part}scans = [\"scans/side0.ply\", \"scans/side1.ply\"]\nposes = \"scans/poses.csv\"\n"),
+    )
+    .unwrap();
+    let run_dir = tmp.path().join("run");
+    let out = Command::new(TRIMCTL)
+        .arg("run")
+        .arg(&job)
+        .args(["--sim-time-scale", "0.01", "--out"])
+        .arg(&run_dir)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "stdout:\n{stdout}\nstderr:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("scans ")
+            && stdout.contains("side0.ply")
+            && stdout.contains("side1.ply")
+            && stdout.contains("poses.csv")
+            && stdout.contains(&format!("({} points)", scan.len())),
+        "{stdout}"
+    );
+    assert!(stdout.contains("done:"), "{stdout}");
+
+    // The run's registration is the whole scan's.
+    let (a, b) = (report(&whole), report(&run_dir.join("registration.json")));
+    assert!(b["global"]["refused"].is_null(), "{}", b["global"]);
+    assert_eq!(untrusted(&a), untrusted(&b));
+    let pa = read_path(&whole.with_extension("csv")).unwrap();
+    let pb = read_path(&run_dir.join("registered.csv")).unwrap();
+    assert_eq!(pa.contours().len(), pb.contours().len());
+    let mut worst_um = 0.0_f64;
+    for (ca, cb) in pa.contours().iter().zip(pb.contours()) {
+        assert_eq!(ca.id(), cb.id());
+        assert_eq!(ca.points().len(), cb.points().len());
+        for (p, q) in ca.points().iter().zip(cb.points()) {
+            worst_um = worst_um.max((p - q).norm() * 1e3);
+        }
+    }
+    assert!(worst_um <= SAME_PATH_UM, "{worst_um:.2} µm apart");
+
+    // The record's /calibration says where each scan was taken (the MCAP is uncompressed).
+    let record = std::fs::read(run_dir.join("run.mcap")).unwrap();
+    let holds = |text: &str| record.windows(text.len()).any(|w| w == text.as_bytes());
+    assert!(
+        holds("\"scan_poses\"") && holds("side1.ply") && holds("\"c_deg\":215.0"),
+        "no scan poses in /calibration"
+    );
+
+    // The run folder's job names the scans and poses absolutely, so it resumes from anywhere.
+    let effective = std::fs::read_to_string(run_dir.join("job.toml")).unwrap();
+    let effective: toml::Table = toml::from_str(&effective).unwrap();
+    let named = effective["part"]["scans"].as_array().unwrap();
+    assert_eq!(named.len(), 2);
+    for (n, f) in named.iter().zip(&files) {
+        assert!(Path::new(n.as_str().unwrap()).is_absolute(), "{n}");
+        assert_eq!(
+            std::fs::canonicalize(n.as_str().unwrap()).unwrap(),
+            std::fs::canonicalize(f).unwrap()
+        );
+    }
+    assert!(Path::new(effective["part"]["poses"].as_str().unwrap()).is_absolute());
+
+    // A scan the poses file has no row for is refused naming it, before anything moves.
+    std::fs::copy(&files[1], scans.join("side2.ply")).unwrap();
+    std::fs::write(
+        &job,
+        format!("{part}scans = [\"scans/side0.ply\", \"scans/side2.ply\"]\nposes = \"scans/poses.csv\"\n"),
+    )
+    .unwrap();
+    let refused_dir = tmp.path().join("refused");
+    let out = Command::new(TRIMCTL)
+        .arg("run")
+        .arg(&job)
+        .args(["--sim-time-scale", "0.01", "--out"])
+        .arg(&refused_dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("part.scans") && err.contains("no pose for scan side2.ply"),
+        "{err}"
+    );
+    assert!(!refused_dir.join("journal.jsonl").exists());
 }

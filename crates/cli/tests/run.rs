@@ -545,6 +545,14 @@ fn bad_job_files_get_one_line_naming_the_key() {
         ("[register]\nmode = \"sideways\"\n", "mode"),
         ("[cell]\ncnc = \"not an address\"\n", "cell.cnc"),
         ("[part]\ncad = \"missing.stl\"\n", "part"),
+        (
+            "[part]\ncad = \"c.stl\"\npath = \"p.csv\"\nscan = \"s.ply\"\nscans = [\"a.ply\"]\nposes = \"poses.csv\"\n",
+            "part.scan and part.scans",
+        ),
+        (
+            "[part]\ncad = \"c.stl\"\npath = \"p.csv\"\nscans = [\"a.ply\", \"b.ply\"]\n",
+            "part.scans: needs part.poses",
+        ),
         ("[beam\n", "line 1"),
     ];
     for (i, (text, key)) in cases.iter().enumerate() {

@@ -13,6 +13,7 @@
 use pyo3::create_exception;
 use pyo3::exceptions::{PyException, PyValueError};
 use pyo3::prelude::*;
+use trim_cell::ScansError;
 use trim_geom::GeomError;
 use trim_register::RegisterError;
 
@@ -83,6 +84,27 @@ pub fn register_error(e: RegisterError) -> PyErr {
         | RegisterError::NonFinite { .. }
         | RegisterError::LengthMismatch { .. } => PyValueError::new_err(e.to_string()),
         other => RegistrationError::new_err(other.to_string()),
+    }
+}
+
+/// Maps an error of scans at poses: a poses or scan file that cannot be read or parsed to
+/// `FileFormatError`, bad scans and poses given in memory to `ValueError`. The message keeps
+/// its cause (`scans[1] through [calibration] at its pose: transformed point 3 is not finite`).
+pub fn scans_error(e: ScansError) -> PyErr {
+    let mut message = e.to_string();
+    let mut cause = std::error::Error::source(&e);
+    while let Some(c) = cause {
+        message.push_str(&format!(": {c}"));
+        cause = c.source();
+    }
+    match e {
+        ScansError::ReadPoses { .. }
+        | ScansError::EmptyPoses { .. }
+        | ScansError::PosesHeader { .. }
+        | ScansError::PosesColumns { .. }
+        | ScansError::PosesValue { .. }
+        | ScansError::ReadScan { .. } => FileFormatError::new_err(message),
+        _ => PyValueError::new_err(message),
     }
 }
 

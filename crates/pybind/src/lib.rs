@@ -12,6 +12,7 @@ mod inspect;
 mod path;
 mod register;
 mod results;
+mod scans;
 mod workflow;
 
 use pyo3::prelude::*;
@@ -37,6 +38,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(workflow::register_path, m)?)?;
     m.add_function(wrap_pyfunction!(workflow::beam_report, m)?)?;
     m.add_function(wrap_pyfunction!(workflow::plan_path, m)?)?;
+    m.add_function(wrap_pyfunction!(scans::merge_scans, m)?)?;
     m.add_function(wrap_pyfunction!(workflow::hatch_surface, m)?)?;
     m.add_class::<inspect::PyInspection>()?;
     m.add_class::<inspect::PyContourInspection>()?;

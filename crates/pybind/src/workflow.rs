@@ -21,7 +21,10 @@ use crate::register::{matrix_to_numpy, similarity_from_numpy};
 use crate::results::{ContourQuality, to_py};
 
 /// Parses settings JSON into `T`, naming the offending key in a `ValueError`.
-fn settings_from_json<T: serde::de::DeserializeOwned>(what: &str, json: &str) -> PyResult<T> {
+pub(crate) fn settings_from_json<T: serde::de::DeserializeOwned>(
+    what: &str,
+    json: &str,
+) -> PyResult<T> {
     let de = &mut serde_json::Deserializer::from_str(json);
     serde_path_to_error::deserialize(de).map_err(|e| {
         let key = e.path().to_string();
@@ -30,7 +33,7 @@ fn settings_from_json<T: serde::de::DeserializeOwned>(what: &str, json: &str) ->
 }
 
 /// Maps a planning error: bad settings to `ValueError`, the rest to `PlanningError`.
-fn plan_error(e: PlanError) -> PyErr {
+pub(crate) fn plan_error(e: PlanError) -> PyErr {
     match e {
         PlanError::Cell(CellError::InvalidSetting { .. }) => value_error("settings", e),
         PlanError::Cell(CellError::OutsideLaserLimits { .. }) => value_error("laser_limits", e),

@@ -59,7 +59,9 @@ pub(super) fn execute(
             record_inputs(rec, inputs, registration, job)?;
         }
         if let Some(rec) = &recorder {
-            record_calibration(rec, config, job)?;
+            let none = Vec::new();
+            let scan_poses = record.map_or(&none, |(inputs, _)| &inputs.scan_poses);
+            record_calibration(rec, config, job, scan_poses)?;
         }
         let tap = recorder.as_ref().map_or_else(Tap::none, device_tap);
         let timeouts = Timeouts::default();

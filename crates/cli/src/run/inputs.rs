@@ -1,5 +1,5 @@
 //! The part's inputs for `trimctl run`: the built-in demo part (written into the run folder),
-//! or the job's CAD, scan and path files.
+//! or the job's CAD, path and scan files (one scan, or scans at several machine poses merged).
 
 use std::path::Path;
 
@@ -11,14 +11,16 @@ use trim_synth::{DEMO_SCANNER_VIEWS, SynthParams, generate};
 
 use super::files;
 use crate::cad::load_cad;
-use crate::config::{HatchRegion, JobConfig};
+use crate::config::{HatchRegion, JobConfig, ScanPoses};
 
 /// The part's inputs: CAD cloud with outward normals, the scan mapped into the work-piece
-/// frame through `[calibration]`, template path, the fixture's nominal pose
-/// (`[part.scan_from_cad]`).
+/// frame through `[calibration]` (`part.scans` each at its pose, merged), template path, the
+/// fixture's nominal pose (`[part.scan_from_cad]`).
 pub(super) struct Inputs {
     pub(super) cad: PointCloud,
     pub(super) scan: PointCloud,
+    /// Each of `[part] scans` with the machine pose it was carried at (empty for one scan).
+    pub(super) scan_poses: ScanPoses,
     pub(super) path: TrimPath,
     /// The regions to hatch: `[[hatch]]`, or the demo part's own region.
     pub(super) hatch: Vec<HatchRegion>,
@@ -147,20 +149,32 @@ pub(super) fn load_inputs(
             ),
             cad: case.cad_points,
             scan: config.workpiece_from_scan(&scan_in_scanner)?,
+            scan_poses: Vec::new(),
             path: case.path,
             scan_from_cad_initial: case.scan_from_cad_nominal,
             demo,
         });
     }
-    let (Some(cad_file), Some(path_file), Some(scan_file)) =
-        (&config.part.cad, &config.part.path, &config.part.scan)
-    else {
-        bail!("part: give all of cad, path and scan");
+    let (Some(cad_file), Some(path_file)) = (&config.part.cad, &config.part.path) else {
+        bail!("part: give all of cad, path and scan (or scans with poses)");
+    };
+    let scanned = match (&config.part.scan, config.part.poses.as_deref()) {
+        (Some(scan_file), _) => format!("scan {}", scan_file.display()),
+        (None, Some(poses_file)) => format!(
+            "scans {} at the poses of {}",
+            config
+                .part
+                .scans
+                .iter()
+                .map(|f| f.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+            poses_file.display()
+        ),
+        (None, None) => bail!("part: give all of cad, path and scan (or scans with poses)"),
     };
     let cad = load_cad(cad_file, "part.cad", config.register.cad_sample_points)?;
-    let scan = config
-        .workpiece_from_scan(&formats::read_points(scan_file)?)
-        .with_context(|| format!("part.scan {}", scan_file.display()))?;
+    let (scan, scan_poses) = config.part_scan_in_workpiece()?;
     let path = formats::read_path(path_file)?;
     if !config.hatch.is_empty() {
         crate::hatch::check_path_ids(&path, path_file)?;
@@ -168,15 +182,15 @@ pub(super) fn load_inputs(
     Ok(Inputs {
         hatch: config.hatch.clone(),
         description: format!(
-            "CAD {}, path {} ({} contours), scan {} ({} points)",
+            "CAD {}, path {} ({} contours), {scanned} ({} points)",
             cad_file.display(),
             path_file.display(),
             path.len(),
-            scan_file.display(),
             scan.len()
         ),
         cad,
         scan,
+        scan_poses,
         path,
         scan_from_cad_initial: fixture,
         demo: None,

@@ -821,12 +821,15 @@ fn open_run(args: &Args) -> anyhow::Result<(JobConfig, PathBuf, RunLock)> {
         ("part.cad", &mut part.cad),
         ("part.path", &mut part.path),
         ("part.scan", &mut part.scan),
+        ("part.poses", &mut part.poses),
         ("sim.truth.path", &mut effective.sim.truth.path),
-    ] {
-        if let Some(f) = file {
-            *f = std::path::absolute(&*f)
-                .with_context(|| format!("{key}: cannot make {} absolute", f.display()))?;
-        }
+    ]
+    .into_iter()
+    .filter_map(|(key, file)| file.as_mut().map(|f| (key, f)))
+    .chain(part.scans.iter_mut().map(|f| ("part.scans", f)))
+    {
+        *file = std::path::absolute(&*file)
+            .with_context(|| format!("{key}: cannot make {} absolute", file.display()))?;
     }
     for (i, h) in effective.hatch.iter_mut().enumerate() {
         h.boundary = std::path::absolute(&h.boundary).with_context(|| {

@@ -18,7 +18,7 @@ use trim_register::regional::Registration;
 use super::files;
 use super::inputs::Inputs;
 use super::report::SpotReport;
-use crate::config::JobConfig;
+use crate::config::{JobConfig, ScanPoses};
 
 /// `/progress` is written at most this often while a layer's vectors are counted up (every
 /// layer start, phase and end is written).
@@ -90,12 +90,19 @@ pub(super) fn record_inputs(
     Ok(())
 }
 
-/// The calibration, the lens and the scan pose the run used (`/calibration`).
+/// The calibration, the lens and the scan pose the run used (`/calibration`); with
+/// `[part] scans`, each scan's file and machine pose too (`scan_poses`: the inputs', so a
+/// resumed run's record, which records no inputs, has none).
 pub(super) fn record_calibration(
     rec: &SharedRecorder,
     config: &JobConfig,
     job: &Job,
+    scan_poses: &ScanPoses,
 ) -> anyhow::Result<()> {
+    let scan_poses: Vec<serde_json::Value> = scan_poses
+        .iter()
+        .map(|(file, pose)| serde_json::json!({"scan": file, "pose": pose}))
+        .collect();
     rec.lock()
         .map_err(|_| anyhow::anyhow!("recorder lock poisoned"))?
         .json(
@@ -106,6 +113,7 @@ pub(super) fn record_calibration(
                 "calibration": config.plan.calibration,
                 "lens": job.settings.lens,
                 "scan_pose": config.part.scan_pose,
+                "scan_poses": scan_poses,
             }),
         )?;
     Ok(())

@@ -1,7 +1,8 @@
 //! `run --verify` on a part of the job's own files: each inspection's rescan comes from the
 //! cell's scanner, as a file the run waits for or one a configured command writes (job.toml
 //! `[verify]`). The part has not moved: the rescan is taken in the scanner frame at
-//! `[part.scan_pose]`, as `part.scan` was, and carried into the work-piece frame the same way.
+//! `[part.scan_pose]`, as `part.scan` was, and carried into the work-piece frame the same way
+//! (a part scanned as `part.scans` at several poses is rescanned once, at `[part.scan_pose]`).
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};

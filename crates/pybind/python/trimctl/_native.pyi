@@ -160,6 +160,9 @@ def beam_report(beam_json: str, limits_json: Optional[str] = None) -> Dict[str, 
 def plan_path(
     path: Path, settings_json: str, limits_json: Optional[str] = None
 ) -> Tuple[Dict[str, Any], List[Dict[str, Any]], Dict[str, Any]]: ...
+def merge_scans(
+    scans: List[Array], poses_json: List[str], settings_json: str
+) -> Array: ...
 def hatch_surface(
     points: Array,
     boundary: Array,

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import copy
 import json
+import math
+import numbers
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
@@ -24,6 +26,7 @@ __all__ = [
     "Registration",
     "Zone",
     "hatch",
+    "merge_scans",
     "plan",
     "register_path",
     "synth",
@@ -254,6 +257,68 @@ def plan(
         laser_limits = beam.laser_limits
     job, table, meta = _native.plan_path(path, json.dumps(s), _limits_json(laser_limits))
     return Plan(job=job, table=table, k=meta["k"], automatic_k=meta["automatic_k"])
+
+
+_POSE_KEYS = ("xyz_mm", "tilt_deg", "c_deg")
+
+
+def _pose_json(k: int, pose: Mapping[str, Any]) -> str:
+    """One machine pose as the JSON of a ``[part.scan_pose]`` table (numpy numbers as floats),
+    refusing a pose that is not a mapping or holds a non-finite number with ``ValueError``
+    naming ``poses[k]`` and the key. Unknown keys and wrong types are refused in Rust."""
+    if not isinstance(pose, Mapping):
+        raise ValueError(
+            f"poses[{k}]: expected a mapping with the keys {', '.join(_POSE_KEYS)}, "
+            f"got a {type(pose).__name__}"
+        )
+
+    def number(key: str, v: Any) -> Any:
+        if isinstance(v, numbers.Real) and not isinstance(v, bool):
+            if not math.isfinite(v):
+                raise ValueError(f"poses[{k}].{key}: {v!r}: values must be finite")
+            return float(v)
+        return v
+
+    out: Dict[str, Any] = {}
+    for key, value in pose.items():
+        if isinstance(value, (list, tuple, np.ndarray)):
+            out[key] = [number(key, v) for v in value]
+        else:
+            out[key] = number(key, value)
+    return json.dumps(out)
+
+
+def merge_scans(
+    scans: Sequence[np.ndarray],
+    poses: Sequence[Mapping[str, Any]],
+    *,
+    settings: Optional[Mapping[str, Any]] = None,
+) -> np.ndarray:
+    """Merges scans of one clamped part taken at several machine poses into one cloud in the
+    work-piece frame, the cloud :func:`register_path` takes (``trimctl register --scan A --scan
+    B --poses poses.csv``; job.toml ``[part] scans`` and ``poses``).
+
+    ``scans`` are ``(N_i, 3)`` float64 arrays in the scanner frame, mm. ``poses`` holds one
+    machine pose per scan, in order, with the keys of job.toml's ``[part.scan_pose]``:
+    ``xyz_mm`` (the X, Y, Z joint positions, mm), ``tilt_deg`` (the tilting axis: A, or B on a
+    ``xyzbc-trt`` cell) and ``c_deg``; a key left out is 0. ``settings`` takes the planner keys
+    of job.toml as :func:`plan` does; its ``machine`` and ``calibration`` tables carry each scan
+    through the rotary axes and the scanner's pose on the head (the nominal cell without them).
+    ``settings`` itself is not changed.
+
+    Returns the ``(sum N_i, 3)`` merged points, the scans' points in order. A scan of another
+    shape or dtype, an empty scan, a non-finite value, an unknown pose key or a count of poses
+    other than of scans raises ``ValueError`` naming it (``scans[1]``, ``poses[0].c_deg``).
+    """
+    if isinstance(scans, np.ndarray):
+        raise ValueError(
+            f"scans: expected a sequence of (N, 3) arrays, got one array of shape {scans.shape}"
+        )
+    if isinstance(poses, Mapping):
+        raise ValueError("poses: expected a sequence of poses (one mapping per scan), got one")
+    pose_json = [_pose_json(k, p) for k, p in enumerate(poses)]
+    s = _kw(settings)
+    return _native.merge_scans(list(scans), pose_json, json.dumps(s))
 
 
 @dataclass(frozen=True)
