@@ -379,7 +379,8 @@ class Registration:
         more than 1.5 times the tolerance by their bounds), or ``None``. Each other contour
         reaching into their extent along the part's long axis (widened by 5 mm) whose bound at
         1.5 sigma (``ContourQuality.doubt_bound_um``) exceeds two thirds of the tolerance is
-        flagged ``region_in_doubt``."""
+        flagged ``region_in_doubt``, and so is every strip, whatever its bound, that shares an
+        end with a strip untrusted there (a slide along an edge carries over the shared end)."""
         return self.report["global"].get("region_in_doubt")
 
     @property
