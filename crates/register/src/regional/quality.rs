@@ -409,17 +409,7 @@ pub(crate) fn judge_part(
             doubted += 1;
         }
     }
-    let beside: Vec<bool> = contours
-        .iter()
-        .zip(joins)
-        .map(|(c, joined)| c.trustworthy && joined.iter().any(|&j| !contours[j].trustworthy))
-        .collect();
-    let mut alongside = Vec::new();
-    for (c, _) in contours.iter_mut().zip(&beside).filter(|(_, b)| **b) {
-        c.flags.push(Flag::PartInDoubt);
-        c.trustworthy = false;
-        alongside.push(c.id.to_string());
-    }
+    let alongside = flag_beside_untrusted(contours, joins, |_| true, Flag::PartInDoubt);
     let along = if alongside.is_empty() {
         String::new()
     } else {
@@ -441,6 +431,35 @@ pub(crate) fn judge_part(
             q.doubt_bound_fraction
         )),
     }
+}
+
+/// Flags `flag` on every contour still trusted that shares an end (`joins`) with a contour
+/// then untrusted for which `counts` holds, and returns their ids: the slide along an edge
+/// carries over the end two strips share. One step: the untrusted are taken as they stand
+/// before any is flagged here.
+fn flag_beside_untrusted(
+    contours: &mut [ContourQuality],
+    joins: &[Vec<usize>],
+    counts: impl Fn(usize) -> bool,
+    flag: Flag,
+) -> Vec<String> {
+    let beside: Vec<bool> = contours
+        .iter()
+        .zip(joins)
+        .map(|(c, joined)| {
+            c.trustworthy
+                && joined
+                    .iter()
+                    .any(|&j| !contours[j].trustworthy && counts(j))
+        })
+        .collect();
+    let mut alongside = Vec::new();
+    for (c, _) in contours.iter_mut().zip(&beside).filter(|(_, b)| **b) {
+        c.flags.push(flag);
+        c.trustworthy = false;
+        alongside.push(c.id.to_string());
+    }
+    alongside
 }
 
 /// Whether the part's rules count a contour as off by more than `limit_um`, as they were
@@ -835,22 +854,12 @@ pub(crate) fn judge_region(
         }
     }
     // The strips beside an untrusted one in the stretch, from the flags as they now stand.
-    let beside: Vec<bool> = contours
-        .iter()
-        .zip(joins)
-        .map(|(c, joined)| {
-            c.trustworthy
-                && joined
-                    .iter()
-                    .any(|&j| !contours[j].trustworthy && inside(&extents[j]))
-        })
-        .collect();
-    let mut alongside = Vec::new();
-    for (c, _) in contours.iter_mut().zip(&beside).filter(|(_, b)| **b) {
-        c.flags.push(Flag::RegionInDoubt);
-        c.trustworthy = false;
-        alongside.push(c.id.to_string());
-    }
+    let alongside = flag_beside_untrusted(
+        contours,
+        joins,
+        |j| inside(&extents[j]),
+        Flag::RegionInDoubt,
+    );
     let plural = |names: &[String]| if names.len() > 1 { "s" } else { "" };
     let mut flagged = Vec::new();
     if !doubted.is_empty() {
