@@ -433,6 +433,24 @@ mod tests {
         (top, bottom, poses)
     }
 
+    /// Each side as the scanner at its pose sees it through `settings`, and the work-piece
+    /// points the merge must give back (the sides in order).
+    fn seen_at_poses(
+        settings: &PlanSettings,
+        top: &[Point3],
+        bottom: &[Point3],
+        poses: &[ScanPose; 2],
+    ) -> (Vec<(ScanPose, PointCloud)>, Vec<Point3>) {
+        let scans = [(&poses[0], top), (&poses[1], bottom)]
+            .into_iter()
+            .map(|(pose, side)| {
+                let seen = side.iter().map(|p| seen_at(settings, pose, p)).collect();
+                (*pose, PointCloud::new(seen).expect("finite points"))
+            })
+            .collect();
+        (scans, top.iter().chain(bottom).copied().collect())
+    }
+
     fn worst_mm(merged: &PointCloud, expected: &[Point3]) -> f64 {
         assert_eq!(merged.len(), expected.len());
         merged
@@ -447,14 +465,7 @@ mod tests {
     fn two_scans_at_two_poses_merge_onto_the_same_workpiece_points() {
         let settings = calibrated();
         let (top, bottom, poses) = two_sides();
-        let scans: Vec<(ScanPose, PointCloud)> = [(&poses[0], &top), (&poses[1], &bottom)]
-            .into_iter()
-            .map(|(pose, side)| {
-                let seen = side.iter().map(|p| seen_at(&settings, pose, p)).collect();
-                (*pose, PointCloud::new(seen).expect("finite points"))
-            })
-            .collect();
-        let expected: Vec<Point3> = top.iter().chain(&bottom).copied().collect();
+        let (scans, expected) = seen_at_poses(&settings, &top, &bottom, &poses);
         let merged = merge(&scans, &settings).expect("merges");
         let worst = worst_mm(&merged, &expected);
         assert!(worst < SAME_POINT_MM, "{worst:e} mm off");
@@ -514,14 +525,7 @@ mod tests {
             ..PlanSettings::default()
         };
         let (top, bottom, poses) = two_sides();
-        let scans: Vec<(ScanPose, PointCloud)> = [(&poses[0], &top), (&poses[1], &bottom)]
-            .into_iter()
-            .map(|(pose, side)| {
-                let seen = side.iter().map(|p| seen_at(&settings, pose, p)).collect();
-                (*pose, PointCloud::new(seen).expect("finite points"))
-            })
-            .collect();
-        let expected: Vec<Point3> = top.iter().chain(&bottom).copied().collect();
+        let (scans, expected) = seen_at_poses(&settings, &top, &bottom, &poses);
         let worst = worst_mm(&merge(&scans, &settings).expect("merges"), &expected);
         assert!(worst < SAME_POINT_MM, "{worst:e} mm off");
         let poses = parse_poses("scan,x,y,z,b,c\n", Path::new("p.csv")).expect("parses");

@@ -15,6 +15,7 @@ use std::process::{Command, Output};
 
 use trim_cell::cell_model::ScanPose;
 use trim_geom::formats::{read_path, read_points};
+use trim_geom::{Point3, PointCloud};
 use trim_register::regional::{moments, principal_axes};
 
 #[path = "support/scans_at_poses.rs"]
@@ -63,11 +64,10 @@ fn untrusted(report: &serde_json::Value) -> usize {
         .count()
 }
 
-#[test]
-fn two_scans_at_two_machine_poses_register_as_the_whole_scan() {
-    let tmp = tempfile::tempdir().unwrap();
-    let case = tmp.path().join("case");
-    // Three views fixed to the cell, as the demo's: two from the top, one from below.
+/// The test part (seed 5, three views fixed to the cell as the demo's: two from the top, one
+/// from below) written to `dir/case` and registered on its whole scan; the report's path.
+fn register_whole_case(dir: &Path) -> PathBuf {
+    let case = dir.join("case");
     let status = Command::new(TRIMCTL)
         .args([
             "synth",
@@ -83,32 +83,23 @@ fn two_scans_at_two_machine_poses_register_as_the_whole_scan() {
         .status()
         .unwrap();
     assert!(status.success());
-    let whole = tmp.path().join("whole.json");
+    let whole = dir.join("whole.json");
     let out = register(&[&case.join("scan.ply")], None, &whole);
     assert!(
         out.status.success(),
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    whole
+}
 
-    // The scan split by the side of the part it lies on (across its thinnest axis), each side
-    // as the scanner saw it at its own machine pose through the nominal cell.
-    let scan = read_points(&case.join("scan.ply")).unwrap();
+/// The whole scan of `dir/case`, and its points split by the side of the part they lie on
+/// (across its thinnest axis), the first side at `poses[0]`, the other at `poses[1]`.
+fn sides_at(dir: &Path, poses: [ScanPose; 2]) -> (PointCloud, Vec<(ScanPose, Vec<Point3>)>) {
+    let scan = read_points(&dir.join("case").join("scan.ply")).unwrap();
     let (centre, cov) = moments(scan.points());
     let thickness = principal_axes(&cov).0.column(2).into_owned();
-    let poses = [
-        ScanPose {
-            xyz_mm: [5.0, -3.0, 20.0],
-            tilt_deg: 0.0,
-            c_deg: 0.0,
-        },
-        ScanPose {
-            xyz_mm: [-12.0, 8.0, 35.0],
-            tilt_deg: -25.0,
-            c_deg: 140.0,
-        },
-    ];
-    let parts: Vec<_> = poses
+    let parts = poses
         .iter()
         .enumerate()
         .map(|(k, pose)| {
@@ -121,6 +112,45 @@ fn two_scans_at_two_machine_poses_register_as_the_whole_scan() {
             (*pose, side)
         })
         .collect();
+    (scan, parts)
+}
+
+/// The registered paths in `a` and `b` hold the same contours and points, each within
+/// [`SAME_PATH_UM`].
+fn assert_same_path(a: &Path, b: &Path) {
+    let (pa, pb) = (read_path(a).unwrap(), read_path(b).unwrap());
+    assert_eq!(pa.contours().len(), pb.contours().len());
+    let mut worst_um = 0.0_f64;
+    for (ca, cb) in pa.contours().iter().zip(pb.contours()) {
+        assert_eq!(ca.id(), cb.id());
+        assert_eq!(ca.points().len(), cb.points().len());
+        for (p, q) in ca.points().iter().zip(cb.points()) {
+            worst_um = worst_um.max((p - q).norm() * 1e3);
+        }
+    }
+    assert!(worst_um <= SAME_PATH_UM, "{worst_um:.2} µm apart");
+}
+
+#[test]
+fn two_scans_at_two_machine_poses_register_as_the_whole_scan() {
+    let tmp = tempfile::tempdir().unwrap();
+    let whole = register_whole_case(tmp.path());
+    // Each side as the scanner saw it at its own machine pose through the nominal cell.
+    let (_, parts) = sides_at(
+        tmp.path(),
+        [
+            ScanPose {
+                xyz_mm: [5.0, -3.0, 20.0],
+                tilt_deg: 0.0,
+                c_deg: 0.0,
+            },
+            ScanPose {
+                xyz_mm: [-12.0, 8.0, 35.0],
+                tilt_deg: -25.0,
+                c_deg: 140.0,
+            },
+        ],
+    );
     let (files, poses_file) = write_scans_at_poses(tmp.path(), "pose", &parts);
     let refs: Vec<&Path> = files.iter().map(PathBuf::as_path).collect();
 
@@ -135,18 +165,7 @@ fn two_scans_at_two_machine_poses_register_as_the_whole_scan() {
     let (a, b) = (report(&whole), report(&merged));
     assert!(b["global"]["refused"].is_null(), "{}", b["global"]);
     assert_eq!(untrusted(&a), untrusted(&b));
-    let pa = read_path(&whole.with_extension("csv")).unwrap();
-    let pb = read_path(&merged.with_extension("csv")).unwrap();
-    let mut worst_um = 0.0_f64;
-    for (ca, cb) in pa.contours().iter().zip(pb.contours()) {
-        assert_eq!(ca.id(), cb.id());
-        assert_eq!(ca.points().len(), cb.points().len());
-        for (p, q) in ca.points().iter().zip(cb.points()) {
-            worst_um = worst_um.max((p - q).norm() * 1e3);
-        }
-    }
-    assert_eq!(pa.contours().len(), pb.contours().len());
-    assert!(worst_um <= SAME_PATH_UM, "{worst_um:.2} µm apart");
+    assert_same_path(&whole.with_extension("csv"), &merged.with_extension("csv"));
 
     // One side alone: the other side's contours lose their data, and are flagged (measured:
     // 10 of 52 untrusted against none with both sides).
@@ -189,59 +208,23 @@ fn two_scans_at_two_machine_poses_register_as_the_whole_scan() {
 #[test]
 fn run_registers_a_part_scanned_at_two_machine_poses_from_the_merged_cloud() {
     let tmp = tempfile::tempdir().unwrap();
-    let case = tmp.path().join("case");
-    let status = Command::new(TRIMCTL)
-        .args([
-            "synth",
-            "--seed",
-            "5",
-            "--views",
-            "3",
-            "--scan-points",
-            "150000",
-            "--out",
-        ])
-        .arg(&case)
-        .status()
-        .unwrap();
-    assert!(status.success());
-    let whole = tmp.path().join("whole.json");
-    let out = register(&[&case.join("scan.ply")], None, &whole);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-
+    let whole = register_whole_case(tmp.path());
     // The two sides, each as the scanner saw it at its pose, in a folder of their own.
-    let scan = read_points(&case.join("scan.ply")).unwrap();
-    let (centre, cov) = moments(scan.points());
-    let thickness = principal_axes(&cov).0.column(2).into_owned();
-    let poses = [
-        ScanPose {
-            xyz_mm: [-4.0, 6.0, 25.0],
-            tilt_deg: 10.0,
-            c_deg: -30.0,
-        },
-        ScanPose {
-            xyz_mm: [9.0, -2.0, 40.0],
-            tilt_deg: -35.0,
-            c_deg: 215.0,
-        },
-    ];
-    let parts: Vec<_> = poses
-        .iter()
-        .enumerate()
-        .map(|(k, pose)| {
-            let side = scan
-                .points()
-                .iter()
-                .filter(|p| ((*p - centre).dot(&thickness) >= 0.0) == (k == 0))
-                .copied()
-                .collect();
-            (*pose, side)
-        })
-        .collect();
+    let (scan, parts) = sides_at(
+        tmp.path(),
+        [
+            ScanPose {
+                xyz_mm: [-4.0, 6.0, 25.0],
+                tilt_deg: 10.0,
+                c_deg: -30.0,
+            },
+            ScanPose {
+                xyz_mm: [9.0, -2.0, 40.0],
+                tilt_deg: -35.0,
+                c_deg: 215.0,
+            },
+        ],
+    );
     let scans = tmp.path().join("scans");
     std::fs::create_dir_all(&scans).unwrap();
     let (files, poses_file) = write_scans_at_poses(&scans, "side", &parts);
@@ -283,18 +266,10 @@ fn run_registers_a_part_scanned_at_two_machine_poses_from_the_merged_cloud() {
     let (a, b) = (report(&whole), report(&run_dir.join("registration.json")));
     assert!(b["global"]["refused"].is_null(), "{}", b["global"]);
     assert_eq!(untrusted(&a), untrusted(&b));
-    let pa = read_path(&whole.with_extension("csv")).unwrap();
-    let pb = read_path(&run_dir.join("registered.csv")).unwrap();
-    assert_eq!(pa.contours().len(), pb.contours().len());
-    let mut worst_um = 0.0_f64;
-    for (ca, cb) in pa.contours().iter().zip(pb.contours()) {
-        assert_eq!(ca.id(), cb.id());
-        assert_eq!(ca.points().len(), cb.points().len());
-        for (p, q) in ca.points().iter().zip(cb.points()) {
-            worst_um = worst_um.max((p - q).norm() * 1e3);
-        }
-    }
-    assert!(worst_um <= SAME_PATH_UM, "{worst_um:.2} µm apart");
+    assert_same_path(
+        &whole.with_extension("csv"),
+        &run_dir.join("registered.csv"),
+    );
 
     // The record's /calibration says where each scan was taken (the MCAP is uncompressed).
     let record = std::fs::read(run_dir.join("run.mcap")).unwrap();
