@@ -126,8 +126,8 @@ pub struct PartConfig {
     /// Where the machine stood when the scan was taken (the scanner's pose, not the part's):
     /// linear joint positions (the tool point, machine frame) and rotary axes. The scan is
     /// mapped into the work-piece frame through [calibration]. The part's pose in the fixture is
-    /// scan_from_cad. With scans, each scan's pose is its row of poses; this one is where a
-    /// `run --verify` rescan is taken.
+    /// scan_from_cad. With scans, each scan's pose is its row of poses, and `run --verify`
+    /// rescans the part at each of them; this one is then not read.
     pub scan_pose: ScanPose,
     /// The fixture's nominal pose of the part (not the machine's: that is scan_pose): where the
     /// CAD frame sits in the work-piece frame the scan is mapped into, scan_from_cad = T·R.
@@ -233,17 +233,21 @@ impl Default for OutputConfig {
 }
 
 /// `run --verify` on a real cell: after the job (and each retrim) the part is rescanned where
-/// it stands, in the scanner frame at `[part.scan_pose]` like `part.scan`. The run waits for
-/// the file `scan_file`, or runs `scan_command` to make it. (The built-in demo part is rescanned
+/// it stands, in the scanner frame at `[part.scan_pose]` like `part.scan`, or, when it was
+/// scanned as `part.scans`, once at each of their poses (trimctl does not move the machine
+/// there: the scan command, or the operator the run waits for, does). The run waits for the
+/// file `scan_file`, or runs `scan_command` to make it. (The built-in demo part is rescanned
 /// by the digital twin; this table is not read then.)
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct VerifyConfig {
-    /// Where inspection k's rescan appears (PLY, PCD or XYZ); `{round}` becomes k. Relative to
-    /// the run folder.
+    /// Where inspection k's rescan appears (PLY, PCD or XYZ); `{round}` becomes k, and `{pose}`
+    /// the file stem of the part's scan whose pose it is taken at (with `part.scans` and no
+    /// `{pose}`, `_<stem>` is put before the extension). Relative to the run folder.
     pub scan_file: String,
     /// A command that scans the part and writes `scan_file` (the program, then its arguments;
-    /// `{scan}` becomes the file's path, `{round}` k and `{look}` 1). When the scan leaves
+    /// `{scan}` becomes the file's path, `{round}` k, `{look}` 1 and `{pose}` as in scan_file;
+    /// with `part.scans` it runs once per pose). When the scan leaves
     /// contours under the inspection's coverage it is run once more (`{look}` 2, `{scan}` the
     /// file with `_again` before its extension) and those contours are judged on the second
     /// scan where it covers them better. Left out, the run waits for the file (and takes it as
@@ -472,6 +476,34 @@ impl JobConfig {
             .collect::<Result<_, scans_at_poses::ScansError>>()
             .context("part.scans")?;
         Ok((cloud, at))
+    }
+
+    /// Where each `run --verify` rescan is taken when the part was scanned as `part.scans`: one
+    /// per scan, in order, named by the scan's file stem (what `{pose}` becomes in `[verify]`),
+    /// at that scan's row of `part.poses`. None with `part.scan` (one rescan at
+    /// `[part.scan_pose]`). Two scans of one stem are refused: their rescans would share a file.
+    pub fn rescan_poses(&self) -> anyhow::Result<Option<Vec<(String, ScanPose)>>> {
+        if self.part.scan.is_some() || self.part.scans.is_empty() {
+            return Ok(None);
+        }
+        let poses = self.part_poses()?;
+        let mut at: Vec<(String, ScanPose)> = Vec::with_capacity(self.part.scans.len());
+        for file in &self.part.scans {
+            let label = file
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .filter(|s| !s.is_empty())
+                .with_context(|| format!("part.scans: {} has no file name", file.display()))?;
+            if at.iter().any(|(l, _)| *l == label) {
+                bail!(
+                    "part.scans: two scans are named {label:?}; their `run --verify` rescans \
+                     would share one file"
+                );
+            }
+            let pose = poses.pose_of(file).context("part.scans")?;
+            at.push((label, pose));
+        }
+        Ok(Some(at))
     }
 
     /// `part.poses`, read and checked against `[machine]`.
@@ -1174,6 +1206,23 @@ mod tests {
         }
         assert_eq!(at[1].0, scans.join("b.ply"));
         assert_eq!(at[1].1.c_deg, 90.0);
+        // `run --verify` rescans at each scan's pose, named by its stem; with part.scan, at
+        // [part.scan_pose] alone (None).
+        let rescans = c.rescan_poses().unwrap().unwrap();
+        assert_eq!(
+            rescans.iter().map(|(l, _)| l.as_str()).collect::<Vec<_>>(),
+            ["a", "b"]
+        );
+        assert_eq!(rescans[1].1.c_deg, 90.0);
+        let mut one = c.clone();
+        one.part.scans.clear();
+        one.part.scan = Some(scans.join("a.ply"));
+        assert!(one.rescan_poses().unwrap().is_none());
+        // Two scans of one stem would share a rescan file: refused, naming the stem.
+        let mut twice = c.clone();
+        twice.part.scans = vec![scans.join("a.ply"), scans.join("a.ply")];
+        let e = format!("{:#}", twice.rescan_poses().unwrap_err());
+        assert!(e.contains("two scans are named \"a\""), "{e}");
         // A B/C cell's job refuses the A/C poses file, naming it.
         let mut bc = c.clone();
         bc.plan.machine.kinematics = trim_cell::KinematicsKind::XyzbcTrt;

@@ -14,6 +14,12 @@ use std::path::Path;
 use std::process::Command;
 
 use serde_json::Value;
+use trim_cell::cell_model::ScanPose;
+use trim_geom::formats::read_points;
+
+#[path = "support/scans_at_poses.rs"]
+mod scans_at_poses;
+use scans_at_poses::{split_by_side, write_scans_at_poses};
 
 const TRIMCTL: &str = env!("CARGO_BIN_EXE_trimctl");
 
@@ -731,6 +737,88 @@ fn a_real_parts_uncovered_contours_get_a_second_look_from_the_scan_command() {
     }
     let rounds = read_json(&out.join("verify.json"));
     assert_eq!(rounds[0]["fail"], 0, "{}", rounds[0]);
+}
+
+/// A part scanned as `[part] scans` at two machine poses (each side of the part from its own
+/// pose) is rescanned at both: the `[verify] scan_command` runs once per pose, `{pose}` naming
+/// the part's scan whose pose it is, and the inspection judges the two rescans merged through
+/// the cell as the registration took the scans. One side's rescan alone would leave the other
+/// side's contours uncovered. A rescan the command does not write stops the run naming the pose.
+#[test]
+fn a_part_scanned_at_two_poses_is_rescanned_at_both_and_judged_on_the_merged_rescans() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let poses = [
+        ScanPose {
+            xyz_mm: [-4.0, 6.0, 25.0],
+            tilt_deg: 10.0,
+            c_deg: -30.0,
+        },
+        ScanPose {
+            xyz_mm: [9.0, -2.0, 40.0],
+            tilt_deg: -35.0,
+            c_deg: 215.0,
+        },
+    ];
+    // The burred part as the job's scans; the same core without burrs, at the same poses, as
+    // what the scanner delivers after trimming.
+    let sides = |core: &Path, dir: &Path| {
+        let scan = read_points(&core.join("scan.ply")).expect("scan.ply");
+        std::fs::create_dir_all(dir).expect("dir");
+        write_scans_at_poses(dir, "side", &split_by_side(&scan, poses))
+    };
+    let clean = tmp.path().join("clean");
+    synth_core(&clean, "0", "0");
+    let (delivered, _) = sides(&clean, &tmp.path().join("delivered"));
+    let core = tmp.path().join("core");
+    synth_core(&core, "0.3", "0");
+    let (_, poses_file) = sides(&core, &tmp.path().join("scans"));
+    let job = tmp.path().join("job.toml");
+    std::fs::write(
+        &job,
+        format!(
+            "[verify]\nscan_command = [\"cp\", \"{}/{{pose}}.ply\", \"{{scan}}\"]\nscan_timeout_s = 60\n\
+             [part]\ncad = \"core/cad.stl\"\npath = \"core/path.csv\"\n\
+             scans = [\"scans/side0.ply\", \"scans/side1.ply\"]\nposes = {poses_file:?}\n",
+            tmp.path().join("delivered").display()
+        ),
+    )
+    .expect("job file");
+    let out = tmp.path().join("run");
+    let (code, stdout, stderr) = run_verify_once(&job, &out);
+    assert_eq!(code, Some(0), "stdout:\n{stdout}\nstderr:\n{stderr}");
+    for (k, file) in delivered.iter().enumerate() {
+        assert!(
+            stdout.contains(&format!(
+                "verify 1: rescanning the part at pose side{k}: cp {}",
+                file.display()
+            )),
+            "{stdout}"
+        );
+        assert!(out.join(format!("rescan_1_side{k}.ply")).exists());
+    }
+    // Both sides seen: every contour covered, nothing fails (the part as delivered carries no
+    // burr), and no second look was needed.
+    let inspected = inspection(&out.join("verify_1"));
+    assert!(inspected.len() >= 40, "{} contours", inspected.len());
+    for (id, c) in &inspected {
+        assert!(num(c, "coverage") >= MIN_COVERAGE, "contour {id}: {c}");
+    }
+    assert!(
+        !stdout.contains("rescanning the part at pose side0 again"),
+        "{stdout}"
+    );
+    let rounds = read_json(&out.join("verify.json"));
+    assert_eq!(rounds[0]["fail"], 0, "{}", rounds[0]);
+
+    // A command that delivers no rescan at the second pose stops the run naming that pose.
+    std::fs::remove_file(&delivered[1]).expect("remove");
+    let out = tmp.path().join("run_lost");
+    let (code, stdout, stderr) = run_verify_once(&job, &out);
+    assert_eq!(code, Some(1), "stdout:\n{stdout}\nstderr:\n{stderr}");
+    assert!(
+        stderr.contains("verify 1") && stderr.contains("pose side1"),
+        "{stderr}"
+    );
 }
 
 #[test]

@@ -16,11 +16,10 @@ use std::process::{Command, Output};
 use trim_cell::cell_model::ScanPose;
 use trim_geom::formats::{read_path, read_points};
 use trim_geom::{Point3, PointCloud};
-use trim_register::regional::{moments, principal_axes};
 
 #[path = "support/scans_at_poses.rs"]
 mod scans_at_poses;
-use scans_at_poses::write_scans_at_poses;
+use scans_at_poses::{split_by_side, write_scans_at_poses};
 
 const TRIMCTL: &str = env!("CARGO_BIN_EXE_trimctl");
 
@@ -94,24 +93,10 @@ fn register_whole_case(dir: &Path) -> PathBuf {
 }
 
 /// The whole scan of `dir/case`, and its points split by the side of the part they lie on
-/// (across its thinnest axis), the first side at `poses[0]`, the other at `poses[1]`.
+/// (`split_by_side`).
 fn sides_at(dir: &Path, poses: [ScanPose; 2]) -> (PointCloud, Vec<(ScanPose, Vec<Point3>)>) {
     let scan = read_points(&dir.join("case").join("scan.ply")).unwrap();
-    let (centre, cov) = moments(scan.points());
-    let thickness = principal_axes(&cov).0.column(2).into_owned();
-    let parts = poses
-        .iter()
-        .enumerate()
-        .map(|(k, pose)| {
-            let side = scan
-                .points()
-                .iter()
-                .filter(|p| ((*p - centre).dot(&thickness) >= 0.0) == (k == 0))
-                .copied()
-                .collect();
-            (*pose, side)
-        })
-        .collect();
+    let parts = split_by_side(&scan, poses);
     (scan, parts)
 }
 

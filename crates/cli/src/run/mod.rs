@@ -213,7 +213,8 @@ pub struct Args {
     /// After the job, rescan the part, inspect every contour (as `trimctl inspect`) and retrim
     /// what failed, up to --rounds times; a part that still fails ends the run with exit 1.
     /// The built-in demo part then carries burrs (30 % of its contours) and the digital twin
-    /// trims and rescans it; a real cell's rescan is not supported yet.
+    /// trims and rescans it; a part of the job's own files is rescanned by job.toml's
+    /// `[verify]` (a scan command, or a file waited for), at each pose of `[part] scans`.
     #[arg(long, conflicts_with = "dry_run")]
     verify: bool,
     /// With --verify: the most retrim rounds.

@@ -8,6 +8,7 @@ use trim_cell::cell_model::{ScanChain, ScanPose, ScannerPose, TableModel};
 use trim_cell::kinematics::MachineSettings;
 use trim_geom::formats::{PlyEncoding, write_ply};
 use trim_geom::{Point3, PointCloud, Similarity3};
+use trim_register::regional::{moments, principal_axes};
 
 /// Writes `{prefix}{k}.ply` for each `(pose, points)` and `poses.csv` naming them, in `dir`.
 /// Returns the scan files in order and the poses file.
@@ -49,4 +50,29 @@ pub fn write_scans_at_poses(
     let poses_file = dir.join("poses.csv");
     std::fs::write(&poses_file, csv).expect("poses.csv is written");
     (files, poses_file)
+}
+
+/// `scan`'s points split by the side of the part they lie on (across its thinnest axis): the
+/// first side at `poses[0]`, the other at `poses[1]`, as a scanner fixed to the machine sees
+/// one side of the part at each of two poses.
+#[allow(
+    dead_code,
+    reason = "not every test file that includes this module splits a scan by side"
+)]
+pub fn split_by_side(scan: &PointCloud, poses: [ScanPose; 2]) -> Vec<(ScanPose, Vec<Point3>)> {
+    let (centre, cov) = moments(scan.points());
+    let thickness = principal_axes(&cov).0.column(2).into_owned();
+    poses
+        .iter()
+        .enumerate()
+        .map(|(k, pose)| {
+            let side = scan
+                .points()
+                .iter()
+                .filter(|p| ((*p - centre).dot(&thickness) >= 0.0) == (k == 0))
+                .copied()
+                .collect();
+            (*pose, side)
+        })
+        .collect()
 }
