@@ -482,6 +482,7 @@ impl JobConfig {
     /// per scan, in order, named by the scan's file stem (what `{pose}` becomes in `[verify]`),
     /// at that scan's row of `part.poses`. None with `part.scan` (one rescan at
     /// `[part.scan_pose]`). Two scans of one stem are refused: their rescans would share a file.
+    #[cfg(feature = "sim")]
     pub fn rescan_poses(&self) -> anyhow::Result<Option<Vec<(String, ScanPose)>>> {
         if self.part.scan.is_some() || self.part.scans.is_empty() {
             return Ok(None);
