@@ -162,3 +162,91 @@ def test_bad_input_raises_value_error_naming_it(two_views):
         trimctl.merge_scans([good], [POSES[0]], settings={"machine": {"kinematics": "hexapod"}})
     with pytest.raises(TypeError):
         trimctl.merge_scans([good], [POSES[0]], {"machine": MACHINE})  # settings is keyword-only
+
+
+def _write_poses(path, header, rows):
+    lines = [header] + [
+        "%s,%r,%r,%r,%r,%r" % (name, *pose["xyz_mm"], pose["tilt_deg"], pose["c_deg"])
+        for name, pose in rows
+    ]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_scan_files_merge_at_their_poses_as_the_arrays_do(tmp_path, two_views):
+    # The CLI's files (register --scan A --scan B --poses poses.csv) from Python: the same
+    # cloud as merge_scans on the arrays with the poses read back from the file.
+    _, views = two_views
+    files = [tmp_path / "side0.ply", tmp_path / "side1.ply"]
+    for f, v in zip(files, views):
+        trimctl.write_points(str(f), v)
+    poses_csv = tmp_path / "poses.csv"
+    # Out of order, with a comment and a blank line: rows are matched by file name.
+    poses = [{**p, "xyz_mm": [float(x) for x in p["xyz_mm"]]} for p in POSES]
+    _write_poses(poses_csv, "# taken 2026-12-03\nscan,x,y,z,a,c\n", [("side1.ply", poses[1]), ("side0.ply", poses[0])])
+
+    read = trimctl.read_poses(poses_csv)
+    assert read.kinematics == "xyzac-trt" and read.path == str(poses_csv)
+    assert [name for name, _ in read.rows] == ["side1.ply", "side0.ply"]
+    assert read.pose_of(files[0]) == poses[0] and read.pose_of(str(files[1])) == poses[1]
+    with pytest.raises(KeyError, match=r"no pose for scan other\.ply in .*poses\.csv"):
+        read.pose_of(tmp_path / "other.ply")
+
+    from_files = trimctl.merge_scan_files(files, poses_csv, settings=SETTINGS)
+    from_arrays = trimctl.merge_scans(
+        [trimctl.read_points(str(f))[0] for f in files],
+        [read.pose_of(f) for f in files],
+        settings=SETTINGS,
+    )
+    assert from_files.shape == (sum(len(v) for v in views), 3)
+    # Both read the same files: the same cloud to the bit.
+    np.testing.assert_array_equal(from_files, from_arrays)
+    whole = np.concatenate(two_views[0])
+    assert np.abs(from_files - whole).max() < 1e-6
+
+
+def test_scan_files_with_bad_poses_raise_errors_naming_the_file(tmp_path, two_views):
+    _, views = two_views
+    scan = tmp_path / "side0.ply"
+    trimctl.write_points(str(scan), views[0][:200])
+    pose = {"xyz_mm": [0.0, 0.0, 0.0], "tilt_deg": 0.0, "c_deg": 0.0}
+    good = tmp_path / "poses.csv"
+    _write_poses(good, "scan,x,y,z,a,c", [("side0.ply", pose)])
+    bc = tmp_path / "bc.csv"
+    _write_poses(bc, "scan,x,y,z,b,c", [("side0.ply", pose)])
+    assert trimctl.read_poses(bc).kinematics == "xyzbc-trt"
+    bad_value = tmp_path / "bad_value.csv"
+    bad_value.write_text("scan,x,y,z,a,c\nside0.ply,0,0,nan,0,0\n")
+    short = tmp_path / "short.csv"
+    short.write_text("scan,x,y,z,a,c\n\nside0.ply,0,0,0,0\n")
+    empty = tmp_path / "empty.csv"
+    empty.write_text("")
+    header = tmp_path / "header.csv"
+    header.write_text("scan,x,y,z\n")
+    for path, message in [
+        (bad_value, r"bad_value\.csv:2: column 4 \(z\): \"nan\" is not a finite number"),
+        (short, r"short\.csv:3: expected 6 columns, got 5"),
+        (empty, r"empty\.csv: empty file"),
+        (header, r"header\.csv:1: expected the header scan,x,y,z,a,c"),
+        (tmp_path / "missing.csv", r"cannot read .*missing\.csv"),
+    ]:
+        with pytest.raises(trimctl.FileFormatError, match=message):
+            trimctl.read_poses(path)
+        with pytest.raises(trimctl.FileFormatError, match=message):
+            trimctl.merge_scan_files([scan], path)
+    # A B/C header on the default A/C cell, and the other way round.
+    with pytest.raises(ValueError, match=r"bc\.csv: the header names a xyzbc-trt cell, the job's \[machine\] is xyzac-trt"):
+        trimctl.merge_scan_files([scan], bc)
+    with pytest.raises(ValueError, match=r"the header names a xyzac-trt cell"):
+        trimctl.merge_scan_files([scan], good, settings={"machine": {"kinematics": "xyzbc-trt"}})
+    # A scan without a row is refused before any file is read; an unreadable scan names itself.
+    with pytest.raises(ValueError, match=r"other\.ply: no pose for scan other\.ply in .*poses\.csv"):
+        trimctl.merge_scan_files([scan, tmp_path / "other.ply"], good)
+    truncated = tmp_path / "cut.ply"
+    truncated.write_bytes(scan.read_bytes()[:300])
+    _write_poses(good, "scan,x,y,z,a,c", [("side0.ply", pose), ("cut.ply", pose)])
+    with pytest.raises(trimctl.FileFormatError, match=r"reading .*cut\.ply"):
+        trimctl.merge_scan_files([scan, truncated], good)
+    with pytest.raises(ValueError, match=r"files: expected a sequence of scan files, got one path"):
+        trimctl.merge_scan_files(scan, good)
+    with pytest.raises(ValueError, match="no scans to merge"):
+        trimctl.merge_scan_files([], good)

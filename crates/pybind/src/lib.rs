@@ -39,6 +39,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(workflow::beam_report, m)?)?;
     m.add_function(wrap_pyfunction!(workflow::plan_path, m)?)?;
     m.add_function(wrap_pyfunction!(scans::merge_scans, m)?)?;
+    m.add_function(wrap_pyfunction!(scans::merge_scan_files, m)?)?;
+    m.add_function(wrap_pyfunction!(scans::read_poses, m)?)?;
     m.add_function(wrap_pyfunction!(workflow::hatch_surface, m)?)?;
     m.add_class::<inspect::PyInspection>()?;
     m.add_class::<inspect::PyContourInspection>()?;

@@ -163,6 +163,10 @@ def plan_path(
 def merge_scans(
     scans: List[Array], poses_json: List[str], settings_json: str
 ) -> Array: ...
+def merge_scan_files(files: List[str], poses: str, settings_json: str) -> Array: ...
+def read_poses(
+    path: str,
+) -> Tuple[str, List[Tuple[str, Tuple[float, float, float], float, float]]]: ...
 def hatch_surface(
     points: Array,
     boundary: Array,

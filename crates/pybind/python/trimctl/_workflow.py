@@ -10,6 +10,7 @@ import copy
 import json
 import math
 import numbers
+import os
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
@@ -26,8 +27,11 @@ __all__ = [
     "Registration",
     "Zone",
     "hatch",
+    "merge_scan_files",
     "merge_scans",
     "plan",
+    "read_poses",
+    "ScanPoses",
     "register_path",
     "synth",
 ]
@@ -319,6 +323,78 @@ def merge_scans(
     pose_json = [_pose_json(k, p) for k, p in enumerate(poses)]
     s = _kw(settings)
     return _native.merge_scans(list(scans), pose_json, json.dumps(s))
+
+
+@dataclass(frozen=True)
+class ScanPoses:
+    """A poses.csv file (:func:`read_poses`): the machine pose each scan was taken at.
+
+    ``kinematics`` is the cell its header implies (``"xyzac-trt"`` for an ``a`` column,
+    ``"xyzbc-trt"`` for ``b``); ``rows`` holds ``(scan file name, pose)`` in file order, each
+    pose a mapping with the keys of job.toml's ``[part.scan_pose]`` (``xyz_mm``, ``tilt_deg``,
+    ``c_deg``), as :func:`merge_scans` takes it.
+    """
+
+    path: str
+    kinematics: str
+    rows: List[Tuple[str, Dict[str, Any]]]
+
+    def pose_of(self, scan: Any) -> Dict[str, Any]:
+        """The pose of the scan file ``scan`` (a path; its file name names its row, the first
+        row of that name wins, as in ``trimctl register --poses``). A file without a row raises
+        ``KeyError`` naming it and the poses file."""
+        name = os.path.basename(os.fspath(scan))
+        for row_name, pose in self.rows:
+            if row_name == name:
+                return copy.deepcopy(pose)
+        raise KeyError(f"{os.fspath(scan)}: no pose for scan {name} in {self.path}")
+
+
+def read_poses(path: Any) -> ScanPoses:
+    """Reads poses.csv: header ``scan,x,y,z,a,c`` (``b`` for ``a`` on a B/C cell), one row per
+    scan file, named by its file name; X, Y, Z joint positions in mm, the rotary axes in
+    degrees; blank and ``#`` lines skipped. The format ``trimctl register --poses``,
+    ``run``'s ``[part] poses`` and ``calibrate cell`` read.
+
+    A missing or empty file, a wrong header, a row of another column count or a value that is
+    not a finite number raises :class:`FileFormatError` naming the file and the line.
+    """
+    kinematics, rows = _native.read_poses(os.fspath(path))
+    return ScanPoses(
+        path=os.fspath(path),
+        kinematics=kinematics,
+        rows=[
+            (scan, {"xyz_mm": list(xyz), "tilt_deg": tilt, "c_deg": c})
+            for scan, xyz, tilt, c in rows
+        ],
+    )
+
+
+def merge_scan_files(
+    files: Sequence[Any],
+    poses: Any,
+    *,
+    settings: Optional[Mapping[str, Any]] = None,
+) -> np.ndarray:
+    """:func:`merge_scans` from files: reads the scan files ``files`` (PLY/PCD/XYZ, scanner
+    frame, mm) and carries each into the work-piece frame at the pose its file name has in the
+    poses file ``poses`` (:func:`read_poses`), as ``trimctl register --scan A --scan B --poses
+    poses.csv`` does. ``settings`` as for :func:`merge_scans`; the poses file's header must
+    name the cell of its ``machine`` table (``a`` for ``xyzac-trt``, the default; ``b`` for
+    ``xyzbc-trt``).
+
+    Returns the ``(sum N_i, 3)`` merged points, files in order. A file without a row in the
+    poses file raises ``ValueError`` naming both before any scan is read; an unreadable or
+    malformed scan or poses file raises :class:`FileFormatError` naming the file (and the
+    line), a header of another cell ``ValueError``.
+    """
+    if isinstance(files, (str, bytes, os.PathLike)):
+        raise ValueError(
+            f"files: expected a sequence of scan files, got one path {os.fspath(files)!r}"
+        )
+    paths = [os.fspath(f) for f in files]
+    s = _kw(settings)
+    return _native.merge_scan_files(paths, os.fspath(poses), json.dumps(s))
 
 
 @dataclass(frozen=True)
