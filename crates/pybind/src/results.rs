@@ -78,7 +78,9 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
 /// edge terms condition the field on a strip's (not a rim's). A strip
 /// whose readings show more than 20 µm of material beyond it, or a strip sharing an end with
 /// one, is flagged `material_beyond` (the edge may lie inside the material, or a burr stands
-/// there; the part is not refused for it).
+/// there; the part is not refused for it). A strip one of whose readings still puts it more
+/// than 12 µm beyond the material at 2σ (0.4 of the tolerance: the cross-edge P95 promised),
+/// or a strip sharing an end with one, is flagged `edge_gap` (the part is not put in doubt).
 #[pyclass(module = "trimctl", frozen, get_all)]
 pub struct ContourQuality {
     /// The contour id.

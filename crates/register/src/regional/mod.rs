@@ -66,7 +66,9 @@ pub use quality::{
     REGION_FAR_OFF_FRACTION, REGION_MIN_FAR_OFF, SUPPORT_MIN_COS, SlideRetry, is_open,
     predicted_bound_mm, strips_sharing_ends,
 };
-use quality::{contour_quality, judge_edges, judge_part, judge_region, material_beyond};
+use quality::{
+    contour_quality, judge_edge_gaps, judge_edges, judge_part, judge_region, material_beyond,
+};
 pub use scanned_edge::{
     EDGE_GAP_SIGMAS, EDGE_STRETCH_MM, EDGE_WINDOW_MM, EdgeFrom, ScannedEdge, scanned_edges,
 };
@@ -628,6 +630,7 @@ fn register_once(
     let region_in_doubt = whole
         .then(|| judge_region(&mut contours, &strips, &joins, &settings.quality))
         .flatten();
+    judge_edge_gaps(&mut contours, &strips, &joins, &settings.quality);
     let untrustworthy = contours.iter().filter(|c| !c.trustworthy).count();
     let report = QualityReport {
         global: GlobalQuality {

@@ -60,6 +60,13 @@ pub enum Flag {
     /// bound, that shares an end with an untrusted strip reaching into that stretch: the slide
     /// along an edge carries over the shared end, past the stretch's end too.
     RegionInDoubt,
+    /// A strip whose scanned edge, read after the field was fitted and conditioned on the
+    /// edges, still shows it beyond the material by more than [`EDGE_GAP_P95_FRACTION`] of the
+    /// tolerance (12 µm of 30) at [`crate::regional::EDGE_GAP_SIGMAS`] ([`judge_edge_gaps`]),
+    /// or a strip that shares an end with such a strip: across that edge the strip errs by
+    /// more than the P95 the registration promises, and the strip meeting it at a corner by as
+    /// much along itself there. The part is not put in doubt by it.
+    EdgeGap,
 }
 
 /// The quality of one registered contour (report JSON).
@@ -657,6 +664,55 @@ pub fn material_beyond(
         .enumerate()
         .map(|(i, joined)| beyond[i] || joined.iter().any(|&j| beyond[j]))
         .collect()
+}
+
+/// The share of the tolerance by which a strip's scanned edge, after the update, may read the
+/// strip beyond the material at [`crate::regional::EDGE_GAP_SIGMAS`] before it is flagged
+/// [`Flag::EdgeGap`]: the registration's promise of a cross-edge P95 within 12 µm where the
+/// tolerance on the largest error is 30 µm (the targets, not fitted). A reading is a
+/// mean over a 20 mm stretch, so a strip read that far off has most of that stretch off by
+/// as much. Measured (2026-12-03) by replaying the outside generator's sets from their
+/// `registration.json` (new flags / of them contours under 15 µm / trusted contours over 12 µm
+/// P95 or 30 µm max caught): tune 2001–2080 at 200k points 1 / 1 / 0 of 20; at 500k 3 / 1 / 3
+/// (part 2048's tip and trailing strips, 30.4 µm at their corner under bounds of 24–25 µm,
+/// the one trusted contour pair over 30 µm on that set, and its lower tip strip, 27.9 µm P95);
+/// fresh 8881–8960 (500k) and 8961–9040 (200k) 0; fresh 9041–9120 (500k) 4 / 2 / 2 of 7.
+/// After the update the readings rarely stand off: the terms pull the strips onto them, so a
+/// gap that remains is a slide the field could not follow.
+pub const EDGE_GAP_P95_FRACTION: f64 = 0.4;
+
+/// Flags [`Flag::EdgeGap`] on every trusted strip (of `strips`, CAD frame; `joins` from
+/// [`strips_sharing_ends`]) one of whose scanned edges (`scan_edges`, after the update) reads
+/// it beyond the material by more than [`EDGE_GAP_P95_FRACTION`] of `q.tolerance_um` at
+/// [`crate::regional::EDGE_GAP_SIGMAS`], trusted or not, and on every trusted strip that shares
+/// an end with such a strip. Run after the part's, edges' and stretch's judgements, so it
+/// counts toward none of them. One step: the strips beside are those of the readings alone.
+pub(crate) fn judge_edge_gaps(
+    contours: &mut [ContourQuality],
+    strips: &[&[Point3]],
+    joins: &[Vec<usize>],
+    q: &QualitySettings,
+) {
+    let limit_um = EDGE_GAP_P95_FRACTION * q.tolerance_um;
+    let off: Vec<bool> = contours
+        .iter()
+        .zip(strips)
+        .map(|(c, p)| {
+            is_strip(p)
+                && c.scan_edges.iter().any(|e| {
+                    -e.offset_um - crate::regional::EDGE_GAP_SIGMAS * e.sigma_um > limit_um
+                })
+        })
+        .collect();
+    let hit: Vec<bool> = joins
+        .iter()
+        .enumerate()
+        .map(|(i, joined)| contours[i].trustworthy && (off[i] || joined.iter().any(|&j| off[j])))
+        .collect();
+    for (c, _) in contours.iter_mut().zip(&hit).filter(|(_, h)| **h) {
+        c.flags.push(Flag::EdgeGap);
+        c.trustworthy = false;
+    }
 }
 
 /// Whether a contour is a strip: open, with two ends another strip can share.
@@ -1766,5 +1822,80 @@ mod tests {
         let mut two = edge([120.0, 90.0, 20.0, 20.0, 20.0, 10.0]);
         assert!(judge_edges(&mut two, &joins, &q).is_none());
         assert!(two[2].trustworthy);
+    }
+
+    #[test]
+    fn a_strip_its_scan_reads_off_by_more_than_the_p95_is_flagged_with_the_strips_beside_it() {
+        // Five strips end to end along x, and a rim.
+        let mut lines: Vec<Vec<Point3>> = (0..5)
+            .map(|i| {
+                (0..=10)
+                    .map(|k| Point3::new(10.0 * f64::from(i) + f64::from(k), 0.0, 0.0))
+                    .collect()
+            })
+            .collect();
+        lines.push(
+            (0..=12)
+                .map(|k| {
+                    let a = f64::from(k) * std::f64::consts::TAU / 12.0;
+                    Point3::new(20.0 + a.cos(), 5.0 + a.sin(), 0.0)
+                })
+                .collect(),
+        );
+        let strips: Vec<&[Point3]> = lines.iter().map(Vec::as_slice).collect();
+        let joins = strips_sharing_ends(&strips);
+        let q = QualitySettings::default();
+        let reading = |offset_um: f64, sigma_um: f64| EdgeReading {
+            at_mm: 5.0,
+            offset_um,
+            sigma_um,
+            points: 400,
+            from: crate::regional::EdgeFrom::Face,
+            flash_share: 0.0,
+            size_um: 0.0,
+        };
+        // Strip 2 reads its edge 24.4 ± 2.8 µm beyond the material (outside tune part 2048's
+        // tip strip at 500k points): a gap of 18.8 µm at 2σ, over 12 µm.
+        let part = |offset_um: f64, sigma_um: f64| -> Vec<ContourQuality> {
+            (0..6)
+                .map(|i| {
+                    let mut c = contour(i, None, Vec::new());
+                    c.scan_edges = vec![reading(if i == 2 { offset_um } else { -1.0 }, 3.0)];
+                    if i == 2 {
+                        c.scan_edges[0].sigma_um = sigma_um;
+                    }
+                    c
+                })
+                .collect()
+        };
+        let mut off = part(-24.4, 2.8);
+        judge_edge_gaps(&mut off, &strips, &joins, &q);
+        let flagged: Vec<usize> = (0..6).filter(|&i| !off[i].trustworthy).collect();
+        assert_eq!(
+            flagged,
+            vec![1, 2, 3],
+            "the strip and the two sharing its ends, one step"
+        );
+        assert!(off[1..=3].iter().all(|c| c.flags == [Flag::EdgeGap]));
+        // At 2σ the same offset read less sharply is within 12 µm (24.4 − 2·6.5 = 11.4).
+        let mut loose = part(-24.4, 6.5);
+        judge_edge_gaps(&mut loose, &strips, &joins, &q);
+        assert!(loose.iter().all(|c| c.trustworthy && c.flags.is_empty()));
+        // Material beyond the strip (a burr's side) is not a gap.
+        let mut beyond = part(24.4, 2.8);
+        judge_edge_gaps(&mut beyond, &strips, &joins, &q);
+        assert!(beyond.iter().all(|c| c.trustworthy));
+        // An untrusted strip's gap still flags the strips beside it; it keeps its own flags.
+        let mut flagged_before = part(-24.4, 2.8);
+        flagged_before[2].flags.push(Flag::PredictedError);
+        flagged_before[2].trustworthy = false;
+        judge_edge_gaps(&mut flagged_before, &strips, &joins, &q);
+        assert_eq!(flagged_before[2].flags, vec![Flag::PredictedError]);
+        assert!(!flagged_before[1].trustworthy && !flagged_before[3].trustworthy);
+        // A rim reading as far off is the openings' and the rim check's, not this rule's.
+        let mut rim = part(-1.0, 3.0);
+        rim[5].scan_edges = vec![reading(-40.0, 2.0)];
+        judge_edge_gaps(&mut rim, &strips, &joins, &q);
+        assert!(rim.iter().all(|c| c.trustworthy));
     }
 }
