@@ -595,7 +595,8 @@ fn register_once(
     })?;
     let strips: Vec<&[Point3]> = path.contours().iter().map(|c| c.points()).collect();
     let joins = strips_sharing_ends(&strips);
-    stage(&mut timings, "scanned edges", || {
+    // Each contour's widest gap after the update alone (`judge_edge_gaps`).
+    let gaps_after_um = stage(&mut timings, "scanned edges", || {
         let readings: Vec<Vec<ScannedEdge>> = registered
             .contours()
             .par_iter()
@@ -620,7 +621,10 @@ fn register_once(
                 c.trustworthy = false;
             }
         }
-        Ok(())
+        Ok(readings
+            .iter()
+            .map(|edges| scanned_edge::contour_gap_um(edges, None))
+            .collect::<Vec<_>>())
     })?;
     let verdict = judge_part(&mut contours, &joins, &settings.quality);
     let whole = verdict.refused.is_none() && verdict.in_doubt.is_none();
@@ -630,7 +634,13 @@ fn register_once(
     let region_in_doubt = whole
         .then(|| judge_region(&mut contours, &strips, &joins, &settings.quality))
         .flatten();
-    judge_edge_gaps(&mut contours, &strips, &joins, &settings.quality);
+    judge_edge_gaps(
+        &mut contours,
+        &strips,
+        &joins,
+        &gaps_after_um,
+        &settings.quality,
+    );
     let untrustworthy = contours.iter().filter(|c| !c.trustworthy).count();
     let report = QualityReport {
         global: GlobalQuality {

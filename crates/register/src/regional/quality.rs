@@ -682,27 +682,24 @@ pub fn material_beyond(
 pub const EDGE_GAP_P95_FRACTION: f64 = 0.4;
 
 /// Flags [`Flag::EdgeGap`] on every trusted strip (of `strips`, CAD frame; `joins` from
-/// [`strips_sharing_ends`]) one of whose scanned edges (`scan_edges`, after the update) reads
-/// it beyond the material by more than [`EDGE_GAP_P95_FRACTION`] of `q.tolerance_um` at
-/// [`crate::regional::EDGE_GAP_SIGMAS`], trusted or not, and on every trusted strip that shares
-/// an end with such a strip. Run after the part's, edges' and stretch's judgements, so it
-/// counts toward none of them. One step: the strips beside are those of the readings alone.
+/// [`strips_sharing_ends`]) whose widest gap after the update (`gaps_after_um`: each
+/// contour's [`ScannedEdge::gap_mm`] over its readings after the update, in µm, at
+/// [`crate::regional::EDGE_GAP_SIGMAS`] for a strip) exceeds [`EDGE_GAP_P95_FRACTION`] of
+/// `q.tolerance_um`, trusted or not, and on every trusted strip that shares an end with such a
+/// strip. Run after the part's, edges' and stretch's judgements, so it counts toward none of
+/// them. One step: the strips beside are those of the gaps alone.
 pub(crate) fn judge_edge_gaps(
     contours: &mut [ContourQuality],
     strips: &[&[Point3]],
     joins: &[Vec<usize>],
+    gaps_after_um: &[Option<f64>],
     q: &QualitySettings,
 ) {
     let limit_um = EDGE_GAP_P95_FRACTION * q.tolerance_um;
-    let off: Vec<bool> = contours
+    let off: Vec<bool> = strips
         .iter()
-        .zip(strips)
-        .map(|(c, p)| {
-            is_strip(p)
-                && c.scan_edges.iter().any(|e| {
-                    -e.offset_um - crate::regional::EDGE_GAP_SIGMAS * e.sigma_um > limit_um
-                })
-        })
+        .zip(gaps_after_um)
+        .map(|(p, gap)| is_strip(p) && gap.is_some_and(|g| g > limit_um))
         .collect();
     let hit: Vec<bool> = joins
         .iter()
@@ -1845,31 +1842,24 @@ mod tests {
         let strips: Vec<&[Point3]> = lines.iter().map(Vec::as_slice).collect();
         let joins = strips_sharing_ends(&strips);
         let q = QualitySettings::default();
-        let reading = |offset_um: f64, sigma_um: f64| EdgeReading {
-            at_mm: 5.0,
-            offset_um,
-            sigma_um,
-            points: 400,
-            from: crate::regional::EdgeFrom::Face,
-            flash_share: 0.0,
-            size_um: 0.0,
+        let part = || -> Vec<ContourQuality> { (0..6).map(|i| contour(i, None, vec![])).collect() };
+        // The gap after the update, µm, of a reading `offset_um ± sigma_um` (a strip's, at 2σ).
+        let gap = |offset_um: f64, sigma_um: f64| {
+            let e = ScannedEdge {
+                sigma_mm: 1e-3 * sigma_um,
+                ..edge(1e-3 * offset_um, 0.0)
+            };
+            crate::regional::scanned_edge::contour_gap_um(&[e], None)
         };
         // Strip 2 reads its edge 24.4 ± 2.8 µm beyond the material (outside tune part 2048's
         // tip strip at 500k points): a gap of 18.8 µm at 2σ, over 12 µm.
-        let part = |offset_um: f64, sigma_um: f64| -> Vec<ContourQuality> {
+        let gaps = |strip_2: Option<f64>| -> Vec<Option<f64>> {
             (0..6)
-                .map(|i| {
-                    let mut c = contour(i, None, Vec::new());
-                    c.scan_edges = vec![reading(if i == 2 { offset_um } else { -1.0 }, 3.0)];
-                    if i == 2 {
-                        c.scan_edges[0].sigma_um = sigma_um;
-                    }
-                    c
-                })
+                .map(|i| if i == 2 { strip_2 } else { gap(-1.0, 3.0) })
                 .collect()
         };
-        let mut off = part(-24.4, 2.8);
-        judge_edge_gaps(&mut off, &strips, &joins, &q);
+        let mut off = part();
+        judge_edge_gaps(&mut off, &strips, &joins, &gaps(gap(-24.4, 2.8)), &q);
         let flagged: Vec<usize> = (0..6).filter(|&i| !off[i].trustworthy).collect();
         assert_eq!(
             flagged,
@@ -1878,24 +1868,31 @@ mod tests {
         );
         assert!(off[1..=3].iter().all(|c| c.flags == [Flag::EdgeGap]));
         // At 2σ the same offset read less sharply is within 12 µm (24.4 − 2·6.5 = 11.4).
-        let mut loose = part(-24.4, 6.5);
-        judge_edge_gaps(&mut loose, &strips, &joins, &q);
+        let mut loose = part();
+        judge_edge_gaps(&mut loose, &strips, &joins, &gaps(gap(-24.4, 6.5)), &q);
         assert!(loose.iter().all(|c| c.trustworthy && c.flags.is_empty()));
         // Material beyond the strip (a burr's side) is not a gap.
-        let mut beyond = part(24.4, 2.8);
-        judge_edge_gaps(&mut beyond, &strips, &joins, &q);
+        let mut beyond = part();
+        judge_edge_gaps(&mut beyond, &strips, &joins, &gaps(gap(24.4, 2.8)), &q);
         assert!(beyond.iter().all(|c| c.trustworthy));
         // An untrusted strip's gap still flags the strips beside it; it keeps its own flags.
-        let mut flagged_before = part(-24.4, 2.8);
+        let mut flagged_before = part();
         flagged_before[2].flags.push(Flag::PredictedError);
         flagged_before[2].trustworthy = false;
-        judge_edge_gaps(&mut flagged_before, &strips, &joins, &q);
+        judge_edge_gaps(
+            &mut flagged_before,
+            &strips,
+            &joins,
+            &gaps(gap(-24.4, 2.8)),
+            &q,
+        );
         assert_eq!(flagged_before[2].flags, vec![Flag::PredictedError]);
         assert!(!flagged_before[1].trustworthy && !flagged_before[3].trustworthy);
         // A rim reading as far off is the openings' and the rim check's, not this rule's.
-        let mut rim = part(-1.0, 3.0);
-        rim[5].scan_edges = vec![reading(-40.0, 2.0)];
-        judge_edge_gaps(&mut rim, &strips, &joins, &q);
+        let mut rim = part();
+        let mut rim_gaps = gaps(gap(-1.0, 3.0));
+        rim_gaps[5] = gap(-40.0, 2.0);
+        judge_edge_gaps(&mut rim, &strips, &joins, &rim_gaps, &q);
         assert!(rim.iter().all(|c| c.trustworthy));
     }
 }
