@@ -3,6 +3,7 @@ the CLI."""
 
 import copy
 import json
+import math
 import os
 import pathlib
 import re
@@ -101,6 +102,38 @@ def test_a_part_in_doubt_flags_only_the_contours_over_its_share_of_the_tolerance
         )
 
 
+def test_max_p95_risk_flags_the_trusted_contours_over_the_chance_set(case, registration):
+    # A chance between the demo part's trusted risks: the contours over it, and only they, are
+    # flagged p95_risk; the part's judgement and every other flag stay as they were.
+    risks = sorted(q.p95_risk for q in registration.quality if q.trustworthy)
+    assert len(risks) >= 4 and risks[-1] > risks[0]
+    chance = 0.5 * (risks[len(risks) // 2] + risks[len(risks) // 2 - 1])
+    strict = trimctl.register_path(
+        case.cad_points, case.scan, case.path, cad_normals=case.cad_normals,
+        init=case.scan_from_cad_nominal,
+        settings={"cad_sample_points": 60_000, "quality": {"max_p95_risk": chance}},
+    )
+    assert strict.in_doubt == registration.in_doubt and strict.refused == registration.refused
+    flagged = 0
+    for before, after in zip(registration.quality, strict.quality):
+        assert after.p95_risk == before.p95_risk, after
+        if before.trustworthy and before.p95_risk > chance:
+            assert list(after.flags) == ["p95_risk"] and not after.trustworthy, after
+            flagged += 1
+        else:
+            assert after.flags == before.flags, after
+    assert flagged >= 1
+    assert strict.expected_over_p95 == pytest.approx(
+        sum(q.p95_risk for q in strict.quality if q.trustworthy), rel=1e-12)
+    assert strict.expected_over_p95 < registration.expected_over_p95
+    with pytest.raises(ValueError, match="quality.max_p95_risk"):
+        trimctl.register_path(
+            case.cad_points, case.scan, case.path, cad_normals=case.cad_normals,
+            init=case.scan_from_cad_nominal,
+            settings={"cad_sample_points": 60_000, "quality": {"max_p95_risk": 1.5}},
+        )
+
+
 def entry_of(registration, contour_id):
     return next(c for c in registration.contours if c["id"] == contour_id)
 
@@ -140,6 +173,13 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
         # The split deviations: the larger is the field's; the demo part's openings read where
         # the registration puts them (the opening check, as in registration.json).
         assert max(q.cross_sigma_mm, q.end_sigma_mm) == q.field_sigma_mm, q
+        # The P95 risk: the chance, from the posterior across the contour, that it lies beyond
+        # the cross-edge P95 limit (12 µm of 30), as in registration.json.
+        assert q.p95_risk == entry["p95_risk"], q
+        limit_um = registration.report["global"]["p95_limit_um"]
+        assert limit_um == pytest.approx(12.0)
+        assert q.p95_risk == pytest.approx(
+            math.erfc(limit_um / (1e3 * q.cross_sigma_mm) / math.sqrt(2)), rel=1e-9, abs=1e-300), q
         assert q.opening_slide_mm == entry["opening_slide_mm"], q
         assert q.opening_gain is None or q.opening_gain < 0.4, q
         assert "opening_misplaced" not in q.flags, q
@@ -173,6 +213,10 @@ def test_registration_reports_each_contours_predicted_bound(case, registration):
     # A part not refused is not retried (DESIGN.md, "A slide along the span, retried").
     assert registration.slide_retry is None
     assert "slide_retry" in registration.report["global"]
+    # The trusted contours' expected count beyond the P95 limit is the sum of their risks.
+    assert registration.expected_over_p95 == pytest.approx(
+        sum(q.p95_risk for q in quality if q.trustworthy), rel=1e-12)
+    assert not any("p95_risk" in q.flags for q in quality)  # off by default
     # The bound covers the actual largest cross-edge error on most contours of the demo case
     # (the calibration test asserts >= 95 % on the seeded cases; here a few contours only).
     truth = {cid: case.truth.points[case.truth.ids == cid] for cid in bounds}

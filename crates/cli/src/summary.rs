@@ -72,6 +72,9 @@ pub fn registration(report: &QualityReport) -> String {
             e.largest_shift_mm * 1e3
         );
     }
+    if let Some(line) = p95_risk_line(report) {
+        let _ = writeln!(s, "{line}");
+    }
     let mut worst: Vec<_> = report.contours.iter().collect();
     // Untrustworthy first, then by predicted bound.
     worst.sort_by(|a, b| {
@@ -82,7 +85,7 @@ pub fn registration(report: &QualityReport) -> String {
     });
     let _ = writeln!(
         s,
-        "  worst contours:  id  bound µm  residual µm  coverage %  flags"
+        "  worst contours:  id  bound µm  residual µm  coverage %  P95 risk %  flags"
     );
     for c in worst.iter().take(WORST_CONTOURS) {
         let _ = writeln!(s, "{}", contour_row(c));
@@ -90,16 +93,54 @@ pub fn registration(report: &QualityReport) -> String {
     s
 }
 
+/// How many trusted contours are expected beyond the cross-edge P95 limit, and the three most at
+/// risk (`None` without a posterior, in global mode).
+fn p95_risk_line(report: &QualityReport) -> Option<String> {
+    let g = &report.global;
+    let expected = g.expected_over_p95?;
+    let mut trusted: Vec<(&ContourQuality, f64)> = report
+        .contours
+        .iter()
+        .filter(|c| c.trustworthy)
+        .filter_map(|c| c.p95_risk.map(|r| (c, r)))
+        .collect();
+    trusted.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.id.cmp(&b.0.id)));
+    let most: Vec<String> = trusted
+        .iter()
+        .take(3)
+        .filter(|(_, r)| *r >= 0.005)
+        .map(|(c, r)| format!("{} {:.0} %", c.id, r * 1e2))
+        .collect();
+    Some(format!(
+        "  cross-edge P95 limit {:.0} µm: {:.2} of the {} trusted contours expected beyond it{} (quality.max_p95_risk flags a contour over the chance you set)",
+        g.p95_limit_um,
+        expected,
+        trusted.len(),
+        if most.is_empty() {
+            String::new()
+        } else {
+            format!(", most at risk: {}", most.join(", "))
+        }
+    ))
+}
+
+/// A contour's `p95_risk` in per cent, `-` without one.
+fn risk_percent(c: &ContourQuality) -> String {
+    c.p95_risk
+        .map_or("-".to_owned(), |r| format!("{:.1}", r * 1e2))
+}
+
 /// One contour's row of the registration summary (see [`registration`]).
 fn contour_row(c: &ContourQuality) -> String {
     let flags: Vec<String> = c.flags.iter().map(|f| format!("{f:?}")).collect();
     format!(
-        "  {:>17}  {:>8.1}  {:>11}  {:>10.0}  {}",
+        "  {:>17}  {:>8.1}  {:>11}  {:>10.0}  {:>10}  {}",
         c.id,
         c.predicted_max_error_um,
         c.residual_rms_mm
             .map_or("-".to_owned(), |r| format!("{:.1}", r * 1e3)),
         c.coverage * 100.0,
+        risk_percent(c),
         if flags.is_empty() {
             "-".into()
         } else {
@@ -112,19 +153,20 @@ fn contour_row(c: &ContourQuality) -> String {
 #[must_use]
 pub fn contour_table(report: &QualityReport) -> String {
     let mut s = String::from(
-        "| contour | predicted max error µm | residual µm | coverage % | field σ µm | support distance mm | flags | trusted |\n|---|---|---|---|---|---|---|---|\n",
+        "| contour | predicted max error µm | residual µm | coverage % | field σ µm | P95 risk % | support distance mm | flags | trusted |\n|---|---|---|---|---|---|---|---|---|\n",
     );
     for c in &report.contours {
         let flags: Vec<String> = c.flags.iter().map(|f| format!("{f:?}")).collect();
         let _ = writeln!(
             s,
-            "| {} | {:.1} | {} | {:.0} | {:.1} | {:.2} | {} | {} |",
+            "| {} | {:.1} | {} | {:.0} | {:.1} | {} | {:.2} | {} | {} |",
             c.id,
             c.predicted_max_error_um,
             c.residual_rms_mm
                 .map_or("-".to_owned(), |r| format!("{:.1}", r * 1e3)),
             c.coverage * 100.0,
             c.field_sigma_mm * 1e3,
+            risk_percent(c),
             c.support_distance_mm,
             if flags.is_empty() {
                 "-".into()

@@ -119,6 +119,10 @@ pub struct ContourQuality {
     /// For an open contour, the posterior deviation at its ends in any direction, mm (0 for a
     /// closed one).
     pub end_sigma_mm: f64,
+    /// The chance that the contour lies farther across itself than the cross-edge P95 limit
+    /// (`report["global"]["p95_limit_um"]`, 12 µm of a 30 µm tolerance), from the posterior
+    /// across it; `None` without a posterior (global mode).
+    pub p95_risk: Option<f64>,
     /// For a closed contour, how far off the scan shows its opening, mm; `None` for an open
     /// contour or too small an opening (the opening check, flag `opening_misplaced`).
     pub opening_slide_mm: Option<f64>,
@@ -195,6 +199,7 @@ impl ContourQuality {
             model_disagreement_faces_mm: c.model_disagreement_faces_mm,
             cross_sigma_mm: c.cross_sigma_mm,
             end_sigma_mm: c.end_sigma_mm,
+            p95_risk: c.p95_risk,
             opening_slide_mm: c.opening_slide_mm,
             opening_gain: c.opening_gain,
             opening_cover_gain: c.opening_cover_gain,

@@ -54,6 +54,9 @@ fn settings_for(c: &SynthCase) -> RegisterSettings {
 fn the_predicted_bound_covers_the_actual_error() {
     let (mut contours, mut covered, mut good, mut good_flagged) = (0, 0, 0, 0);
     let (mut bad, mut bad_trusted) = (0, 0);
+    // The P95 risk's prediction: the trusted contours expected beyond the cross-edge P95 limit
+    // (the sum of their `p95_risk`), and how many are.
+    let (mut expected_over_p95, mut over_p95) = (0.0, 0u32);
     let mut cases_report = Vec::new();
     for seed in SEEDS {
         let c = generate(&cases::case_params(seed, 150_000, 200_000)).unwrap();
@@ -68,11 +71,32 @@ fn the_predicted_bound_covers_the_actual_error() {
             "seed {seed}: {all:?}"
         );
         let tolerance_um = settings.quality.tolerance_um;
+        let expected = reg.report.global.expected_over_p95.expect("a posterior");
+        assert!(
+            (expected
+                - reg
+                    .report
+                    .contours
+                    .iter()
+                    .filter(|q| q.trustworthy)
+                    .filter_map(|q| q.p95_risk)
+                    .sum::<f64>())
+            .abs()
+                < 1e-9
+        );
+        expected_over_p95 += expected;
         for q in &reg.report.contours {
-            let actual_um = path_errors(&reg.path, &c.truth, |id| id == q.id)
-                .unwrap()
-                .cross_edge_max_mm
-                * 1e3;
+            let own = path_errors(&reg.path, &c.truth, |id| id == q.id).unwrap();
+            let actual_um = own.cross_edge_max_mm * 1e3;
+            if q.trustworthy && own.cross_edge_p95_mm > CROSS_EDGE_P95_MM {
+                over_p95 += 1;
+                cases_report.push(format!(
+                    "seed {seed} contour {}: trusted, own P95 {:.1} µm (P95 risk {:?})",
+                    q.id,
+                    own.cross_edge_p95_mm * 1e3,
+                    q.p95_risk
+                ));
+            }
             assert!(
                 q.predicted_max_error_um.is_finite() && q.predicted_max_error_um > 0.0,
                 "{q:?}"
@@ -132,6 +156,12 @@ fn the_predicted_bound_covers_the_actual_error() {
     assert_eq!(
         bad_trusted, 0,
         "{bad_trusted} of {bad} contours over the tolerance trusted: {cases_report:#?}"
+    );
+    // The risks do not understate: no more trusted contours beyond the P95 limit than their
+    // sum allows, within a Poisson count's upper 99.7 % (λ + 3√λ, and 2 more for a small λ).
+    assert!(
+        f64::from(over_p95) <= expected_over_p95 + 3.0 * expected_over_p95.sqrt() + 2.0,
+        "{over_p95} trusted contours beyond the P95 limit, {expected_over_p95:.2} expected: {cases_report:#?}"
     );
 }
 

@@ -134,6 +134,7 @@ class ContourQuality:
     model_disagreement_faces_mm: float
     cross_sigma_mm: float
     end_sigma_mm: float
+    p95_risk: Optional[float]
     opening_slide_mm: Optional[float]
     opening_gain: Optional[float]
     opening_cover_gain: Optional[float]

@@ -468,6 +468,15 @@ class Registration:
         ``taken`` (the retry is this registration; otherwise the refused first one is)."""
         return self.report["global"].get("slide_retry")
 
+    @property
+    def expected_over_p95(self) -> Optional[float]:
+        """How many of the trusted contours are expected to lie farther across than the
+        cross-edge P95 limit (``report["global"]["p95_limit_um"]``, 12 µm of a 30 µm tolerance):
+        the sum of their ``ContourQuality.p95_risk``, ``None`` without a posterior (global mode).
+        ``settings={"quality": {"max_p95_risk": 0.05}}`` flags ``p95_risk`` on every contour whose
+        chance exceeds 5 %."""
+        return self.report["global"].get("expected_over_p95")
+
 
 def register_path(
     cad: np.ndarray,

@@ -61,13 +61,14 @@ pub use openings::{
 pub use quality::{
     BOUND_BIAS_MM, BOUND_COVERAGE_FACTOR, BOUND_DISTANCE_SLOPE, BOUND_MODEL_FACTOR,
     BOUND_RESIDUAL_FACTOR, BOUND_SAMPLE_STEP, BOUND_SIGMA_FACTOR, CLOSED_GAP_SPACINGS,
-    ContourQuality, END_SUPPORT_MIN_COS, EdgeReading, Flag, GlobalQuality, MATERIAL_BEYOND_MM,
-    MODEL_CHECK_SPACING_RATIO, PART_BOUND_SIGMA_FACTOR, QualityReport, REGION_DOUBT_FRACTION,
-    REGION_FAR_OFF_FRACTION, REGION_MIN_FAR_OFF, SUPPORT_MIN_COS, SlideRetry, is_open,
-    predicted_bound_mm, strips_sharing_ends,
+    ContourQuality, EDGE_GAP_P95_FRACTION, END_SUPPORT_MIN_COS, EdgeReading, Flag, GlobalQuality,
+    MATERIAL_BEYOND_MM, MODEL_CHECK_SPACING_RATIO, PART_BOUND_SIGMA_FACTOR, QualityReport,
+    REGION_DOUBT_FRACTION, REGION_FAR_OFF_FRACTION, REGION_MIN_FAR_OFF, SUPPORT_MIN_COS,
+    SlideRetry, is_open, p95_risk, predicted_bound_mm, strips_sharing_ends,
 };
 use quality::{
-    contour_quality, judge_edge_gaps, judge_edges, judge_part, judge_region, material_beyond,
+    contour_quality, judge_edge_gaps, judge_edges, judge_p95_risk, judge_part, judge_region,
+    material_beyond,
 };
 pub use scanned_edge::{
     EDGE_GAP_SIGMAS, EDGE_STRETCH_MM, EDGE_WINDOW_MM, EdgeFrom, ScannedEdge, scanned_edges,
@@ -641,6 +642,7 @@ fn register_once(
         &gaps_after_um,
         &settings.quality,
     );
+    let expected_over_p95 = judge_p95_risk(&mut contours, &settings.quality);
     let untrustworthy = contours.iter().filter(|c| !c.trustworthy).count();
     let report = QualityReport {
         global: GlobalQuality {
@@ -661,6 +663,8 @@ fn register_once(
             region_in_doubt,
             edge_terms,
             slide_retry: None,
+            p95_limit_um: EDGE_GAP_P95_FRACTION * settings.quality.tolerance_um,
+            expected_over_p95,
         },
         contours,
         timings_s: timings,

@@ -67,6 +67,10 @@ pub enum Flag {
     /// more than the P95 the registration promises, and the strip meeting it at a corner by as
     /// much along itself there. The part is not put in doubt by it.
     EdgeGap,
+    /// The contour's `p95_risk` (the chance, from the posterior across it, that its cross-edge
+    /// error exceeds the P95 limit) exceeds `quality.max_p95_risk` ([`judge_p95_risk`]; off by
+    /// default). The part is not put in doubt by it: a wide posterior is not a misregistration.
+    P95Risk,
 }
 
 /// The quality of one registered contour (report JSON).
@@ -127,6 +131,14 @@ pub struct ContourQuality {
     /// itself included), mm; 0 for a closed contour.
     #[serde(default)]
     pub end_sigma_mm: f64,
+    /// The chance that the contour lies farther across itself than the cross-edge P95 limit
+    /// ([`EDGE_GAP_P95_FRACTION`] of `quality.tolerance_um`, 12 µm of 30) from where the
+    /// registration puts it: `2·(1 − Φ(limit / cross_sigma))` ([`p95_risk`]). On a strip read
+    /// by one face's end alone (the wall below it unseen) it is the data's own limit, not a
+    /// misfit: over the trusted contours of the outside tune cases their sum predicts the count
+    /// over 12 µm (DESIGN.md, "The P95 risk"). `null` without a posterior (global mode).
+    #[serde(default)]
+    pub p95_risk: Option<f64>,
     /// For a closed contour, the opening check (`regional::openings`): how far off (mm, scan
     /// frame) the scan shows its opening, and the share of the opening's cells that agree
     /// better there; `null` for an open contour or too small an opening. From
@@ -276,6 +288,15 @@ pub struct GlobalQuality {
     /// first was not refused (or the retry is off).
     #[serde(default)]
     pub slide_retry: Option<SlideRetry>,
+    /// The cross-edge P95 limit the contours' `p95_risk` is taken against, µm
+    /// ([`EDGE_GAP_P95_FRACTION`] of `quality.tolerance_um`).
+    #[serde(default)]
+    pub p95_limit_um: f64,
+    /// How many of the trusted contours are expected to lie farther across than
+    /// `p95_limit_um`: the sum of their `p95_risk` ([`judge_p95_risk`]); `null` without a
+    /// posterior (global mode).
+    #[serde(default)]
+    pub expected_over_p95: Option<f64>,
 }
 
 /// A registration retried after a refusal with the coarse refinement also started slid along
@@ -710,6 +731,35 @@ pub(crate) fn judge_edge_gaps(
         c.flags.push(Flag::EdgeGap);
         c.trustworthy = false;
     }
+}
+
+/// The chance that a normal error of deviation `sigma_um` exceeds `limit_um` in size:
+/// `2·(1 − Φ(limit / σ))`; `None` for a deviation that is not positive and finite (no
+/// posterior).
+#[must_use]
+pub fn p95_risk(limit_um: f64, sigma_um: f64) -> Option<f64> {
+    (sigma_um.is_finite() && sigma_um > 0.0)
+        .then(|| (2.0 * trim_geom::stats::normal_upper_tail(limit_um / sigma_um)).min(1.0))
+}
+
+/// Flags [`Flag::P95Risk`] on every trusted contour whose `p95_risk` exceeds
+/// `q.max_p95_risk`, and returns the expected count of trusted contours (after it) over the
+/// P95 limit: the sum of their risks, `None` without a posterior. Run last, so it counts
+/// toward no part-level judgement.
+pub(crate) fn judge_p95_risk(contours: &mut [ContourQuality], q: &QualitySettings) -> Option<f64> {
+    for c in contours.iter_mut() {
+        if c.trustworthy && c.p95_risk.is_some_and(|r| r > q.max_p95_risk) {
+            c.flags.push(Flag::P95Risk);
+            c.trustworthy = false;
+        }
+    }
+    contours.iter().any(|c| c.p95_risk.is_some()).then(|| {
+        contours
+            .iter()
+            .filter(|c| c.trustworthy)
+            .filter_map(|c| c.p95_risk)
+            .sum()
+    })
 }
 
 /// Whether a contour is a strip: open, with two ends another strip can share.
@@ -1189,6 +1239,10 @@ pub(crate) fn contour_quality(
                 model_disagreement_faces_mm,
                 cross_sigma_mm: deviation.cross,
                 end_sigma_mm: deviation.end,
+                p95_risk: p95_risk(
+                    EDGE_GAP_P95_FRACTION * q.tolerance_um,
+                    1e3 * deviation.cross,
+                ),
                 opening_slide_mm: None,
                 opening_gain: None,
                 opening_cover_gain: None,
@@ -1228,6 +1282,7 @@ mod tests {
             model_disagreement_faces_mm: 0.001,
             cross_sigma_mm: 0.005,
             end_sigma_mm: 0.0,
+            p95_risk: p95_risk(12.0, 5.0),
             opening_slide_mm: None,
             opening_gain: None,
             opening_cover_gain: None,
@@ -1894,5 +1949,50 @@ mod tests {
         rim_gaps[5] = gap(-40.0, 2.0);
         judge_edge_gaps(&mut rim, &strips, &joins, &rim_gaps, &q);
         assert!(rim.iter().all(|c| c.trustworthy));
+    }
+
+    /// The risk is the two-sided normal tail beyond the limit; the rule flags only trusted
+    /// contours over `max_p95_risk`, and the expected count sums the risks still trusted.
+    #[test]
+    fn the_p95_risk_flags_trusted_contours_over_the_chance_set_and_sums_the_rest() {
+        // 2·(1 − Φ(2)) = 4.550 %, 2·(1 − Φ(3)) = 0.270 %.
+        assert!((p95_risk(12.0, 6.0).unwrap() - 0.045_500_26).abs() < 1e-7);
+        assert!((p95_risk(12.0, 4.0).unwrap() - 0.002_699_80).abs() < 1e-7);
+        assert_eq!(p95_risk(12.0, 0.0), None);
+        assert_eq!(p95_risk(12.0, f64::NAN), None);
+        assert!(p95_risk(12.0, 1e9).unwrap() <= 1.0);
+        let q = QualitySettings::default();
+        let mut contours: Vec<ContourQuality> =
+            (0..4).map(|i| contour(i, None, Vec::new())).collect();
+        contours[0].p95_risk = p95_risk(12.0, 8.0); // 13.4 %
+        contours[1].p95_risk = p95_risk(12.0, 4.0);
+        contours[2].p95_risk = p95_risk(12.0, 9.0);
+        contours[2].flags.push(Flag::PredictedError);
+        contours[2].trustworthy = false;
+        contours[3].p95_risk = None;
+        // Off by default: nothing flagged, every trusted risk counted.
+        let mut off = contours.clone();
+        let expected = judge_p95_risk(&mut off, &q).unwrap();
+        assert!(off.iter().zip(&contours).all(|(a, b)| a.flags == b.flags));
+        assert!((expected - 0.134_0 - 0.002_7).abs() < 1e-3, "{expected}");
+        let strict = QualitySettings {
+            max_p95_risk: 0.05,
+            ..q
+        };
+        let expected = judge_p95_risk(&mut contours, &strict).unwrap();
+        assert_eq!(contours[0].flags, vec![Flag::P95Risk]);
+        assert!(!contours[0].trustworthy);
+        assert!(contours[1].trustworthy && contours[3].trustworthy);
+        assert_eq!(contours[2].flags, vec![Flag::PredictedError]);
+        assert!((expected - 0.002_7).abs() < 1e-4, "{expected}");
+        // Without a posterior (global mode) there is no expected count.
+        let mut bare: Vec<ContourQuality> = (0..2)
+            .map(|i| ContourQuality {
+                p95_risk: None,
+                ..contour(i, None, Vec::new())
+            })
+            .collect();
+        assert_eq!(judge_p95_risk(&mut bare, &strict), None);
+        assert!(bare.iter().all(|c| c.trustworthy));
     }
 }

@@ -257,6 +257,13 @@ pub struct QualitySettings {
     /// gap there and not after, and the end left out shows no gap of its own) or did not run;
     /// otherwise the gap after counts (a reading gated as implausible is read again after).
     pub edge_terms: bool,
+    /// Flag a trusted contour `p95_risk` when the chance that it lies farther across than the
+    /// cross-edge P95 limit (0.4 × `tolerance_um`, 12 µm of 30) exceeds this (`p95_risk` in
+    /// the report). 1, the default, flags none: the bound against `tolerance_um` guards the
+    /// trim. A shop that must hold the P95 on every contour sets, e.g., 0.05 and pays in
+    /// contours flagged (on the outside tune cases at 200k points, 0.05 flags about 5 % more
+    /// of the good contours; DESIGN.md, "The P95 risk").
+    pub max_p95_risk: f64,
 }
 
 impl Default for QualitySettings {
@@ -274,6 +281,7 @@ impl Default for QualitySettings {
             overlap_distance_mm: 1.0,
             model_check: true,
             edge_terms: true,
+            max_p95_risk: 1.0,
         }
     }
 }
@@ -346,6 +354,8 @@ pub mod gate {
     /// `quality.doubt_bound_fraction`: 0 flags every contour of a part in doubt; 1 trusts the
     /// bounds of a part in doubt as those of any other.
     pub const DOUBT_BOUND_FRACTION: (f64, f64) = (0.0, 1.0);
+    /// `quality.max_p95_risk`: 0 flags every contour with a posterior; 1 flags none.
+    pub const MAX_P95_RISK: (f64, f64) = (0.0, 1.0);
     /// `quality.max_residual_mm`: above 0.5 mm a patch that misses the surface passes.
     pub const MAX_RESIDUAL_MM: (f64, f64) = (0.001, 0.5);
     /// `quality.coverage_radius_mm`: above 5 mm any scan point nearby covers a contour.
@@ -517,6 +527,7 @@ impl RegisterSettings {
             q.doubt_bound_fraction,
             gate::DOUBT_BOUND_FRACTION,
         )?;
+        within("quality.max_p95_risk", q.max_p95_risk, gate::MAX_P95_RISK)?;
         Ok(())
     }
 }
@@ -589,6 +600,23 @@ mod tests {
                 set(&mut s, bad);
                 let e = s.validate().expect_err(key).to_string();
                 assert!(e.contains(key), "{key} = {bad}: {e}");
+            }
+        }
+        for (v, ok) in [
+            (0.0, true),
+            (1.0, true),
+            (-0.01, false),
+            (1.01, false),
+            (f64::NAN, false),
+        ] {
+            let mut s = RegisterSettings::default();
+            s.quality.max_p95_risk = v;
+            match s.validate() {
+                Ok(()) => assert!(ok, "quality.max_p95_risk = {v} accepted"),
+                Err(e) => {
+                    assert!(!ok, "quality.max_p95_risk = {v}: {e}");
+                    assert!(e.to_string().contains("quality.max_p95_risk"), "{e}");
+                }
             }
         }
         for (n, ok) in [
