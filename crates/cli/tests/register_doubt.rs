@@ -132,6 +132,26 @@ fn a_part_in_doubt_keeps_the_contours_whose_bound_is_within_half_the_tolerance()
         serde_json::from_str(&std::fs::read_to_string(&plain).unwrap()).unwrap();
     assert!(report["global"]["in_doubt"].is_null());
     assert!(report["global"]["refused"].is_null());
+    // The P95 risk: each contour's, summed over the trusted ones, printed as the report has it.
+    let trusted_risks: Vec<f64> = report["contours"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["trustworthy"].as_bool().unwrap())
+        .map(|c| c["p95_risk"].as_f64().expect("a P95 risk"))
+        .collect();
+    assert!(trusted_risks.iter().all(|r| (0.0..=1.0).contains(r)));
+    let expected = report["global"]["expected_over_p95"].as_f64().unwrap();
+    assert!((expected - trusted_risks.iter().sum::<f64>()).abs() < 1e-9);
+    assert_eq!(report["global"]["p95_limit_um"].as_f64(), Some(12.0));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains(&format!(
+            "cross-edge P95 limit 12 µm: {expected:.2} of the {} trusted contours expected beyond it",
+            trusted_risks.len()
+        )),
+        "{stdout}"
+    );
 
     // A stricter part-level gate: more than a twentieth flagged puts it in doubt.
     let job = tmp.path().join("job.toml");
