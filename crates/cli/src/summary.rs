@@ -8,7 +8,7 @@ use trim_cell::Job;
 use trim_io::executor::{ExecError, RunSummary};
 use trim_io::journal::CutLayer;
 use trim_plan::planner::PlanOutput;
-use trim_register::regional::{ContourQuality, QualityReport};
+use trim_register::regional::{ContourQuality, EdgeFrom, QualityReport};
 
 use crate::config::JobConfig;
 
@@ -109,7 +109,18 @@ fn p95_risk_line(report: &QualityReport) -> Option<String> {
         .iter()
         .take(3)
         .filter(|(_, r)| *r >= 0.005)
-        .map(|(c, r)| format!("{} {:.0} %", c.id, r * 1e2))
+        .map(|(c, r)| {
+            // A strip read across itself by its face's end alone: a view that sees the wall
+            // below it would read it better.
+            let face_only =
+                !c.scan_edges.is_empty() && c.scan_edges.iter().all(|e| e.from == EdgeFrom::Face);
+            format!(
+                "{} {:.0} %{}",
+                c.id,
+                r * 1e2,
+                if face_only { " (wall unseen)" } else { "" }
+            )
+        })
         .collect();
     Some(format!(
         "  cross-edge P95 limit {:.0} µm: {:.2} of the {} trusted contours expected beyond it{} (quality.max_p95_risk flags a contour over the chance you set)",
@@ -511,4 +522,74 @@ pub fn report_markdown(
         );
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A report of four contours: risks 5 % (read from its face alone), 3 % (from its wall),
+    /// 20 % (flagged), 0.1 %; `expected` as the report's sum.
+    fn report(expected: Option<f64>) -> QualityReport {
+        let contour = |id: i64, risk: f64, from: &str, trusted: bool| {
+            serde_json::json!({
+                "id": id, "points": 100, "scan_points": 100, "coverage": 1.0,
+                "residual_rms_mm": 0.01, "degeneracy_ratio": 0.1,
+                "weakest_direction": [0.0, 0.0, 1.0], "support_ratio": 0.1,
+                "max_field_displacement_mm": 0.1, "field_sigma_mm": 0.006,
+                "field_weak_direction": [1.0, 0.0, 0.0], "support_distance_mm": 0.4,
+                "end_support_mm": 0.0, "cross_sigma_mm": 0.006, "p95_risk": risk,
+                "scan_edges": [{"at_mm": 10.0, "offset_um": -4.0, "sigma_um": 6.6,
+                                "points": 170, "from": from}],
+                "predicted_max_error_um": 24.8, "part_bound_um": 26.9, "doubt_bound_um": 21.0,
+                "flags": if trusted { vec![] } else { vec!["predicted_error"] },
+                "trustworthy": trusted,
+            })
+        };
+        let identity = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
+        serde_json::from_value(serde_json::json!({
+            "global": {
+                "scan_from_cad": identity, "scale": 1.0, "initial_scan_from_cad": identity,
+                "fixture_offset": {"rotation_deg": 0.0, "translation_mm": 0.0},
+                "coarse_starts": 1, "capture_score": 1.0, "coarse_rmse_mm": 0.1, "overlap": 1.0,
+                "field_rmse_mm": 0.01, "field_points": 1000, "untrustworthy": 1,
+                "p95_limit_um": 12.0, "expected_over_p95": expected,
+            },
+            "contours": [
+                contour(1, 0.05, "face", true),
+                contour(2, 0.03, "wall", true),
+                contour(3, 0.20, "face", false),
+                contour(4, 0.001, "wall", true),
+            ],
+            "timings_s": [],
+        }))
+        .unwrap()
+    }
+
+    #[test]
+    fn the_p95_risk_line_names_the_trusted_contours_most_at_risk_and_an_unseen_wall() {
+        let line = p95_risk_line(&report(Some(0.081))).unwrap();
+        assert!(
+            line.starts_with(
+                "  cross-edge P95 limit 12 µm: 0.08 of the 3 trusted contours expected beyond it, most at risk: 1 5 % (wall unseen), 2 3 % ("
+            ),
+            "{line}"
+        );
+        // The flagged contour is not counted, and a risk under half a per cent is not named.
+        assert!(
+            !line.contains(" 3 20 %") && !line.contains("4 0 %"),
+            "{line}"
+        );
+        // In global mode (no posterior) there is no line.
+        assert_eq!(p95_risk_line(&report(None)), None);
+        // The worst contours' table gives each risk in per cent.
+        let table = registration(&report(Some(0.081)));
+        assert!(table.contains("P95 risk %"), "{table}");
+        assert!(table.contains("         5.0  -"), "{table}");
+    }
 }
