@@ -663,7 +663,7 @@ fn register_once(
             region_in_doubt,
             edge_terms,
             slide_retry: None,
-            p95_limit_um: EDGE_GAP_P95_FRACTION * settings.quality.tolerance_um,
+            p95_limit_um: settings.quality.p95_limit_um(),
             expected_over_p95,
         },
         contours,

@@ -702,6 +702,15 @@ pub fn material_beyond(
 /// gap that remains is a slide the field could not follow.
 pub const EDGE_GAP_P95_FRACTION: f64 = 0.4;
 
+impl QualitySettings {
+    /// The cross-edge P95 the registration promises, µm: [`EDGE_GAP_P95_FRACTION`] of
+    /// `tolerance_um` (12 µm of 30), what `edge_gap` and `p95_risk` are taken against.
+    #[must_use]
+    pub fn p95_limit_um(&self) -> f64 {
+        EDGE_GAP_P95_FRACTION * self.tolerance_um
+    }
+}
+
 /// Flags [`Flag::EdgeGap`] on every trusted strip (of `strips`, CAD frame; `joins` from
 /// [`strips_sharing_ends`]) whose widest gap after the update (`gaps_after_um`: each
 /// contour's [`ScannedEdge::gap_mm`] over its readings after the update, in µm, at
@@ -716,7 +725,7 @@ pub(crate) fn judge_edge_gaps(
     gaps_after_um: &[Option<f64>],
     q: &QualitySettings,
 ) {
-    let limit_um = EDGE_GAP_P95_FRACTION * q.tolerance_um;
+    let limit_um = q.p95_limit_um();
     let off: Vec<bool> = strips
         .iter()
         .zip(gaps_after_um)
@@ -1239,10 +1248,7 @@ pub(crate) fn contour_quality(
                 model_disagreement_faces_mm,
                 cross_sigma_mm: deviation.cross,
                 end_sigma_mm: deviation.end,
-                p95_risk: p95_risk(
-                    EDGE_GAP_P95_FRACTION * q.tolerance_um,
-                    1e3 * deviation.cross,
-                ),
+                p95_risk: p95_risk(q.p95_limit_um(), 1e3 * deviation.cross),
                 opening_slide_mm: None,
                 opening_gain: None,
                 opening_cover_gain: None,
