@@ -839,3 +839,82 @@ fn a_rescan_that_never_comes_stops_the_run_at_the_timeout_naming_the_file() {
     // The job itself ran and was journaled before the wait.
     assert!(out.join("journal.jsonl").exists());
 }
+
+/// A stop signal while the run waits for its rescan (a `[verify] scan_command` that takes its
+/// time, as a scanner does) stops the run there: the command is stopped, no retrim starts, and
+/// the run exits 3 at once. The job's execution is over by then: a handler tied to its runtime
+/// outlived it (tokio keeps a signal's handler for the rest of the process), so the signal was
+/// swallowed, the scan went on, and a retrim would have fired the laser.
+#[test]
+fn a_stop_signal_during_the_rescan_stops_the_run_before_any_retrim() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let scanning = tmp.path().join("scanning");
+    let script = "touch \"$1\"; sleep 120";
+    let job = synth_job_with(
+        tmp.path(),
+        "0.3",
+        &format!(
+            "[verify]\nscan_command = [\"sh\", \"-c\", {script:?}, \"scan\", {scanning:?}]\nscan_timeout_s = 300\n"
+        ),
+    );
+    let out = tmp.path().join("run");
+    let stderr_file = tmp.path().join("stderr");
+    let mut child = Command::new(TRIMCTL)
+        .arg("run")
+        .arg(&job)
+        .args([
+            "--verify",
+            "--rounds",
+            "1",
+            "--sim-time-scale",
+            "0.01",
+            "--out",
+        ])
+        .arg(&out)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(&stderr_file).expect("stderr file"))
+        .spawn()
+        .expect("trimctl runs");
+    let start = std::time::Instant::now();
+    while !scanning.exists() {
+        if let Some(status) = child.try_wait().expect("try_wait") {
+            panic!(
+                "the run ended ({status}) before its rescan:\n{}",
+                std::fs::read_to_string(&stderr_file).unwrap_or_default()
+            );
+        }
+        assert!(
+            start.elapsed() < std::time::Duration::from_secs(600),
+            "the rescan never started"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let signalled = std::time::Instant::now();
+    let killed = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .expect("kill runs");
+    assert!(killed.success());
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("try_wait") {
+            break status;
+        }
+        if signalled.elapsed() > std::time::Duration::from_secs(60) {
+            let _ = child.kill();
+            panic!("the run went on for a minute after SIGINT during its rescan");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    };
+    let stderr = std::fs::read_to_string(&stderr_file).expect("stderr");
+    assert_eq!(status.code(), Some(3), "{stderr}");
+    assert!(
+        stderr.contains("SIGINT (Ctrl-C)") && stderr.contains("scan_command"),
+        "{stderr}"
+    );
+    // The job ran and finished; no retrim began.
+    assert!(out.join("journal.jsonl").exists());
+    assert!(
+        !out.join("retrim_1").join("journal.jsonl").exists(),
+        "a retrim ran after the stop"
+    );
+}

@@ -4,7 +4,6 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use tokio_util::sync::CancellationToken;
 use trim_cell::Job;
 use trim_geom::Path as TrimPath;
 use trim_geom::formats;
@@ -47,6 +46,7 @@ pub(super) fn execute(
     twin: &TwinLink,
 ) -> anyhow::Result<Executed> {
     let (twin, line_ids) = (twin.twin.clone(), &twin.line_ids);
+    refuse_after_stop(run_dir)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -71,12 +71,9 @@ pub(super) fn execute(
             Ok(Ok(p)) => Some(p.world),
             _ => None,
         };
-        let cancel = CancellationToken::new();
-        crate::stop_signal::StopSignals::install()?.cancel_on_first(
-            cancel.clone(),
-            "trimctl run",
-            "interrupted: switching the laser off and stopping",
-        );
+        // The process's handlers, shared by every execution of this run (the job and each
+        // retrim): a signal between two executions stops the run before the next one starts.
+        let cancel = process_stop()?.token();
         let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
         let bars = tokio::spawn(draw_progress(rx, job.clone(), recorder.clone()));
         let executor = Executor::new(
@@ -140,6 +137,30 @@ pub(super) fn execute(
         }
         Ok((result, spots))
     })
+}
+
+/// The stop signals' handlers of `trimctl run`, installed once for the process
+/// ([`crate::stop_signal::ProcessStop`]).
+pub(super) fn process_stop() -> anyhow::Result<&'static crate::stop_signal::ProcessStop> {
+    crate::stop_signal::ProcessStop::install(
+        "trimctl run",
+        "interrupted: switching the laser off and stopping",
+    )
+}
+
+/// After a stop signal no execution starts (exit 3): the operator asked the run to stop, and a
+/// retrim after a rescan is a new execution.
+pub(super) fn refuse_after_stop(run_dir: &Path) -> anyhow::Result<()> {
+    match crate::stop_signal::ProcessStop::installed().and_then(|s| s.stopped_by()) {
+        Some(signal) => Err(Failure::with_exit(
+            Exit::Interrupted,
+            anyhow::anyhow!(
+                "stopped by {signal}: the execution in {} was not started (nothing was switched on)",
+                run_dir.display()
+            ),
+        )),
+        None => Ok(()),
+    }
 }
 
 /// The simulators for the devices the config calls "sim" (none when it names none), at

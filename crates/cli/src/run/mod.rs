@@ -671,14 +671,31 @@ fn continue_verify(
             run_dir.join(files::VERIFY_STATE).display()
         )
     })?;
-    let rounds = verify::verify(&verify::VerifyRun {
-        config,
-        args,
-        run_dir,
-        inputs,
-        mesh,
-        registration,
-        state: &state,
+    // A stop signal from here on (a rescan, an inspection, a retrim) stops the loop: the waits,
+    // the scan command and the inspection check the flag, and no retrim starts after it.
+    let stop = execute::process_stop()?;
+    let rounds = trim_geom::cancel::run_cancellable(stop.flag(), || {
+        verify::verify(&verify::VerifyRun {
+            config,
+            args,
+            run_dir,
+            inputs,
+            mesh,
+            registration,
+            state: &state,
+        })
+    })
+    .map_err(|e| match stop.stopped_by() {
+        // A stopped retrim already carries its exit code (3, or 4 when the laser's state is
+        // unknown); anything else a stop cut short is an interruption.
+        Some(signal) if e.downcast_ref::<Failure>().is_none() => Failure::with_exit(
+            Exit::Interrupted,
+            anyhow::anyhow!(
+                "stopped by {signal}: {e:#}; nothing more was executed (resume with --resume {})",
+                run_dir.display()
+            ),
+        ),
+        _ => e,
     })?;
     write_verify_report(run_dir, &rounds)?;
     match rounds.last() {
