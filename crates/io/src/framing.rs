@@ -127,6 +127,13 @@ pub async fn frame_layer<T>(
         .map_err(|e| job_error(format!("zone {} layer {}: {e}", key.zone, key.layer)))?;
     let commands = frame_list(&outline, &job.settings.plan.galvo);
     let pass_s = ListClock::list_s(&commands);
+    // The trace's waits are bounded by this time (checked before the pointer goes on).
+    if !(pass_s.is_finite() && pass_s >= 0.0) {
+        return Err(job_error(format!(
+            "zone {} layer {}: the outline's modelled time is {pass_s} s (check the job's galvo speeds and delays)",
+            key.zone, key.layer
+        )));
+    }
     let result = trace(
         cell, layer, key, settings, &commands, passes, pass_s, hold, cancel,
     )

@@ -865,6 +865,50 @@ async fn a_job_with_an_unreachable_zone_is_refused_before_anything_moves_or_emit
     );
 }
 
+/// A job whose galvo speed is 0 or not finite (a hand-edited job file, or another tool's) is
+/// refused before anything moves or emits, naming the key: its lists' modelled time would be
+/// infinite, and the wait for a list's end (its deadline taken while the laser emits) with it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_with_a_galvo_speed_of_zero_is_refused_before_anything_moves_or_emits() {
+    for (key, set) in [
+        (
+            "galvo.mark_speed_mm_per_s",
+            (|g: &mut trim_cell::job::GalvoSettings| g.mark_speed_mm_per_s = 0.0)
+                as fn(&mut trim_cell::job::GalvoSettings),
+        ),
+        ("galvo.jump_speed_mm_per_s", |g| {
+            g.jump_speed_mm_per_s = f64::NAN;
+        }),
+    ] {
+        let sim = sim_cell("monaco").await;
+        let mut job = demo_job(2);
+        set(&mut job.settings.plan.galvo);
+        let dir = tempfile::tempdir().unwrap();
+        let e = run_fresh(
+            &sim,
+            &job,
+            &dir.path().join("run.journal"),
+            CancellationToken::new(),
+        )
+        .await
+        .expect_err("a speed of zero must be refused");
+        assert!(matches!(e, ExecError::Job(_)), "{key}: {e}");
+        assert!(e.to_string().contains(key), "{key}: {e}");
+        assert_eq!(sim.cnc.moves(), 0, "{key}: moved before refusing");
+        assert!(
+            sim.galvo.marks().is_empty(),
+            "{key}: marked before refusing"
+        );
+        assert!(
+            !sim.monitor
+                .events()
+                .iter()
+                .any(|(_, e)| matches!(e, trim_sim::safety::CellEvent::Emission(true))),
+            "{key}: emission switched on before refusing"
+        );
+    }
+}
+
 /// A hand-edited job with a pose outside `[machine]`'s limits (a layer of zone 1 moved to
 /// X = 250 mm, past the X travel of ±200 mm; or C made non-finite) is refused before anything
 /// moves or emits, naming the layer and the axis; with the limits unknown (`machine: None`) it

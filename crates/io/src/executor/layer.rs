@@ -234,6 +234,17 @@ impl Executor {
             })
             .at(Phase::LoadList, false)?;
         let modelled_s = ListClock::list_s(&commands);
+        // The wait for the list's end is bounded by this time: it must be one (checked before
+        // the emission goes on, not where the deadline is taken while it is on).
+        if !(modelled_s.is_finite() && modelled_s >= 0.0) {
+            return Err(StopCause::Job {
+                message: format!(
+                    "{}: the list's modelled time is {modelled_s} s (check the job's galvo speeds and delays)",
+                    work.key
+                ),
+            })
+            .at(Phase::LoadList, false);
+        }
         let tag = journal.next_tag();
         journal
             .append_within(

@@ -549,6 +549,15 @@ impl Executor {
             crate::limits::check_poses(&self.job, machine, None)
                 .map_err(|e| ExecError::Job(e.to_string()))?;
         }
+        // The lists' speeds and delays, as the planner checked them: a job file edited (or
+        // written by another tool) to a speed of 0 would make a list's modelled time infinite,
+        // and its wait's deadline with it.
+        self.job
+            .settings
+            .plan
+            .galvo
+            .validate()
+            .map_err(|e| ExecError::Job(format!("the job's {e}")))?;
         for (key, _, layer) in self.job.layers() {
             layer_list(layer, &self.job.settings.plan.galvo, 0)
                 .map_err(|e| ExecError::Job(format!("{key}: {e}")))?;
