@@ -281,6 +281,7 @@ pub fn write_artefacts(
     f.flush().map_err(io(&poses_file))?;
     let m = artefacts.tool_mark_mm;
     let mark_file = dir.join("tool_mark.txt");
-    std::fs::write(&mark_file, format!("{},{},{}\n", m.x, m.y, m.z)).map_err(io(&mark_file))?;
+    trim_geom::fs::write_atomic(&mark_file, format!("{},{},{}\n", m.x, m.y, m.z))
+        .map_err(io(&mark_file))?;
     Ok(())
 }

@@ -798,7 +798,7 @@ mod tests {
             (&format!("{MARKS_HEADER}\n1,2,0,1\n"), "5 columns"),
             (&format!("{MARKS_HEADER}\n1,2,0,1,2\n"), "at least 25"),
         ] {
-            std::fs::write(&p, text).expect("write");
+            trim_geom::fs::write_atomic(&p, text).expect("write");
             let e = read_marks(&p).expect_err(text).to_string();
             assert!(e.contains("marks.csv") && e.contains(want), "{text:?}: {e}");
         }

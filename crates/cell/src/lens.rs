@@ -226,7 +226,7 @@ impl FieldCorrection {
             path: path.display().to_string(),
             message: e.to_string(),
         })?;
-        std::fs::write(path, text).map_err(|source| LensError::Io {
+        trim_geom::fs::write_atomic(path, text).map_err(|source| LensError::Io {
             path: path.display().to_string(),
             source,
         })
@@ -679,7 +679,7 @@ impl CorrectionTable {
         } else {
             self.to_text().into_bytes()
         };
-        std::fs::write(path, bytes).map_err(|source| LensError::Io {
+        trim_geom::fs::write_atomic(path, bytes).map_err(|source| LensError::Io {
             path: path.display().to_string(),
             source,
         })
@@ -913,7 +913,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("trim-lens-{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("dir");
         let p = dir.join("field.json");
-        std::fs::write(&p, "{\"version\": 1}").expect("write");
+        trim_geom::fs::write_atomic(&p, "{\"version\": 1}").expect("write");
         let e = FieldCorrection::read(&p)
             .expect_err("incomplete")
             .to_string();

@@ -490,7 +490,7 @@ mod tests {
             ));
         }
         let poses_file = dir.join("poses.csv");
-        std::fs::write(&poses_file, csv).expect("written");
+        trim_geom::fs::write_atomic(&poses_file, csv).expect("written");
         let poses = read_poses(&poses_file).expect("reads");
         assert_eq!(poses.kinematics, KinematicsKind::XyzacTrt);
         poses

@@ -119,7 +119,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         })
         .context("serialising the calibration")?,
     );
-    std::fs::write(&args.out, text)
+    trim_geom::fs::write_atomic(&args.out, text)
         .with_context(|| format!("cannot write {}", args.out.display()))?;
 
     println!("pose  scan                  {tilt:>8}°  C°        residual µm");

@@ -106,7 +106,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     if let Some(svg) = &args.svg {
-        std::fs::write(svg, residual_svg(&marks, &field, &r, args.focal_length_mm))
+        trim_geom::fs::write_atomic(svg, residual_svg(&marks, &field, &r, args.focal_length_mm))
             .with_context(|| format!("cannot write {}", svg.display()))?;
         println!("wrote {}", svg.display());
     }

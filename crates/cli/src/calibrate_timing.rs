@@ -221,7 +221,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     text.push('\n');
     text.push_str(&toml::to_string(&file).context("writing the timing file")?);
-    std::fs::write(&args.out, text)
+    trim_geom::fs::write_atomic(&args.out, text)
         .with_context(|| format!("cannot write {}", args.out.display()))?;
     print!("{summary}");
     println!("wrote {}", args.out.display());

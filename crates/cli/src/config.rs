@@ -1180,13 +1180,13 @@ mod tests {
             )
             .unwrap();
         }
-        std::fs::write(
+        trim_geom::fs::write_atomic(
             scans.join("poses.csv"),
             "scan,x,y,z,a,c\nb.ply,0,0,10,0,90\na.ply,1,0,0,0,0\n",
         )
         .unwrap();
         let job = dir.path().join("job.toml");
-        std::fs::write(
+        trim_geom::fs::write_atomic(
             &job,
             "[part]\ncad = \"cad.stl\"\npath = \"path.csv\"\nscans = [\"scans/a.ply\", \"scans/b.ply\"]\nposes = \"scans/poses.csv\"\n",
         )

@@ -273,7 +273,7 @@ async fn frame_all(
     }
     if let Some(path) = &args.report {
         let report = serde_json::json!({ "framed": framed, "sim": sim_report });
-        std::fs::write(path, serde_json::to_string_pretty(&report)?)
+        trim_geom::fs::write_atomic(path, serde_json::to_string_pretty(&report)?)
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
     if let Some(r) = &sim_report

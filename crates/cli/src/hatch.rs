@@ -129,7 +129,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     write_path(&args.out, &planned.to_path()?)?;
     if let Some(svg) = &args.svg {
-        std::fs::write(svg, render_svg(&planned, &report))
+        trim_geom::fs::write_atomic(svg, render_svg(&planned, &report))
             .with_context(|| format!("{}: cannot write", svg.display()))?;
     }
     let s = report.spacing;
@@ -354,7 +354,7 @@ pub fn hatch_regions(
         let csv = out_dir.join(format!("hatch_{r}.csv"));
         write_path(&csv, &tracks)?;
         let svg = out_dir.join(format!("hatch_{r}.svg"));
-        std::fs::write(&svg, render_svg(&planned, &report))
+        trim_geom::fs::write_atomic(&svg, render_svg(&planned, &report))
             .with_context(|| format!("{}: cannot write", svg.display()))?;
         let s = report.spacing;
         let summary = format!(

@@ -275,7 +275,7 @@ fn write_outputs(dir: &Path, result: &Inspection) -> anyhow::Result<()> {
         "contours": contours,
     });
     let file = dir.join("inspection.json");
-    std::fs::write(&file, serde_json::to_string_pretty(&json)?)
+    trim_geom::fs::write_atomic(&file, serde_json::to_string_pretty(&json)?)
         .with_context(|| format!("cannot write {}", file.display()))?;
 
     let mut csv = FIELDS.join(",");
@@ -293,10 +293,11 @@ fn write_outputs(dir: &Path, result: &Inspection) -> anyhow::Result<()> {
         csv.push('\n');
     }
     let file = dir.join("inspection.csv");
-    std::fs::write(&file, csv).with_context(|| format!("cannot write {}", file.display()))?;
+    trim_geom::fs::write_atomic(&file, csv)
+        .with_context(|| format!("cannot write {}", file.display()))?;
 
     let file = dir.join("report.html");
-    std::fs::write(&file, report_html(result, &contours))
+    trim_geom::fs::write_atomic(&file, report_html(result, &contours))
         .with_context(|| format!("cannot write {}", file.display()))?;
     Ok(())
 }

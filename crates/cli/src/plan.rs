@@ -67,10 +67,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .with_context(|| format!("planning {}", args.path.display()))?;
     let job = &output.job;
     let json = job.to_json()?;
-    std::fs::write(&args.out, json + "\n")
+    trim_geom::fs::write_atomic(&args.out, json + "\n")
         .with_context(|| format!("cannot write {}", args.out.display()))?;
     if let Some(svg) = &args.svg {
-        std::fs::write(svg, trim_plan::svg::job_svg(job))
+        trim_geom::fs::write_atomic(svg, trim_plan::svg::job_svg(job))
             .with_context(|| format!("cannot write {}", svg.display()))?;
     }
     print!("{}", crate::summary::zone_table(&output));
@@ -157,7 +157,7 @@ mod tests {
     fn config_sets_the_settings_and_bad_input_names_file_and_line() {
         let dir = tempfile::tempdir().expect("temp dir");
         let config = dir.path().join("job.toml");
-        std::fs::write(
+        trim_geom::fs::write_atomic(
             &config,
             "[field]\ntelecentric = true\n[layers]\nstep_mm = 0.3\n",
         )
@@ -176,7 +176,7 @@ mod tests {
         assert!((job.layer_step_mm - 0.3).abs() < 1e-15);
 
         let bad = dir.path().join("bad.csv");
-        std::fs::write(
+        trim_geom::fs::write_atomic(
             &bad,
             "contour,x,y,z,u,v,w\n1,0,0,0,0,0,1\n1,1,0,nan?,0,0,1\n",
         )

@@ -121,7 +121,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     write_path(&args.out, &registration.path)
         .with_context(|| format!("writing {}", args.out.display()))?;
     if let Some(report) = &args.report {
-        std::fs::write(report, serde_json::to_string_pretty(&registration.report)?)
+        trim_geom::fs::write_atomic(report, serde_json::to_string_pretty(&registration.report)?)
             .with_context(|| format!("writing {}", report.display()))?;
     }
     if let Some(svg) = &args.svg {
@@ -155,7 +155,7 @@ pub(crate) fn write_svg(
         &part_view(report, tolerance_um),
         scan.points(),
     );
-    std::fs::write(file, svg).with_context(|| format!("writing {}", file.display()))
+    trim_geom::fs::write_atomic(file, svg).with_context(|| format!("writing {}", file.display()))
 }
 
 /// The six-point datum fit as the positioning mode: a rigid pose from the datums, applied to the
@@ -189,7 +189,7 @@ fn datum_positioning(
         "timings_s": [["datum fit", fit_s]],
     });
     if let Some(file) = &args.report {
-        std::fs::write(file, serde_json::to_string_pretty(&report)?)
+        trim_geom::fs::write_atomic(file, serde_json::to_string_pretty(&report)?)
             .with_context(|| format!("writing {}", file.display()))?;
     }
     eprintln!("stage timings:\n  {:<28} {fit_s:>8.3} s", "datum fit");

@@ -261,9 +261,9 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
         .context("serialising the twin's job")?
     );
     let job_file = args.out.join("job.toml");
-    std::fs::write(&job_file, job)
+    trim_geom::fs::write_atomic(&job_file, job)
         .with_context(|| format!("cannot write {}", job_file.display()))?;
-    std::fs::write(
+    trim_geom::fs::write_atomic(
         args.out.join("truth.json"),
         serde_json::to_string_pretty(&truth)?,
     )?;
@@ -313,7 +313,7 @@ fn calibration_artefacts(args: &Args) -> anyhow::Result<()> {
         args.seed,
     );
     trim_calib::artefact::write_artefacts(&args.out, &artefacts, plan.machine.kinematics)?;
-    std::fs::write(
+    trim_geom::fs::write_atomic(
         args.out.join("sphere_diameter_mm.txt"),
         format!("{SPHERE_DIAMETER_MM}\n"),
     )?;

@@ -173,7 +173,7 @@ pub fn write(run_dir: &Path, record: &TimingRecord, resuming: bool) -> anyhow::R
     } else {
         run_dir.join(FILE)
     };
-    std::fs::write(&path, serde_json::to_string_pretty(record)? + "\n")
+    trim_geom::fs::write_atomic(&path, serde_json::to_string_pretty(record)? + "\n")
         .with_context(|| format!("cannot write {}", path.display()))?;
     Ok(path)
 }

@@ -118,7 +118,7 @@ fn read_file(path: &FsPath) -> Result<Vec<u8>> {
 }
 
 fn write_file(path: &FsPath, bytes: &[u8]) -> Result<()> {
-    std::fs::write(path, bytes).map_err(|e| GeomError::io(path, e))
+    crate::fs::write_atomic(path, bytes).map_err(|e| GeomError::io(path, e))
 }
 
 /// Reads a point cloud, by extension: `.ply` (ascii or binary; faces ignored), `.pcd` (ascii or

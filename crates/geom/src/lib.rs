@@ -12,12 +12,14 @@
 //! - [`normals`], [`voxel`], [`crop`]: point-cloud processing.
 //! - [`mesh`]: triangle meshes on parry3d, area-weighted sampling, point-to-mesh distance.
 //! - [`formats`]: PLY, PCD, XYZ, STL and path CSV readers and writers.
+//! - [`fs`]: writing a file whole or not at all.
 
 pub mod cancel;
 pub mod cloud;
 pub mod crop;
 pub mod error;
 pub mod formats;
+pub mod fs;
 pub mod kdtree;
 pub mod math;
 pub mod mesh;

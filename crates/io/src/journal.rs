@@ -318,6 +318,15 @@ impl Journal {
             time_ns: crate::tap::now_ns(),
             resume: false,
         })?;
+        // The file's entry in its folder reaches the disk too: each append is flushed to the
+        // file, but after a power cut a journal whose folder entry was never written would be
+        // gone, and a retrim folder without its journal reads as never started (its layers
+        // would be marked again).
+        if let Some(folder) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::File::open(folder)
+                .and_then(|f| f.sync_all())
+                .map_err(io(folder))?;
+        }
         Ok(j)
     }
 

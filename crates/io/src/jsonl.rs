@@ -65,12 +65,31 @@ pub fn read<T: DeserializeOwned>(path: &Path) -> Result<JsonLines<T>, ReadError>
 
 /// Opens `path` for appending (created when `create` and missing), cut to `torn_at` bytes and
 /// synced first when given: [`JsonLines::torn_at`] of what [`read`] found in it.
+///
+/// A whole last line without its newline (the write cut after the value's last byte) is
+/// kept, as [`read`] kept it, and the newline is added, so that the next line does not run on
+/// from it (which would make the file unreadable from there).
 pub fn open_append(path: &Path, torn_at: Option<u64>, create: bool) -> std::io::Result<File> {
-    let file = OpenOptions::new().create(create).append(true).open(path)?;
+    let mut file = OpenOptions::new()
+        .create(create)
+        .read(true)
+        .append(true)
+        .open(path)?;
     if let Some(len) = torn_at {
         // The only change to written bytes.
         file.set_len(len)?;
         file.sync_data()?;
+    }
+    let len = file.metadata()?.len();
+    if len > 0 {
+        use std::io::{Read as _, Seek as _, SeekFrom, Write as _};
+        let mut last = [0u8; 1];
+        file.seek(SeekFrom::Start(len - 1))?;
+        file.read_exact(&mut last)?;
+        if last[0] != b'\n' {
+            file.write_all(b"\n")?;
+            file.sync_data()?;
+        }
     }
     Ok(file)
 }
@@ -103,6 +122,21 @@ mod tests {
         let again: JsonLines<Vec<i32>> = read(&path).unwrap();
         assert_eq!(again.values, vec![(1, vec![1]), (3, vec![2]), (4, vec![5])]);
         assert!(!again.torn_tail);
+    }
+
+    #[test]
+    fn a_whole_last_line_without_its_newline_is_kept_and_the_next_starts_on_its_own() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("log.jsonl");
+        std::fs::write(&path, "[1]\n[2]").unwrap();
+        let lines: JsonLines<Vec<i32>> = read(&path).unwrap();
+        assert_eq!(lines.values, vec![(1, vec![1]), (2, vec![2])]);
+        assert!(!lines.torn_tail);
+        let mut file = open_append(&path, lines.torn_at(), false).unwrap();
+        file.write_all(b"[3]\n").unwrap();
+        drop(file);
+        let again: JsonLines<Vec<i32>> = read(&path).unwrap();
+        assert_eq!(again.values, vec![(1, vec![1]), (2, vec![2]), (3, vec![3])]);
     }
 
     #[test]

@@ -397,7 +397,7 @@ impl SynthCase {
         let text = serde_json::to_string_pretty(&meta)
             .map_err(|e| GeomError::invalid("case.json", e.to_string()))?;
         let path = dir.join("case.json");
-        std::fs::write(&path, text).map_err(|e| GeomError::io(&path, e))
+        trim_geom::fs::write_atomic(&path, text).map_err(|e| GeomError::io(&path, e))
     }
 
     /// The true scan-frame position of a CAD-frame point (deformation, then placement).

@@ -760,7 +760,7 @@ fn write_verify_report(run_dir: &Path, rounds: &[verify::Round]) -> anyhow::Resu
     }
     let report = run_dir.join(files::REPORT);
     let text = std::fs::read_to_string(&report).unwrap_or_default();
-    std::fs::write(&report, with_section(&text, "## Verify and retrim", &md))
+    trim_geom::fs::write_atomic(&report, with_section(&text, "## Verify and retrim", &md))
         .with_context(|| format!("cannot write {}", report.display()))?;
     let summary_path = run_dir.join(files::SUMMARY);
     let mut json: serde_json::Value = std::fs::read_to_string(&summary_path)
@@ -770,7 +770,7 @@ fn write_verify_report(run_dir: &Path, rounds: &[verify::Round]) -> anyhow::Resu
     json.as_object_mut()
         .context("summary.json is not a JSON object")?
         .insert("verify".to_owned(), serde_json::to_value(rounds)?);
-    std::fs::write(&summary_path, serde_json::to_string_pretty(&json)?)
+    trim_geom::fs::write_atomic(&summary_path, serde_json::to_string_pretty(&json)?)
         .with_context(|| format!("cannot write {}", summary_path.display()))?;
     Ok(())
 }
@@ -857,7 +857,7 @@ fn open_run(args: &Args) -> anyhow::Result<(JobConfig, PathBuf, RunLock)> {
             )
         })?;
     }
-    std::fs::write(
+    trim_geom::fs::write_atomic(
         run_dir.join(files::JOB),
         toml::to_string(&effective).context("serialising the job file")?,
     )?;
@@ -894,7 +894,7 @@ fn register_part(
     let registration = register_inputs(inputs, config, "registering the path onto the scan")?;
     timings.register_s = t.elapsed().as_secs_f64();
     formats::write_path(&run_dir.join(files::REGISTERED), &registration.path)?;
-    std::fs::write(
+    trim_geom::fs::write_atomic(
         run_dir.join(files::REGISTRATION),
         serde_json::to_string_pretty(&registration.report)?,
     )?;
@@ -1079,8 +1079,8 @@ fn check_plan(plan: &PlanOutput, args: &Args) -> anyhow::Result<()> {
 }
 
 fn write_plan(run_dir: &Path, plan: &PlanOutput) -> anyhow::Result<()> {
-    std::fs::write(run_dir.join(files::PLAN), plan.job.to_json()?)?;
-    std::fs::write(
+    trim_geom::fs::write_atomic(run_dir.join(files::PLAN), plan.job.to_json()?)?;
+    trim_geom::fs::write_atomic(
         run_dir.join(files::PLAN_SVG),
         trim_plan::svg::job_svg(&plan.job),
     )?;
@@ -1491,13 +1491,13 @@ mod tests {
         let run = tmp.path().join("run");
         let retrim = run.join("retrim_2");
         std::fs::create_dir_all(&retrim).expect("folders");
-        std::fs::write(run.join(files::JOURNAL), "").expect("a journal");
+        trim_geom::fs::write_atomic(run.join(files::JOURNAL), "").expect("a journal");
         let e = format!("{:#}", resume_target(&retrim).expect_err("no state"));
         assert!(
             e.contains("retrim 2") && e.contains(files::VERIFY_STATE),
             "{e}"
         );
-        std::fs::write(run.join(files::VERIFY_STATE), "{}").expect("a state");
+        trim_geom::fs::write_atomic(run.join(files::VERIFY_STATE), "{}").expect("a state");
         assert_eq!(resume_target(&retrim).expect("the run"), run);
         assert_eq!(resume_target(&run).expect("itself"), run);
         let other = run.join("retrim_x");

@@ -213,14 +213,14 @@ pub(super) fn write_nothing_to_trim(
         "# trimctl run\n\nPart: {description}\n\n**Nothing to trim**: {why}. Nothing was planned and the machine was not moved.\n"
     );
     report.push_str(&notes.markdown());
-    std::fs::write(run_dir.join(files::REPORT), report)?;
+    trim_geom::fs::write_atomic(run_dir.join(files::REPORT), report)?;
     let (detection, _) = notes.json();
     let json = serde_json::json!({
         "timings_s": timings,
         "nothing_to_trim": why,
         "detection": detection,
     });
-    std::fs::write(
+    trim_geom::fs::write_atomic(
         run_dir.join(files::SUMMARY),
         serde_json::to_string_pretty(&json)?,
     )?;
@@ -356,9 +356,9 @@ pub(super) fn append_resume_report(
             "shutdown": shutdown,
         }));
     }
-    std::fs::write(&report_path, report)
+    trim_geom::fs::write_atomic(&report_path, report)
         .with_context(|| format!("cannot write {}", report_path.display()))?;
-    std::fs::write(&summary_path, serde_json::to_string_pretty(&json)?)
+    trim_geom::fs::write_atomic(&summary_path, serde_json::to_string_pretty(&json)?)
         .with_context(|| format!("cannot write {}", summary_path.display()))?;
     Ok(())
 }
@@ -403,7 +403,7 @@ pub(super) fn write_report(
         report.push_str(&s.markdown());
     }
     report.push_str(&notes.markdown());
-    std::fs::write(run_dir.join(files::REPORT), report)?;
+    trim_geom::fs::write_atomic(run_dir.join(files::REPORT), report)?;
     let (detection, injected_fault) = notes.json();
     let json = serde_json::json!({
         "detection": detection,
@@ -425,7 +425,7 @@ pub(super) fn write_report(
         "calibration": config.plan.calibration,
         "lens": plan.job.settings.lens,
     });
-    std::fs::write(
+    trim_geom::fs::write_atomic(
         run_dir.join(files::SUMMARY),
         serde_json::to_string_pretty(&json)?,
     )?;

@@ -379,7 +379,7 @@ mod tests {
         assert!(err.to_string().contains("timed out"), "{err}");
         // A scan written before the wait began (the last round's) is not this round's.
         let old = dir.path().join("old.ply");
-        std::fs::write(&old, "ply").unwrap();
+        trim_geom::fs::write_atomic(&old, "ply").unwrap();
         let since = SystemTime::now() + Duration::from_secs(1);
         assert!(wait_for_file(&old, since, Duration::from_millis(300)).is_err());
         // Written now, it is taken once its size has settled.

@@ -138,7 +138,7 @@ mod tests {
         let dir = tempfile::tempdir().expect("a temporary folder");
         let path = dir.path().join(files::TWIN_CUTS);
         let torn = &line(&cut(2.0))[..20];
-        std::fs::write(&path, format!("{}{torn}", line(&cut(1.0)))).expect("written");
+        trim_geom::fs::write_atomic(&path, format!("{}{torn}", line(&cut(1.0)))).expect("written");
         assert_eq!(read(dir.path()).expect("read"), vec![cut(1.0)]);
         let mut file = open_for_append(&path).expect("opened");
         file.write_all(line(&cut(3.0)).as_bytes())
@@ -152,7 +152,7 @@ mod tests {
         let dir = tempfile::tempdir().expect("a temporary folder");
         let e = format!("{:#}", read(dir.path()).expect_err("missing"));
         assert!(e.contains("twin_cuts.jsonl"), "{e}");
-        std::fs::write(
+        trim_geom::fs::write_atomic(
             dir.path().join(files::TWIN_CUTS),
             format!("{}{{\"from\": 1}}\n{}", line(&cut(1.0)), line(&cut(2.0))),
         )

@@ -246,7 +246,7 @@ mod tests {
                 "demo.blockages",
             ),
         ] {
-            std::fs::write(&state, text).expect("written");
+            trim_geom::fs::write_atomic(&state, text).expect("written");
             let e = format!("{:#}", VerifyState::load(dir.path()).expect_err(text));
             assert!(e.contains("verify_state.json") && e.contains(says), "{e}");
         }
@@ -271,7 +271,7 @@ mod tests {
                 "more than --rounds 1".to_owned(),
             ),
         ] {
-            std::fs::write(&verify, text).expect("written");
+            trim_geom::fs::write_atomic(&verify, text).expect("written");
             let e = format!("{:#}", load_rounds(dir.path(), 1).expect_err(text));
             assert!(e.contains("verify.json") && e.contains(&says), "{e}");
         }
