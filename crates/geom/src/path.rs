@@ -17,6 +17,11 @@ pub type ContourId = i64;
 /// Feature vectors shorter than this are refused.
 pub const MIN_FEATURE_NORM: f64 = 1e-9;
 
+/// A contour point with a coordinate beyond this (mm, 100 m) is refused: no machine's work
+/// space is larger, and such a point (a path in micrometres, a stray value) made the planner
+/// and the registration size their grids by it (a capacity overflow, or hours of work).
+pub const MAX_COORDINATE_MM: f64 = 1e5;
+
 /// A contour shorter than this (mm, summed over its segments) has zero length and is refused.
 pub const MIN_CONTOUR_LENGTH_MM: f64 = 1e-9;
 
@@ -61,6 +66,16 @@ impl Contour {
         }
         if let Some(i) = points.iter().position(|p| !is_finite_point(p)) {
             return Err(bad(format!("point {i} is not finite")));
+        }
+        if let Some((i, p)) = points
+            .iter()
+            .enumerate()
+            .find(|(_, p)| p.coords.amax() > MAX_COORDINATE_MM)
+        {
+            return Err(bad(format!(
+                "point {i} at ({:.6e}, {:.6e}, {:.6e}) mm lies beyond ±{MAX_COORDINATE_MM} mm (100 m): no machine reaches that far (a path in µm, or in another frame?)",
+                p.x, p.y, p.z
+            )));
         }
         for (i, f) in features.iter_mut().enumerate() {
             *f = unit_or_none(f, MIN_FEATURE_NORM)
@@ -273,6 +288,19 @@ mod tests {
         )
         .unwrap();
         assert!((huge.features()[0] - Vector3::new(0.0, 1.0, 1.0).normalize()).norm() < 1e-15);
+    }
+
+    #[test]
+    fn refuses_a_point_beyond_a_hundred_metres_naming_it() {
+        let far = |x: f64| Contour::new(3, vec![Point3::origin(), Point3::new(x, 0.0, 0.0)], z());
+        assert!(far(99_999.0).is_ok());
+        for x in [1.000_01e5, -2e6, 1e300] {
+            let e = far(x).unwrap_err().to_string();
+            assert!(
+                e.contains("contour 3") && e.contains("point 1") && e.contains("100 m"),
+                "{e}"
+            );
+        }
     }
 
     #[test]

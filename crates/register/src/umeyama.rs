@@ -24,6 +24,9 @@ pub struct UmeyamaFit {
     pub rms_mm: f64,
 }
 
+/// The most iterations of the Umeyama SVD (a 3 × 3 converges in a few).
+const SVD_MAX_ITERATIONS: usize = 1000;
+
 /// Fits `target ≈ s·R·source + t` (Umeyama Eq. 40–42); `with_scale = false` fixes `s = 1`.
 ///
 /// Refuses fewer than [`MIN_PAIRS`] pairs, unequal lengths, non-finite input and coincident
@@ -107,7 +110,15 @@ pub fn umeyama_weighted(
         });
     }
     // Eq. 39–40: SVD, with S flipping the last axis for a reflection.
-    let svd = sigma.svd(true, true);
+    // Bounded: an SVD that does not converge (a covariance near overflow) is an error, not a
+    // loop without end.
+    let Some(svd) = sigma.try_svd(true, true, f64::EPSILON, SVD_MAX_ITERATIONS) else {
+        return Err(RegisterError::Singular {
+            stage: "Umeyama: SVD did not converge (are the points' coordinates beyond 1e100 mm?)"
+                .into(),
+            eigenvalues: Vec::new(),
+        });
+    };
     let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
         return Err(RegisterError::Singular {
             stage: "Umeyama: SVD did not converge".into(),
@@ -122,8 +133,22 @@ pub fn umeyama_weighted(
         s[imin] = -1.0;
     }
     let r = u * Matrix3::from_diagonal(&s) * v_t;
+    // The rotation's extraction below iterates until it converges: it must get a rotation.
+    if !r.iter().all(|v| v.is_finite()) {
+        return Err(RegisterError::NonFinite {
+            what: "Umeyama rotation (the points' coordinates overflow the fit)".into(),
+        });
+    }
     // Eq. 42: scale; Eq. 41: translation.
     let scale = if with_scale { d.dot(&s) / var_x } else { 1.0 };
+    if !(scale.is_finite() && scale > 0.0) {
+        return Err(RegisterError::Singular {
+            stage: format!(
+                "Umeyama: the target points coincide or mirror the source (scale {scale})"
+            ),
+            eigenvalues: d.iter().copied().collect(),
+        });
+    }
     let t = mu_y - scale * r * mu_x;
     let rotation = UnitQuaternion::from_matrix(&r);
     let target_from_source = Similarity3::from_parts(Translation3::from(t), rotation, scale);
@@ -131,9 +156,15 @@ pub fn umeyama_weighted(
     for (i, (x, y)) in source.iter().zip(target).enumerate() {
         sq += weight(i) * (target_from_source * x - y).norm_squared();
     }
+    let rms_mm = (sq / total).sqrt();
+    if !(rms_mm.is_finite() && t.iter().all(|v| v.is_finite())) {
+        return Err(RegisterError::NonFinite {
+            what: "Umeyama fit (the points' coordinates overflow it)".into(),
+        });
+    }
     Ok(UmeyamaFit {
         target_from_source,
-        rms_mm: (sq / total).sqrt(),
+        rms_mm,
     })
 }
 
@@ -154,6 +185,20 @@ mod tests {
                 )
             })
             .collect()
+    }
+
+    #[test]
+    fn refuses_a_coincident_target_and_points_that_overflow_instead_of_panicking_or_hanging() {
+        let source = random_points(50, 7);
+        let e = umeyama(&source, &vec![Point3::origin(); 50], true).unwrap_err();
+        assert!(e.to_string().contains("coincide"), "{e}");
+        // Finite but so large that the fit overflows (it looped for ever, at 100 % CPU).
+        let huge: Vec<Point3> = source
+            .iter()
+            .map(|p| Point3::from(p.coords * 1e300))
+            .collect();
+        assert!(umeyama(&source, &huge, true).is_err());
+        assert!(umeyama(&huge, &source, true).is_err());
     }
 
     #[test]

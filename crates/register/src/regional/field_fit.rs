@@ -12,7 +12,7 @@ use crate::kernel::RobustKernel;
 use crate::reduce::chunked_sum;
 use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen};
 use rayon::prelude::*;
-use trim_geom::{Contour, Point3, PointCloud, Similarity3, Vector3};
+use trim_geom::{Aabb, Contour, Point3, PointCloud, Similarity3, Vector3};
 
 /// Levenberg-Marquardt damping of the field's Gauss-Newton step, relative to the mean data
 /// weight per unknown.
@@ -714,6 +714,51 @@ fn solve_field(
     Ok((field, prior))
 }
 
+/// Refuses a field over `bounds` (the CAD's, padded as [`zero_field`] pads them) whose grid at
+/// `spacing_mm × ratio` (`ratio`: 1 for the fit, [`MODEL_CHECK_SPACING_RATIO`](super::quality::MODEL_CHECK_SPACING_RATIO) for the model
+/// check's finer grid) would have more than [`MAX_FIELD_CONTROL_POINTS`], naming
+/// `field.spacing_mm` and the smallest spacing within the limit.
+pub(crate) fn check_field_size(bounds: &Aabb, spacing_mm: f64, ratio: f64) -> Result<()> {
+    let control_points = |spacing: f64| {
+        let pad = 0.25 * spacing;
+        (0..3)
+            .map(|a| {
+                ((bounds.max[a] - bounds.min[a] + 2.0 * pad) / spacing)
+                    .ceil()
+                    .max(1.0)
+                    + 2.0
+            })
+            .product::<f64>()
+    };
+    let needed = control_points(spacing_mm * ratio);
+    if needed <= MAX_FIELD_CONTROL_POINTS as f64 {
+        return Ok(());
+    }
+    // The smallest spacing (to 10 %) within the limit, to suggest.
+    let mut enough = spacing_mm;
+    while control_points(enough * ratio) > MAX_FIELD_CONTROL_POINTS as f64 {
+        enough *= 1.1;
+    }
+    let extent = bounds.max - bounds.min;
+    let grid = if ratio == 1.0 {
+        String::new()
+    } else {
+        format!(" (the model check's grid, at {ratio} × the spacing)")
+    };
+    Err(RegisterError::setting(
+        "field.spacing_mm",
+        format!(
+            "{spacing_mm} mm makes a field of {needed:.0} control points{grid} over the CAD's {:.0} × {:.0} × {:.0} mm, more than {MAX_FIELD_CONTROL_POINTS} (its normal matrix is dense): use at least {enough:.1} mm (the default is 20)",
+            extent.x, extent.y, extent.z
+        ),
+    ))
+}
+
+/// The most control points a field may have (the fit's or the model check's): its normal
+/// matrix is dense, `(3n)²` numbers, and the posterior inverts it; 2,000 is 290 MB a copy. The
+/// default spacing gives 100–300 on a core; a spacing of 1 mm asked for 141 GB and aborted.
+pub const MAX_FIELD_CONTROL_POINTS: usize = 2000;
+
 /// The field's warm-up iterations (`field.warmup_iterations`) use every this-many-th point:
 /// they only have to bring the field within the main iterations' reach.
 pub const WARMUP_STRIDE: usize = 8;
@@ -733,11 +778,9 @@ fn zero_field(
         .bounds()
         .ok_or(RegisterError::EmptyCloud { which: "CAD" })?;
     let pad = Vector3::repeat(0.25 * settings.spacing_mm);
-    let field = BSplineField::zero(
-        &(bounds.min - pad),
-        &(bounds.max + pad),
-        settings.spacing_mm,
-    );
+    let (min, max) = (bounds.min - pad, bounds.max + pad);
+    check_field_size(&bounds, settings.spacing_mm, 1.0)?;
+    let field = BSplineField::zero(&min, &max, settings.spacing_mm);
     let prior = prior_terms(&field, target.cloud().points(), settings);
     Ok((field, prior))
 }

@@ -275,6 +275,66 @@ fn coarse_stages(
     Ok((captured, target, coarse, shapes))
 }
 
+/// How far (mm, at least) a contour point may lie outside the CAD's bounding box; or this
+/// share of the box's diagonal, when more. The path is in the CAD frame and lies on its
+/// surface; a contour beyond this is in other units or another frame, and its opening check's
+/// raster, sized by the contour, asked for terabytes.
+pub const PATH_OUTSIDE_CAD_MM: f64 = 10.0;
+/// See [`PATH_OUTSIDE_CAD_MM`].
+pub const PATH_OUTSIDE_CAD_DIAGONAL_SHARE: f64 = 0.25;
+
+/// Refuses, before any work, a path that does not lie on the CAD (naming the contour and the
+/// point) and a field too fine for the CAD (naming `field.spacing_mm`): both would otherwise
+/// size a grid or raster without bound.
+fn check_inputs(cad: &PointCloud, path: &Path, settings: &RegisterSettings) -> Result<()> {
+    let bounds = cad
+        .bounds()
+        .ok_or(RegisterError::EmptyCloud { which: "CAD" })?;
+    let margin =
+        PATH_OUTSIDE_CAD_MM.max(PATH_OUTSIDE_CAD_DIAGONAL_SHARE * (bounds.max - bounds.min).norm());
+    let outside = |p: &Point3| {
+        (0..3)
+            .map(|a| (bounds.min[a] - p[a]).max(p[a] - bounds.max[a]).max(0.0))
+            .map(|d| d * d)
+            .sum::<f64>()
+            .sqrt()
+    };
+    for c in path.contours() {
+        if let Some((i, p, d)) = c
+            .points()
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (i, p, outside(p)))
+            .find(|(_, _, d)| *d > margin)
+        {
+            return Err(RegisterError::Contour {
+                contour: c.id(),
+                message: format!(
+                    "point {i} at ({:.3}, {:.3}, {:.3}) mm lies {d:.1} mm outside the CAD's bounding box ({:.1}, {:.1}, {:.1})–({:.1}, {:.1}, {:.1}) mm (at most {margin:.1} mm allowed): the path must be in the CAD's frame and units",
+                    p.x,
+                    p.y,
+                    p.z,
+                    bounds.min.x,
+                    bounds.min.y,
+                    bounds.min.z,
+                    bounds.max.x,
+                    bounds.max.y,
+                    bounds.max.z
+                ),
+            });
+        }
+    }
+    if settings.mode == Mode::Regional {
+        let ratio = if settings.quality.model_check {
+            MODEL_CHECK_SPACING_RATIO.min(1.0)
+        } else {
+            1.0
+        };
+        field_fit::check_field_size(&bounds, settings.field.spacing_mm, ratio)?;
+    }
+    Ok(())
+}
+
 /// Registers `path` (CAD frame) onto `scan` (scan frame), starting from the fixture's
 /// `initial_scan_from_cad`. `cad` must carry outward normals.
 ///
@@ -290,6 +350,7 @@ pub fn register(
     initial_scan_from_cad: &Similarity3,
     settings: &RegisterSettings,
 ) -> Result<Registration> {
+    check_inputs(cad, path, settings)?;
     let t0 = Instant::now();
     let (mut first, _) = register_once(cad, scan, path, initial_scan_from_cad, settings, &[])?;
     let first_s = t0.elapsed().as_secs_f64();
@@ -679,4 +740,91 @@ fn register_once(
         },
         slide_shift_mm,
     ))
+}
+
+#[cfg(test)]
+mod input_tests {
+    use super::*;
+    use trim_geom::{Contour, Vector3};
+
+    /// A 60 × 40 × 10 mm box's corners and edges, as a CAD cloud.
+    fn box_cloud() -> PointCloud {
+        let mut points = Vec::new();
+        for i in 0..=60 {
+            for j in 0..=40 {
+                points.push(Point3::new(f64::from(i), f64::from(j), 0.0));
+                points.push(Point3::new(f64::from(i), f64::from(j), 10.0));
+            }
+        }
+        PointCloud::new(points).unwrap()
+    }
+
+    fn path_at(x: f64) -> Path {
+        let points = vec![Point3::new(x, 0.0, 10.0), Point3::new(x + 5.0, 0.0, 10.0)];
+        Path::new(vec![
+            Contour::new(
+                1,
+                vec![Point3::new(1.0, 1.0, 10.0), Point3::new(5.0, 1.0, 10.0)],
+                Vector3::z(),
+            )
+            .unwrap(),
+            Contour::new(7, points, Vector3::z()).unwrap(),
+        ])
+        .unwrap()
+    }
+
+    /// A path in other units (or frame) than the CAD, and a field too fine for the CAD, are
+    /// refused before any work, naming the contour and the point, or the key. Both sized a
+    /// grid without bound: a path in micrometres asked for petabytes.
+    #[test]
+    fn a_path_off_the_cad_and_a_field_too_fine_are_refused_before_any_work() {
+        let cad = box_cloud();
+        let settings = RegisterSettings::default();
+        check_inputs(&cad, &path_at(30.0), &settings).unwrap();
+        // 10 mm beyond the box's end is still within the margin (a quarter of its diagonal).
+        check_inputs(&cad, &path_at(60.0), &settings).unwrap();
+        let e = register(
+            &cad,
+            &cad,
+            &path_at(10_000.0),
+            &Similarity3::identity(),
+            &settings,
+        )
+        .err()
+        .expect("a path 10 m off the CAD must be refused")
+        .to_string();
+        assert!(
+            e.contains("contour 7") && e.contains("point 0") && e.contains("frame and units"),
+            "{e}"
+        );
+        let fine = RegisterSettings {
+            field: DeformationSettings {
+                spacing_mm: 0.5,
+                ..settings.field
+            },
+            ..settings.clone()
+        };
+        let e = check_inputs(&cad, &path_at(30.0), &fine)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("field.spacing_mm") && e.contains("use at least"),
+            "{e}"
+        );
+        // The suggested spacing passes.
+        let at_least: f64 = e
+            .split("use at least ")
+            .nth(1)
+            .and_then(|t| t.split(' ').next())
+            .and_then(|t| t.parse().ok())
+            .expect("a suggested spacing");
+        let ok = RegisterSettings {
+            field: DeformationSettings {
+                spacing_mm: at_least,
+                ..settings.field
+            },
+            ..settings
+        };
+        check_inputs(&cad, &path_at(30.0), &ok).unwrap();
+    }
 }

@@ -394,6 +394,15 @@ pub(crate) fn positive(name: &str, v: f64) -> Result<()> {
     }
 }
 
+/// The most iterations a coarse level may take (`coarse.levels[k].max_iterations`): the
+/// defaults take 30–50 and converge well before; a count of millions only made the command run
+/// for hours.
+pub const MAX_COARSE_ITERATIONS: usize = 1000;
+
+/// The most Gauss-Newton iterations of the field (`field.iterations`, and as many warm-up
+/// iterations): the default takes 10, and 20 measured no better (DESIGN.md).
+pub const MAX_FIELD_ITERATIONS: usize = 100;
+
 impl RegisterSettings {
     /// Refuses out-of-range values, naming the key as in job.toml (`register.field.spacing_mm`).
     pub fn validate(&self) -> Result<()> {
@@ -440,10 +449,13 @@ impl RegisterSettings {
                 &format!("coarse.levels[{k}].max_correspondence_distance_mm"),
                 l.max_correspondence_distance_mm,
             )?;
-            if l.max_iterations == 0 {
+            if !(1..=MAX_COARSE_ITERATIONS).contains(&l.max_iterations) {
                 return Err(RegisterError::setting(
                     format!("coarse.levels[{k}].max_iterations"),
-                    "must be at least 1",
+                    format!(
+                        "must be in [1, {MAX_COARSE_ITERATIONS}], got {}",
+                        l.max_iterations
+                    ),
                 ));
             }
         }
@@ -478,10 +490,31 @@ impl RegisterSettings {
                 "must be finite and ≥ 0",
             ));
         }
-        if f.iterations == 0 {
+        if !(1..=MAX_FIELD_ITERATIONS).contains(&f.iterations) {
             return Err(RegisterError::setting(
                 "field.iterations",
-                "must be at least 1",
+                format!(
+                    "must be in [1, {MAX_FIELD_ITERATIONS}], got {}",
+                    f.iterations
+                ),
+            ));
+        }
+        if f.warmup_iterations > MAX_FIELD_ITERATIONS {
+            return Err(RegisterError::setting(
+                "field.warmup_iterations",
+                format!(
+                    "must be in [0, {MAX_FIELD_ITERATIONS}], got {}",
+                    f.warmup_iterations
+                ),
+            ));
+        }
+        if f.max_distance_end_mm > f.max_distance_start_mm {
+            return Err(RegisterError::setting(
+                "field.max_distance_end_mm",
+                format!(
+                    "must not exceed field.max_distance_start_mm ({} mm; the reach shrinks from it), got {} mm",
+                    f.max_distance_start_mm, f.max_distance_end_mm
+                ),
             ));
         }
         let q = &self.quality;
@@ -638,5 +671,41 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Iteration counts have an upper end (a count of millions ran for hours), and the field's
+    /// reach must shrink, not grow; each refusal names its key.
+    #[test]
+    fn iteration_counts_and_the_fields_reach_are_refused_by_key_outside_their_ranges() {
+        type Set = fn(&mut RegisterSettings);
+        let cases: [(&str, Set); 6] = [
+            ("field.iterations", |s| s.field.iterations = 0),
+            ("field.iterations", |s| {
+                s.field.iterations = MAX_FIELD_ITERATIONS + 1;
+            }),
+            ("field.warmup_iterations", |s| {
+                s.field.warmup_iterations = 100_000_000;
+            }),
+            ("coarse.levels[0].max_iterations", |s| {
+                s.coarse.levels[0].max_iterations = MAX_COARSE_ITERATIONS + 1;
+            }),
+            ("coarse.levels[0].max_iterations", |s| {
+                s.coarse.levels[0].max_iterations = 0;
+            }),
+            ("field.max_distance_end_mm", |s| {
+                s.field.max_distance_end_mm = 2.0 * s.field.max_distance_start_mm;
+            }),
+        ];
+        for (key, set) in cases {
+            let mut s = RegisterSettings::default();
+            set(&mut s);
+            let e = s.validate().expect_err(key).to_string();
+            assert!(e.contains(key), "{key}: {e}");
+        }
+        let mut s = RegisterSettings::default();
+        s.field.iterations = MAX_FIELD_ITERATIONS;
+        s.field.warmup_iterations = MAX_FIELD_ITERATIONS;
+        s.coarse.levels[0].max_iterations = MAX_COARSE_ITERATIONS;
+        s.validate().unwrap();
     }
 }
