@@ -790,8 +790,7 @@ mod input_tests {
             &Similarity3::identity(),
             &settings,
         )
-        .err()
-        .expect("a path 10 m off the CAD must be refused")
+        .expect_err("a path 10 m off the CAD must be refused")
         .to_string();
         assert!(
             e.contains("contour 7") && e.contains("point 0") && e.contains("frame and units"),
