@@ -22,18 +22,25 @@ pub enum Orientation {
 /// Estimates one unit normal per point: the eigenvector of the smallest eigenvalue of the
 /// covariance of the point's `k` nearest neighbours (itself included), flipped to `orientation`.
 ///
-/// Refuses `k < 3`, a cloud with fewer than 3 points, and a zero reference direction.
+/// The most neighbours a normal is estimated over: more only blurs it (and `k = 2⁶³` asked for
+/// an allocation that overflowed).
+pub const MAX_NEIGHBOURS: usize = 10_000;
+
+/// Refuses `k < 3` or `k >` [`MAX_NEIGHBOURS`], a cloud with fewer than 3 points, a zero
+/// reference direction and a viewpoint that is not finite. A `k` larger than the cloud takes
+/// every point.
 pub fn estimate_normals(
     points: &[Point3],
     k: usize,
     orientation: Orientation,
 ) -> Result<Vec<Vector3>> {
-    if k < MIN_NEIGHBOURS {
+    if !(MIN_NEIGHBOURS..=MAX_NEIGHBOURS).contains(&k) {
         return Err(GeomError::invalid(
             "k",
-            format!("needs at least {MIN_NEIGHBOURS} neighbours, got {k}"),
+            format!("must be in [{MIN_NEIGHBOURS}, {MAX_NEIGHBOURS}] neighbours, got {k}"),
         ));
     }
+    let k = k.min(points.len());
     if points.len() < MIN_NEIGHBOURS {
         return Err(GeomError::TooFewPoints {
             what: "normal estimation".into(),
@@ -47,6 +54,14 @@ pub fn estimate_normals(
         return Err(GeomError::invalid(
             "reference",
             "orientation reference must be a finite non-zero vector",
+        ));
+    }
+    if let Orientation::TowardViewpoint(v) = orientation
+        && !v.iter().all(|c| c.is_finite())
+    {
+        return Err(GeomError::invalid(
+            "viewpoint",
+            "the viewpoint must be finite",
         ));
     }
     let tree = KdTree::build(points);
@@ -136,5 +151,18 @@ mod tests {
         assert!(estimate_normals(&pts, 2, Orientation::AlongReference(Vector3::z())).is_err());
         assert!(estimate_normals(&pts[..2], 5, Orientation::AlongReference(Vector3::z())).is_err());
         assert!(estimate_normals(&pts, 5, Orientation::AlongReference(Vector3::zeros())).is_err());
+        let e = estimate_normals(&pts, 1 << 63, Orientation::AlongReference(Vector3::z()))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains('k') && e.contains("10000"), "{e}");
+        let nan = Point3::new(f64::NAN, 0.0, 0.0);
+        assert!(estimate_normals(&pts, 5, Orientation::TowardViewpoint(nan)).is_err());
+        // A k larger than the cloud takes every point.
+        let plane: Vec<Point3> = (0..5)
+            .flat_map(|i| (0..5).map(move |j| Point3::new(f64::from(i), f64::from(j), 0.0)))
+            .collect();
+        let normals =
+            estimate_normals(&plane, 500, Orientation::AlongReference(Vector3::z())).unwrap();
+        assert!(normals.iter().all(|n| (n - Vector3::z()).norm() < 1e-9));
     }
 }

@@ -37,6 +37,31 @@ __all__ = [
 ]
 
 
+def _settings_json(what: str, settings: Any) -> str:
+    """``settings`` (nested mappings and sequences) as JSON for the native side: numpy numbers
+    and arrays become Python numbers and lists; a NaN or infinite number raises ``ValueError``
+    naming ``what`` and its key (JSON has no such number, and the native side would only say
+    "expected value at line 1 column 13"); a settings value that is not a mapping is refused by
+    name too."""
+    if settings is not None and not isinstance(settings, Mapping):
+        raise ValueError(f"{what}: expected a mapping of settings, got a {type(settings).__name__}")
+
+    def plain(key: str, v: Any) -> Any:
+        if isinstance(v, np.ndarray):
+            v = v.tolist()
+        elif isinstance(v, np.generic):
+            v = v.item()
+        if isinstance(v, Mapping):
+            return {str(k): plain(f"{key}.{k}" if key else str(k), x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [plain(f"{key}[{i}]", x) for i, x in enumerate(v)]
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ValueError(f"{what}: {key} = {v!r}: must be a finite number")
+        return v
+
+    return json.dumps(plain("", settings))
+
+
 def _refuse_renamed(function: str, given: Mapping[str, Any], renamed: Mapping[str, str]) -> None:
     """Raises ``TypeError`` for a keyword ``function`` does not take, naming the new name of one
     that was renamed (options carry their unit: ``layer_step`` is now ``layer_step_mm``)."""
@@ -51,6 +76,10 @@ def _refuse_renamed(function: str, given: Mapping[str, Any], renamed: Mapping[st
 def _kw(settings: Optional[Mapping[str, Any]], **given: Any) -> Dict[str, Any]:
     """A deep copy of ``settings`` (the caller's dicts, nested ones included, are never changed)
     with the keyword options that were given (``None`` = not given) set over it."""
+    if settings is not None and not isinstance(settings, Mapping):
+        raise ValueError(
+            f"settings: expected a mapping of job.toml keys, got a {type(settings).__name__}"
+        )
     out: Dict[str, Any] = copy.deepcopy(dict(settings or {}))
     out.update({k: v for k, v in given.items() if v is not None})
     return out
@@ -82,7 +111,7 @@ class Beam:
             None if laser_limits is None else dict(laser_limits)
         )
         self._report: Dict[str, float] = _native.beam_report(
-            json.dumps(settings), _limits_json(self.laser_limits)
+            _settings_json("beam", settings), _limits_json(self.laser_limits)
         )
         for key, value in self._report.items():
             setattr(self, key, value)
@@ -216,7 +245,7 @@ class Plan:
 
 
 def _limits_json(laser_limits: Optional[Mapping[str, float]]) -> Optional[str]:
-    return None if laser_limits is None else json.dumps(dict(laser_limits))
+    return None if laser_limits is None else _settings_json("laser_limits", dict(laser_limits))
 
 
 def plan(
@@ -259,7 +288,7 @@ def plan(
         s.setdefault("machine", {})["kinematics"] = kinematics
     if laser_limits is None and beam is not None:
         laser_limits = beam.laser_limits
-    job, table, meta = _native.plan_path(path, json.dumps(s), _limits_json(laser_limits))
+    job, table, meta = _native.plan_path(path, _settings_json("plan settings", s), _limits_json(laser_limits))
     return Plan(job=job, table=table, k=meta["k"], automatic_k=meta["automatic_k"])
 
 
@@ -322,7 +351,7 @@ def merge_scans(
         raise ValueError("poses: expected a sequence of poses (one mapping per scan), got one")
     pose_json = [_pose_json(k, p) for k, p in enumerate(poses)]
     s = _kw(settings)
-    return _native.merge_scans(list(scans), pose_json, json.dumps(s))
+    return _native.merge_scans(list(scans), pose_json, _settings_json("settings", s))
 
 
 @dataclass(frozen=True)
@@ -394,7 +423,7 @@ def merge_scan_files(
         )
     paths = [os.fspath(f) for f in files]
     s = _kw(settings)
-    return _native.merge_scan_files(paths, os.fspath(poses), json.dumps(s))
+    return _native.merge_scan_files(paths, os.fspath(poses), _settings_json("settings", s))
 
 
 @dataclass(frozen=True)
@@ -497,7 +526,7 @@ def register_path(
     """
     s = _kw(settings, mode=mode)
     registered, report, scan_from_cad, quality = _native.register_path(
-        cad, cad_normals, scan, path, init, json.dumps(s), scan_normals
+        cad, cad_normals, scan, path, init, _settings_json("settings", s), scan_normals
     )
     return Registration(
         path=registered, report=report, scan_from_cad=scan_from_cad, quality=quality
@@ -528,7 +557,7 @@ def synth(seed: int = 1, **params: Any) -> DemoCase:
     ``burr_fraction``, ``pressing_tilt_deg``, ``tip_curl_mm``, ``shrink_gradient`` (the change of
     shrinkage along the span, end to end: a density gradient), ``path_spacing_mm``,
     ``mesh_step_mm``."""
-    d = _native.synth_case(json.dumps({"seed": seed, **params}))
+    d = _native.synth_case(_settings_json("synth", {"seed": seed, **params}))
     return DemoCase(
         cad_points=d["cad_points"],
         cad_normals=d["cad_normals"],
@@ -607,4 +636,4 @@ def hatch(
     pts = np.ascontiguousarray(points, dtype=np.float64)
     b = np.ascontiguousarray(boundary, dtype=np.float64)
     n = None if normals is None else np.ascontiguousarray(normals, dtype=np.float64)
-    return _native.hatch_surface(pts, b, json.dumps(s), n, spot)
+    return _native.hatch_surface(pts, b, _settings_json("hatch settings", s), n, spot)
