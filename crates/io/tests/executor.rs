@@ -176,6 +176,92 @@ async fn whole_job_marks_every_vector_once_with_both_laser_profiles() {
     }
 }
 
+/// A cut layer's count known only from the galvo (the journal's cut entry has none: the host
+/// died mid-layer) is journaled as soon as a resume reads it, before anything is switched on:
+/// framing replaces the galvo's list, so a stop before the layer began again (here a stop
+/// right after the resume started) left the layer of unknown progress, redo or skip only.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cut_count_known_only_from_the_galvo_is_journaled_before_anything_else() {
+    let sim = sim_cell_scaled("monaco", MATRIX_GALVO_TIME_SCALE).await;
+    let job = demo_job(2);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.journal");
+    let cancel = CancellationToken::new();
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    let target = LayerKey { zone: 1, layer: 0 };
+    let c2 = cancel.clone();
+    let watcher = tokio::spawn(async move {
+        while let Some(p) = rx.recv().await {
+            if let Progress::Vectors { key, done, .. } = p
+                && key == target
+                && done >= 2
+            {
+                c2.cancel();
+                return;
+            }
+        }
+    });
+    let cell = connect(&sim, Tap::none()).await;
+    let err = Executor::new(job.clone(), cell, &path, None)
+        .with_options(options())
+        .run(cancel, Some(tx))
+        .await
+        .expect_err("cancelled");
+    watcher.await.unwrap();
+    let ExecError::Stopped(s) = err else {
+        panic!("{err}")
+    };
+    let done = s
+        .vectors_done
+        .expect("the galvo says how far the layer got");
+    // The host died before the cut entry: the journal ends at the layer's begin.
+    let text = std::fs::read_to_string(&path).unwrap();
+    let kept: Vec<&str> = text
+        .lines()
+        .filter(|l| !l.contains("\"layer_cut\""))
+        .collect();
+    std::fs::write(&path, kept.join("\n") + "\n").unwrap();
+    assert!(journal::read(&path).unwrap().open_cut.is_none());
+    // A resume stopped before the layer begins again (the CNC refuses its first command): it
+    // has journaled the galvo's count first.
+    sim.clear_faults();
+    sim.cnc.faults().arm(Fault {
+        kind: FaultKind::Refuse,
+        trigger: Trigger::Command {
+            name: "mdi".into(),
+            nth: 1,
+        },
+    });
+    let cell = connect(&sim, Tap::none()).await;
+    let first = Executor::new(job.clone(), cell, &path, None)
+        .with_options(options())
+        .resume(CancellationToken::new(), None)
+        .await;
+    assert!(
+        matches!(first, Err(ExecError::Stopped(_))),
+        "the resume was to stop at the CNC's refusal: {first:?}"
+    );
+    sim.clear_faults();
+    let st = journal::read(&path).unwrap();
+    assert!(
+        matches!(st.open_cut, Some(journal::Entry::LayerCut { vectors_done: Some(v), .. }) if v == done),
+        "{:?}",
+        st.open_cut
+    );
+    // The galvo's list replaced (as framing does): the journal still knows, and the resume
+    // continues the layer where it stopped, each vector marked once.
+    sim.galvo.forget_list();
+    let summary = resume(&sim, &job, &path).await;
+    assert_eq!(summary.resumed_from, Some((target, done)));
+    let partial = assert_marked_exactly_once(&job, &sim.galvo.marks());
+    assert!(partial <= 1, "{partial} partly marked vectors");
+    assert!(
+        sim.monitor.violations().is_empty(),
+        "{:?}",
+        sim.monitor.violations()
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cancel_mid_layer_turns_the_laser_off_and_resume_finishes_without_remarking() {
     // A slow galvo clock (vectors of about 0.1 s) so the progress watcher sees the layer midway.

@@ -307,6 +307,17 @@ impl GalvoSim {
             .clone()
     }
 
+    /// Forgets the list it executed last (its status then reports no list, and no marks), as a
+    /// restart of the controller leaves it, or a framing list replacing the status's tag: a
+    /// resume must then know the cut layer's progress from the journal.
+    pub fn forget_list(&self) {
+        let mut ctl = self.shared.ctl();
+        ctl.exec_list = NO_LIST;
+        ctl.exec_tag = 0;
+        ctl.marks_done = 0;
+        ctl.commands_done = 0;
+    }
+
     /// The current framing block (as a `FRAME_STATUS` request would return it).
     #[must_use]
     pub fn frame_status(&self) -> FrameBlock {

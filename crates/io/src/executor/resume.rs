@@ -72,6 +72,24 @@ impl Executor {
             _ => cut,
         };
         if let Some(done) = known {
+            // A count known only from the galvo is journaled at once: framing (`run --resume
+            // --frame`, `trimctl frame`) replaces the galvo's list, so after a stop before this
+            // layer begins again the count would be gone and the layer of unknown progress
+            // (redo: vectors marked twice, or skip).
+            if cut != Some(done) {
+                journal
+                    .append_within(
+                        &Entry::LayerCut {
+                            key: *key,
+                            vectors_done: Some(done),
+                            reason: format!(
+                                "resume: the galvo reports {done} of the layer's vectors marked (list tag {tag})"
+                            ),
+                        },
+                        self.options.timeouts.journal_write,
+                    )
+                    .await?;
+            }
             return Ok((CutStart::Continue(*key, done), None));
         }
         let reason = match status {
