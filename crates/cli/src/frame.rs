@@ -288,17 +288,21 @@ async fn frame_all(
 }
 
 /// The exit code of a framing failure: interrupted 3, a device 2, the job 1.
-fn stop_failure(cause: StopCause) -> anyhow::Error {
-    let exit = match cause {
+fn stop_failure(stop: trim_io::framing::FramingStop) -> anyhow::Error {
+    let exit = match stop.cause {
+        _ if !stop.laser_off_ok => Exit::LaserStateUnknown,
         StopCause::Cancelled => Exit::Interrupted,
         StopCause::Job { .. } => Exit::Refused,
         _ => Exit::DeviceFault,
     };
+    let state = if stop.laser_off_ok {
+        "the pointer is off, the laser gate was kept shut"
+    } else {
+        "laser emission-off NOT acknowledged: switch the laser off at its key"
+    };
     Failure::with_exit(
         exit,
-        anyhow::anyhow!(
-            "framing stopped: {cause}; the pointer is off, the laser gate was kept shut"
-        ),
+        anyhow::anyhow!("framing stopped: {}; {state}", stop.cause),
     )
 }
 

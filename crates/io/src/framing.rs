@@ -121,18 +121,27 @@ pub async fn frame_layer<T>(
     passes: u32,
     hold: impl Future<Output = T>,
     cancel: &CancellationToken,
-) -> Result<(Framed, Option<T>), StopCause> {
-    let layer = find_layer(job, key)?;
-    let outline = layer_outline(layer, &job.settings.plan.galvo, settings.outline)
-        .map_err(|e| job_error(format!("zone {} layer {}: {e}", key.zone, key.layer)))?;
+) -> Result<(Framed, Option<T>), FramingStop> {
+    let refused = |cause| FramingStop {
+        cause,
+        laser_off_ok: true,
+    };
+    let layer = find_layer(job, key).map_err(refused)?;
+    let outline =
+        layer_outline(layer, &job.settings.plan.galvo, settings.outline).map_err(|e| {
+            refused(job_error(format!(
+                "zone {} layer {}: {e}",
+                key.zone, key.layer
+            )))
+        })?;
     let commands = frame_list(&outline, &job.settings.plan.galvo);
     let pass_s = ListClock::list_s(&commands);
     // The trace's waits are bounded by this time (checked before the pointer goes on).
     if !(pass_s.is_finite() && pass_s >= 0.0) {
-        return Err(job_error(format!(
+        return Err(refused(job_error(format!(
             "zone {} layer {}: the outline's modelled time is {pass_s} s (check the job's galvo speeds and delays)",
             key.zone, key.layer
-        )));
+        ))));
     }
     let result = trace(
         cell, layer, key, settings, &commands, passes, pass_s, hold, cancel,
@@ -151,9 +160,42 @@ pub async fn frame_layer<T>(
             held,
         )),
         Err(cause) => {
-            lights_out(cell, &settings.timeouts).await;
-            Err(cause)
+            let laser_off_ok = lights_out(cell, &settings.timeouts).await;
+            Err(FramingStop {
+                cause,
+                laser_off_ok,
+            })
         }
+    }
+}
+
+/// Why framing stopped, and whether the laser acknowledged its emission-off on the way down
+/// ([`lights_out`]); a refusal before anything was switched on counts as acknowledged.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FramingStop {
+    /// What stopped it.
+    pub cause: StopCause,
+    /// The laser acknowledged its emission-off (or nothing was switched on).
+    pub laser_off_ok: bool,
+}
+
+impl std::fmt::Display for FramingStop {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.cause)?;
+        if !self.laser_off_ok {
+            write!(
+                f,
+                "; laser emission-off NOT acknowledged: switch the laser off at its key"
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// In a run (`run --frame`'s zone gate) the executor takes its own way down after the cause.
+impl From<FramingStop> for StopCause {
+    fn from(stop: FramingStop) -> Self {
+        stop.cause
     }
 }
 
@@ -389,22 +431,24 @@ pub async fn rearm(
     .await
 }
 
-/// The way down after a framing failure: the galvo stopped (its pointer and signals drop), the
-/// pointer off, the laser's emission off, motion stopped; each within the shutdown step, each
-/// tried whatever the others did.
-pub async fn lights_out(cell: &mut Cell, timeouts: &Timeouts) {
+/// The way down after a framing failure, as the executor's: the laser's emission off first (on
+/// the open port, then reopened, until acknowledged or `laser_off_budget` is spent: it must be
+/// off even after a missed reply), then the galvo stopped (its pointer and signals drop), the
+/// pointer off, motion stopped; each within the shutdown step, each tried whatever the others
+/// did. Returns whether the laser acknowledged its emission-off.
+pub async fn lights_out(cell: &mut Cell, timeouts: &Timeouts) -> bool {
     let step = timeouts.shutdown_step;
-    let (stop, laser) = tokio::join!(
-        tokio::time::timeout(step, cell.galvo.stop()),
-        tokio::time::timeout(step, cell.laser.emission(false)),
-    );
+    let deadline = tokio::time::Instant::now() + timeouts.laser_off_budget;
+    let laser = cell.laser.emission_off_until(deadline).await;
+    let stop = tokio::time::timeout(step, cell.galvo.stop()).await;
     let pointer = tokio::time::timeout(step, cell.galvo.pointer(false)).await;
     let abort = tokio::time::timeout(step + timeouts.cnc_reply, cell.cnc.abort()).await;
     tracing::warn!(
+        emission_off = laser.acknowledged,
         galvo_stop = matches!(stop, Ok(Ok(Ok(())))),
         pointer_off = matches!(pointer, Ok(Ok(Ok(())))),
-        emission_off = matches!(laser, Ok(Ok(Ok(())))),
         cnc_abort = matches!(abort, Ok(Ok(Ok(())))),
         "framing: way down"
     );
+    laser.acknowledged
 }

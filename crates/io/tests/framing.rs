@@ -335,7 +335,8 @@ async fn a_galvo_fault_while_framing_leaves_the_pointer_off_and_the_gate_shut() 
     )
     .await
     .expect_err("the link drops");
-    assert!(matches!(err, StopCause::Link { .. }), "{err}");
+    assert!(matches!(err.cause, StopCause::Link { .. }), "{err}");
+    assert!(err.laser_off_ok, "{err}");
     let t = Instant::now();
     while sim.monitor.pointer() || sim.monitor.framing() {
         assert!(t.elapsed() < GENEROUS, "pointer left on after the fault");
@@ -353,6 +354,48 @@ async fn a_galvo_fault_while_framing_leaves_the_pointer_off_and_the_gate_shut() 
         "{:?}",
         sim.monitor.violations()
     );
+}
+
+/// A galvo fault while framing with a laser that no longer answers: the way down tries the
+/// laser's emission-off first (before the galvo and the CNC), and framing says the laser's
+/// state is unknown instead of "the laser gate was kept shut".
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn framing_says_when_the_lasers_emission_off_was_not_acknowledged() {
+    let mut o = trim_sim::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
+    o.cnc_time_scale = 0.1;
+    o.faults.galvo = vec![Fault {
+        kind: FaultKind::DropLink,
+        trigger: Trigger::Command {
+            name: "FRAME_STATUS".into(),
+            nth: 3,
+        },
+    }];
+    // The preparation's emission-off is answered; the way down's is not.
+    o.faults.laser = vec![Fault {
+        kind: FaultKind::DropLink,
+        trigger: Trigger::Command {
+            name: "emission_off".into(),
+            nth: 2,
+        },
+    }];
+    let sim = SimCell::start(o).await.unwrap();
+    let job = demo_job(1);
+    let mut cell = connect(&sim, Tap::none()).await;
+    let err = frame_layer(
+        &mut cell,
+        &job,
+        LayerKey { zone: 0, layer: 0 },
+        &settings(),
+        0,
+        std::future::pending::<()>(),
+        &CancellationToken::new(),
+    )
+    .await
+    .expect_err("the link drops");
+    assert!(matches!(err.cause, StopCause::Link { .. }), "{err}");
+    assert!(!err.laser_off_ok, "{err}");
+    assert!(err.to_string().contains("NOT acknowledged"), "{err}");
+    assert!(sim.galvo.marks().is_empty());
 }
 
 /// A scripted operator: frames each zone once, answers from a list.
