@@ -4,6 +4,7 @@
 use trim_cell::job::LayerKey;
 
 use super::{CutLayerOutcome, ExecError, Executor};
+use crate::galvo::outline::is_frame_tag;
 use crate::galvo::protocol::NO_LIST;
 use crate::journal::{CutLayer, Entry, Journal, JournalState};
 use crate::record::LogLevel;
@@ -66,7 +67,12 @@ impl Executor {
         let known = match status {
             Some(s) if s.list != NO_LIST && s.tag == *tag => Some(first_vector + s.marks_done),
             // The controller's last list is an earlier one of this run: this one never ran.
-            Some(s) if s.list != NO_LIST && s.tag >> 16 == tag >> 16 && s.tag < *tag => {
+            Some(s)
+                if s.list != NO_LIST
+                    && s.tag >> 16 == tag >> 16
+                    && s.tag < *tag
+                    && !is_frame_tag(s.tag) =>
+            {
                 Some(cut.unwrap_or(*first_vector))
             }
             _ => cut,

@@ -12,6 +12,7 @@ use trim_cell::job::LayerKey;
 use super::layer::LayerWork;
 use super::{ExecError, Executor, Phase, ShutdownReport, Step, StopCause, Stopped};
 use super::{ShutdownStep, StepFailure};
+use crate::galvo::outline::is_frame_tag;
 use crate::galvo::protocol::NO_LIST;
 use crate::journal::{Entry, Journal};
 use crate::laser::client::EmissionOff;
@@ -164,7 +165,9 @@ impl Executor {
         let step = self.options.timeouts.shutdown_step;
         match tokio::time::timeout(step, self.cell.galvo.status()).await {
             Ok(Ok(Ok(s))) if s.tag == tag && s.list != NO_LIST => Some(first + s.marks_done),
-            Ok(Ok(Ok(s))) if s.tag >> 16 == tag >> 16 && s.tag < tag => Some(first),
+            Ok(Ok(Ok(s))) if s.tag >> 16 == tag >> 16 && s.tag < tag && !is_frame_tag(s.tag) => {
+                Some(first)
+            }
             _ => None,
         }
     }

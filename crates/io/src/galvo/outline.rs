@@ -196,6 +196,14 @@ impl Outline {
     }
 }
 
+/// Whether a status's tag is a frame list's ([`frame_tag`]): a frame replaces the status of the
+/// list before it, so "an earlier list of this run" must never be read from a frame's tag
+/// (a job whose digest bits matched a frame's would have a marked layer read as never run).
+#[must_use]
+pub fn is_frame_tag(tag: u32) -> bool {
+    tag & 0xF000_0000 == FRAME_TAG_BASE
+}
+
 /// The tag of the frame list of zone `zone`, layer `layer`.
 #[must_use]
 pub fn frame_tag(zone: usize, layer: usize) -> u32 {
@@ -258,6 +266,14 @@ mod tests {
                 .map(|(i, p)| Polyline::from_points(i as i64, p))
                 .collect(),
         }
+    }
+
+    #[test]
+    fn frame_tags_are_told_from_list_tags() {
+        assert!(is_frame_tag(frame_tag(0, 0)));
+        assert!(is_frame_tag(frame_tag(4095, 65535)));
+        assert!(!is_frame_tag(0x7FFF_FFFF));
+        assert!(!is_frame_tag(0xE123_0001));
     }
 
     #[test]
