@@ -15,6 +15,7 @@ mod frame;
 mod hatch;
 mod info;
 mod inspect;
+mod outputs;
 mod plan;
 mod progress;
 mod register;

@@ -36,6 +36,7 @@ pub struct Args {
 
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    crate::outputs::check(&[("--out", Some(&args.out)), ("--svg", args.svg.as_deref())])?;
     // A job file is checked whole on load, its [beam] against cell.laser_profile's limits
     // included; the defaults are checked the same way.
     let mut settings = match &args.config {

@@ -91,6 +91,11 @@ pub(crate) fn register_settings(
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let t0 = Instant::now();
+    crate::outputs::check(&[
+        ("--out", Some(&args.out)),
+        ("--report", args.report.as_deref()),
+        ("--svg", args.svg.as_deref()),
+    ])?;
     let config = args.config.as_deref().map(JobConfig::load).transpose()?;
     let settings = register_settings(config.as_ref(), args.viewpoint.as_deref())?;
     let initial = match (&args.initial, &config) {

@@ -38,12 +38,14 @@ impl fmt::Display for Location {
 #[non_exhaustive]
 pub enum GeomError {
     /// The file could not be opened, read or written.
-    #[error("{}: {source}", path.display())]
+    #[error("{}: {error}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
-        /// The operating system's error.
-        source: std::io::Error,
+        /// The operating system's error (in the message, so not also its `source`: a chain
+        /// printed it twice, "No such file or directory (os error 2): No such file or
+        /// directory (os error 2)").
+        error: std::io::Error,
     },
     /// The file's content is malformed at a known place.
     #[error("{}: {at}: {message}", path.display())]
@@ -133,7 +135,7 @@ impl GeomError {
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         GeomError::Io {
             path: path.into(),
-            source,
+            error: source,
         }
     }
 
