@@ -1,8 +1,6 @@
 //! `trimctl inspect`'s deviation map: the scan's signed distance to the CAD seen from above
 //! (the CAD frame's +Z), a diverging colour scale with its labels, and the contours drawn in
-//! their verdict's colour. Written as an 8-bit RGB PNG.
-
-use std::path::Path;
+//! their verdict's colour. Encoded as an 8-bit RGB PNG.
 
 use anyhow::Context;
 use trim_geom::Point3;
@@ -24,15 +22,14 @@ pub struct DrawnContour<'a> {
     pub verdict: Verdict,
 }
 
-/// Writes the map of `points` (CAD frame) with `distances_mm` to `file`; the scale spans
-/// ±`scale_um`.
-pub fn write_map(
-    file: &Path,
+/// The map of `points` (CAD frame) with `distances_mm`, encoded as a PNG in memory (the caller
+/// writes it whole or not at all); the scale spans ±`scale_um`.
+pub fn encode_map(
     points: &[Point3],
     distances_mm: &[f64],
     contours: &[DrawnContour<'_>],
     scale_um: f64,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<Vec<u8>> {
     let mut img = vec![255u8; WIDTH * HEIGHT * 3];
     // The view: x across, y up, fitted into the plot area with equal scales.
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
@@ -107,22 +104,18 @@ pub fn write_map(
         12,
         "SCAN TO CAD SIGNED DISTANCE, TOP VIEW",
     );
-    let file_out =
-        std::fs::File::create(file).with_context(|| format!("cannot write {}", file.display()))?;
-    let mut encoder = png::Encoder::new(
-        std::io::BufWriter::new(file_out),
-        WIDTH as u32,
-        HEIGHT as u32,
-    );
+    let mut png_bytes = Vec::new();
+    let mut encoder = png::Encoder::new(&mut png_bytes, WIDTH as u32, HEIGHT as u32);
     encoder.set_color(png::ColorType::Rgb);
     encoder.set_depth(png::BitDepth::Eight);
     let mut writer = encoder
         .write_header()
-        .with_context(|| format!("writing {}", file.display()))?;
+        .context("encoding the deviation map")?;
     writer
         .write_image_data(&img)
-        .with_context(|| format!("writing {}", file.display()))?;
-    Ok(())
+        .context("encoding the deviation map")?;
+    writer.finish().context("encoding the deviation map")?;
+    Ok(png_bytes)
 }
 
 /// Blue (−1) – white (0) – red (+1), clamped.

@@ -14,6 +14,7 @@ use anyhow::{Context, bail};
 use trim_geom::formats::{Geometry, read_geometry, read_path};
 use trim_geom::mesh::Mesh;
 use trim_geom::{Path as TrimPath, Point3, PointCloud, Similarity3, Vector3};
+use trim_inspect::inputs::{CadExtent, check_path_on_cad, check_scan_for_fit};
 use trim_inspect::{InspectSettings, Inspection, Placement, Verdict, inspect, signed_distances};
 use trim_register::datum::datum_fit;
 use trim_register::regional::register;
@@ -21,7 +22,7 @@ use trim_register::sampling::View;
 
 use crate::cad::CAD_SAMPLE_SEED;
 use crate::config::JobConfig;
-use crate::deviation_map::{DrawnContour, verdict_colour, write_map};
+use crate::deviation_map::{DrawnContour, encode_map, verdict_colour};
 use crate::exit::{Exit, Failure};
 use crate::progress::stage;
 
@@ -109,6 +110,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let path = read_path(&args.path).with_context(|| format!("reading {}", args.path.display()))?;
     let scan = crate::scans::merged(&args.scan, args.poses.as_deref(), config.as_ref())?;
     drop(spinner);
+    // Before the fit, which sizes its own structures by the path and reports a sparse scan in
+    // its own terms.
+    check_path_on_cad(mesh.vertices(), &path)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.path.display()))?;
+    let scans = args
+        .scan
+        .iter()
+        .map(|f| f.display().to_string())
+        .collect::<Vec<_>>()
+        .join(" + ");
+    if args.datums.is_none() {
+        check_scan_for_fit(&scans, scan.len(), reg_settings.coarse.min_voxel_points)
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+    }
 
     let spinner = stage("fitting the scan to the CAD");
     let placement = match &args.datums {
@@ -129,13 +144,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let worst_um = fit.residuals_mm.iter().copied().fold(0.0, f64::max) * 1e3;
             Placement::rigid(fit.scan_from_cad, 2.0 * worst_um)
         }
-        None => Placement::from_registration(&register(
-            &cad_points,
-            &scan,
-            &path,
-            &initial,
-            &reg_settings,
-        )?),
+        None => Placement::from_registration(
+            &register(&cad_points, &scan, &path, &initial, &reg_settings).with_context(|| {
+                format!(
+                    "fitting {scans} ({} points) to {}",
+                    scan.len(),
+                    args.cad.display()
+                )
+            })?,
+        ),
     };
     drop(spinner);
 
@@ -187,7 +204,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 /// Writes an inspection's outputs into `dir`: deviation.png (the scan's signed distance to
-/// the CAD, the contours by verdict), inspection.json, inspection.csv and report.html.
+/// the CAD, the contours by verdict), inspection.json, inspection.csv and report.html, whole or
+/// not at all ([`write_all_or_none`]). The map shows the scan points near the part (within
+/// [`CadExtent::near`] of the CAD's box once fitted): a far outlier has no distance worth
+/// drawing and would shrink the part to a dot.
 pub(crate) fn write_inspection(
     dir: &Path,
     mesh: &Mesh,
@@ -201,11 +221,13 @@ pub(crate) fn write_inspection(
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let stride = scan.len().div_ceil(MAP_POINTS).max(1);
     let cad_from_scan = placement.scan_from_cad.inverse();
+    let extent = CadExtent::new(mesh.vertices());
     let shown: Vec<Point3> = scan
         .points()
         .iter()
         .step_by(stride)
         .map(|q| placement.cad_from_scan_point(&cad_from_scan, q, settings.inverse_iterations))
+        .filter(|p| extent.is_some_and(|e| e.near(p)))
         .collect();
     let distances = signed_distances(mesh, &shown)?;
     let drawn: Vec<DrawnContour<'_>> = path
@@ -217,15 +239,14 @@ pub(crate) fn write_inspection(
             verdict: r.verdict,
         })
         .collect();
-    write_map(
-        &dir.join("deviation.png"),
+    let png = encode_map(
         &shown,
         &distances,
         &drawn,
         MAP_SCALE_TOLERANCES * settings.tolerance_um,
     )?;
     drop(spinner);
-    write_outputs(dir, result)
+    write_outputs(dir, result, Some(png))
 }
 
 /// The contour fields of inspection.json and inspection.csv, in order. The film's two come
@@ -245,7 +266,9 @@ const FIELDS: [&str; 11] = [
     "film_uncertainty_um",
 ];
 
-fn write_outputs(dir: &Path, result: &Inspection) -> anyhow::Result<()> {
+/// Writes inspection.json, inspection.csv, report.html and (when given) deviation.png's
+/// `png` into `dir` as one set, whole or not at all ([`write_all_or_none`]).
+fn write_outputs(dir: &Path, result: &Inspection, png: Option<Vec<u8>>) -> anyhow::Result<()> {
     let round = |v: f64, digits: i32| {
         let f = 10f64.powi(digits);
         (v * f).round() / f
@@ -274,9 +297,11 @@ fn write_outputs(dir: &Path, result: &Inspection) -> anyhow::Result<()> {
         "noise_um": round(result.noise_um, 2),
         "contours": contours,
     });
-    let file = dir.join("inspection.json");
-    trim_geom::fs::write_atomic(&file, serde_json::to_string_pretty(&json)?)
-        .with_context(|| format!("cannot write {}", file.display()))?;
+    let mut files: Vec<(&str, Vec<u8>)> = Vec::new();
+    if let Some(png) = png {
+        files.push(("deviation.png", png));
+    }
+    files.push(("inspection.json", serde_json::to_vec_pretty(&json)?));
 
     let mut csv = FIELDS.join(",");
     csv.push('\n');
@@ -292,13 +317,40 @@ fn write_outputs(dir: &Path, result: &Inspection) -> anyhow::Result<()> {
         csv.push_str(&row.join(","));
         csv.push('\n');
     }
-    let file = dir.join("inspection.csv");
-    trim_geom::fs::write_atomic(&file, csv)
-        .with_context(|| format!("cannot write {}", file.display()))?;
+    files.push(("inspection.csv", csv.into_bytes()));
+    files.push(("report.html", report_html(result, &contours).into_bytes()));
+    write_all_or_none(dir, &files)
+}
 
-    let file = dir.join("report.html");
-    trim_geom::fs::write_atomic(&file, report_html(result, &contours))
-        .with_context(|| format!("cannot write {}", file.display()))?;
+/// Writes `files` (name, contents) into `dir` as one set, whole or not at all: each goes first
+/// to a staging name beside its place (`trim_geom::fs::write_atomic`: flushed to the disk), and
+/// only when every one is written are they renamed into place (renames in one folder need no
+/// space). A failed write (a full disk) removes the staged files and leaves the old outputs as
+/// they were: before, a cut deviation.png stood beside a report of the new inspection, or new
+/// JSON beside an old report.
+fn write_all_or_none(dir: &Path, files: &[(&str, Vec<u8>)]) -> anyhow::Result<()> {
+    let staged: Vec<PathBuf> = files
+        .iter()
+        .map(|(name, _)| dir.join(format!(".{name}.{}.staged", std::process::id())))
+        .collect();
+    let remove_staged = || {
+        for s in &staged {
+            let _ = std::fs::remove_file(s);
+        }
+    };
+    for ((name, contents), s) in files.iter().zip(&staged) {
+        if let Err(e) = trim_geom::fs::write_atomic(s, contents) {
+            remove_staged();
+            return Err(e).with_context(|| format!("cannot write {}", dir.join(name).display()));
+        }
+    }
+    for ((name, _), s) in files.iter().zip(&staged) {
+        let file = dir.join(name);
+        if let Err(e) = std::fs::rename(s, &file) {
+            remove_staged();
+            return Err(e).with_context(|| format!("cannot write {}", file.display()));
+        }
+    }
     Ok(())
 }
 
@@ -413,7 +465,7 @@ mod tests {
             timings_s: Vec::new(),
         };
         let dir = tempfile::tempdir().unwrap();
-        write_outputs(dir.path(), &result).unwrap();
+        write_outputs(dir.path(), &result, None).unwrap();
 
         let json: serde_json::Value = serde_json::from_str(
             &std::fs::read_to_string(dir.path().join("inspection.json")).unwrap(),

@@ -1,7 +1,9 @@
 //! `trimctl inspect`: the four outputs with their exact keys on a synthetic core with burrs and
 //! blockages, the same verdicts from two scans merged through their machine poses, the report
 //! opened in headless Chromium (the table and the picture render), and the films' thickness
-//! written where a view from below sees their underside.
+//! written where a view from below sees their underside; and bad input: a far outlier in the
+//! scan left out, a contour far off the CAD and a scan too sparse to fit refused naming them,
+//! and the outputs written whole or not at all on a full disk.
 
 #![expect(
     clippy::unwrap_used,
@@ -12,7 +14,8 @@ use std::path::Path;
 use std::process::Command;
 
 use trim_cell::cell_model::ScanPose;
-use trim_geom::formats::read_points;
+use trim_geom::PointCloud;
+use trim_geom::formats::{PlyEncoding, read_points, write_ply};
 
 #[path = "support/scans_at_poses.rs"]
 mod scans_at_poses;
@@ -456,4 +459,139 @@ fn browser_renders_the_report(out: &Path) {
         coloured > 2000,
         "the picture's region is blank: {coloured} coloured pixels"
     );
+}
+
+/// Bad input on one synthetic case, each with a clear outcome instead of a panic, a hang or
+/// cut files: a scan point 1e4 mm off (parry's search found no face for it through the
+/// field's extrapolation and `inspect` panicked, exit 101) is left out; a path point at
+/// x = 1e6 mm (the registration hung sizing its edge strips by the contour) is refused in
+/// seconds naming the file and the contour; a scan of 50 points is refused naming it and its
+/// count (it failed with "0 correspondences within inf mm"); and with a 200 KB file-size limit
+/// (a full disk) the failed deviation.png leaves the previous four outputs as they were (it
+/// was left cut, 204800 bytes).
+#[test]
+fn bad_input_is_left_out_or_refused_and_outputs_are_whole() {
+    let tmp = tempfile::tempdir().unwrap();
+    let case = tmp.path().join("case");
+    synth_with(&case, &["--seed", "21", "--scan-points", "150000"]);
+    let stderr = |o: &std::process::Output| String::from_utf8_lossy(&o.stderr).to_string();
+
+    // A far outlier.
+    let mut points = read_points(&case.join("scan.ply"))
+        .unwrap()
+        .points()
+        .to_vec();
+    let mut far = points[100];
+    far.x = 1e4;
+    points.push(far);
+    let far_scan = tmp.path().join("scan_far4.ply");
+    write_ply(
+        &far_scan,
+        &PointCloud::new(points.clone()).unwrap(),
+        PlyEncoding::BinaryLittleEndian,
+    )
+    .unwrap();
+    let out = tmp.path().join("out");
+    let run = inspect(&case, &[&far_scan], None, &out);
+    assert!(
+        matches!(run.status.code(), Some(0 | 1)) && !stderr(&run).contains("panicked"),
+        "{}",
+        stderr(&run)
+    );
+    assert_eq!(verdicts(&out).len(), 52);
+
+    // A contour far off the CAD: refused before the fit, naming the file and the contour.
+    let csv = std::fs::read_to_string(case.join("path.csv")).unwrap();
+    let mut rows: Vec<String> = csv.lines().map(str::to_string).collect();
+    let mut cells: Vec<&str> = rows[11].split(',').collect();
+    let contour = cells[0].to_string();
+    cells[1] = "1e6";
+    rows[11] = cells.join(",");
+    let far_path = tmp.path().join("path_farpoint.csv");
+    std::fs::write(&far_path, rows.join("\n") + "\n").unwrap();
+    let started = std::time::Instant::now();
+    let run = Command::new(TRIMCTL)
+        .arg("inspect")
+        .arg("--cad")
+        .arg(case.join("cad.stl"))
+        .arg("--path")
+        .arg(&far_path)
+        .arg("--scan")
+        .arg(case.join("scan.ply"))
+        .arg("--out")
+        .arg(tmp.path().join("out_far_path"))
+        .output()
+        .unwrap();
+    let e = stderr(&run);
+    assert_eq!(run.status.code(), Some(1), "{e}");
+    assert!(
+        e.contains("path_farpoint.csv")
+            && e.contains(&format!("contour {contour} lies"))
+            && e.contains("share a frame and units"),
+        "{e}"
+    );
+    assert!(started.elapsed().as_secs() < 60);
+
+    // A scan of 50 points.
+    let sparse = tmp.path().join("scan50.ply");
+    write_ply(
+        &sparse,
+        &PointCloud::new(
+            points
+                .iter()
+                .step_by(points.len() / 50)
+                .take(50)
+                .copied()
+                .collect(),
+        )
+        .unwrap(),
+        PlyEncoding::BinaryLittleEndian,
+    )
+    .unwrap();
+    let run = inspect(&case, &[&sparse], None, &tmp.path().join("out_sparse"));
+    let e = stderr(&run);
+    assert_eq!(run.status.code(), Some(1), "{e}");
+    assert!(
+        e.contains("scan50.ply holds 50 points") && e.contains("at least 150"),
+        "{e}"
+    );
+
+    // A full disk: the outputs of the first run stay whole.
+    let listing = |dir: &Path| {
+        let mut files: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| {
+                let e = e.unwrap();
+                (
+                    e.file_name().to_string_lossy().to_string(),
+                    std::fs::read(e.path()).unwrap(),
+                )
+            })
+            .collect();
+        files.sort();
+        files
+    };
+    let before = listing(&out);
+    assert_eq!(before.len(), 4);
+    let run = Command::new("bash")
+        .arg("-c")
+        .arg("trap '' XFSZ; ulimit -f 200; exec \"$@\"")
+        .arg("efbig")
+        .arg(TRIMCTL)
+        .arg("inspect")
+        .arg("--cad")
+        .arg(case.join("cad.stl"))
+        .arg("--path")
+        .arg(case.join("path.csv"))
+        .arg("--scan")
+        .arg(case.join("scan.ply"))
+        .arg(format!("--viewpoint={}", viewpoint(&case)))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let e = stderr(&run);
+    assert_eq!(run.status.code(), Some(1), "{e}");
+    assert!(e.contains("deviation.png"), "{e}");
+    assert!(listing(&out) == before, "the outputs changed: {e}");
 }

@@ -48,6 +48,57 @@ pub enum InspectError {
         /// The contour's id.
         contour: ContourId,
     },
+    /// A contour lies far outside the CAD's bounding box: the path and the CAD are in
+    /// different frames or units.
+    #[error(
+        "contour {contour} lies {outside_mm:.0} mm outside the CAD's bounding box (its point {index}; \
+         {margin_mm:.1} mm allowed): the path and the CAD must share a frame and units"
+    )]
+    OutsideCad {
+        /// The contour's id.
+        contour: ContourId,
+        /// Its point furthest outside, by index in the contour.
+        index: usize,
+        /// How far that point lies outside the box, mm.
+        outside_mm: f64,
+        /// How far outside is allowed, mm ([`crate::inputs::CadExtent::margin_mm`]).
+        margin_mm: f64,
+    },
+    /// A scan holds too few points to be fitted or measured.
+    #[error("{what} holds {got} points, too few to inspect: {why}, at least {needed} points")]
+    TooFewPoints {
+        /// The scan (its file, or "scan").
+        what: String,
+        /// Its points.
+        got: usize,
+        /// The fewest that can be inspected.
+        needed: usize,
+        /// Why that many.
+        why: String,
+    },
+    /// No scan point lies near a contour or opening: the scan is not of the part, or the fit
+    /// placed it elsewhere.
+    #[error(
+        "scan: none of its {points} points lies within {reach_mm:.2} mm of a registered contour \
+         or opening: the scan is not of this part, or the fit placed it off the part"
+    )]
+    OffPart {
+        /// The scan's points.
+        points: usize,
+        /// The crop's reach, mm.
+        reach_mm: f64,
+    },
+    /// A point's signed distance to the CAD mesh cannot be measured (not finite, or so far off
+    /// that the distance overflows).
+    #[error("{what}: point {index} ({value}) cannot be measured against the CAD mesh")]
+    Unmeasurable {
+        /// Which input ("CAD-frame points").
+        what: String,
+        /// The point's index in that input.
+        index: usize,
+        /// The point, as printed.
+        value: String,
+    },
     /// A geometry error (a mesh or a contour trim-geom refused).
     #[error(transparent)]
     Geom(#[from] GeomError),

@@ -14,6 +14,8 @@
 //! - [`crop`]: the scan points near the registered contours and openings.
 //! - [`height`]: the height of excess along a contour, each web's free edge fitted to the
 //!   distances and rises of its points (one height per web).
+//! - [`inputs`]: the checks that run before anything is sized by the inputs (a contour off the
+//!   CAD, a scan too sparse to fit) and which points stand near enough to the part to measure.
 //! - [`measure`]: the per-contour measurement (excess, gouge, coverage) and [`inspect`].
 //! - [`opening`]: the share of a hole or slot still covered.
 //! - [`verdict`]: the uncertainty and the decision rule.
@@ -25,6 +27,7 @@ pub mod crop;
 mod draws;
 pub mod error;
 pub mod height;
+pub mod inputs;
 pub mod measure;
 pub mod opening;
 pub mod placement;

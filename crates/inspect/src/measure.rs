@@ -32,6 +32,7 @@ use crate::contours::{ContourGeometry, PathIndex};
 use crate::crop::Crop;
 use crate::error::{InspectError, Result};
 use crate::height::{Reading, web_heights_mm};
+use crate::inputs::check_path_on_cad;
 use crate::opening::{FilmThickness, Opening, WebStretch, opening_of, read_opening};
 use crate::placement::Placement;
 use crate::settings::InspectSettings;
@@ -156,23 +157,47 @@ impl SignedMesh {
         Ok(SignedMesh { trimesh })
     }
 
-    /// The signed distance of a CAD-frame point, mm, positive outside the material.
+    /// The signed distance of a CAD-frame point, mm, positive outside the material; none for
+    /// a point that is not finite or so far off that its distance overflows. parry's search
+    /// keeps a face only when its distance compares below the best so far (from `f64::MAX`):
+    /// a NaN point (a far outlier carried through the deformation field's extrapolation) or
+    /// one past 1e154 mm (its squared distance is infinite) never does, and parry's
+    /// `project_local_point_and_get_location` unwraps that `None`. The bounded query returns it.
     #[must_use]
-    pub fn distance(&self, p: &Point3) -> f64 {
-        let (proj, _) = self.trimesh.project_local_point_and_get_location(p, false);
+    pub fn distance(&self, p: &Point3) -> Option<f64> {
+        if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
+            return None;
+        }
+        let (proj, _) = self
+            .trimesh
+            .project_local_point_and_get_location_with_max_dist(p, false, f64::MAX)?;
         let d = (p - proj.point).norm();
-        if proj.is_inside { -d } else { d }
+        d.is_finite().then_some(if proj.is_inside { -d } else { d })
     }
 }
 
-/// Signed distances (mm, positive outside the material) of CAD-frame points to `mesh`.
+/// Signed distances (mm, positive outside the material) of CAD-frame points to `mesh`;
+/// refuses a point whose distance cannot be measured ([`SignedMesh::distance`]), naming it
+/// (leave the points far beyond the part out first: [`crate::inputs::CadExtent::near`]).
 pub fn signed_distances(mesh: &Mesh, points_cad: &[Point3]) -> Result<Vec<f64>> {
     let signed = SignedMesh::new(mesh)?;
-    Ok(points_cad
+    let distances: Vec<Option<f64>> = points_cad
         .par_iter()
         .with_min_len(1024)
         .map(|p| signed.distance(p))
-        .collect())
+        .collect();
+    distances
+        .iter()
+        .zip(points_cad)
+        .enumerate()
+        .map(|(index, (d, p))| {
+            d.ok_or_else(|| InspectError::Unmeasurable {
+                what: "CAD-frame points".into(),
+                index,
+                value: format!("[{}, {}, {}]", p.x, p.y, p.z),
+            })
+        })
+        .collect()
 }
 
 fn check_points(what: &str, points: &[Point3]) -> Result<()> {
@@ -207,6 +232,7 @@ pub fn inspect(
     settings.validate()?;
     check_points("scan", scan)?;
     check_points("CAD mesh", mesh.vertices())?;
+    check_path_on_cad(mesh.vertices(), path)?;
     let mut timings = Vec::new();
     let mut t = Instant::now();
     let mut lap = |name: &str, t: &mut Instant| {
@@ -260,12 +286,22 @@ pub fn inspect(
         .filter(|q| crop.contains(q))
         .copied()
         .collect();
+    // A scan wholly off the part measures nothing: say so rather than judge every contour
+    // undecided for want of coverage.
+    if cropped.is_empty() {
+        return Err(InspectError::OffPart {
+            points: scan.len(),
+            reach_mm: reach,
+        });
+    }
     lap("crop", &mut t);
-    // 2. Map into the CAD frame.
+    // 2. Map into the CAD frame (a point the field's inverse does not carry to a finite one
+    // is no reading).
     let mapped: Vec<Point3> = cropped
         .par_iter()
         .with_min_len(1024)
         .map(|q| placement.cad_from_scan_point(&cad_from_scan, q, settings.inverse_iterations))
+        .filter(|p| p.x.is_finite() && p.y.is_finite() && p.z.is_finite())
         .collect();
     lap("map", &mut t);
 
@@ -279,7 +315,7 @@ pub fn inspect(
             Some(Sample {
                 contour: u32::try_from(l.contour).unwrap_or(u32::MAX),
                 arc_mm: l.arc_mm,
-                distance_mm: signed.distance(p),
+                distance_mm: signed.distance(p)?,
                 rise_mm: l.rise_mm,
             })
         })
@@ -443,7 +479,7 @@ fn rim_curvatures_per_mm(
                 return 0.0;
             }
             let probe = g.point_at(arc) + (k / kappa - *g.feature) * CURVATURE_PROBE_MM;
-            if signed.distance(&probe) > 0.0 {
+            if signed.distance(&probe).is_some_and(|d| d > 0.0) {
                 kappa
             } else {
                 -kappa
@@ -634,6 +670,68 @@ mod tests {
         assert_eq!(c.verdict, Verdict::Undecided);
         assert!(c.coverage < 0.5, "{c:?}");
         assert!(c.reason.contains("covers"), "{}", c.reason);
+    }
+
+    /// A far outlier in the scan (1e4 mm, 1e300 mm off) is no reading and changes nothing; a
+    /// signed distance asked of it is refused, not a panic in parry (which unwrapped the
+    /// `None` of its search for a NaN or overflowing point); a scan wholly off the part and a
+    /// contour far off the CAD are refused naming the cause.
+    #[test]
+    fn far_outliers_are_left_out_and_a_scan_off_the_part_is_refused() {
+        let (mesh, path) = case();
+        let settings = InspectSettings {
+            noise_um: Some(2.0),
+            ..InspectSettings::default()
+        };
+        let clean = inspect(&mesh, &path, &clean_scan(), &placement(), &settings)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let mut scan = clean_scan();
+        scan.push(Point3::new(1e4, 0.0, 0.0));
+        scan.push(Point3::new(1e300, 0.0, 0.0));
+        let r =
+            inspect(&mesh, &path, &scan, &placement(), &settings).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(r.contours, clean.contours);
+        let signed = SignedMesh::new(&mesh).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(signed.distance(&Point3::new(1e300, 5.0, -1.0)), None);
+        assert_eq!(signed.distance(&Point3::new(f64::NAN, 5.0, -1.0)), None);
+        assert_eq!(
+            signed.distance(&Point3::new(1e4, 5.0, -1.0)),
+            Some(1e4 - 10.0)
+        );
+        let e = signed_distances(&mesh, &[Point3::origin(), Point3::new(1e300, 0.0, 0.0)])
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(
+            e.contains("point 1") && e.contains("cannot be measured"),
+            "{e}"
+        );
+        let off: Vec<Point3> = clean_scan()
+            .into_iter()
+            .map(|p| p + Vector3::new(500.0, 0.0, 0.0))
+            .collect();
+        let e = inspect(&mesh, &path, &off, &placement(), &settings)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(e.contains("none of its 4000 points"), "{e}");
+        let far = Contour::new(
+            4,
+            vec![Point3::new(1e6, 0.0, 0.0), Point3::new(1e6 + 1.0, 0.0, 0.0)],
+            Vector3::z(),
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let mut contours = path.contours().to_vec();
+        contours.push(far);
+        let far_path = Path::new(contours).unwrap_or_else(|e| panic!("{e}"));
+        let e = inspect(&mesh, &far_path, &clean_scan(), &placement(), &settings)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(
+            e.contains("contour 4 lies 999991 mm outside the CAD's bounding box"),
+            "{e}"
+        );
     }
 
     #[test]

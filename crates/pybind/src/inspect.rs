@@ -4,6 +4,7 @@
 use pyo3::prelude::*;
 use trim_geom::PointCloud;
 use trim_geom::mesh::Mesh;
+use trim_inspect::inputs::{check_path_on_cad, check_scan_for_fit};
 use trim_inspect::{InspectError, InspectSettings, Placement, inspect as measure};
 use trim_register::regional::{RegisterSettings, register};
 
@@ -143,7 +144,9 @@ fn inspect_error(e: InspectError) -> PyErr {
     match e {
         InspectError::Empty { .. }
         | InspectError::NonFinite { .. }
-        | InspectError::InvalidSetting { .. } => value_error("inspect", e),
+        | InspectError::InvalidSetting { .. }
+        | InspectError::OutsideCad { .. }
+        | InspectError::TooFewPoints { .. } => value_error("inspect", e),
         other => TrimError::new_err(other.to_string()),
     }
 }
@@ -201,6 +204,15 @@ pub fn inspect<'py>(
         ..RegisterSettings::default()
     };
     let path = path.inner;
+    // Before the fit, which sizes its own structures by the path (a contour 10 m off aborted
+    // the process allocating 174 GB) and reports a sparse scan in its own terms.
+    check_path_on_cad(mesh.vertices(), &path).map_err(inspect_error)?;
+    check_scan_for_fit(
+        "scan",
+        scan.len(),
+        register_settings.coarse.min_voxel_points,
+    )
+    .map_err(inspect_error)?;
     let result = run_detached(py, move || {
         let reg =
             register(&cad, &scan, &path, &initial, &register_settings).map_err(register_error)?;
