@@ -400,8 +400,9 @@ pub(crate) fn positive(name: &str, v: f64) -> Result<()> {
 pub const MAX_COARSE_ITERATIONS: usize = 1000;
 
 /// The most Gauss-Newton iterations of the field (`field.iterations`, and as many warm-up
-/// iterations): the default takes 10, and 20 measured no better (DESIGN.md).
-pub const MAX_FIELD_ITERATIONS: usize = 100;
+/// iterations): the default takes 10, and 20 measured no better (DESIGN.md); 1,000 take a
+/// minute or so on a 500k scan (the Python cancel test runs that many to be interrupted).
+pub const MAX_FIELD_ITERATIONS: usize = 1000;
 
 impl RegisterSettings {
     /// Refuses out-of-range values, naming the key as in job.toml (`register.field.spacing_mm`).
