@@ -11,8 +11,13 @@
 //! - *Lists* ([`fit_lists`]): `measured − commanded model = c + p·mark_runs + v·vertices`, linear
 //!   least squares (the commanded delays are what the controller is sent and stay as they are;
 //!   c, p and v are the `[timing]` list terms). A term the lists cannot tell apart from the others
-//!   (collinear columns) is left at 0 and named.
-//! - *Per-layer overhead*: the median of the measured overheads.
+//!   (collinear columns) is left at 0 and named. A term that fits negative (the controller
+//!   quicker than commanded on that count) is held at 0, the others re-fitted without it, and
+//!   named with the value it fitted ([`ListFit::held_at_zero`]): an overhead is time the cell
+//!   adds, `[timing]` refuses a negative one, and a negative per-vertex term times a part's
+//!   thousands of vertices drove estimates below zero. What the process engineer gets is a
+//!   file `plan` and `run` take, whose estimate never falls below the commanded model.
+//! - *Per-layer overhead*: the median of the measured overheads (0 when that is negative).
 
 use nalgebra::{DMatrix, DVector};
 use trim_cell::GalvoSettings;
@@ -301,6 +306,9 @@ pub struct ListFit {
     pub timing: TimingSettings,
     /// The terms the lists could not tell apart from the others (left at 0).
     pub not_determined: Vec<&'static str>,
+    /// The terms that fitted negative, with the value they fitted (s): held at 0, the others
+    /// re-fitted without them.
+    pub held_at_zero: Vec<(&'static str, f64)>,
     /// Lists fitted.
     pub samples: usize,
     /// RMS of the commanded model − measured (s).
@@ -310,7 +318,8 @@ pub struct ListFit {
 }
 
 /// Fits the `[timing]` list terms to recorded lists (linear least squares on what each list
-/// took beyond its commanded speeds and delays).
+/// took beyond its commanded speeds and delays). Every term comes out ≥ 0: one that fits
+/// negative is held at 0 and named in [`ListFit::held_at_zero`] (see the module docs).
 pub fn fit_lists(samples: &[ListSample]) -> Result<ListFit, CalibError> {
     let samples: Vec<&ListSample> = samples
         .iter()
@@ -341,26 +350,49 @@ pub fn fit_lists(samples: &[ListSample]) -> Result<ListFit, CalibError> {
         1 => s.list.mark_runs as f64,
         _ => s.list.vertices as f64,
     };
-    // Keep the leading terms while the normalised design stays well conditioned.
-    let mut kept = names.len();
-    let solution = loop {
-        let a = DMatrix::from_fn(n, kept, |i, k| regressor(samples[i], k));
-        let scale: Vec<f64> = (0..kept)
-            .map(|k| a.column(k).norm().max(f64::MIN_POSITIVE))
-            .collect();
-        let an = DMatrix::from_fn(n, kept, |i, k| a[(i, k)] / scale[k]);
-        let svd = an.clone().svd(true, true);
-        let (lo, hi) = (svd.singular_values.min(), svd.singular_values.max());
-        if lo > LIST_CONDITION * hi || kept == 1 {
-            let y = svd
-                .solve(&excess, 0.0)
-                .map_err(|e| CalibError::Degenerate(format!("the list fit: {e}")))?;
-            break (0..kept).map(|k| y[k] / scale[k]).collect::<Vec<f64>>();
-        }
-        kept -= 1;
-    };
+    // The terms fitted: all but those held at 0. Of them, keep the leading ones while the
+    // normalised design stays well conditioned; hold the most negative term at 0 and fit again
+    // while one is negative.
+    let mut held: Vec<(&'static str, f64)> = Vec::new();
+    let mut free: Vec<usize> = (0..names.len()).collect();
+    let mut not_determined: Vec<&'static str> = Vec::new();
     let mut terms = [0.0; 3];
-    terms[..kept].copy_from_slice(&solution);
+    while !free.is_empty() {
+        let mut kept = free.len();
+        let solution = loop {
+            let a = DMatrix::from_fn(n, kept, |i, k| regressor(samples[i], free[k]));
+            let scale: Vec<f64> = (0..kept)
+                .map(|k| a.column(k).norm().max(f64::MIN_POSITIVE))
+                .collect();
+            let an = DMatrix::from_fn(n, kept, |i, k| a[(i, k)] / scale[k]);
+            let svd = an.clone().svd(true, true);
+            let (lo, hi) = (svd.singular_values.min(), svd.singular_values.max());
+            if lo > LIST_CONDITION * hi || kept == 1 {
+                let y = svd
+                    .solve(&excess, 0.0)
+                    .map_err(|e| CalibError::Degenerate(format!("the list fit: {e}")))?;
+                break (0..kept).map(|k| y[k] / scale[k]).collect::<Vec<f64>>();
+            }
+            kept -= 1;
+        };
+        terms = [0.0; 3];
+        for (k, &v) in solution.iter().enumerate() {
+            terms[free[k]] = v;
+        }
+        let most_negative = (0..kept)
+            .filter(|&k| solution[k] < 0.0)
+            .min_by(|&a, &b| solution[a].total_cmp(&solution[b]));
+        match most_negative {
+            Some(k) => {
+                held.push((names[free[k]], solution[k]));
+                free.remove(k);
+            }
+            None => {
+                not_determined = free[kept..].iter().map(|&k| names[k]).collect();
+                break;
+            }
+        }
+    }
     let timing = TimingSettings {
         layer_overhead_s: 0.0,
         list_overhead_s: terms[0],
@@ -378,7 +410,8 @@ pub fn fit_lists(samples: &[ListSample]) -> Result<ListFit, CalibError> {
     );
     Ok(ListFit {
         timing,
-        not_determined: names[kept..].to_vec(),
+        not_determined,
+        held_at_zero: held,
         samples: n,
         rms_before_s: rms(&excess),
         rms_after_s: rms(&after),
@@ -386,6 +419,8 @@ pub fn fit_lists(samples: &[ListSample]) -> Result<ListFit, CalibError> {
 }
 
 /// The median of the measured per-layer overheads (s); 0 without any.
+///
+/// `trimctl calibrate timing` writes it as `timing.layer_overhead_s` held at 0 when negative.
 #[must_use]
 pub fn median_s(values: &[f64]) -> f64 {
     let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
@@ -603,5 +638,42 @@ mod tests {
             vec!["polyline_overhead_s", "vertex_overhead_s"]
         );
         assert!((median_s(&[3.0, 1.0, 2.0, 10.0]) - 2.5).abs() < 1e-15);
+    }
+
+    #[test]
+    fn a_term_that_fits_negative_is_held_at_zero_and_named() {
+        // The controller is quicker than commanded per vertex (−16.5 µs, as a recorded run
+        // fitted): the term is held at 0, the others refitted, and the result validates.
+        let galvo = GalvoSettings::default();
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
+        let samples: Vec<ListSample> = (0..30)
+            .map(|_| {
+                let runs = rng.random_range(1..40);
+                let vectors = runs + rng.random_range(0..400);
+                let list = ListComposition {
+                    jumps: runs,
+                    jump_mm: rng.random_range(1.0..200.0),
+                    mark_runs: runs,
+                    vectors,
+                    vertices: vectors - runs,
+                    mark_mm: rng.random_range(1.0..500.0),
+                };
+                let measured_s = list.commanded_s(&galvo) + 0.1 + 400e-6 * runs as f64
+                    - 16.5e-6 * (vectors - runs) as f64;
+                ListSample {
+                    galvo,
+                    list,
+                    measured_s,
+                }
+            })
+            .collect();
+        let fit = fit_lists(&samples).expect("fit");
+        assert_eq!(fit.held_at_zero.len(), 1, "{fit:?}");
+        assert_eq!(fit.held_at_zero[0].0, "vertex_overhead_s");
+        assert!((fit.held_at_zero[0].1 + 16.5e-6).abs() < 1e-9, "{fit:?}");
+        assert_eq!(fit.timing.vertex_overhead_s, 0.0);
+        assert!(fit.timing.list_overhead_s >= 0.0 && fit.timing.polyline_overhead_s >= 0.0);
+        fit.timing.validate().expect("a fitted model validates");
+        assert!(fit.not_determined.is_empty());
     }
 }

@@ -15,6 +15,22 @@ use crate::error::{CellError, require_open_closed, require_positive, require_ran
 /// Step of the scan for [`Beam::max_incidence_for_line_width_rad`] (radians, 0.01°).
 pub const INCIDENCE_SCAN_STEP_RAD: f64 = 0.01 * std::f64::consts::PI / 180.0;
 
+/// The physical range of `beam.wavelength_nm` (nm): deep UV (an ArF excimer's 193 nm, with
+/// margin) to the far infrared (a CO₂ laser's 10.6 µm, with margin).
+pub const WAVELENGTH_RANGE_NM: (f64, f64) = (150.0, 20_000.0);
+
+/// The physical range of `beam.focal_length_mm` (mm): the shortest focusing objective to the
+/// longest f-theta scan lens a galvo cell carries.
+pub const FOCAL_LENGTH_RANGE_MM: (f64, f64) = (5.0, 5_000.0);
+
+/// The physical range of `beam.beam_diameter_mm` (mm): the raw beam of a fibre laser to the
+/// widest beam expander's output a galvo's mirrors take.
+pub const BEAM_DIAMETER_RANGE_MM: (f64, f64) = (0.1, 100.0);
+
+/// The largest `beam.m_squared`: beyond it the beam is no near-Gaussian beam the formulas hold
+/// for (a multimode industrial source is below 30).
+pub const MAX_M_SQUARED: f64 = 100.0;
+
 /// Bisection steps after the scan brackets the limit (2⁻⁴⁰ of a step).
 const INCIDENCE_BISECTION_STEPS: usize = 40;
 
@@ -85,20 +101,29 @@ pub struct BeamReport {
 }
 
 impl Beam {
-    /// Refuses out-of-range values, naming the key (`beam.power_w`).
+    /// Refuses out-of-range values, naming the key (`beam.power_w`). The optics are held to
+    /// physical ranges, so the figures derived from them (w0, zR, the layer step) are finite and
+    /// of a size a cell can have: `wavelength_nm` within [`WAVELENGTH_RANGE_NM`],
+    /// `focal_length_mm` within [`FOCAL_LENGTH_RANGE_MM`], `beam_diameter_mm` within
+    /// [`BEAM_DIAMETER_RANGE_MM`], `m_squared` within [1, [`MAX_M_SQUARED`]]. The power and the
+    /// repetition rate must be > 0 here; the laser profile's `[limits]` bound them
+    /// ([`Beam::check_limits`]).
     pub fn validate(&self) -> Result<(), CellError> {
         require_positive("beam.power_w", self.power_w)?;
         require_positive("beam.repetition_rate_hz", self.repetition_rate_hz)?;
-        require_positive("beam.wavelength_nm", self.wavelength_nm)?;
-        if !(self.m_squared.is_finite() && self.m_squared >= 1.0) {
+        let (lo, hi) = WAVELENGTH_RANGE_NM;
+        require_range("beam.wavelength_nm", self.wavelength_nm, lo, hi)?;
+        if !(self.m_squared.is_finite() && (1.0..=MAX_M_SQUARED).contains(&self.m_squared)) {
             return Err(CellError::setting(
                 "beam.m_squared",
                 self.m_squared,
-                "must be ≥ 1 (a Gaussian beam has M² = 1)",
+                format!("must be within [1, {MAX_M_SQUARED}] (a Gaussian beam has M² = 1)"),
             ));
         }
-        require_positive("beam.focal_length_mm", self.focal_length_mm)?;
-        require_positive("beam.beam_diameter_mm", self.beam_diameter_mm)?;
+        let (lo, hi) = FOCAL_LENGTH_RANGE_MM;
+        require_range("beam.focal_length_mm", self.focal_length_mm, lo, hi)?;
+        let (lo, hi) = BEAM_DIAMETER_RANGE_MM;
+        require_range("beam.beam_diameter_mm", self.beam_diameter_mm, lo, hi)?;
         if !(self.fluence_tolerance.is_finite()
             && self.fluence_tolerance > 0.0
             && self.fluence_tolerance < 1.0)
@@ -558,6 +583,60 @@ mod tests {
         assert!((theta - expected).abs() < 1e-9, "{theta} vs {expected}");
         let (lo, hi) = b.spot_ratios(theta).unwrap();
         assert!(lo >= 1.0 - b.line_width_tolerance - 1e-9 && hi <= 1.0 + b.line_width_tolerance);
+    }
+
+    #[test]
+    fn optics_outside_their_physical_range_are_refused_by_key() {
+        /// Sets one optics key of a beam.
+        type Set = fn(&mut Beam, f64);
+        let cases: [(Set, &str, &[f64]); 4] = [
+            (
+                |b, v| b.wavelength_nm = v,
+                "beam.wavelength_nm",
+                &[1e300, 1e-300, 100.0, 50_000.0, f64::INFINITY],
+            ),
+            (
+                |b, v| b.focal_length_mm = v,
+                "beam.focal_length_mm",
+                &[1e300, 1e9, 1.0, f64::NAN],
+            ),
+            (
+                |b, v| b.beam_diameter_mm = v,
+                "beam.beam_diameter_mm",
+                &[1e-300, 1e300, 0.01, 1000.0],
+            ),
+            (|b, v| b.m_squared = v, "beam.m_squared", &[0.5, 1e6]),
+        ];
+        for (set, key, values) in cases {
+            for &v in values {
+                let mut b = Beam::default();
+                set(&mut b, v);
+                let e = b.validate().unwrap_err().to_string();
+                assert!(e.contains(key), "{key} = {v}: {e}");
+            }
+        }
+        // The ends of each range are inside it; every figure is then finite.
+        for (wavelength_nm, focal_length_mm, beam_diameter_mm) in [
+            (
+                WAVELENGTH_RANGE_NM.0,
+                FOCAL_LENGTH_RANGE_MM.0,
+                BEAM_DIAMETER_RANGE_MM.1,
+            ),
+            (
+                WAVELENGTH_RANGE_NM.1,
+                FOCAL_LENGTH_RANGE_MM.1,
+                BEAM_DIAMETER_RANGE_MM.0,
+            ),
+        ] {
+            let b = Beam {
+                wavelength_nm,
+                focal_length_mm,
+                beam_diameter_mm,
+                ..Beam::default()
+            };
+            b.validate().unwrap();
+            assert!(b.focus_half_length_mm().is_finite() && b.focus_half_length_mm() > 0.0);
+        }
     }
 
     #[test]

@@ -27,39 +27,29 @@ const S_PER_US: f64 = 1e-6;
 pub struct TimingSettings {
     /// Per layer, outside the move and the list: emission on and off, EXECUTE, journal (s).
     pub layer_overhead_s: f64,
-    /// Per galvo list, beyond its speeds and delays: EXECUTE to done seen (s; a fit may make
-    /// it slightly negative when the per-polyline term carries the latency).
+    /// Per galvo list, beyond its speeds and delays: EXECUTE to done seen (s, ≥ 0).
     pub list_overhead_s: f64,
     /// Per polyline (one jump and one mark run), beyond the jump, laser on/off and mark
-    /// delays (s; negative when the controller is quicker than commanded).
+    /// delays (s, ≥ 0).
     pub polyline_overhead_s: f64,
-    /// Per inner vertex of a mark run, beyond the polygon delay (s; may be negative).
+    /// Per inner vertex of a mark run, beyond the polygon delay (s, ≥ 0).
     pub vertex_overhead_s: f64,
 }
 
 impl TimingSettings {
-    /// Refuses non-finite values and a negative per-layer overhead, naming the key.
+    /// Refuses a non-finite or negative overhead, naming the key: each is time a real cell
+    /// adds to the commanded model, and a negative one (per vertex, times the thousands of
+    /// vertices of a part) drives the estimate below zero. `trimctl calibrate timing` holds a
+    /// term the lists would fit negative at 0 (`trim_calib::timing_fit::fit_lists`).
     pub fn validate(&self) -> Result<(), CellError> {
-        for (key, v, non_negative) in [
-            ("timing.layer_overhead_s", self.layer_overhead_s, true),
-            ("timing.list_overhead_s", self.list_overhead_s, false),
-            (
-                "timing.polyline_overhead_s",
-                self.polyline_overhead_s,
-                false,
-            ),
-            ("timing.vertex_overhead_s", self.vertex_overhead_s, false),
+        for (key, v) in [
+            ("timing.layer_overhead_s", self.layer_overhead_s),
+            ("timing.list_overhead_s", self.list_overhead_s),
+            ("timing.polyline_overhead_s", self.polyline_overhead_s),
+            ("timing.vertex_overhead_s", self.vertex_overhead_s),
         ] {
-            if !v.is_finite() || (non_negative && v < 0.0) {
-                return Err(CellError::setting(
-                    key,
-                    v,
-                    if non_negative {
-                        "must be a finite number ≥ 0"
-                    } else {
-                        "must be finite"
-                    },
-                ));
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(CellError::setting(key, v, "must be a finite number ≥ 0"));
             }
         }
         Ok(())
@@ -203,6 +193,39 @@ mod tests {
                 .to_string()
                 .contains("layer_overhead_s")
         );
+        for (bad, key) in [
+            (
+                TimingSettings {
+                    list_overhead_s: -1.0,
+                    ..TimingSettings::default()
+                },
+                "timing.list_overhead_s",
+            ),
+            (
+                TimingSettings {
+                    polyline_overhead_s: -1.0,
+                    ..TimingSettings::default()
+                },
+                "timing.polyline_overhead_s",
+            ),
+            (
+                TimingSettings {
+                    vertex_overhead_s: -1e-6,
+                    ..TimingSettings::default()
+                },
+                "timing.vertex_overhead_s",
+            ),
+            (
+                TimingSettings {
+                    list_overhead_s: f64::INFINITY,
+                    ..TimingSettings::default()
+                },
+                "timing.list_overhead_s",
+            ),
+        ] {
+            let e = bad.validate().unwrap_err().to_string();
+            assert!(e.contains(key), "{key}: {e}");
+        }
         let bad = TimingSettings {
             vertex_overhead_s: f64::NAN,
             ..TimingSettings::default()

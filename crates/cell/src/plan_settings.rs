@@ -153,11 +153,16 @@ impl ZoningSettings {
     }
 }
 
+/// The smallest layer step ΔH (mm), configured or derived from the beam: 1 µm, finer than any
+/// depth a galvo cell positions to. Below it a zone's layers would number in the millions.
+pub const MIN_LAYER_STEP_MM: f64 = 1e-3;
+
 /// Layering options (job.toml `[layers]`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct LayerSettings {
-    /// ΔH (mm); unset: derived from the beam, 2 · focus half length · `step_safety`.
+    /// ΔH (mm), at least [`MIN_LAYER_STEP_MM`] and with ΔH/2 within the focus processing
+    /// length; unset: derived from the beam, 2 · focus half length · `step_safety`.
     pub step_mm: Option<f64>,
     /// The fraction of the focus processing length a layer may use on each side.
     pub step_safety: f64,
@@ -176,18 +181,42 @@ impl LayerSettings {
     /// Refuses out-of-range values, naming the key.
     pub fn validate(&self) -> Result<(), CellError> {
         require_open_closed("layers.step_safety", self.step_safety, 0.0, 1.0)?;
-        if let Some(step) = self.step_mm {
-            require_open_closed("layers.step_mm", step, 0.0, f64::MAX)?;
+        if let Some(step) = self.step_mm
+            && !(step.is_finite() && step >= MIN_LAYER_STEP_MM)
+        {
+            return Err(CellError::setting(
+                "layers.step_mm",
+                step,
+                format!("must be a finite number ≥ {MIN_LAYER_STEP_MM} mm (1 µm)"),
+            ));
         }
         Ok(())
     }
 
     /// ΔH (mm) for a beam whose focus processing length is `focus_half_length_mm`; refuses a
-    /// configured ΔH with ΔH/2 beyond it.
+    /// configured ΔH with ΔH/2 beyond it, and a derived ΔH that is not finite or below
+    /// [`MIN_LAYER_STEP_MM`] (naming the `[beam]` it comes from).
     pub fn step_for(&self, focus_half_length_mm: f64) -> Result<f64, CellError> {
         self.validate()?;
         match self.step_mm {
-            None => Ok(2.0 * focus_half_length_mm * self.step_safety),
+            None => {
+                let step = 2.0 * focus_half_length_mm * self.step_safety;
+                if step.is_finite() && step >= MIN_LAYER_STEP_MM {
+                    Ok(step)
+                } else {
+                    Err(CellError::setting(
+                        "layers.step_mm",
+                        format!("unset (derived: {step} mm)"),
+                        format!(
+                            "ΔH = 2 × the beam's focus processing length \
+                             {focus_half_length_mm} mm × layers.step_safety {} must be a finite \
+                             number ≥ {MIN_LAYER_STEP_MM} mm: check [beam] (wavelength_nm, \
+                             m_squared, focal_length_mm, beam_diameter_mm, fluence_tolerance)",
+                            self.step_safety
+                        ),
+                    ))
+                }
+            }
             Some(step) if step / 2.0 <= focus_half_length_mm => Ok(step),
             Some(step) => Err(CellError::setting(
                 "layers.step_mm",
@@ -541,6 +570,36 @@ mod tests {
                 ..PlanSettings::default()
             };
             s.validate().unwrap();
+        }
+    }
+
+    #[test]
+    fn a_layer_step_below_a_micrometre_is_refused_by_its_key() {
+        for bad in [1e-9, 1e-300, 0.0, -0.3, f64::NAN, f64::INFINITY] {
+            let s = LayerSettings {
+                step_mm: Some(bad),
+                ..LayerSettings::default()
+            };
+            let e = s.validate().unwrap_err().to_string();
+            assert!(e.contains("layers.step_mm"), "{bad}: {e}");
+            let e = s.step_for(0.4).unwrap_err().to_string();
+            assert!(e.contains("layers.step_mm"), "{bad}: {e}");
+        }
+        let s = LayerSettings {
+            step_mm: Some(MIN_LAYER_STEP_MM),
+            ..LayerSettings::default()
+        };
+        assert_eq!(s.step_for(0.4).unwrap(), MIN_LAYER_STEP_MM);
+        // A derived step below 1 µm (or not finite) is refused naming the beam.
+        for focus in [1e-9, 0.0, f64::NAN, f64::INFINITY] {
+            let e = LayerSettings::default()
+                .step_for(focus)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("layers.step_mm") && e.contains("[beam]"),
+                "{focus}: {e}"
+            );
         }
     }
 

@@ -48,6 +48,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.tool_mark.len()
         );
     }
+    // A NaN or infinite mark was written into the calibration as `scanner_translation_mm =
+    // [nan, …]` with exit 0.
+    if let Some((axis, v)) = ["X", "Y", "Z"]
+        .into_iter()
+        .zip(&args.tool_mark)
+        .find(|(_, v)| !v.is_finite())
+    {
+        bail!("--tool-mark: {axis} = {v}: every coordinate must be a finite number (mm)");
+    }
     if !(args.sphere_diameter_mm.is_finite() && args.sphere_diameter_mm > 0.0) {
         bail!(
             "--sphere-diameter-mm: must be > 0, got {}",

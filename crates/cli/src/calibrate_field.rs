@@ -41,8 +41,37 @@ pub struct Args {
     pub smoothing: Option<f64>,
 }
 
+/// The widest `--table-field-mm` (mm): no galvo field is a metre across.
+const MAX_TABLE_FIELD_MM: f64 = 1000.0;
+
+/// Refuses a numeric flag out of range before anything is read, naming the flag:
+/// `--focal-length-mm` within the lens's physical range (`trim_cell::beam::FOCAL_LENGTH_RANGE_MM`;
+/// 1e9 mm fitted and wrote `± inf`), `--smoothing` a finite number ≥ 0, `--table-field-mm` a
+/// finite number within (0, [`MAX_TABLE_FIELD_MM`]].
+fn check_flags(args: &Args) -> anyhow::Result<()> {
+    let (lo, hi) = trim_cell::beam::FOCAL_LENGTH_RANGE_MM;
+    if !(args.focal_length_mm.is_finite() && (lo..=hi).contains(&args.focal_length_mm)) {
+        anyhow::bail!(
+            "--focal-length-mm: must be within [{lo}, {hi}] mm, got {}",
+            args.focal_length_mm
+        );
+    }
+    if let Some(w) = args.smoothing
+        && !(w.is_finite() && w >= 0.0)
+    {
+        anyhow::bail!("--smoothing: must be a finite number ≥ 0, got {w}");
+    }
+    if let Some(f) = args.table_field_mm
+        && !(f.is_finite() && f > 0.0 && f <= MAX_TABLE_FIELD_MM)
+    {
+        anyhow::bail!("--table-field-mm: must be within (0, {MAX_TABLE_FIELD_MM}] mm, got {f}");
+    }
+    Ok(())
+}
+
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    check_flags(&args)?;
     let marks = read_marks(&args.marks)?;
     let settings = FieldFitSettings {
         focal_length_mm: args.focal_length_mm,

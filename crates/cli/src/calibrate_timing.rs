@@ -144,8 +144,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let move_fit =
         fit_moves(&start, &moves).with_context(|| format!("fitting moves of {files}"))?;
     let list_fit = fit_lists(&lists).with_context(|| format!("fitting lists of {files}"))?;
+    // A per-layer overhead is time the cell adds: a negative median (clock noise) is held at
+    // 0, as the list terms are (`fit_lists`), so the file is one `[timing]` accepts.
+    let layer_median_s = median_s(&overheads);
     let timing = TimingSettings {
-        layer_overhead_s: median_s(&overheads),
+        layer_overhead_s: layer_median_s.max(0.0),
         ..list_fit.timing
     };
     let m = move_fit.machine;
@@ -206,11 +209,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             )
         }
     );
+    for (name, fitted) in &list_fit.held_at_zero {
+        let _ = writeln!(
+            summary,
+            "  {name} held at 0: it fitted {fitted:.7} s (the cell quicker than commanded on that \
+             count; an overhead is never negative), the other terms re-fitted without it"
+        );
+    }
     let _ = writeln!(
         summary,
-        "layer overhead: median {:.2} ms over {} layers",
-        timing.layer_overhead_s * 1e3,
-        overheads.len()
+        "layer overhead: median {:.2} ms over {} layers{}",
+        layer_median_s * 1e3,
+        overheads.len(),
+        if layer_median_s < 0.0 {
+            " (negative: held at 0)"
+        } else {
+            ""
+        }
     );
     let mut text = String::from(
         "# trimctl timing model, fitted by `trimctl calibrate timing` (DESIGN.md \"Estimates learned\n# from runs\"). The keys are job.toml's: pass the file with --timing to plan, run or report,\n# or copy the keys into job.toml's [machine] and [timing].\n",

@@ -148,3 +148,34 @@ fn bad_inputs_exit_non_zero_naming_the_file() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("nowhere.csv"));
 }
+
+/// Numeric flags out of range are refused naming the flag, nothing written: `--focal-length-mm
+/// 1e9` exited 0 with `± inf` in the report.
+#[test]
+fn out_of_range_numeric_flags_are_refused_naming_the_flag() {
+    let dir = tempfile::tempdir().expect("dir");
+    let marks_csv = dir.path().join("marks.csv");
+    let out = dir.path().join("field.json");
+    write_marks(
+        &marks_csv,
+        &synth_marks(&TRUTH, PIVOT_MM, &grid(5, &[0.0], 0.0, 0.0), 1),
+    )
+    .expect("marks");
+    for (flags, want) in [
+        (&["--focal-length-mm", "1e9"][..], "--focal-length-mm"),
+        (&["--focal-length-mm", "NaN"][..], "--focal-length-mm"),
+        (&["--focal-length-mm", "0"][..], "--focal-length-mm"),
+        (&["--smoothing=-1"][..], "--smoothing"),
+        (&["--smoothing", "inf"][..], "--smoothing"),
+        (
+            &["--table-out", "t.cor", "--table-field-mm", "1e9"][..],
+            "--table-field-mm",
+        ),
+    ] {
+        let o = calibrate(&marks_csv, &out, flags);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{flags:?}: {stderr}");
+        assert!(stderr.contains(want), "{flags:?}: {stderr}");
+        assert!(!out.exists(), "{flags:?}: field.json written");
+    }
+}

@@ -202,3 +202,49 @@ fn calibrate_cell_refuses_bad_input_naming_the_file() {
     assert!(err.contains("missing.ply"), "{err}");
     assert!(!d.join("cal.toml").exists());
 }
+
+/// A NaN or infinite `--tool-mark` is refused naming the flag and the coordinate: it exited 0
+/// and wrote `scanner_translation_mm = [nan, …]`.
+#[test]
+fn calibrate_cell_refuses_a_non_finite_tool_mark() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    std::fs::write(
+        d.join("poses.csv"),
+        "scan,x,y,z,a,c
+s.ply,0,0,0,0,0
+",
+    )
+    .unwrap();
+    for (mark, want) in [
+        ("nan,0,0", "X = NaN"),
+        ("0,inf,0", "Y = inf"),
+        ("0,0,-inf", "Z = -inf"),
+    ] {
+        let out = Command::new(TRIMCTL)
+            .args([
+                "calibrate",
+                "cell",
+                "--scans",
+                ".",
+                "--poses",
+                "poses.csv",
+                "--sphere-diameter-mm",
+                "25.4",
+                "--tool-mark",
+                mark,
+                "--out",
+                "cal.toml",
+            ])
+            .current_dir(d)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{mark}: {err}");
+        assert!(
+            err.contains("--tool-mark") && err.contains(want),
+            "{mark}: {err}"
+        );
+        assert!(!d.join("cal.toml").exists());
+    }
+}

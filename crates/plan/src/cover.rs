@@ -64,6 +64,12 @@ use trim_cell::frame::paper_frame;
 /// The longest atom (mm). Longer contours are cut into equal atoms no longer than this.
 pub const ATOM_MAX_LENGTH_MM: f64 = 10.0;
 
+/// The most atoms the path may be cut into before the fits ([`ATOM_MAX_LENGTH_MM`] each: 200 m
+/// of contour). The covering's work grows faster than the atoms, so a contour far longer than
+/// a part (a point 10⁶ mm off, or in the wrong units) is refused naming it instead of planned
+/// for hours or cut into more pieces than memory holds.
+pub const MAX_ATOMS: usize = 20_000;
+
 /// An atom's feature vectors stay within this fraction of the limit of their mean.
 pub const ATOM_SPREAD_FRACTION: f64 = 0.5;
 
@@ -678,11 +684,38 @@ fn spread_rad(p: &Piece) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// Contour pieces into atoms (see the module docs, step 1).
-fn atomize(whole: &[Piece], limit_rad: f64) -> Vec<(Piece, usize)> {
+/// Contour pieces into atoms (see the module docs, step 1). Refuses a path that would be cut
+/// into more than [`MAX_ATOMS`] atoms, naming the contour that takes it past and its point
+/// farthest from its first.
+fn atomize(whole: &[Piece], limit_rad: f64) -> Result<Vec<(Piece, usize)>, PlanError> {
     let mut out = Vec::new();
+    let mut total = 0usize;
     for (c, p) in whole.iter().enumerate() {
-        let n = (p.length_mm() / ATOM_MAX_LENGTH_MM).ceil().max(1.0) as usize;
+        let length_mm = p.length_mm();
+        // Saturates: an infinite (or overflowing) length is usize::MAX atoms.
+        let n = (length_mm / ATOM_MAX_LENGTH_MM).ceil().max(1.0) as usize;
+        total = total.saturating_add(n);
+        if total > MAX_ATOMS {
+            let (point, distance_mm) = p
+                .points
+                .iter()
+                .map(|q| (q - p.points[0]).norm())
+                .enumerate()
+                .fold(
+                    (0, 0.0),
+                    |best, (i, d)| if d > best.1 { (i, d) } else { best },
+                );
+            return Err(PlanError::TooManyAtoms {
+                contour: p.contour,
+                length_mm,
+                point: p.source[point].floor() as usize,
+                distance_mm,
+                atoms: n,
+                atom_mm: ATOM_MAX_LENGTH_MM,
+                total,
+                max: MAX_ATOMS,
+            });
+        }
         let mut stack: Vec<Piece> = cut_equal(p, n).into_iter().rev().collect();
         while let Some(q) = stack.pop() {
             if spread_rad(&q) > ATOM_SPREAD_FRACTION * limit_rad
@@ -697,7 +730,7 @@ fn atomize(whole: &[Piece], limit_rad: f64) -> Vec<(Piece, usize)> {
             out.push((q, c));
         }
     }
-    out
+    Ok(out)
 }
 
 /// What [`select`] chose.
@@ -897,7 +930,7 @@ pub fn cover(path: &Path, problem: &CoverProblem<'_>) -> Result<Cover, PlanError
         }
         out
     };
-    let atoms: Vec<Atom> = atomize(&whole, problem.limit_rad)
+    let atoms: Vec<Atom> = atomize(&whole, problem.limit_rad)?
         .into_par_iter()
         .map(atomized)
         .collect::<Vec<_>>()
@@ -1232,4 +1265,33 @@ fn lower_bound(
         }
     }
     set.len()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_contour_of_astronomical_length_is_refused_not_a_capacity_overflow() {
+        // Two points 1e300 mm apart: 1e299 atoms, refused by count instead of allocated.
+        for far in [1e300, 1e6] {
+            let piece = Piece {
+                contour: 7,
+                points: vec![
+                    Point3::origin(),
+                    Point3::new(1.0, 0.0, 0.0),
+                    Point3::new(far, 0.0, 0.0),
+                ],
+                features: vec![Vector3::z(); 3],
+                source: vec![0.0, 1.0, 2.0],
+            };
+            let e = atomize(&[piece], 5f64.to_radians())
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("contour 7:") && e.contains("its point 2") && e.contains("20000"),
+                "{e}"
+            );
+        }
+    }
 }

@@ -75,6 +75,50 @@ pub enum PlanError {
         /// The fixed k.
         k: usize,
     },
+    /// A zone would get more layers than [`crate::layer::MAX_LAYERS_PER_ZONE`]: ΔH far below
+    /// the zone's depth along its axis, or a point far off the part.
+    #[error(
+        "layers.step_mm: contours {contours:?} span {span_mm} mm along their zone axis, which at \
+         ΔH = {step_mm} mm is {layers} layers, more than the {max} a zone may have (check ΔH and \
+         the path's coordinates)"
+    )]
+    TooManyLayers {
+        /// The zone's contour ids.
+        contours: Vec<ContourId>,
+        /// Its depth along the zone axis (mm).
+        span_mm: f64,
+        /// ΔH (mm).
+        step_mm: f64,
+        /// The layers it would get.
+        layers: usize,
+        /// The cap.
+        max: usize,
+    },
+    /// A contour would be cut into more cover atoms than the planner takes
+    /// ([`crate::cover::MAX_ATOMS`] over the path): a point far off the part.
+    #[error(
+        "contour {contour}: {length_mm} mm long (its point {point} is {distance_mm} mm from its \
+         first), {atoms} pieces of at most {atom_mm} mm, and the path {total} in all, more than \
+         the {max} the pose covering takes: is a point off the part or in the wrong units?"
+    )]
+    TooManyAtoms {
+        /// The contour id.
+        contour: ContourId,
+        /// Its length (mm).
+        length_mm: f64,
+        /// Its 0-based point farthest from its first point.
+        point: usize,
+        /// That point's distance from the first point (mm).
+        distance_mm: f64,
+        /// The pieces it alone would be cut into.
+        atoms: usize,
+        /// The longest piece (mm).
+        atom_mm: f64,
+        /// The pieces of the whole path up to and including this contour.
+        total: usize,
+        /// The cap.
+        max: usize,
+    },
     /// k-means failed inside linfa.
     #[error("k-means with k = {k} failed: {message}")]
     KMeans {

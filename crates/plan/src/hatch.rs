@@ -58,6 +58,15 @@ pub const BOUNDARY_CLOSING_EDGE_FACTOR: f64 = 1.5;
 pub const BOUNDARY_ON_SURFACE_TOL_MM: f64 = 0.1;
 /// The fewest distinct boundary vertices.
 pub const MIN_BOUNDARY_POINTS: usize = 3;
+/// The smallest `pitch_mm`, `step_mm` and `grid_mm` (mm): 1 µm, a fortieth of an ultrafast
+/// spot; below it a region holds more tracks, points or grid nodes than memory.
+pub const MIN_HATCH_LENGTH_MM: f64 = 1e-3;
+/// The most tracks one region may get (its width across the hatch direction over the pitch).
+pub const MAX_TRACKS: usize = 100_000;
+/// The most points one region's tracks may hold together (about its area over pitch × step).
+pub const MAX_POINTS: usize = 5_000_000;
+/// The most height-field nodes one region may get (`hatch.grid_mm`, or 2.5 × the scan spacing).
+pub const MAX_GRID_NODES: usize = 4_000_000;
 /// Coverage counts a surface point covered within this factor × pitch/2 of a track.
 pub const COVERAGE_FACTOR: f64 = 1.05;
 
@@ -184,8 +193,12 @@ impl HatchSettings {
     }
 
     /// Checks every key, naming the one at fault.
+    ///
+    /// `pitch_mm`, `step_mm` and `grid_mm` must be at least [`MIN_HATCH_LENGTH_MM`]; what a
+    /// region gets of them is capped when it is hatched ([`MAX_TRACKS`], [`MAX_POINTS`],
+    /// [`MAX_GRID_NODES`]).
     pub fn validate(&self) -> Result<(), HatchError> {
-        positive("hatch.pitch_mm", self.pitch_mm)?;
+        at_least_a_micrometre("hatch.pitch_mm", self.pitch_mm)?;
         if !self.angle_deg.is_finite() {
             return Err(HatchError::setting(
                 "hatch.angle_deg",
@@ -194,7 +207,7 @@ impl HatchSettings {
             ));
         }
         if let Some(s) = self.step_mm {
-            positive("hatch.step_mm", s)?;
+            at_least_a_micrometre("hatch.step_mm", s)?;
         }
         if let Some(t) = self.chord_tolerance_mm {
             positive("hatch.chord_tolerance_mm", t)?;
@@ -207,7 +220,7 @@ impl HatchSettings {
             }
         }
         if let Some(g) = self.grid_mm {
-            positive("hatch.grid_mm", g)?;
+            at_least_a_micrometre("hatch.grid_mm", g)?;
         }
         Ok(())
     }
@@ -230,6 +243,71 @@ impl HatchSettings {
         let a = self.angle_deg.to_radians();
         [a.cos(), a.sin()]
     }
+}
+
+/// Refuses a length that is not a finite number ≥ [`MIN_HATCH_LENGTH_MM`], naming the key.
+fn at_least_a_micrometre(key: &'static str, v: f64) -> Result<(), HatchError> {
+    if v.is_finite() && v >= MIN_HATCH_LENGTH_MM {
+        Ok(())
+    } else {
+        Err(HatchError::setting(
+            key,
+            v,
+            format!("must be a finite number ≥ {MIN_HATCH_LENGTH_MM} mm (1 µm)"),
+        ))
+    }
+}
+
+/// Refuses a region whose tracks would number more than [`MAX_TRACKS`] or hold more than
+/// [`MAX_POINTS`] points, naming the key that sets the count: the width across the hatch
+/// direction over the pitch, and that times the length along it over the point step (a lower
+/// bound: tracks run along the surface, not its plane).
+fn check_track_budget(
+    polygon: &Polygon,
+    settings: &HatchSettings,
+    along: [f64; 2],
+    across: [f64; 2],
+) -> Result<(), HatchError> {
+    let extent = |dir: [f64; 2]| {
+        let (lo, hi) = polygon
+            .vertices()
+            .iter()
+            .map(|v| v[0] * dir[0] + v[1] * dir[1])
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+                (lo.min(x), hi.max(x))
+            });
+        hi - lo
+    };
+    let (width, length) = (extent(across), extent(along));
+    let tracks = (width / settings.pitch_mm).ceil();
+    if tracks.is_nan() || tracks > MAX_TRACKS as f64 {
+        return Err(HatchError::setting(
+            "hatch.pitch_mm",
+            settings.pitch_mm,
+            format!(
+                "the region is {width:.4} mm across the hatch direction: {tracks} tracks, more than \
+                 the {MAX_TRACKS} a region may have"
+            ),
+        ));
+    }
+    let (key, step) = match settings.point_spacing() {
+        PointSpacing::Pitch { step_mm } if settings.step_mm.is_some() => ("hatch.step_mm", step_mm),
+        PointSpacing::Pitch { step_mm } => ("hatch.pitch_mm", step_mm),
+        // Chord placement keeps at most the dense samples, bounded by the grid.
+        PointSpacing::Chord { .. } => return Ok(()),
+    };
+    let points = (tracks + 1.0) * (length / step).ceil();
+    if points.is_nan() || points > MAX_POINTS as f64 {
+        return Err(HatchError::setting(
+            key,
+            step,
+            format!(
+                "{tracks} tracks over the region's {length:.4} mm along the hatch direction hold \
+                 about {points} points, more than the {MAX_POINTS} a region may have"
+            ),
+        ));
+    }
+    Ok(())
 }
 
 fn positive(key: &'static str, v: f64) -> Result<(), HatchError> {
@@ -545,6 +623,7 @@ pub fn hatch_with_progress(
     let polygon = Polygon::new(boundary.iter().map(|p| frame.to_plane(p)).collect());
     let along = settings.along();
     let across = [-along[1], along[0]];
+    check_track_budget(&polygon, settings, along, across)?;
     let spacing = settings.point_spacing();
     progress(HatchStage::Tracks);
     let mut tracks = match settings.method {

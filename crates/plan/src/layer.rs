@@ -20,6 +20,7 @@
 
 use trim_geom::{ContourId, Point3, Vector3};
 
+use crate::error::PlanError;
 use crate::piece::Piece;
 use trim_cell::job::Frame;
 pub use trim_cell::plan_settings::LayerSettings;
@@ -27,10 +28,21 @@ pub use trim_cell::plan_settings::LayerSettings;
 /// A subsegment shorter than this (as a fraction of its segment) is dropped when cutting.
 pub const MIN_SUBSEGMENT_FRACTION: f64 = 1e-12;
 
-/// N = floor((z_max − z_min)/ΔH) + 1, paper Eq. 14.
+/// The most layers one zone may have: 10,000 layers of the default ΔH (0.59 mm) are a 5.9 m
+/// deep zone, of the smallest (1 µm) 10 mm. More is a ΔH far below the part's depth or a path
+/// point far off the part, and [`layer_pieces`] refuses it rather than allocate and cut every
+/// segment at every boundary.
+pub const MAX_LAYERS_PER_ZONE: usize = 10_000;
+
+/// N = floor((z_max − z_min)/ΔH) + 1, paper Eq. 14; saturates at `usize::MAX` (a span that is
+/// not finite, or a step that is not a positive number, gives `usize::MAX` too).
 #[must_use]
 pub fn layer_count(z_min_mm: f64, z_max_mm: f64, step_mm: f64) -> usize {
-    ((z_max_mm - z_min_mm) / step_mm).floor().max(0.0) as usize + 1
+    let steps = ((z_max_mm - z_min_mm) / step_mm).floor();
+    if steps.is_nan() || step_mm.is_nan() || step_mm <= 0.0 {
+        return usize::MAX;
+    }
+    (steps.max(0.0) as usize).saturating_add(1)
 }
 
 /// The height of layer m's focal plane above the zone origin: z_max − ΔH/2 − m·ΔH
@@ -67,9 +79,23 @@ pub struct ZoneLayers {
     pub layers: Vec<(usize, f64, Vec<LayerPiece>)>,
 }
 
-/// Cuts the pieces into layers of height `step_mm` along `axis` (unit) above `origin`.
-#[must_use]
-pub fn layer_pieces(pieces: &[Piece], origin: &Point3, axis: &Vector3, step_mm: f64) -> ZoneLayers {
+/// Cuts the pieces into layers of height `step_mm` along `axis` (unit) above `origin`. Refuses
+/// a step that is not a finite number > 0 (a beam whose focus length is zero or NaN) and a
+/// zone of more than [`MAX_LAYERS_PER_ZONE`] layers, naming `layers.step_mm`, the contours and
+/// the count.
+pub fn layer_pieces(
+    pieces: &[Piece],
+    origin: &Point3,
+    axis: &Vector3,
+    step_mm: f64,
+) -> Result<ZoneLayers, PlanError> {
+    if !(step_mm.is_finite() && step_mm > 0.0) {
+        return Err(PlanError::setting(
+            "layers.step_mm",
+            step_mm,
+            "ΔH must be a finite number > 0 (is the beam's focus processing length zero?)",
+        ));
+    }
     let height = |p: &Point3| (p - origin).dot(axis);
     let (mut z_min, mut z_max) = (f64::INFINITY, f64::NEG_INFINITY);
     for p in pieces.iter().flat_map(|p| p.points.iter()) {
@@ -78,6 +104,18 @@ pub fn layer_pieces(pieces: &[Piece], origin: &Point3, axis: &Vector3, step_mm: 
         z_max = z_max.max(z);
     }
     let n = layer_count(z_min, z_max, step_mm);
+    if n > MAX_LAYERS_PER_ZONE {
+        let mut contours: Vec<ContourId> = pieces.iter().map(|p| p.contour).collect();
+        contours.sort_unstable();
+        contours.dedup();
+        return Err(PlanError::TooManyLayers {
+            contours,
+            span_mm: z_max - z_min,
+            step_mm,
+            layers: n,
+            max: MAX_LAYERS_PER_ZONE,
+        });
+    }
     let layer_of = |z: f64| (((z_max - z) / step_mm).floor().max(0.0) as usize).min(n - 1);
     let mut by_layer: Vec<Vec<LayerPiece>> = vec![Vec::new(); n];
 
@@ -160,12 +198,12 @@ pub fn layer_pieces(pieces: &[Piece], origin: &Point3, axis: &Vector3, step_mm: 
         .filter(|(_, l)| !l.is_empty())
         .map(|(m, l)| (m, focus_height_mm(z_max, step_mm, m), l))
         .collect();
-    ZoneLayers {
+    Ok(ZoneLayers {
         step_mm,
         z_max_mm: z_max,
         z_min_mm: z_min,
         layers,
-    }
+    })
 }
 
 /// Projects a work-piece point to galvo millimetres and its height over the focal plane:
@@ -209,7 +247,7 @@ mod tests {
     #[test]
     fn cuts_exactly_at_boundaries_without_gap_or_overlap() {
         let step = 0.3;
-        let zl = layer_pieces(&[ramp()], &Point3::origin(), &Vector3::z(), step);
+        let zl = layer_pieces(&[ramp()], &Point3::origin(), &Vector3::z(), step).unwrap();
         assert_eq!(zl.layers.len(), 4);
         let mut intervals: Vec<(f64, f64)> = Vec::new();
         for (_, focus_z, polylines) in &zl.layers {
@@ -238,6 +276,36 @@ mod tests {
         // 1.0 mm up over ΔH = 0.3: cuts at z = 0.7, 0.4, 0.1 going up, 0.7, 0.4, 0.1 coming
         // down (0.05 is below 0.1) → 7 polylines.
         assert_eq!(intervals.len(), 7);
+    }
+
+    #[test]
+    fn a_zero_or_nan_step_and_too_many_layers_are_refused_not_a_panic() {
+        for step in [0.0, f64::NAN, -0.3, f64::INFINITY] {
+            let e = layer_pieces(&[ramp()], &Point3::origin(), &Vector3::z(), step)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("layers.step_mm"), "{step}: {e}");
+        }
+        // The ramp is 1 mm deep: 1 µm gives about 1,000 layers, within the cap; a point 1e6 mm up
+        // gives 10⁹ at 1 µm, refused with the contour and the count.
+        let fine = layer_pieces(&[ramp()], &Point3::origin(), &Vector3::z(), 1e-3).unwrap();
+        assert!(
+            (1000..=1001).contains(&fine.layers.len()),
+            "{}",
+            fine.layers.len()
+        );
+        let mut far = ramp();
+        far.points[1].z = 1e6;
+        let e = layer_pieces(&[far], &Point3::origin(), &Vector3::z(), 1e-3)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("layers.step_mm") && e.contains("[9]") && e.contains("1000000001 layers"),
+            "{e}"
+        );
+        assert_eq!(layer_count(0.0, 1.0, 0.0), usize::MAX);
+        assert_eq!(layer_count(0.0, f64::INFINITY, 0.3), usize::MAX);
+        assert_eq!(layer_count(0.0, 1e300, 1e-300), usize::MAX);
     }
 
     #[test]

@@ -289,8 +289,8 @@ fn plan_line_traced(
             .into_iter()
             .enumerate()
             .map(|(cluster, z)| {
-                let layers = layer_pieces(&z.pieces, &z.origin, &z.axis, step_mm);
-                Planned {
+                let layers = layer_pieces(&z.pieces, &z.origin, &z.axis, step_mm)?;
+                Ok(Planned {
                     cluster,
                     axis: z.axis,
                     section: Section {
@@ -298,9 +298,9 @@ fn plan_line_traced(
                         origin: z.origin,
                     },
                     layers,
-                }
+                })
             })
-            .collect();
+            .collect::<Result<Vec<_>, PlanError>>()?;
         let zoning = Zoning {
             groups: Vec::new(),
             k: cover.report.poses,
@@ -345,7 +345,7 @@ fn plan_line_traced(
             limit_rad,
             &lens,
         ) {
-            let layers = layer_pieces(&section.pieces, &section.origin, &group.axis, step_mm);
+            let layers = layer_pieces(&section.pieces, &section.origin, &group.axis, step_mm)?;
             planned.push(Planned {
                 cluster,
                 axis: group.axis,

@@ -309,3 +309,29 @@ fn cover_validates_and_never_needs_more_poses_than_kmeans() {
         "{cover_total} vs {kmeans_total}"
     );
 }
+
+/// A path whose contours run 99 m off the part (each point within the ±10⁵ mm trim-geom takes)
+/// is refused naming the contour and its far point, at once: the covering planned such a path
+/// for hours (a point 10⁶ mm off) or panicked allocating its atoms (10³⁰⁰).
+#[test]
+fn contours_far_longer_than_a_part_are_refused_naming_the_contour() {
+    use trim_geom::{Contour, Point3, Vector3};
+    let far = |id: i64, y: f64| {
+        let points = vec![
+            Point3::new(0.0, y, 0.0),
+            Point3::new(10.0, y, 0.0),
+            Point3::new(99_000.0, y, 0.0),
+        ];
+        Contour::new(id, points, Vector3::z()).expect("a valid contour")
+    };
+    let path = Path::new(vec![far(1, 0.0), far(2, 5.0), far(3, 10.0)]).expect("a valid path");
+    let t = std::time::Instant::now();
+    let e = plan_with_report(&path, &settings(ZoningMethod::Cover))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("contour 3:") && e.contains("its point 2 is 99000 mm") && e.contains("20000"),
+        "{e}"
+    );
+    assert!(t.elapsed().as_secs_f64() < 10.0, "{:?}", t.elapsed());
+}

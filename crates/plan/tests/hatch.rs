@@ -582,3 +582,49 @@ fn bad_input_is_refused() {
     let far: Vec<Point3> = b.iter().map(|p| p + Vector3::x() * 200.0).collect();
     assert!(hatch(&cloud, &far, &ok).is_err());
 }
+
+/// A pitch, step or grid far below a spot is refused by its key before anything is allocated:
+/// `pitch_mm = 1e-4`, `step_mm = 1e-6` and `grid_mm = 1e-4` aborted on memory (exit 134); what
+/// a 1 µm setting would give a 21 mm region (10⁸ points or grid nodes) is refused with the count.
+#[test]
+fn settings_that_would_not_fit_in_memory_are_refused_by_key() {
+    let s = saddle();
+    let cloud = s.cloud(10_000, 5);
+    let b = s.boundary();
+    let refused = |settings: HatchSettings, key: &str, count: &str| {
+        let t = std::time::Instant::now();
+        let Err(e) = hatch(&cloud, &b, &settings) else {
+            panic!("{key}: {settings:?} was not refused");
+        };
+        let e = e.to_string();
+        assert!(e.contains(key) && e.contains(count), "{key}: {e}");
+        assert!(t.elapsed().as_secs_f64() < 20.0, "{key}: {:?}", t.elapsed());
+    };
+    for pitch in [1e-4, 1e-5, 1e-6] {
+        refused(HatchSettings::with_pitch(pitch), "hatch.pitch_mm", "1 µm");
+    }
+    let with = |step_mm: Option<f64>, grid_mm: Option<f64>| HatchSettings {
+        step_mm,
+        grid_mm,
+        ..HatchSettings::with_pitch(0.5)
+    };
+    for step in [1e-6, 1e-7] {
+        refused(with(Some(step), None), "hatch.step_mm", "1 µm");
+    }
+    refused(with(None, Some(1e-4)), "hatch.grid_mm", "1 µm");
+    // At 1 µm each: refused by count.
+    refused(
+        HatchSettings::with_pitch(1e-3),
+        "hatch.pitch_mm",
+        "a region may have",
+    );
+    refused(
+        HatchSettings {
+            step_mm: Some(1e-3),
+            ..HatchSettings::with_pitch(0.05)
+        },
+        "hatch.step_mm",
+        "a region may have",
+    );
+    refused(with(None, Some(1e-3)), "hatch.grid_mm", "a region may have");
+}

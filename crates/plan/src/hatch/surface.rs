@@ -208,8 +208,24 @@ impl Surface {
         let margin = GRID_MARGIN_CELLS * h;
         let (blo, bhi) = polygon.bounds();
         let lo = [blo[0] - margin, blo[1] - margin];
-        let nx = (((bhi[0] + margin - lo[0]) / h).ceil() as usize).max(1) + 1;
-        let ny = (((bhi[1] + margin - lo[1]) / h).ceil() as usize).max(1) + 1;
+        let (wx, wy) = (bhi[0] + margin - lo[0], bhi[1] + margin - lo[1]);
+        let nodes = ((wx / h).ceil().max(1.0) + 1.0) * ((wy / h).ceil().max(1.0) + 1.0);
+        if nodes.is_nan() || nodes > crate::hatch::MAX_GRID_NODES as f64 {
+            return Err(HatchError::setting(
+                "hatch.grid_mm",
+                match grid_mm {
+                    Some(g) => g.to_string(),
+                    None => format!("unset ({h} mm: {GRID_PER_SPACING} × the scan spacing)"),
+                },
+                format!(
+                    "the region's {wx:.4} × {wy:.4} mm grid has {nodes} nodes, more than the {} a \
+                     region may have",
+                    crate::hatch::MAX_GRID_NODES
+                ),
+            ));
+        }
+        let nx = ((wx / h).ceil() as usize).max(1) + 1;
+        let ny = ((wy / h).ceil() as usize).max(1) + 1;
         let plane_pts: Vec<([f64; 2], f64)> = near
             .iter()
             .map(|p| (frame.to_plane(p), frame.height(p)))
