@@ -62,6 +62,7 @@ fn bench(c: &mut Criterion) {
                     .zip(members)
                     .map(|(g, m)| {
                         trim_plan::layer::layer_pieces(m, &g.centre, &g.axis, step_mm)
+                            .expect("the bench's layer step is in range")
                             .layers
                             .len()
                     })
