@@ -160,6 +160,13 @@ impl ProcessStop {
     /// The flag `trim_geom::cancel` checks in the work between executions (rescan waits, the
     /// scan command, the inspection).
     #[must_use]
+    #[cfg_attr(
+        not(feature = "sim"),
+        expect(
+            dead_code,
+            reason = "the verify loop that checks it is built with the simulators"
+        )
+    )]
     pub fn flag(&self) -> Arc<AtomicBool> {
         self.flag.clone()
     }
