@@ -24,8 +24,12 @@ def test_a_nan_setting_is_refused_naming_its_key(case):
 
 
 def test_numpy_numbers_are_taken_as_numbers(case):
-    plan = trimctl.plan(case.path, k=np.int64(3), max_incidence_deg=np.float32(5.0))
-    assert plan.k == 3
+    plain = trimctl.plan(case.path, max_incidence_deg=5.0, settings={"zoning": {"restarts": 3}})
+    numpy = trimctl.plan(
+        case.path, max_incidence_deg=np.float32(5.0), settings={"zoning": {"restarts": np.int64(3)}}
+    )
+    assert numpy.k == plain.k
+    assert numpy.to_json() == plain.to_json()
 
 
 def test_a_field_too_fine_and_endless_iterations_are_refused_by_key(case):
