@@ -586,11 +586,12 @@ mod tests {
         assert!(too_few.to_string().contains("need at least 6"), "{too_few}");
     }
 
-    #[test]
-    fn recovers_list_terms_and_names_what_it_cannot_tell_apart() {
+    /// 30 random lists (seeded) of the default galvo, each measured as its commanded time
+    /// plus `overhead(mark runs, vertices)`.
+    fn random_lists(seed: u64, overhead: impl Fn(usize, usize) -> f64) -> Vec<ListSample> {
         let galvo = GalvoSettings::default();
-        let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
-        let samples: Vec<ListSample> = (0..30)
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+        (0..30)
             .map(|_| {
                 let runs = rng.random_range(1..40);
                 let vectors = runs + rng.random_range(0..400);
@@ -602,17 +603,20 @@ mod tests {
                     vertices: vectors - runs,
                     mark_mm: rng.random_range(1.0..500.0),
                 };
-                let measured_s = list.commanded_s(&galvo)
-                    + 0.004
-                    + 30e-6 * runs as f64
-                    + 2e-6 * (vectors - runs) as f64;
                 ListSample {
                     galvo,
                     list,
-                    measured_s,
+                    measured_s: list.commanded_s(&galvo) + overhead(runs, vectors - runs),
                 }
             })
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn recovers_list_terms_and_names_what_it_cannot_tell_apart() {
+        let samples = random_lists(3, |runs, vertices| {
+            0.004 + 30e-6 * runs as f64 + 2e-6 * vertices as f64
+        });
         let fit = fit_lists(&samples).expect("fit");
         assert!((fit.timing.list_overhead_s - 0.004).abs() < 1e-9, "{fit:?}");
         assert!((fit.timing.polyline_overhead_s - 30e-6).abs() < 1e-10);
@@ -644,29 +648,9 @@ mod tests {
     fn a_term_that_fits_negative_is_held_at_zero_and_named() {
         // The controller is quicker than commanded per vertex (−16.5 µs, as a recorded run
         // fitted): the term is held at 0, the others refitted, and the result validates.
-        let galvo = GalvoSettings::default();
-        let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
-        let samples: Vec<ListSample> = (0..30)
-            .map(|_| {
-                let runs = rng.random_range(1..40);
-                let vectors = runs + rng.random_range(0..400);
-                let list = ListComposition {
-                    jumps: runs,
-                    jump_mm: rng.random_range(1.0..200.0),
-                    mark_runs: runs,
-                    vectors,
-                    vertices: vectors - runs,
-                    mark_mm: rng.random_range(1.0..500.0),
-                };
-                let measured_s = list.commanded_s(&galvo) + 0.1 + 400e-6 * runs as f64
-                    - 16.5e-6 * (vectors - runs) as f64;
-                ListSample {
-                    galvo,
-                    list,
-                    measured_s,
-                }
-            })
-            .collect();
+        let samples = random_lists(5, |runs, vertices| {
+            0.1 + 400e-6 * runs as f64 - 16.5e-6 * vertices as f64
+        });
         let fit = fit_lists(&samples).expect("fit");
         assert_eq!(fit.held_at_zero.len(), 1, "{fit:?}");
         assert_eq!(fit.held_at_zero[0].0, "vertex_overhead_s");

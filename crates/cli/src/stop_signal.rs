@@ -45,20 +45,29 @@ impl StopSignals {
     /// {what}"` on stderr. The handlers stay installed until the process ends: a second signal
     /// does not cut the way down short.
     pub fn cancel_on_first(
-        mut self,
+        self,
         cancel: CancellationToken,
         command: &'static str,
         what: &'static str,
     ) {
-        tokio::spawn(async move {
-            let name = self.next().await;
-            eprintln!("\n{command}: {name}: {what}");
-            cancel.cancel();
-            loop {
-                let again = self.next().await;
-                eprintln!("{command}: {again}: already stopping (laser off first)");
-            }
-        });
+        tokio::spawn(self.watch(command, what, move |_| cancel.cancel()));
+    }
+
+    /// Calls `stop` with the first signal's name, after printing `"\n{command}: {signal}:
+    /// {what}"`; then says "already stopping" at every later one, for ever.
+    async fn watch(
+        mut self,
+        command: &'static str,
+        what: &'static str,
+        stop: impl FnOnce(&'static str),
+    ) {
+        let name = self.next().await;
+        eprintln!("\n{command}: {name}: {what}");
+        stop(name);
+        loop {
+            let again = self.next().await;
+            eprintln!("{command}: {again}: already stopping (laser off first)");
+        }
     }
 }
 
@@ -121,7 +130,7 @@ impl ProcessStop {
                     }
                 };
                 runtime.block_on(async move {
-                    let mut signals = match StopSignals::install() {
+                    let signals = match StopSignals::install() {
                         Ok(s) => s,
                         Err(e) => {
                             let _ = installed.send(Err(format!("{e:#}")));
@@ -129,15 +138,13 @@ impl ProcessStop {
                         }
                     };
                     let _ = installed.send(Ok(()));
-                    let name = signals.next().await;
-                    eprintln!("\n{command}: {name}: {what}");
-                    let _ = signal.set(name);
-                    flag.store(true, Ordering::SeqCst);
-                    token.cancel();
-                    loop {
-                        let again = signals.next().await;
-                        eprintln!("{command}: {again}: already stopping (laser off first)");
-                    }
+                    signals
+                        .watch(command, what, move |name| {
+                            let _ = signal.set(name);
+                            flag.store(true, Ordering::SeqCst);
+                            token.cancel();
+                        })
+                        .await;
                 });
             })
             .map_err(|e| format!("starting the signal thread: {e}"))?;

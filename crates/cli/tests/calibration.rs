@@ -148,12 +148,10 @@ fn calibrating_the_twin_brings_the_spot_error_within_tolerance() {
     );
 }
 
-#[test]
-fn calibrate_cell_refuses_bad_input_naming_the_file() {
-    let tmp = tempfile::tempdir().unwrap();
-    let d = tmp.path();
-    std::fs::write(d.join("poses.csv"), "scan,x,y,z,q,c\n").unwrap();
-    let out = Command::new(TRIMCTL)
+/// `trimctl calibrate cell` in folder `d` on its `poses.csv` and the scans beside it, with a
+/// 25.4 mm sphere and `--tool-mark mark`, writing `cal.toml`.
+fn calibrate_cell_in(d: &std::path::Path, mark: &str) -> std::process::Output {
+    Command::new(TRIMCTL)
         .args([
             "calibrate",
             "cell",
@@ -164,13 +162,21 @@ fn calibrate_cell_refuses_bad_input_naming_the_file() {
             "--sphere-diameter-mm",
             "25.4",
             "--tool-mark",
-            "0,0,0",
+            mark,
             "--out",
             "cal.toml",
         ])
         .current_dir(d)
         .output()
-        .unwrap();
+        .unwrap()
+}
+
+#[test]
+fn calibrate_cell_refuses_bad_input_naming_the_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    std::fs::write(d.join("poses.csv"), "scan,x,y,z,q,c\n").unwrap();
+    let out = calibrate_cell_in(d, "0,0,0");
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("poses.csv:1"), "{err}");
@@ -179,24 +185,7 @@ fn calibrate_cell_refuses_bad_input_naming_the_file() {
         "scan,x,y,z,a,c\nmissing.ply,0,0,0,0,0\n",
     )
     .unwrap();
-    let out = Command::new(TRIMCTL)
-        .args([
-            "calibrate",
-            "cell",
-            "--scans",
-            ".",
-            "--poses",
-            "poses.csv",
-            "--sphere-diameter-mm",
-            "25.4",
-            "--tool-mark",
-            "0,0,0",
-            "--out",
-            "cal.toml",
-        ])
-        .current_dir(d)
-        .output()
-        .unwrap();
+    let out = calibrate_cell_in(d, "0,0,0");
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("missing.ply"), "{err}");
@@ -221,24 +210,7 @@ s.ply,0,0,0,0,0
         ("0,inf,0", "Y = inf"),
         ("0,0,-inf", "Z = -inf"),
     ] {
-        let out = Command::new(TRIMCTL)
-            .args([
-                "calibrate",
-                "cell",
-                "--scans",
-                ".",
-                "--poses",
-                "poses.csv",
-                "--sphere-diameter-mm",
-                "25.4",
-                "--tool-mark",
-                mark,
-                "--out",
-                "cal.toml",
-            ])
-            .current_dir(d)
-            .output()
-            .unwrap();
+        let out = calibrate_cell_in(d, mark);
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(1), "{mark}: {err}");
         assert!(

@@ -45,6 +45,26 @@ impl Aabb {
     pub fn center(&self) -> Point3 {
         nalgebra::center(&self.min, &self.max)
     }
+
+    /// How far `p` lies outside the box (0 inside; infinite when `p` is not finite). A point
+    /// past about 1e154 from the box, whose squared distance overflows, is given its largest
+    /// distance along one axis: it is that far at least.
+    #[must_use]
+    pub fn distance_outside(&self, p: &Point3) -> f64 {
+        if !crate::math::is_finite_point(p) {
+            return f64::INFINITY;
+        }
+        let mut sum2 = 0.0;
+        let mut worst: f64 = 0.0;
+        for axis in 0..3 {
+            let d = (self.min[axis] - p[axis])
+                .max(p[axis] - self.max[axis])
+                .max(0.0);
+            worst = worst.max(d);
+            sum2 += d * d;
+        }
+        if sum2.is_finite() { sum2.sqrt() } else { worst }
+    }
 }
 
 /// A point cloud. Points are finite; normals, when present, are unit length and one per point.

@@ -69,8 +69,25 @@ mod tests {
         assert_eq!(names.len(), 1, "a temporary file was left: {names:?}");
     }
 
+    /// The old file is replaced by another, never rewritten in place: a reader that opened it
+    /// before still reads it whole (a write truncating it in place, which a full disk then cut
+    /// short, is what lost the old path).
     #[test]
-    fn a_failed_write_leaves_the_old_file_as_it_was() {
+    fn the_old_file_is_replaced_not_rewritten_in_place() {
+        use std::io::Read as _;
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("path.csv");
+        std::fs::write(&file, "old contents").unwrap();
+        let mut before = std::fs::File::open(&file).unwrap();
+        write_atomic(&file, "new").unwrap();
+        let mut seen = String::new();
+        before.read_to_string(&mut seen).unwrap();
+        assert_eq!(seen, "old contents");
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), "new");
+    }
+
+    #[test]
+    fn a_write_that_cannot_be_made_leaves_the_old_file_and_nothing_else() {
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("out.csv");
         std::fs::write(&file, "old").unwrap();

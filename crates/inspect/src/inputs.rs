@@ -47,20 +47,7 @@ impl CadExtent {
     /// finite.
     #[must_use]
     pub fn outside_mm(&self, p: &Point3) -> f64 {
-        if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
-            return f64::INFINITY;
-        }
-        let mut sum2 = 0.0;
-        let mut worst: f64 = 0.0;
-        for axis in 0..3 {
-            let d = (self.aabb.min[axis] - p[axis])
-                .max(p[axis] - self.aabb.max[axis])
-                .max(0.0);
-            worst = worst.max(d);
-            sum2 += d * d;
-        }
-        // The squared sum overflows for points past 1e154 mm: they are that far at least.
-        if sum2.is_finite() { sum2.sqrt() } else { worst }
+        self.aabb.distance_outside(p)
     }
 
     /// Whether `p` (CAD frame) lies within the margin of the box: near enough to be the part's.

@@ -176,6 +176,43 @@ async fn whole_job_marks_every_vector_once_with_both_laser_profiles() {
     }
 }
 
+/// Runs `job` on `sim` from scratch and cancels it once layer `target` has marked 2 vectors
+/// (the galvo clock slow enough that the watcher sees it midway): the stop, and when the cancel
+/// was given.
+async fn cancel_after_two_vectors(
+    sim: &SimCell,
+    job: &Job,
+    path: &std::path::Path,
+    target: LayerKey,
+) -> (trim_io::executor::Stopped, Instant) {
+    let cancel = CancellationToken::new();
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    let c2 = cancel.clone();
+    let watcher = tokio::spawn(async move {
+        while let Some(p) = rx.recv().await {
+            if let Progress::Vectors { key, done, .. } = p
+                && key == target
+                && done >= 2
+            {
+                c2.cancel();
+                return Instant::now();
+            }
+        }
+        panic!("never reached the target layer");
+    });
+    let cell = connect(sim, Tap::none()).await;
+    let err = Executor::new(job.clone(), cell, path, None)
+        .with_options(options())
+        .run(cancel, Some(tx))
+        .await
+        .expect_err("cancelled");
+    let cancelled_at = watcher.await.expect("the watcher ends");
+    let ExecError::Stopped(s) = err else {
+        panic!("{err}")
+    };
+    (*s, cancelled_at)
+}
+
 /// A cut layer's count known only from the galvo (the journal's cut entry has none: the host
 /// died mid-layer) is journaled as soon as a resume reads it, before anything is switched on:
 /// framing replaces the galvo's list, so a stop before the layer began again (here a stop
@@ -186,31 +223,8 @@ async fn a_cut_count_known_only_from_the_galvo_is_journaled_before_anything_else
     let job = demo_job(2);
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("run.journal");
-    let cancel = CancellationToken::new();
-    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
     let target = LayerKey { zone: 1, layer: 0 };
-    let c2 = cancel.clone();
-    let watcher = tokio::spawn(async move {
-        while let Some(p) = rx.recv().await {
-            if let Progress::Vectors { key, done, .. } = p
-                && key == target
-                && done >= 2
-            {
-                c2.cancel();
-                return;
-            }
-        }
-    });
-    let cell = connect(&sim, Tap::none()).await;
-    let err = Executor::new(job.clone(), cell, &path, None)
-        .with_options(options())
-        .run(cancel, Some(tx))
-        .await
-        .expect_err("cancelled");
-    watcher.await.unwrap();
-    let ExecError::Stopped(s) = err else {
-        panic!("{err}")
-    };
+    let (s, _) = cancel_after_two_vectors(&sim, &job, &path, target).await;
     let done = s
         .vectors_done
         .expect("the galvo says how far the layer got");
@@ -269,32 +283,8 @@ async fn cancel_mid_layer_turns_the_laser_off_and_resume_finishes_without_remark
     let job = demo_job(2);
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("run.journal");
-    let cancel = CancellationToken::new();
-    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
     let target = LayerKey { zone: 1, layer: 0 };
-    let c2 = cancel.clone();
-    let watcher = tokio::spawn(async move {
-        while let Some(p) = rx.recv().await {
-            if let Progress::Vectors { key, done, .. } = p
-                && key == target
-                && done >= 2
-            {
-                c2.cancel();
-                return Instant::now();
-            }
-        }
-        panic!("never reached the target layer");
-    });
-    let cell = connect(&sim, Tap::none()).await;
-    let err = Executor::new(job.clone(), cell, &path, None)
-        .with_options(options())
-        .run(cancel, Some(tx))
-        .await
-        .expect_err("cancelled");
-    let cancelled_at = watcher.await.unwrap();
-    let ExecError::Stopped(s) = err else {
-        panic!("{err}")
-    };
+    let (s, cancelled_at) = cancel_after_two_vectors(&sim, &job, &path, target).await;
     assert_eq!(s.cause, trim_io::executor::StopCause::Cancelled);
     assert_eq!(s.key, Some(target));
     assert_eq!(s.phase, Phase::WaitDone);

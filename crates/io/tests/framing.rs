@@ -309,9 +309,11 @@ async fn framing_a_layer_traces_its_hull_at_its_pose_with_the_light_path_shut() 
     );
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_galvo_fault_while_framing_leaves_the_pointer_off_and_the_gate_shut() {
-    let mut o = trim_sim::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
+/// A simulated cell whose galvo link drops at the third `FRAME_STATUS` (mid-trace), with
+/// `laser` faults besides.
+async fn cell_losing_the_galvo_while_framing(laser: Vec<Fault>) -> SimCell {
+    let profile = trim_io::laser::Profile::builtin("monaco").expect("a built-in profile");
+    let mut o = trim_sim::SimOptions::new(profile);
     o.cnc_time_scale = 0.1;
     o.faults.galvo = vec![Fault {
         kind: FaultKind::DropLink,
@@ -320,7 +322,13 @@ async fn a_galvo_fault_while_framing_leaves_the_pointer_off_and_the_gate_shut() 
             nth: 3,
         },
     }];
-    let sim = SimCell::start(o).await.unwrap();
+    o.faults.laser = laser;
+    SimCell::start(o).await.expect("the simulated cell starts")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_galvo_fault_while_framing_leaves_the_pointer_off_and_the_gate_shut() {
+    let sim = cell_losing_the_galvo_while_framing(Vec::new()).await;
     let job = demo_job(1);
     let mut cell = connect(&sim, Tap::none()).await;
     let key = LayerKey { zone: 0, layer: 0 };
@@ -361,24 +369,15 @@ async fn a_galvo_fault_while_framing_leaves_the_pointer_off_and_the_gate_shut() 
 /// state is unknown instead of "the laser gate was kept shut".
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn framing_says_when_the_lasers_emission_off_was_not_acknowledged() {
-    let mut o = trim_sim::SimOptions::new(trim_io::laser::Profile::builtin("monaco").unwrap());
-    o.cnc_time_scale = 0.1;
-    o.faults.galvo = vec![Fault {
-        kind: FaultKind::DropLink,
-        trigger: Trigger::Command {
-            name: "FRAME_STATUS".into(),
-            nth: 3,
-        },
-    }];
     // The preparation's emission-off is answered; the way down's is not.
-    o.faults.laser = vec![Fault {
+    let sim = cell_losing_the_galvo_while_framing(vec![Fault {
         kind: FaultKind::DropLink,
         trigger: Trigger::Command {
             name: "emission_off".into(),
             nth: 2,
         },
-    }];
-    let sim = SimCell::start(o).await.unwrap();
+    }])
+    .await;
     let job = demo_job(1);
     let mut cell = connect(&sim, Tap::none()).await;
     let err = frame_layer(

@@ -12,7 +12,6 @@
 //! Both are written whole to a temporary file that is then renamed over the old one: a kill
 //! leaves the old file or the new one, never half of one.
 
-use std::io::Write as _;
 use std::path::Path;
 
 use anyhow::{Context, bail};
@@ -141,29 +140,11 @@ pub(super) fn load_rounds(run_dir: &Path, max_rounds: u32) -> anyhow::Result<Vec
     Ok(rounds)
 }
 
-/// Writes `bytes` to `path` through a temporary file beside it (synced, then renamed over
-/// `path`): a reader finds the old content or the new, never a part.
+/// Writes `bytes` to `path` whole or not at all ([`trim_geom::fs::write_atomic`]): a reader
+/// finds the old content or the new, never a part.
 pub(super) fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    let name = path
-        .file_name()
-        .with_context(|| format!("{}: not a file name", path.display()))?;
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(name);
-    tmp_name.push(".tmp");
-    let tmp = path.with_file_name(tmp_name);
-    let write = || -> std::io::Result<()> {
-        let mut file = std::fs::File::create(&tmp)?;
-        file.write_all(bytes)?;
-        file.sync_data()?;
-        std::fs::rename(&tmp, path)
-    };
-    write().with_context(|| {
-        format!(
-            "cannot write {} (through {})",
-            path.display(),
-            tmp.display()
-        )
-    })
+    trim_geom::fs::write_atomic(path, bytes)
+        .with_context(|| format!("cannot write {}", path.display()))
 }
 
 #[cfg(test)]

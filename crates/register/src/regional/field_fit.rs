@@ -739,7 +739,7 @@ pub(crate) fn check_field_size(bounds: &Aabb, spacing_mm: f64, ratio: f64) -> Re
     while control_points(enough * ratio) > MAX_FIELD_CONTROL_POINTS as f64 {
         enough *= 1.1;
     }
-    let extent = bounds.max - bounds.min;
+    let extent = bounds.extent();
     let grid = if ratio == 1.0 {
         String::new()
     } else {

@@ -290,21 +290,13 @@ fn check_inputs(cad: &PointCloud, path: &Path, settings: &RegisterSettings) -> R
     let bounds = cad
         .bounds()
         .ok_or(RegisterError::EmptyCloud { which: "CAD" })?;
-    let margin =
-        PATH_OUTSIDE_CAD_MM.max(PATH_OUTSIDE_CAD_DIAGONAL_SHARE * (bounds.max - bounds.min).norm());
-    let outside = |p: &Point3| {
-        (0..3)
-            .map(|a| (bounds.min[a] - p[a]).max(p[a] - bounds.max[a]).max(0.0))
-            .map(|d| d * d)
-            .sum::<f64>()
-            .sqrt()
-    };
+    let margin = PATH_OUTSIDE_CAD_MM.max(PATH_OUTSIDE_CAD_DIAGONAL_SHARE * bounds.diagonal());
     for c in path.contours() {
         if let Some((i, p, d)) = c
             .points()
             .iter()
             .enumerate()
-            .map(|(i, p)| (i, p, outside(p)))
+            .map(|(i, p)| (i, p, bounds.distance_outside(p)))
             .find(|(_, _, d)| *d > margin)
         {
             return Err(RegisterError::Contour {
