@@ -9,6 +9,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+import numbers
 import os
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
@@ -295,16 +296,29 @@ _POSE_KEYS = ("xyz_mm", "tilt_deg", "c_deg")
 
 
 def _pose_json(k: int, pose: Mapping[str, Any]) -> str:
-    """One machine pose as the JSON of a ``[part.scan_pose]`` table (numpy numbers as numbers),
+    """One machine pose as the JSON of a ``[part.scan_pose]`` table (numpy numbers as floats),
     refusing a pose that is not a mapping or holds a non-finite number with ``ValueError``
-    naming ``poses[k]`` and the key (:func:`_settings_json`). Unknown keys and wrong types are
-    refused in Rust."""
+    naming ``poses[k]`` and the key. Unknown keys and wrong types are refused in Rust."""
     if not isinstance(pose, Mapping):
         raise ValueError(
             f"poses[{k}]: expected a mapping with the keys {', '.join(_POSE_KEYS)}, "
             f"got a {type(pose).__name__}"
         )
-    return _settings_json(f"poses[{k}]", pose)
+
+    def number(key: str, v: Any) -> Any:
+        if isinstance(v, numbers.Real) and not isinstance(v, bool):
+            if not math.isfinite(v):
+                raise ValueError(f"poses[{k}].{key}: {v!r}: values must be finite")
+            return float(v)
+        return v
+
+    out: Dict[str, Any] = {}
+    for key, value in pose.items():
+        if isinstance(value, (list, tuple, np.ndarray)):
+            out[key] = [number(key, v) for v in value]
+        else:
+            out[key] = number(key, value)
+    return json.dumps(out)
 
 
 def merge_scans(
