@@ -61,11 +61,23 @@ pub struct Timeouts {
     pub journal_write: Duration,
 }
 
+/// What a device call's guard allows beyond its client's own timeouts, so that the client's
+/// timeout fires first and marks its link lost (a call cut off by the guard mid-reply would
+/// leave the client thinking its link in step).
+const GUARD_SLACK: Duration = Duration::from_millis(100);
+
 impl Timeouts {
     /// A galvo request's timeout: every attempt's reply timeout plus slack.
     #[must_use]
     pub fn galvo_request(&self) -> Duration {
-        self.galvo_reply * (self.galvo_resends + 1) + Duration::from_millis(100)
+        self.galvo_reply * (self.galvo_resends + 1) + GUARD_SLACK
+    }
+
+    /// The timeout of `exchanges` laser exchanges in a row (a status runs one per query): each
+    /// one's reply timeout plus slack.
+    #[must_use]
+    pub fn laser_request(&self, exchanges: usize) -> Duration {
+        self.laser_reply * u32::try_from(exchanges.max(1)).unwrap_or(u32::MAX) + GUARD_SLACK
     }
 
     /// Loading a list of `commands` commands: one galvo request per frame of

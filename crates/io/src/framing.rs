@@ -435,12 +435,18 @@ pub async fn rearm(
 /// the open port, then reopened, until acknowledged or `laser_off_budget` is spent: it must be
 /// off even after a missed reply), then the galvo stopped (its pointer and signals drop), the
 /// pointer off, motion stopped; each within the shutdown step, each tried whatever the others
-/// did. Returns whether the laser acknowledged its emission-off.
+/// did; a lost galvo link gets a new session first ([`GalvoClient::reopen_if_lost`]). Returns
+/// whether the laser acknowledged its emission-off.
 pub async fn lights_out(cell: &mut Cell, timeouts: &Timeouts) -> bool {
     let step = timeouts.shutdown_step;
     let deadline = tokio::time::Instant::now() + timeouts.laser_off_budget;
     let laser = cell.laser.emission_off_until(deadline).await;
-    let stop = tokio::time::timeout(step, cell.galvo.stop()).await;
+    let stop = tokio::time::timeout(step, async {
+        // A lost link gets a new session first (which itself drops the signals and the pointer).
+        let _reopened = cell.galvo.reopen_if_lost().await?;
+        cell.galvo.stop().await
+    })
+    .await;
     let pointer = tokio::time::timeout(step, cell.galvo.pointer(false)).await;
     let abort = tokio::time::timeout(step + timeouts.cnc_reply, cell.cnc.abort()).await;
     tracing::warn!(

@@ -276,6 +276,59 @@ async fn a_cut_count_known_only_from_the_galvo_is_journaled_before_anything_else
     );
 }
 
+/// A galvo link lost mid-list (the connection dropped): the way down opens a new session, so
+/// its `LASER_SIGNALS off`, `STOP` and `STATUS` are still sent and answered, the cut count is
+/// read from the galvo and journaled, and the resume continues the layer where it stopped.
+/// Before, the link marked lost refused the way down's own requests and the cut was journaled
+/// as of unknown progress.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lost_galvo_link_gets_a_new_session_on_the_way_down_and_the_cut_count_is_journaled() {
+    let sim = sim_cell_scaled("monaco", MATRIX_GALVO_TIME_SCALE).await;
+    let job = demo_job(2);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.journal");
+    let target = LayerKey { zone: 1, layer: 0 };
+    sim.galvo.faults().arm(Fault {
+        kind: FaultKind::DropLink,
+        trigger: Trigger::AfterMarks {
+            marks: 2,
+            nth_list: 3,
+        },
+    });
+    let err = run_fresh(&sim, &job, &path, CancellationToken::new())
+        .await
+        .expect_err("the link drops mid-list");
+    let ExecError::Stopped(s) = err else {
+        panic!("{err}")
+    };
+    assert_eq!(s.key, Some(target), "{:?}", s.cause);
+    let r = &s.shutdown;
+    assert!(r.galvo_reopened, "{r:?}");
+    assert!(r.galvo_signals_off_ok && r.galvo_stop_ok, "{r:?}");
+    assert!(r.all_acknowledged(), "{r:?}");
+    let done = s
+        .vectors_done
+        .expect("the new session's STATUS says how far the layer got");
+    assert!((2..=3).contains(&done), "{done} vectors marked");
+    assert!(!sim.monitor.light());
+    let st = journal::read(&path).unwrap();
+    assert!(
+        matches!(st.open_cut, Some(journal::Entry::LayerCut { vectors_done: Some(v), .. }) if v == done),
+        "{:?}",
+        st.open_cut
+    );
+    sim.clear_faults();
+    let summary = resume(&sim, &job, &path).await;
+    assert_eq!(summary.resumed_from, Some((target, done)));
+    let partial = assert_marked_exactly_once(&job, &sim.galvo.marks());
+    assert!(partial <= 1, "{partial} partly marked vectors");
+    assert!(
+        sim.monitor.violations().is_empty(),
+        "{:?}",
+        sim.monitor.violations()
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cancel_mid_layer_turns_the_laser_off_and_resume_finishes_without_remarking() {
     // A slow galvo clock (vectors of about 0.1 s) so the progress watcher sees the layer midway.

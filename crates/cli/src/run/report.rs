@@ -256,6 +256,9 @@ pub(super) fn shutdown_lines(r: &ShutdownReport) -> Vec<String> {
                 let after_ms = r.emission_off.last().map_or(0.0, |a| a.after_s * 1e3);
                 format!("{step} acknowledged ({attempts} attempt(s), {after_ms:.0} ms)")
             }
+            (true, _) if step == ShutdownStep::GalvoSignalsOff && r.galvo_reopened => {
+                format!("{step} acknowledged, on a new session (the galvo link was lost)")
+            }
             (true, _) => format!("{step} acknowledged"),
             (false, Some(f)) => format!(
                 "{step} NOT acknowledged ({}; gave up {:.0} ms after the stop): {}",

@@ -328,7 +328,7 @@ impl Executor {
         let t_on = Instant::now();
         Self::guard(
             &c,
-            t.laser_reply,
+            t.laser_request(1),
             Device::Laser,
             "emission on",
             self.cell.laser.emission(true),
@@ -471,10 +471,10 @@ impl Executor {
     /// The laser's faults, while a list runs.
     async fn check_laser(&mut self) -> Result<(), StopCause> {
         let t = self.options.timeouts;
-        let queries = u32::try_from(self.cell.laser.profile().queries.len().max(1)).unwrap_or(1);
+        let queries = self.cell.laser.profile().queries.len();
         Self::guard(
             &self.cancel,
-            t.laser_reply * queries,
+            t.laser_request(queries),
             Device::Laser,
             "status",
             self.cell.laser.check(),
@@ -509,7 +509,7 @@ impl Executor {
         let (c, t) = (self.cancel.clone(), self.options.timeouts);
         Self::guard(
             &c,
-            t.laser_reply,
+            t.laser_request(1),
             Device::Laser,
             "emission off",
             self.cell.laser.emission(false),

@@ -204,6 +204,9 @@ pub struct ShutdownReport {
     pub laser_off_ok: bool,
     /// The galvo laser signals off was acknowledged.
     pub galvo_signals_off_ok: bool,
+    /// The galvo link was lost, and the way down opened a new session for its laser signals
+    /// off, stop and status (the controller drops the signals as its connection is replaced).
+    pub galvo_reopened: bool,
     /// The galvo stop was acknowledged.
     pub galvo_stop_ok: bool,
     /// The CNC abort was acknowledged.
@@ -891,7 +894,7 @@ pub(crate) async fn prepare_cell(
     cancel: &CancellationToken,
     steps: Preparation,
 ) -> Step<()> {
-    let (gt, lt) = (timeouts.galvo_request(), timeouts.laser_reply);
+    let (gt, lt) = (timeouts.galvo_request(), timeouts.laser_request(1));
     Executor::guard(
         cancel,
         lt,
@@ -918,8 +921,7 @@ pub(crate) async fn prepare_cell(
     let set_signals = cell.galvo.laser_signals(steps.laser_signals);
     Executor::guard(cancel, gt, Device::Galvo, signals, set_signals).await?;
     if steps.check_laser {
-        let queries = cell.laser.profile().queries.len().max(1);
-        let lt_all = lt * u32::try_from(queries).unwrap_or(1);
+        let lt_all = timeouts.laser_request(cell.laser.profile().queries.len());
         Executor::guard(cancel, lt_all, Device::Laser, "status", cell.laser.check()).await?;
     }
     if let Some(p) = steps.power_pct {

@@ -1,5 +1,5 @@
 //! The way down: **laser off first** (the serial emission-off and the galvo laser signals off,
-//! together), **then** the galvo list stopped, **then** motion stopped; then the cut layer
+//! together; a lost galvo link gets a new session for them), **then** the galvo list stopped, **then** motion stopped; then the cut layer
 //! journaled with how far it got. Every failure after preparation begins reaches
 //! [`Executor::stop`] through one exit path: the layer phases return a [`LayerFault`] (never
 //! return early past it), the run loop turns it into a [`Fault`], and `execute` hands that to
@@ -47,6 +47,8 @@ pub(super) struct LaserOff {
     emission: EmissionOff,
     /// The galvo laser signals off: `None` acknowledged, else why not.
     galvo_signals: Option<String>,
+    /// The galvo link was lost and a new session was opened for the way down's requests.
+    galvo_reopened: bool,
     /// From detection to the serial emission-off acknowledged or given up (s).
     emission_after_s: f64,
     /// From detection to the galvo's answer or its timeout (s).
@@ -261,10 +263,20 @@ impl Executor {
                 (e, detected_at.elapsed().as_secs_f64())
             },
             async {
-                let r =
-                    tokio::time::timeout(t.shutdown_step, cell.galvo.laser_signals(false)).await;
+                let mut reopened = false;
+                let r = tokio::time::timeout(t.shutdown_step, async {
+                    // A lost link gets a new session first (which itself drops the signals).
+                    match cell.galvo.reopen_if_lost().await {
+                        Ok(Ok(fresh)) => reopened = fresh,
+                        Ok(Err(fault)) => return Ok(Err(fault)),
+                        Err(e) => return Err(e),
+                    }
+                    cell.galvo.laser_signals(false).await
+                })
+                .await;
                 (
                     step_error(r, t.shutdown_step),
+                    reopened,
                     detected_at.elapsed().as_secs_f64(),
                 )
             },
@@ -273,7 +285,8 @@ impl Executor {
             emission: emission.0,
             emission_after_s: emission.1,
             galvo_signals: galvo.0,
-            galvo_after_s: galvo.1,
+            galvo_reopened: galvo.1,
+            galvo_after_s: galvo.2,
             after_s: detected_at.elapsed().as_secs_f64(),
         }
     }
@@ -331,6 +344,7 @@ impl Executor {
         let report = ShutdownReport {
             laser_off_ok: laser.emission.acknowledged,
             galvo_signals_off_ok: laser.galvo_signals.is_none(),
+            galvo_reopened: laser.galvo_reopened,
             galvo_stop_ok: galvo_stop.is_none(),
             cnc_abort_ok: cnc_abort.is_none(),
             laser_off_s: laser.after_s,

@@ -120,17 +120,49 @@ struct Conn {
 /// A connected galvo client. Dropping it stops the heartbeat (the controller then trips).
 pub struct GalvoClient {
     conn: Arc<Mutex<Conn>>,
+    addr: SocketAddr,
     config: GalvoClientConfig,
     tap: Tap,
-    heartbeat: Option<JoinHandle<()>>,
+    heartbeat: std::sync::Mutex<Option<JoinHandle<()>>>,
 }
 
 impl Drop for GalvoClient {
     fn drop(&mut self) {
-        if let Some(h) = self.heartbeat.take() {
+        let heartbeat = self
+            .heartbeat
+            .get_mut()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(h) = heartbeat.take() {
             h.abort();
         }
     }
+}
+
+/// Opens a TCP connection within the connect timeout.
+async fn open_conn(addr: SocketAddr, config: &GalvoClientConfig) -> Result<Conn, GalvoError> {
+    let stream = match tokio::time::timeout(config.connect_timeout, TcpStream::connect(addr)).await
+    {
+        Ok(Ok(s)) => s,
+        Ok(Err(e)) => {
+            return Err(GalvoError::Connect {
+                addr,
+                reason: e.to_string(),
+            });
+        }
+        Err(_) => {
+            return Err(GalvoError::Connect {
+                addr,
+                reason: format!("timed out after {} ms", config.connect_timeout.as_millis()),
+            });
+        }
+    };
+    let _ = stream.set_nodelay(true);
+    Ok(Conn {
+        framed: Framed::new(stream, FrameCodec),
+        next_seq: 1,
+        last_tx: Instant::now(),
+        broken: None,
+    })
 }
 
 impl GalvoClient {
@@ -140,52 +172,62 @@ impl GalvoClient {
         config: GalvoClientConfig,
         tap: Tap,
     ) -> GalvoResult<GalvoClient> {
-        let stream = match tokio::time::timeout(config.connect_timeout, TcpStream::connect(addr))
-            .await
-        {
-            Ok(Ok(s)) => s,
-            Ok(Err(e)) => {
-                return Err(GalvoError::Connect {
-                    addr,
-                    reason: e.to_string(),
-                });
-            }
-            Err(_) => {
-                return Err(GalvoError::Connect {
-                    addr,
-                    reason: format!("timed out after {} ms", config.connect_timeout.as_millis()),
-                });
-            }
-        };
-        let _ = stream.set_nodelay(true);
-        let conn = Arc::new(Mutex::new(Conn {
-            framed: Framed::new(stream, FrameCodec),
-            next_seq: 1,
-            last_tx: Instant::now(),
-            broken: None,
-        }));
-        let mut client = GalvoClient {
-            conn,
-            config,
-            tap,
-            heartbeat: None,
-        };
-        if let Err(f) = client
-            .request(Request::Hello {
-                heartbeat_timeout_ms: config.heartbeat_timeout_ms,
-            })
-            .await?
-        {
+        let mut conn = open_conn(addr, &config).await?;
+        if let Err(f) = hello(&mut conn, &config, &tap).await? {
             return Ok(Err(f));
         }
-        if config.heartbeat_timeout_ms > 0 {
-            client.heartbeat = Some(tokio::spawn(heartbeat_loop(
-                client.conn.clone(),
-                config,
-                client.tap.clone(),
-            )));
-        }
+        let client = GalvoClient {
+            conn: Arc::new(Mutex::new(conn)),
+            addr,
+            config,
+            tap,
+            heartbeat: std::sync::Mutex::new(None),
+        };
+        client.start_heartbeat();
         Ok(Ok(client))
+    }
+
+    /// The heartbeat task (none when the heartbeat is off), replacing an earlier one.
+    fn start_heartbeat(&self) {
+        if self.config.heartbeat_timeout_ms == 0 {
+            return;
+        }
+        let task = tokio::spawn(heartbeat_loop(
+            self.conn.clone(),
+            self.config,
+            self.tap.clone(),
+        ));
+        let mut slot = self
+            .heartbeat
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(old) = slot.replace(task) {
+            old.abort();
+        }
+    }
+
+    /// The way down's session: when the link is marked lost (a missed reply, a garbled frame,
+    /// a closed connection), a new connection and `HELLO` replace it, so that the stop path's
+    /// `LASER_SIGNALS off`, `STOP` and `STATUS` are still sent. The controller serves one
+    /// connection and drops the laser signals when one is replaced or closed (§1, §9 of
+    /// docs/protocols/galvo.md), and its status block keeps the interrupted list's tag and
+    /// `marks_done`. Returns whether a new session was opened (`false`: the link was not
+    /// lost). The link stays marked lost unless the new session's `HELLO` is answered; a
+    /// controller that does not answer costs the caller's timeout, nothing more.
+    pub async fn reopen_if_lost(&self) -> GalvoResult<bool> {
+        if self.conn.lock().await.broken.is_none() {
+            return Ok(Ok(false));
+        }
+        self.tap.record(Device::Galvo, Direction::Command, || {
+            format!("reconnect to {} (the link was lost)", self.addr)
+        });
+        let mut fresh = open_conn(self.addr, &self.config).await?;
+        if let Err(f) = hello(&mut fresh, &self.config, &self.tap).await? {
+            return Ok(Err(f));
+        }
+        *self.conn.lock().await = fresh;
+        self.start_heartbeat();
+        Ok(Ok(true))
     }
 
     /// Sends one request and returns the reply data.
@@ -283,6 +325,14 @@ impl GalvoClient {
     pub async fn pointer(&self, on: bool) -> GalvoResult<()> {
         Ok(self.request(Request::Pointer { on }).await?.map(|_| ()))
     }
+}
+
+/// `HELLO` on a connection not yet shared: the session starts.
+async fn hello(conn: &mut Conn, config: &GalvoClientConfig, tap: &Tap) -> GalvoResult<Vec<u8>> {
+    let req = Request::Hello {
+        heartbeat_timeout_ms: config.heartbeat_timeout_ms,
+    };
+    exchange(conn, &req, config, tap).await
 }
 
 async fn heartbeat_loop(conn: Arc<Mutex<Conn>>, config: GalvoClientConfig, tap: Tap) {

@@ -192,7 +192,12 @@ pub struct LaserClient {
     /// No reply has been read on the port since it was opened: the first line may still be the
     /// laser's reply to the emission-off a previous client's drop guard wrote before closing it.
     fresh_port: bool,
+    /// Opens the port (a field so that a test can make it block as a stalled adapter does).
+    opener: Opener,
 }
+
+/// How the client opens its port.
+type Opener = fn(&str, &Profile) -> Result<Port, LaserError>;
 
 impl Drop for LaserClient {
     /// The guard: dropped while the emission may be on (a panic unwinding through the
@@ -255,7 +260,23 @@ impl LaserClient {
         tap: Tap,
     ) -> Result<LaserClient, LaserError> {
         let port = open_port(path, &profile)?;
-        Ok(LaserClient {
+        Ok(LaserClient::on_port(
+            port,
+            path,
+            profile,
+            reply_timeout,
+            tap,
+        ))
+    }
+
+    fn on_port(
+        port: Port,
+        path: &str,
+        profile: Profile,
+        reply_timeout: Duration,
+        tap: Tap,
+    ) -> LaserClient {
+        LaserClient {
             port: Some(port),
             path: path.to_owned(),
             profile,
@@ -264,7 +285,8 @@ impl LaserClient {
             broken: None,
             emission_may_be_on: false,
             fresh_port: true,
-        })
+            opener: open_port,
+        }
     }
 
     /// The profile.
@@ -451,18 +473,10 @@ impl LaserClient {
             };
             let result = match port_use {
                 OffPort::Open => self.send_off(&line, &ex.reply, deadline).await,
-                OffPort::Reopened => {
-                    // Exclusive ports: close the old one before opening it again.
-                    self.port = None;
-                    match open_port(&self.path, &self.profile) {
-                        Ok(p) => {
-                            self.port = Some(p);
-                            self.fresh_port = true;
-                            self.send_off(&line, &ex.reply, deadline).await
-                        }
-                        Err(e) => Err(e.to_string()),
-                    }
-                }
+                OffPort::Reopened => match self.reopen_port(deadline).await {
+                    Ok(()) => self.send_off(&line, &ex.reply, deadline).await,
+                    Err(e) => Err(e),
+                },
             };
             let ok = result.is_ok();
             if ok && port_use == OffPort::Reopened {
@@ -484,6 +498,34 @@ impl LaserClient {
             }
             let pause = Duration::from_millis(OFF_RETRY_PAUSE_MS).min(deadline - now);
             tokio::time::sleep(pause).await;
+        }
+    }
+
+    /// Closes the port and opens it again (exclusive ports: the old one is closed first), on a
+    /// thread of the blocking pool, waiting at most until `deadline`. On a stalled USB adapter
+    /// a close can block in the kernel while it drains its output (Linux's `closing_wait`, 30 s
+    /// by default), and so can an open; the way down must not wait for either. A close or open
+    /// still blocked at the deadline is left to finish on its own thread, and the port stays
+    /// closed.
+    async fn reopen_port(&mut self, deadline: tokio::time::Instant) -> Result<(), String> {
+        let old = self.port.take();
+        let (path, profile, opener) = (self.path.clone(), self.profile.clone(), self.opener);
+        let job = tokio::task::spawn_blocking(move || {
+            drop(old);
+            opener(&path, &profile)
+        });
+        match tokio::time::timeout_at(deadline, job).await {
+            Ok(Ok(Ok(port))) => {
+                self.port = Some(port);
+                self.fresh_port = true;
+                Ok(())
+            }
+            Ok(Ok(Err(e))) => Err(e.to_string()),
+            Ok(Err(e)) => Err(format!("reopening {} failed: {e}", self.path)),
+            Err(_) => Err(format!(
+                "closing and reopening {} did not return by the laser-off deadline",
+                self.path
+            )),
         }
     }
 
@@ -585,6 +627,47 @@ impl LaserClient {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An open that blocks for seconds, as one on a stalled adapter can, then fails.
+    fn blocking_open(path: &str, _: &Profile) -> Result<Port, LaserError> {
+        std::thread::sleep(Duration::from_secs(3));
+        Err(LaserError::Open {
+            path: path.to_owned(),
+            reason: "stalled adapter (test)".into(),
+        })
+    }
+
+    #[tokio::test]
+    async fn a_blocking_close_and_open_do_not_hold_the_emission_off_past_its_deadline() {
+        let (host, _laser_side) = tokio_serial::SerialStream::pair().expect("a pty pair");
+        let profile = Profile::builtin("monaco").expect("builtin profile");
+        let port = Framed::new(host, LineCodec::new(&profile.terminator));
+        let reply = Duration::from_millis(100);
+        let mut client = LaserClient::on_port(port, "/dev/pty-test", profile, reply, Tap::none());
+        client.opener = blocking_open;
+        let started = tokio::time::Instant::now();
+        let budget = Duration::from_millis(600);
+        let off = client.emission_off_until(started + budget).await;
+        let took = started.elapsed();
+        assert!(!off.acknowledged);
+        assert!(
+            took < budget + Duration::from_millis(300),
+            "the emission-off took {took:?} against a budget of {budget:?}"
+        );
+        // The laser never answered on the open port; the reopening blocked past the deadline.
+        assert_eq!(off.attempts[0].port, OffPort::Open);
+        let last = off.attempts.last().expect("attempts");
+        assert_eq!(last.port, OffPort::Reopened);
+        let error = last.error.as_deref().unwrap_or_default();
+        assert!(
+            error.contains("did not return by the laser-off deadline"),
+            "{error}"
+        );
+        assert!(
+            client.port.is_none(),
+            "no port is open after a failed reopening"
+        );
+    }
 
     #[test]
     fn line_codec_splits_on_the_exact_terminator() {
