@@ -222,8 +222,11 @@ def test_scan_files_with_bad_poses_raise_errors_naming_the_file(tmp_path, two_vi
     empty.write_text("")
     header = tmp_path / "header.csv"
     header.write_text("scan,x,y,z\n")
+    twice = tmp_path / "twice.csv"
+    twice.write_text("scan,x,y,z,a,c\nside0.ply,0,0,0,0,0\nside0.ply,0,0,0,0,90\n")
     for path, message in [
         (bad_value, r"bad_value\.csv:2: column 4 \(z\): \"nan\" is not a finite number"),
+        (twice, r"twice\.csv:3: scan side0\.ply already has a pose on line 2"),
         (short, r"short\.csv:3: expected 6 columns, got 5"),
         (empty, r"empty\.csv: empty file"),
         (header, r"header\.csv:1: expected the header scan,x,y,z,a,c"),
@@ -250,3 +253,6 @@ def test_scan_files_with_bad_poses_raise_errors_naming_the_file(tmp_path, two_vi
         trimctl.merge_scan_files(scan, good)
     with pytest.raises(ValueError, match="no scans to merge"):
         trimctl.merge_scan_files([], good)
+    # The same scan twice would be merged twice (and two folders' files of one name share a row).
+    with pytest.raises(ValueError, match=r"share the file name side0\.ply, which names their row in .*poses\.csv"):
+        trimctl.merge_scan_files([scan, scan], good)

@@ -87,6 +87,34 @@ pub enum ScansError {
         /// The value as written.
         text: String,
     },
+    /// A row's scan name is empty, or already has a row above.
+    #[error("{}:{line}: {reason}", path.display())]
+    PosesScan {
+        /// The poses file.
+        path: PathBuf,
+        /// The row's 1-based line.
+        line: usize,
+        /// What is wrong with the name.
+        reason: String,
+    },
+    /// Two scan files given share a file name, which names their row in the poses file (the
+    /// same file twice, or two folders' files of one name).
+    #[error(
+        "scans {} and {} share the file name {name}, which names their row in {}: give each scan once, under a name of its own",
+        first.display(),
+        second.display(),
+        poses.display()
+    )]
+    SameScanName {
+        /// The first file.
+        first: PathBuf,
+        /// The second file.
+        second: PathBuf,
+        /// The shared file name.
+        name: String,
+        /// The poses file.
+        poses: PathBuf,
+    },
     /// The poses file's header names another cell than the job's `[machine]`.
     #[error(
         "{}: the header names a {} cell, the job's [machine] is {}",
@@ -177,7 +205,7 @@ impl Poses {
         }
     }
 
-    /// The pose of the scan file `scan` (its file name names its row; the first row wins).
+    /// The pose of the scan file `scan` (its file name names its row; names are unique).
     pub fn pose_of(&self, scan: &Path) -> Result<ScanPose, ScansError> {
         let name = scan
             .file_name()
@@ -220,6 +248,7 @@ pub fn parse_poses(text: &str, path: &Path) -> Result<Poses, ScansError> {
         }
     };
     let mut rows = Vec::new();
+    let mut row_lines = Vec::new();
     for (line, text) in lines {
         let fields: Vec<&str> = text.split(',').map(str::trim).collect();
         if fields.len() != cols.len() {
@@ -243,6 +272,25 @@ pub fn parse_poses(text: &str, path: &Path) -> Result<Poses, ScansError> {
                     text: (*text).to_owned(),
                 })?;
         }
+        let scan_error = |reason: String| ScansError::PosesScan {
+            path: path.to_path_buf(),
+            line,
+            reason,
+        };
+        if fields[0].is_empty() {
+            return Err(scan_error("column 1 (scan): no scan file name".into()));
+        }
+        if let Some(first) = row_lines
+            .iter()
+            .zip(&rows)
+            .find_map(|(l, r): (&usize, &PoseRow)| (r.scan == fields[0]).then_some(*l))
+        {
+            return Err(scan_error(format!(
+                "scan {} already has a pose on line {first}",
+                fields[0]
+            )));
+        }
+        row_lines.push(line);
         let [x, y, z, tilt_deg, c_deg] = values;
         rows.push(PoseRow {
             scan: fields[0].to_owned(),
@@ -318,6 +366,17 @@ pub fn merge_files(
 ) -> Result<PointCloud, ScansError> {
     if files.is_empty() {
         return Err(ScansError::NoScans);
+    }
+    let name = |f: &PathBuf| f.file_name().map(|n| n.to_string_lossy().into_owned());
+    for (k, second) in files.iter().enumerate() {
+        if let Some(first) = files[..k].iter().find(|f| name(f) == name(second)) {
+            return Err(ScansError::SameScanName {
+                first: first.clone(),
+                second: second.clone(),
+                name: name(second).unwrap_or_default(),
+                poses: poses.path.clone(),
+            });
+        }
     }
     let at: Vec<ScanPose> = files
         .iter()
@@ -565,6 +624,14 @@ mod tests {
                 "scan,x,y,z,a,c\na.ply,1,2,3,4,inf\n",
                 "cell/poses.csv:2: column 6 (c): \"inf\" is not a finite number",
             ),
+            (
+                "scan,x,y,z,a,c\na.ply,1,2,3,4,5\n# again\na.ply,1,2,3,4,6\n",
+                "cell/poses.csv:4: scan a.ply already has a pose on line 2",
+            ),
+            (
+                "scan,x,y,z,a,c\n ,1,2,3,4,5\n",
+                "cell/poses.csv:2: column 1 (scan): no scan file name",
+            ),
         ] {
             let e = parse_poses(text, file).unwrap_err().to_string();
             assert!(e.starts_with(expected), "{text:?}: {e}");
@@ -586,6 +653,33 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("cannot read /nonexistent/poses.csv"), "{e}");
+    }
+
+    #[test]
+    fn scans_sharing_a_file_name_are_refused_before_any_is_read() {
+        let poses = parse_poses(
+            "scan,x,y,z,a,c\nscan.ply,0,0,0,0,0\n",
+            Path::new("cell/poses.csv"),
+        )
+        .expect("poses");
+        let settings = PlanSettings::default();
+        for files in [
+            ["day1/scan.ply", "day1/scan.ply"],
+            ["day1/scan.ply", "day2/scan.ply"],
+        ] {
+            let files: Vec<PathBuf> = files.iter().map(PathBuf::from).collect();
+            let e = merge_files(&files, &poses, &settings)
+                .unwrap_err()
+                .to_string();
+            assert_eq!(
+                e,
+                format!(
+                    "scans {} and {} share the file name scan.ply, which names their row in cell/poses.csv: give each scan once, under a name of its own",
+                    files[0].display(),
+                    files[1].display()
+                )
+            );
+        }
     }
 
     #[test]

@@ -146,6 +146,12 @@ pub enum JournalError {
         /// This job's digest.
         expected: String,
     },
+    /// The journal holds no `start` entry (empty, or cut before its first line ended): the run
+    /// that made it stopped before anything was switched on.
+    #[error(
+        "journal {0} has no start entry (it is empty or was cut inside its first line): no layer was begun, so there is nothing to resume; remove it to start over"
+    )]
+    NoStart(PathBuf),
     /// A fresh run was asked for but the journal exists.
     #[error("journal {0} exists: resume the run, or remove the journal to start over")]
     Exists(PathBuf),
@@ -341,10 +347,13 @@ impl Journal {
             Entry::Start { job_digest, .. } => Some(job_digest.clone()),
             _ => None,
         });
-        if found.as_deref() != Some(digest.as_str()) {
+        let Some(found) = found else {
+            return Err(JournalError::NoStart(path.to_owned()));
+        };
+        if found != digest {
             return Err(JournalError::OtherJob {
                 path: path.to_owned(),
-                found: found.unwrap_or_else(|| "none".into()),
+                found,
                 expected: digest,
             });
         }
@@ -554,6 +563,14 @@ mod tests {
             Journal::resume(&dir.path().join("none"), &j0),
             Err(JournalError::Missing(_))
         ));
+        // Empty, or cut inside its start line: not "another job".
+        for text in ["", "{\"kind\":\"start\",\"job_di"] {
+            let cut = dir.path().join("cut.journal");
+            std::fs::write(&cut, text).unwrap();
+            let e = Journal::resume(&cut, &j0).err().expect("refused");
+            assert!(matches!(e, JournalError::NoStart(_)), "{text:?}: {e}");
+            assert!(e.to_string().contains("has no start entry"), "{e}");
+        }
     }
 
     #[test]

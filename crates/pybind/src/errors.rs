@@ -103,6 +103,7 @@ pub fn scans_error(e: ScansError) -> PyErr {
         | ScansError::PosesHeader { .. }
         | ScansError::PosesColumns { .. }
         | ScansError::PosesValue { .. }
+        | ScansError::PosesScan { .. }
         | ScansError::ReadScan { .. } => FileFormatError::new_err(message),
         _ => PyValueError::new_err(message),
     }

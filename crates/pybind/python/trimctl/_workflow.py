@@ -369,9 +369,9 @@ class ScanPoses:
     rows: List[Tuple[str, Dict[str, Any]]]
 
     def pose_of(self, scan: Any) -> Dict[str, Any]:
-        """The pose of the scan file ``scan`` (a path; its file name names its row, the first
-        row of that name wins, as in ``trimctl register --poses``). A file without a row raises
-        ``KeyError`` naming it and the poses file."""
+        """The pose of the scan file ``scan`` (a path; its file name names its row, and
+        ``read_poses`` refuses a file naming one scan twice, as ``trimctl register --poses``
+        does). A file without a row raises ``KeyError`` naming it and the poses file."""
         name = os.path.basename(os.fspath(scan))
         for row_name, pose in self.rows:
             if row_name == name:
