@@ -213,6 +213,25 @@ async fn cancel_after_two_vectors(
     (*s, cancelled_at)
 }
 
+/// A resume on the repaired cell continues the cut layer at `from` (layer, vectors done), each
+/// vector of the job marked once, with no safety violation.
+async fn resume_continues_the_layer(
+    sim: &SimCell,
+    job: &Job,
+    path: &std::path::Path,
+    from: (LayerKey, u32),
+) {
+    let summary = resume(sim, job, path).await;
+    assert_eq!(summary.resumed_from, Some(from));
+    let partial = assert_marked_exactly_once(job, &sim.galvo.marks());
+    assert!(partial <= 1, "{partial} partly marked vectors");
+    assert!(
+        sim.monitor.violations().is_empty(),
+        "{:?}",
+        sim.monitor.violations()
+    );
+}
+
 /// A cut layer's count known only from the galvo (the journal's cut entry has none: the host
 /// died mid-layer) is journaled as soon as a resume reads it, before anything is switched on:
 /// framing replaces the galvo's list, so a stop before the layer began again (here a stop
@@ -265,15 +284,7 @@ async fn a_cut_count_known_only_from_the_galvo_is_journaled_before_anything_else
     // The galvo's list replaced (as framing does): the journal still knows, and the resume
     // continues the layer where it stopped, each vector marked once.
     sim.galvo.forget_list();
-    let summary = resume(&sim, &job, &path).await;
-    assert_eq!(summary.resumed_from, Some((target, done)));
-    let partial = assert_marked_exactly_once(&job, &sim.galvo.marks());
-    assert!(partial <= 1, "{partial} partly marked vectors");
-    assert!(
-        sim.monitor.violations().is_empty(),
-        "{:?}",
-        sim.monitor.violations()
-    );
+    resume_continues_the_layer(&sim, &job, &path, (target, done)).await;
 }
 
 /// A galvo link lost mid-list (the connection dropped): the way down opens a new session, so
@@ -318,15 +329,7 @@ async fn a_lost_galvo_link_gets_a_new_session_on_the_way_down_and_the_cut_count_
         st.open_cut
     );
     sim.clear_faults();
-    let summary = resume(&sim, &job, &path).await;
-    assert_eq!(summary.resumed_from, Some((target, done)));
-    let partial = assert_marked_exactly_once(&job, &sim.galvo.marks());
-    assert!(partial <= 1, "{partial} partly marked vectors");
-    assert!(
-        sim.monitor.violations().is_empty(),
-        "{:?}",
-        sim.monitor.violations()
-    );
+    resume_continues_the_layer(&sim, &job, &path, (target, done)).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
