@@ -567,7 +567,7 @@ mod tests {
         for text in ["", "{\"kind\":\"start\",\"job_di"] {
             let cut = dir.path().join("cut.journal");
             std::fs::write(&cut, text).unwrap();
-            let e = Journal::resume(&cut, &j0).err().expect("refused");
+            let e = Journal::resume(&cut, &j0).expect_err("refused");
             assert!(matches!(e, JournalError::NoStart(_)), "{text:?}: {e}");
             assert!(e.to_string().contains("has no start entry"), "{e}");
         }
