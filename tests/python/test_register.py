@@ -78,6 +78,23 @@ def test_icp_errors():
         trimctl.icp(far, far + 1000.0, method="point_to_point", max_distance_mm=0.5)
 
 
+def test_icp_target_normals_errors_name_the_argument_and_the_row(rng):
+    target = wavy_surface(rng, n=50)
+    normals = np.tile([0.0, 0.0, 1.0], (50, 1))
+    with pytest.raises(ValueError,
+                       match=r"target_normals: expected 50 rows, one per point, got 49"):
+        trimctl.icp(target, target, target_normals=normals[:49])
+    zero = normals.copy()
+    zero[7] = 0.0
+    with pytest.raises(ValueError,
+                       match=r"target_normals: row 7 is zero: a normal needs a direction"):
+        trimctl.icp(target, target, target_normals=zero)
+    bad = normals.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(ValueError, match="target_normals"):
+        trimctl.icp(target, target, target_normals=bad)
+
+
 def test_icp_releases_the_gil(rng):
     target = wavy_surface(rng, n=300_000)
     source = apply(similarity(1.0, [0.0, 0.0, 0.01], [0.05, 0.0, 0.0]), target)

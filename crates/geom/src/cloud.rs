@@ -3,7 +3,7 @@
 use rayon::prelude::*;
 
 use crate::error::{GeomError, Result};
-use crate::math::{Point3, Similarity3, Vector3, is_finite_point, unit_or_none};
+use crate::math::{Point3, Similarity3, Vector3, is_finite_point, is_finite_vector, unit_or_none};
 use crate::transform::check_transform;
 
 /// Normals shorter than this are refused as undefined.
@@ -213,10 +213,21 @@ fn check_normals(n_points: usize, mut normals: Vec<Vector3>) -> Result<Vec<Vecto
         });
     }
     for (index, n) in normals.iter_mut().enumerate() {
-        *n = unit_or_none(n, MIN_NORMAL_NORM).ok_or(GeomError::NonFinite {
-            what: "normal",
-            index,
-        })?;
+        *n = match unit_or_none(n, MIN_NORMAL_NORM) {
+            Some(unit) => unit,
+            None if !is_finite_vector(n) => {
+                return Err(GeomError::NonFinite {
+                    what: "normal",
+                    index,
+                });
+            }
+            None => {
+                return Err(GeomError::ZeroVector {
+                    what: "normal",
+                    index,
+                });
+            }
+        };
     }
     Ok(normals)
 }
@@ -243,7 +254,16 @@ mod tests {
         let c = PointCloud::with_normals(vec![Point3::origin()], vec![Vector3::new(0.0, 0.0, 2.0)])
             .unwrap();
         assert!((c.normals().unwrap()[0].norm() - 1.0).abs() < 1e-15);
-        assert!(PointCloud::with_normals(vec![Point3::origin()], vec![Vector3::zeros()]).is_err());
+        let zero = PointCloud::with_normals(vec![Point3::origin()], vec![Vector3::zeros()]);
+        assert_eq!(
+            zero.unwrap_err().to_string(),
+            "normal 0 is zero: it gives no direction"
+        );
+        let nan = PointCloud::with_normals(
+            vec![Point3::origin()],
+            vec![Vector3::new(f64::NAN, 0.0, 1.0)],
+        );
+        assert_eq!(nan.unwrap_err().to_string(), "normal 0 is not finite");
         assert!(PointCloud::with_normals(vec![Point3::origin()], vec![]).is_err());
         let huge = PointCloud::with_normals(
             vec![Point3::origin()],

@@ -80,6 +80,14 @@ pub enum GeomError {
         /// Its 0-based index.
         index: usize,
     },
+    /// A vector that must give a direction (a normal) is zero, or too short to normalise.
+    #[error("{what} {index} is zero: it gives no direction")]
+    ZeroVector {
+        /// What kind of value (e.g. "normal").
+        what: &'static str,
+        /// Its 0-based index.
+        index: usize,
+    },
     /// Too few points for the operation.
     #[error("{what}: needs at least {needed} points, got {got}")]
     TooFewPoints {

@@ -103,6 +103,10 @@ fn in_file(name: &FsPath, e: GeomError) -> GeomError {
             Location::Element(index),
             format!("{what} {index} is not finite"),
         ),
+        GeomError::ZeroVector { index, .. } => {
+            let message = e.to_string();
+            GeomError::parse(name, Location::Element(index), message)
+        }
         e @ (GeomError::Parse { .. }
         | GeomError::Io { .. }
         | GeomError::UnsupportedFormat { .. }

@@ -6,6 +6,8 @@ use numpy::ndarray::Array2;
 use numpy::{PyArray2, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
+use trim_geom::{GeomError, PointCloud};
+
 use crate::errors::value_error;
 
 /// An `(N, 3)` float64 numpy array bound to the GIL lifetime.
@@ -81,6 +83,40 @@ pub fn vectors(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<Vec<Vector3<f64>>
         .into_iter()
         .map(Vector3::from)
         .collect())
+}
+
+/// A cloud of `points` with the normals given as the argument `normals_name`. Its errors name
+/// that argument: a row count other than the points' (`target_normals: expected 5 rows, one per
+/// point, got 4`) or a zero row (`cad_normals: row 3 is zero: a normal needs a direction`).
+pub fn cloud_with_normals(
+    points: Vec<Point3<f64>>,
+    normals_name: &str,
+    normals: &Bound<'_, PyAny>,
+) -> PyResult<PointCloud> {
+    let normals = vectors(normals_name, normals)?;
+    PointCloud::with_normals(points, normals).map_err(|e| match e {
+        GeomError::LengthMismatch { expected, got, .. } => value_error(
+            normals_name,
+            format!("expected {expected} rows, one per point, got {got}"),
+        ),
+        GeomError::ZeroVector { index, .. } => value_error(
+            normals_name,
+            format!("row {index} is zero: a normal needs a direction"),
+        ),
+        other => value_error(normals_name, other),
+    })
+}
+
+/// A cloud of `points`, with normals when `normals` is given (see [`cloud_with_normals`]).
+pub fn cloud(
+    points: Vec<Point3<f64>>,
+    normals_name: &str,
+    normals: Option<&Bound<'_, PyAny>>,
+) -> PyResult<PointCloud> {
+    match normals {
+        Some(n) => cloud_with_normals(points, normals_name, n),
+        None => PointCloud::new(points).map_err(crate::errors::geom_error),
+    }
 }
 
 /// An `(N, 2)` float64 array.

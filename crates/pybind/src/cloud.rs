@@ -4,7 +4,6 @@ use numpy::PyArray2;
 use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use trim_geom::PointCloud;
 use trim_geom::math::{Point3, Vector3};
 use trim_geom::normals::{Orientation, estimate_normals as estimate};
 use trim_geom::voxel::voxel_downsample as downsample;
@@ -57,11 +56,7 @@ pub fn voxel_downsample<'py>(
         PyTypeError::new_err("voxel_downsample() missing required keyword argument 'voxel_mm'")
     })?;
     let pts = arrays::points("points", points)?;
-    let cloud = match normals {
-        Some(n) => PointCloud::with_normals(pts, arrays::vectors("normals", n)?),
-        None => PointCloud::new(pts),
-    }
-    .map_err(geom_error)?;
+    let cloud = arrays::cloud(pts, "normals", normals)?;
     let down = run_detached(py, move || downsample(&cloud, voxel))?.map_err(geom_error)?;
     Ok((
         arrays::from_points(py, down.points()),

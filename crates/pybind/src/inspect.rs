@@ -181,11 +181,11 @@ pub fn inspect<'py>(
     let vertices = arrays::points("cad_vertices", cad_vertices)?;
     let triangles = triangle_indices(cad_triangles)?;
     let mesh = Mesh::new(vertices, triangles).map_err(geom_error)?;
-    let cad = PointCloud::with_normals(
+    let cad = arrays::cloud_with_normals(
         arrays::points("cad_points", cad_points)?,
-        arrays::vectors("cad_normals", cad_normals)?,
-    )
-    .map_err(|e| value_error("cad_normals", e))?;
+        "cad_normals",
+        cad_normals,
+    )?;
     let scan =
         PointCloud::new(arrays::points("scan", scan)?).map_err(|e| value_error("scan", e))?;
     let initial = match init {

@@ -175,11 +175,7 @@ pub fn write_points(
     normals: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<()> {
     let pts = arrays::points("points", points)?;
-    let cloud = match normals {
-        Some(n) => PointCloud::with_normals(pts, arrays::vectors("normals", n)?),
-        None => PointCloud::new(pts),
-    }
-    .map_err(geom_error)?;
+    let cloud = arrays::cloud(pts, "normals", normals)?;
     run_detached(py, move || {
         formats::write_ply(&path, &cloud, formats::PlyEncoding::BinaryLittleEndian)
     })?

@@ -119,8 +119,9 @@ pub fn icp(
     let kernel = parse_kernel(kernel.as_ref().map(|(n, k)| (n.as_str(), *k)))?;
     let source = PointCloud::new(arrays::points("source", source)?).map_err(geom_error)?;
     let target_points = arrays::points("target", target)?;
-    let normals = target_normals
-        .map(|n| arrays::vectors("target_normals", n))
+    // Given normals are checked here, so their errors name the argument.
+    let given = target_normals
+        .map(|n| arrays::cloud_with_normals(target_points.clone(), "target_normals", n))
         .transpose()?;
     let initial = match init {
         Some(m) => similarity_from_numpy("init", m)?,
@@ -137,8 +138,8 @@ pub fn icp(
     };
     settings.validate().map_err(register_error)?;
     let result = run_detached(py, move || -> Result<_, RegisterError> {
-        let target = match (normals, method) {
-            (Some(n), _) => PointCloud::with_normals(target_points, n)?,
+        let target = match (given, method) {
+            (Some(cloud), _) => cloud,
             (None, IcpMethod::PointToPlane) => {
                 let n = estimate_normals(
                     &target_points,

@@ -6,7 +6,6 @@ use numpy::PyArray2;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use trim_cell::{Beam, CellError, LaserLimits};
-use trim_geom::PointCloud;
 use trim_plan::PlanError;
 use trim_plan::hatch::{HatchError, HatchSettings, hatch};
 use trim_plan::planner::{PlanSettings, plan_with_report};
@@ -104,17 +103,8 @@ pub fn register_path<'py>(
 ) -> PyResult<Registered<'py>> {
     let settings: RegisterSettings = settings_from_json("register settings", settings_json)?;
     settings.validate().map_err(register_error)?;
-    let cad = PointCloud::with_normals(
-        arrays::points("cad", cad)?,
-        arrays::vectors("cad_normals", cad_normals)?,
-    )
-    .map_err(|e| value_error("cad_normals", e))?;
-    let scan_points = arrays::points("scan", scan)?;
-    let scan = match scan_normals {
-        Some(n) => PointCloud::with_normals(scan_points, arrays::vectors("scan_normals", n)?),
-        None => PointCloud::new(scan_points),
-    }
-    .map_err(|e| value_error("scan", e))?;
+    let cad = arrays::cloud_with_normals(arrays::points("cad", cad)?, "cad_normals", cad_normals)?;
+    let scan = arrays::cloud(arrays::points("scan", scan)?, "scan_normals", scan_normals)?;
     let initial = match init {
         Some(m) => similarity_from_numpy("init", m)?,
         None => trim_geom::Similarity3::identity(),
@@ -228,11 +218,7 @@ pub fn hatch_surface(
     settings.validate().map_err(hatch_error)?;
     let points = arrays::points("points", points)?;
     let boundary = arrays::points("boundary", boundary)?;
-    let cloud = match normals {
-        Some(n) => PointCloud::with_normals(points, arrays::vectors("normals", n)?),
-        None => PointCloud::new(points),
-    }
-    .map_err(geom_error)?;
+    let cloud = arrays::cloud(points, "normals", normals)?;
     let planned =
         run_detached(py, move || hatch(&cloud, &boundary, &settings))?.map_err(hatch_error)?;
     let inner = planned.to_path().map_err(hatch_error)?;
