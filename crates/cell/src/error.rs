@@ -1,6 +1,8 @@
 //! The error type of trim-cell: a setting out of range (naming its job.toml key) or a beam
 //! outside the laser source's limits.
 
+use trim_geom::Num;
+
 /// A setting of the cell, the beam, the galvo or the machine that cannot be used.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -35,7 +37,7 @@ impl CellError {
     pub fn setting(key: &'static str, value: impl ToString, message: impl Into<String>) -> Self {
         CellError::InvalidSetting {
             key,
-            value: value.to_string(),
+            value: trim_geom::number::compact(value.to_string()),
             message: message.into(),
         }
     }
@@ -62,7 +64,7 @@ pub fn require_range(key: &'static str, value: f64, lo: f64, hi: f64) -> Result<
         Err(CellError::setting(
             key,
             value,
-            format!("must be within [{lo}, {hi}]"),
+            format!("must be within [{}, {}]", Num(lo), Num(hi)),
         ))
     }
 }
@@ -80,7 +82,7 @@ pub fn require_open_closed(
         Err(CellError::setting(
             key,
             value,
-            format!("must be within ({lo}, {hi}]"),
+            format!("must be within ({}, {}]", Num(lo), Num(hi)),
         ))
     }
 }

@@ -13,6 +13,7 @@ use crate::job::{FieldCorrectionRecord, GalvoSettings, LensRecord};
 use crate::kinematics::MachineSettings;
 use crate::lens::{FieldCorrection, LensModel};
 use crate::process::ProcessSettings;
+use trim_geom::Num;
 
 /// The default weight of the extent-scaled positions. Scaled positions span about 1 while
 /// feature vectors a few degrees apart differ by about 0.09 (5°): at weight 1 the positions
@@ -206,12 +207,13 @@ impl LayerSettings {
                 } else {
                     Err(CellError::setting(
                         "layers.step_mm",
-                        format!("unset (derived: {step} mm)"),
+                        format!("unset (derived: {} mm)", Num(step)),
                         format!(
-                            "ΔH = 2 × the beam's focus processing length \
-                             {focus_half_length_mm} mm × layers.step_safety {} must be a finite \
-                             number ≥ {MIN_LAYER_STEP_MM} mm: check [beam] (wavelength_nm, \
-                             m_squared, focal_length_mm, beam_diameter_mm, fluence_tolerance)",
+                            "ΔH = 2 × the beam's focus processing length {} mm × \
+                             layers.step_safety {} must be a finite number ≥ \
+                             {MIN_LAYER_STEP_MM} mm: check [beam] (wavelength_nm, m_squared, \
+                             focal_length_mm, beam_diameter_mm, fluence_tolerance)",
+                            Num(focus_half_length_mm),
                             self.step_safety
                         ),
                     ))
@@ -222,7 +224,8 @@ impl LayerSettings {
                 "layers.step_mm",
                 step,
                 format!(
-                    "ΔH/2 must not exceed the focus processing length {focus_half_length_mm:.4} mm"
+                    "ΔH/2 must not exceed the focus processing length {} mm",
+                    Num(focus_half_length_mm)
                 ),
             )),
         }
@@ -585,6 +588,23 @@ mod tests {
             let e = s.step_for(0.4).unwrap_err().to_string();
             assert!(e.contains("layers.step_mm"), "{bad}: {e}");
         }
+        // A mistyped exponent reads back as typed, not as 300 digits.
+        let e = LayerSettings {
+            step_mm: Some(1e-300),
+            ..LayerSettings::default()
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(e.starts_with("setting layers.step_mm = 1e-300: "), "{e}");
+        let e = LayerSettings::default()
+            .step_for(1e-300)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("derived: 1.5e-300 mm") && e.contains("length 1e-300 mm") && e.len() < 400,
+            "{e}"
+        );
         let s = LayerSettings {
             step_mm: Some(MIN_LAYER_STEP_MM),
             ..LayerSettings::default()

@@ -1,6 +1,7 @@
 //! What an inspection measures and how it decides, with every value checked by key.
 
 use crate::error::{InspectError, Result};
+use trim_geom::Num;
 
 /// The inspection's settings. Lengths in mm, deviations in µm (the tolerance's unit).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -84,19 +85,19 @@ impl InspectSettings {
             "band_mm",
             within(self.band_mm, 0.0, 10.0),
             "must be > 0 and ≤ 10 mm",
-            self.band_mm.to_string(),
+            Num(self.band_mm).to_string(),
         )?;
         check(
             "tolerance_um",
             within(self.tolerance_um, 0.0, 1000.0),
             "must be > 0 and ≤ 1000 µm",
-            self.tolerance_um.to_string(),
+            Num(self.tolerance_um).to_string(),
         )?;
         check(
             "bin_length_mm",
             within(self.bin_length_mm, 0.0, 100.0),
             "must be > 0 and ≤ 100 mm",
-            self.bin_length_mm.to_string(),
+            Num(self.bin_length_mm).to_string(),
         )?;
         check(
             "min_points",
@@ -108,7 +109,7 @@ impl InspectSettings {
             "noise_factor",
             within(self.noise_factor, 0.0, 20.0),
             "must be > 0 and ≤ 20",
-            self.noise_factor.to_string(),
+            Num(self.noise_factor).to_string(),
         )?;
         if let Some(n) = self.noise_um {
             check(
@@ -128,45 +129,45 @@ impl InspectSettings {
             "min_coverage",
             within(self.min_coverage, 0.0, 1.0),
             "must be > 0 and ≤ 1",
-            self.min_coverage.to_string(),
+            Num(self.min_coverage).to_string(),
         )?;
         check(
             "coverage_factor",
             within(self.coverage_factor, 0.0, 10.0),
             "must be > 0 and ≤ 10",
-            self.coverage_factor.to_string(),
+            Num(self.coverage_factor).to_string(),
         )?;
         check(
             "max_blocked_fraction",
             self.max_blocked_fraction.is_finite()
                 && (0.0..1.0).contains(&self.max_blocked_fraction),
             "must be in [0, 1)",
-            self.max_blocked_fraction.to_string(),
+            Num(self.max_blocked_fraction).to_string(),
         )?;
         check(
             "opening_grid_mm",
             within(self.opening_grid_mm, 0.001, 10.0),
             "must be > 0.001 and ≤ 10 mm",
-            self.opening_grid_mm.to_string(),
+            Num(self.opening_grid_mm).to_string(),
         )?;
         check(
             "opening_support_mm",
             within(self.opening_support_mm, 0.0, 10.0),
             "must be > 0 and ≤ 10 mm",
-            self.opening_support_mm.to_string(),
+            Num(self.opening_support_mm).to_string(),
         )?;
         check(
             "opening_depth_mm",
             within(self.opening_depth_mm, 0.0, 10.0),
             "must be > 0 and ≤ 10 mm",
-            self.opening_depth_mm.to_string(),
+            Num(self.opening_depth_mm).to_string(),
         )?;
         check(
             "opening_rim_clearance_mm",
             self.opening_rim_clearance_mm.is_finite()
                 && (0.0..=10.0).contains(&self.opening_rim_clearance_mm),
             "must be in [0, 10] mm",
-            self.opening_rim_clearance_mm.to_string(),
+            Num(self.opening_rim_clearance_mm).to_string(),
         )?;
         check(
             "inverse_iterations",

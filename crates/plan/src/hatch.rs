@@ -432,7 +432,7 @@ impl HatchError {
     pub fn setting(key: &'static str, value: impl ToString, message: impl Into<String>) -> Self {
         HatchError::InvalidSetting {
             key,
-            value: value.to_string(),
+            value: trim_geom::number::compact(value.to_string()),
             message: message.into(),
         }
     }

@@ -1,7 +1,7 @@
 //! The registration's settings (job.toml `[register]`) and their checks.
 use crate::error::{RegisterError, Result};
 use crate::icp::PyramidLevel;
-use trim_geom::Vector3;
+use trim_geom::{Num, Vector3};
 
 /// What the registration does.
 #[derive(
@@ -378,7 +378,7 @@ pub(crate) fn within(name: &str, v: f64, (lo, hi): (f64, f64)) -> Result<()> {
     } else {
         Err(RegisterError::setting(
             name,
-            format!("must be in [{lo}, {hi}], got {v}"),
+            format!("must be in [{}, {}], got {}", Num(lo), Num(hi), Num(v)),
         ))
     }
 }
@@ -389,7 +389,7 @@ pub(crate) fn positive(name: &str, v: f64) -> Result<()> {
     } else {
         Err(RegisterError::setting(
             name,
-            format!("must be finite and > 0, got {v}"),
+            format!("must be finite and > 0, got {}", Num(v)),
         ))
     }
 }
