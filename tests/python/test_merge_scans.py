@@ -121,7 +121,8 @@ def test_a_bc_cell_carries_its_tilt_as_b():
     # On a B/C cell tilt_deg is B, about the B line (+Y through rot_point + (x_offset, 0, dz)).
     points = np.array([[1.0, 2.0, 3.0], [-4.0, 0.5, 2.0]])
     pose = {"xyz_mm": [0.0, 0.0, 0.0], "tilt_deg": 90.0, "c_deg": 0.0}
-    settings = {"machine": {"kinematics": "xyzbc-trt", "x_offset_mm": 0.0, "z_offset_mm": 0.0}}
+    settings = {"machine": {"kinematics": "xyzbc-trt", "x_offset_mm": 0.0, "z_offset_mm": 0.0,
+                            "b_limits_deg": [-120.0, 120.0]}}
     # Rot_B(90°) about +Y through the origin takes (x, y, z) to (z, y, −x): the scanner sees
     # that, and the merge takes it back.
     seen = np.array([[3.0, 2.0, -1.0], [2.0, 0.5, 4.0]])
@@ -151,8 +152,13 @@ def test_bad_input_raises_value_error_naming_it(two_views):
         (([good], [[0.0, 0.0, 0.0, 0.0, 0.0]]), r"poses\[0\]: expected a mapping"),
         (([good], POSES[0]), r"poses: expected a sequence of poses"),
         (
-            ([np.full((3, 3), 1.5e308)], [{"xyz_mm": [1.5e308, 0.0, 0.0]}]),
+            ([np.full((3, 3), 1.5e308)], [{"xyz_mm": [0.0, 0.0, 0.0], "c_deg": 45.0}]),
             r"scans\[0\] through \[calibration\] at its pose: transformed point 0 is not finite",
+        ),
+        (
+            ([good], [{"xyz_mm": [250.0, 0.0, 0.0]}]),
+            r"scans\[0\]: the pose joint X = 250\.000 mm outside \[-200\.0, 200\.0\]: outside the "
+            r"\[machine\] limits",
         ),
     ]
     for (scans, poses), message in cases:

@@ -520,6 +520,13 @@ impl ScanPose {
         }
         Ok(())
     }
+
+    /// Why this pose is outside `machine`'s joint limits (`joint X = 250.000 mm outside
+    /// [-200.0, 200.0]`), or `None` when the machine can stand there.
+    #[must_use]
+    pub fn limit_violation(&self, machine: &MachineSettings) -> Option<String> {
+        crate::kinematics::joint_limit_violation(machine, self.xyz_mm, self.tilt_deg, self.c_deg)
+    }
 }
 
 /// The whole chain from the scanner to the work-piece frame at one scan pose.

@@ -495,7 +495,6 @@ pub fn head_frame_on(table: &TableModel, tilt_deg: f64, rotary_deg: f64) -> Fram
 /// Why a pose is outside the limits, or `None` when it is inside (world and joint limits).
 #[must_use]
 pub fn limit_violation(m: &MachineSettings, pose: &AxisPose) -> Option<String> {
-    let inside = |v: f64, [lo, hi]: [f64; 2]| v >= lo - LIMIT_SLACK && v <= hi + LIMIT_SLACK;
     let lim = [m.x_limits_mm, m.y_limits_mm, m.z_limits_mm];
     let world = match m.pose_mode {
         PoseMode::Tcp => Vector3::from(pose.linear_mm),
@@ -506,15 +505,30 @@ pub fn limit_violation(m: &MachineSettings, pose: &AxisPose) -> Option<String> {
             pose.rotary_deg,
         ),
     };
-    let joints = joints_of(m, pose);
     for (i, name) in ["X", "Y", "Z"].into_iter().enumerate() {
-        if !inside(world[i], lim[i]) {
+        if !inside_limit(world[i], lim[i]) {
             return Some(format!("{name} = {:.3} mm outside {:?}", world[i], lim[i]));
         }
-        if !inside(joints[i], lim[i]) {
+    }
+    let joints = joints_of(m, pose);
+    joint_limit_violation(m, joints.into(), pose.tilt_deg, pose.rotary_deg)
+}
+
+/// Why joint positions (X, Y, Z in mm, the tilting axis and C in degrees) are outside the
+/// machine's limits, or `None` when they are inside. A scan pose (poses.csv) is in joints.
+#[must_use]
+pub fn joint_limit_violation(
+    m: &MachineSettings,
+    joints_mm: [f64; 3],
+    tilt_deg: f64,
+    c_deg: f64,
+) -> Option<String> {
+    let lim = [m.x_limits_mm, m.y_limits_mm, m.z_limits_mm];
+    for (i, name) in ["X", "Y", "Z"].into_iter().enumerate() {
+        if !inside_limit(joints_mm[i], lim[i]) {
             return Some(format!(
                 "joint {name} = {:.3} mm outside {:?}",
-                joints[i], lim[i]
+                joints_mm[i], lim[i]
             ));
         }
     }
@@ -524,21 +538,22 @@ pub fn limit_violation(m: &MachineSettings, pose: &AxisPose) -> Option<String> {
         } else {
             m.b_limits_deg
         };
-        if !inside(pose.tilt_deg, tl) {
+        if !inside_limit(tilt_deg, tl) {
             return Some(format!(
-                "{} = {:.3}° outside {tl:?}",
-                tilt.to_uppercase(),
-                pose.tilt_deg
+                "{} = {tilt_deg:.3}° outside {tl:?}",
+                tilt.to_uppercase()
             ));
         }
-        if !inside(pose.rotary_deg, m.c_limits_deg) {
-            return Some(format!(
-                "C = {:.3}° outside {:?}",
-                pose.rotary_deg, m.c_limits_deg
-            ));
+        if !inside_limit(c_deg, m.c_limits_deg) {
+            return Some(format!("C = {c_deg:.3}° outside {:?}", m.c_limits_deg));
         }
     }
     None
+}
+
+/// Whether `v` is within `[lo, hi]`, with [`LIMIT_SLACK`] for rounding.
+fn inside_limit(v: f64, [lo, hi]: [f64; 2]) -> bool {
+    v >= lo - LIMIT_SLACK && v <= hi + LIMIT_SLACK
 }
 
 /// Moves C by whole turns to the value nearest `target_deg` within the C limits.

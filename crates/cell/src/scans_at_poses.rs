@@ -21,7 +21,7 @@ use trim_geom::formats::read_points;
 use trim_geom::{GeomError, PointCloud, Similarity3};
 
 use crate::cell_model::ScanPose;
-use crate::kinematics::KinematicsKind;
+use crate::kinematics::{KinematicsKind, MachineSettings};
 use crate::plan_settings::PlanSettings;
 
 /// The header of poses.csv on an A/C cell (a B/C cell writes `b` for `a`).
@@ -96,6 +96,32 @@ pub enum ScansError {
         line: usize,
         /// What is wrong with the name.
         reason: String,
+    },
+    /// A row's pose is outside the job's `[machine]` limits: the machine cannot have stood there
+    /// (a mistyped value, degrees taken for radians, or the poses of another cell).
+    #[error(
+        "{}:{line}: scan {scan}: {why}: outside the [machine] limits, a pose this machine cannot take",
+        path.display()
+    )]
+    PosesLimits {
+        /// The poses file.
+        path: PathBuf,
+        /// The row's 1-based line.
+        line: usize,
+        /// The row's scan name.
+        scan: String,
+        /// Which axis is out, and by how much.
+        why: String,
+    },
+    /// A scan held in memory is at a pose outside the job's `[machine]` limits.
+    #[error(
+        "{scan}: the pose {why}: outside the [machine] limits, a pose this machine cannot take"
+    )]
+    PoseLimits {
+        /// The scan (`scans[1]`).
+        scan: String,
+        /// Which axis is out, and by how much.
+        why: String,
     },
     /// Two scan files given share a file name, which names their row in the poses file (the
     /// same file twice, or two folders' files of one name).
@@ -177,6 +203,8 @@ pub struct PoseRow {
     pub scan: String,
     /// Where the machine stood: X, Y, Z joints (mm), the tilting axis and C (degrees).
     pub pose: ScanPose,
+    /// The row's 1-based line in its file (blank and comment lines counted).
+    pub line: usize,
 }
 
 /// A poses file: its rows in order and the cell its header implies.
@@ -203,6 +231,22 @@ impl Poses {
                 machine,
             })
         }
+    }
+
+    /// Refuses a row whose pose is outside `machine`'s joint limits, naming the file, the line
+    /// and the axis.
+    pub fn require_within(&self, machine: &MachineSettings) -> Result<(), ScansError> {
+        for row in &self.rows {
+            if let Some(why) = row.pose.limit_violation(machine) {
+                return Err(ScansError::PosesLimits {
+                    path: self.path.clone(),
+                    line: row.line,
+                    scan: row.scan.clone(),
+                    why,
+                });
+            }
+        }
+        Ok(())
     }
 
     /// The pose of the scan file `scan` (its file name names its row; names are unique).
@@ -247,8 +291,7 @@ pub fn parse_poses(text: &str, path: &Path) -> Result<Poses, ScansError> {
             });
         }
     };
-    let mut rows = Vec::new();
-    let mut row_lines = Vec::new();
+    let mut rows: Vec<PoseRow> = Vec::new();
     for (line, text) in lines {
         let fields: Vec<&str> = text.split(',').map(str::trim).collect();
         if fields.len() != cols.len() {
@@ -280,17 +323,12 @@ pub fn parse_poses(text: &str, path: &Path) -> Result<Poses, ScansError> {
         if fields[0].is_empty() {
             return Err(scan_error("column 1 (scan): no scan file name".into()));
         }
-        if let Some(first) = row_lines
-            .iter()
-            .zip(&rows)
-            .find_map(|(l, r): (&usize, &PoseRow)| (r.scan == fields[0]).then_some(*l))
-        {
+        if let Some(first) = rows.iter().find(|r| r.scan == fields[0]).map(|r| r.line) {
             return Err(scan_error(format!(
                 "scan {} already has a pose on line {first}",
                 fields[0]
             )));
         }
-        row_lines.push(line);
         let [x, y, z, tilt_deg, c_deg] = values;
         rows.push(PoseRow {
             scan: fields[0].to_owned(),
@@ -299,6 +337,7 @@ pub fn parse_poses(text: &str, path: &Path) -> Result<Poses, ScansError> {
                 tilt_deg,
                 c_deg,
             },
+            line,
         });
     }
     Ok(Poses {
@@ -345,6 +384,11 @@ pub fn merge(
         if scan.is_empty() {
             return Err(ScansError::EmptyScan { scan: label() });
         }
+        // A NaN or infinite pose is the chain's to refuse, below, as not finite.
+        let finite = pose.validate().is_ok();
+        if let Some(why) = pose.limit_violation(&settings.machine).filter(|_| finite) {
+            return Err(ScansError::PoseLimits { scan: label(), why });
+        }
         let moved = workpiece_from_scanner_at(settings, *pose, scan).map_err(|source| {
             ScansError::Chain {
                 scan: label(),
@@ -358,7 +402,8 @@ pub fn merge(
 
 /// The scan files `files`, each at the pose its file name has in `poses`, as one cloud in the
 /// work-piece frame (points only). The caller checks `poses` against the job's `[machine]`
-/// ([`Poses::require_kinematics`]). A file without a row is refused before any scan is read.
+/// kinematics ([`Poses::require_kinematics`]); a row outside its limits, and a file without a
+/// row, are refused before any scan is read.
 pub fn merge_files(
     files: &[PathBuf],
     poses: &Poses,
@@ -367,6 +412,7 @@ pub fn merge_files(
     if files.is_empty() {
         return Err(ScansError::NoScans);
     }
+    poses.require_within(&settings.machine)?;
     let name = |f: &PathBuf| f.file_name().map(|n| n.to_string_lossy().into_owned());
     for (k, second) in files.iter().enumerate() {
         if let Some(first) = files[..k].iter().find(|f| name(f) == name(second)) {
@@ -592,6 +638,52 @@ mod tests {
     }
 
     #[test]
+    fn a_pose_outside_the_machine_limits_is_refused_naming_the_line_and_the_axis() {
+        let settings = PlanSettings::default();
+        let file = Path::new("cell/poses.csv");
+        let poses = parse_poses(
+            "scan,x,y,z,a,c\na.ply,0,0,0,-30,90\n# A past its stop\nb.ply,0,0,0,120,0\n",
+            file,
+        )
+        .unwrap();
+        let e = poses
+            .require_within(&settings.machine)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            "cell/poses.csv:4: scan b.ply: A = 120.000° outside [-100.0, 50.0]: outside the \
+             [machine] limits, a pose this machine cannot take"
+        );
+        // merge_files refuses it before reading any scan (the files need not exist).
+        let e = merge_files(&[PathBuf::from("/nonexistent/a.ply")], &poses, &settings)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("cell/poses.csv:4: scan b.ply: A = 120.000°"),
+            "{e}"
+        );
+        // In memory, the scan is named by its place.
+        let far = ScanPose {
+            xyz_mm: [250.0, 0.0, 0.0],
+            tilt_deg: 0.0,
+            c_deg: 0.0,
+        };
+        let scan = PointCloud::new(vec![Point3::origin()]).unwrap();
+        let e = merge(&[(far, scan)], &settings).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "scans[0]: the pose joint X = 250.000 mm outside [-200.0, 200.0]: outside the \
+             [machine] limits, a pose this machine cannot take"
+        );
+        // Within the limits, both pass.
+        parse_poses("scan,x,y,z,a,c\na.ply,199,-99,119,-100,35999\n", file)
+            .unwrap()
+            .require_within(&settings.machine)
+            .unwrap();
+    }
+
+    #[test]
     fn bad_poses_rows_are_refused_naming_the_file_and_line() {
         let file = Path::new("cell/poses.csv");
         for (text, expected) in [
@@ -647,6 +739,7 @@ mod tests {
                     tilt_deg: 10.0,
                     c_deg: 200.0,
                 },
+                line: 2,
             }]
         );
         let e = read_poses(Path::new("/nonexistent/poses.csv"))

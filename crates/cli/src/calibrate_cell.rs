@@ -70,6 +70,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         None => MachineSettings::default(),
     };
     pose_rows.require_kinematics(machine.kinematics)?;
+    if args.job.is_some() {
+        // The job names the machine, so its limits hold; the nominal cell's need not.
+        pose_rows.require_within(&machine)?;
+    }
     let kind = pose_rows.kinematics;
     let (names, poses): (Vec<String>, Vec<CalPose>) =
         pose_rows.rows.into_iter().map(|r| (r.scan, r.pose)).unzip();
