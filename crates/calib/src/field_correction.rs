@@ -40,6 +40,16 @@ pub const MARKS_HEADER: &str = "x_cmd,y_cmd,h_mm,x_meas,y_meas";
 /// Fewest marks a fit takes (a 5 × 5 grid).
 pub const MIN_MARKS: usize = 25;
 
+/// A mark whose leave-one-out residual exceeds this many robust standard deviations of the
+/// others' is refused as a blunder (a mistyped or misread value): under Gaussian noise a
+/// distance passes 8 σ with probability e^(−32), and a real head's smooth residue raises the
+/// residuals of every mark together, which raises the scale with them.
+pub const OUTLIER_SIGMAS: f64 = 8.0;
+
+/// ... and it must also exceed this (mm): below it a mark is within what a measurement of a
+/// coupon scatters, even on a grid of marks that agree to a fraction of a micrometre.
+pub const OUTLIER_FLOOR_MM: f64 = 0.02;
+
 /// One measured mark (mm, head frame).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Mark {
@@ -500,6 +510,51 @@ fn loo_residuals(design: &Design, sm: &Smoother, solved: &Solved) -> Vec<f64> {
     out
 }
 
+/// Refuses the mark whose leave-one-out residual `loo` (mm) is furthest beyond
+/// [`OUTLIER_SIGMAS`] robust standard deviations and [`OUTLIER_FLOOR_MM`], naming it by its
+/// place among the marks and by its command. The scale is the residuals' median over the
+/// Rayleigh median √(2 ln 2) (a distance of two Gaussian coordinates), which a few blunders
+/// do not move.
+fn refuse_blunders(marks: &[Mark], loo: &[f64]) -> Result<(), CalibError> {
+    let mut sorted = loo.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let sigma = sorted[sorted.len() / 2] / (2.0 * std::f64::consts::LN_2).sqrt();
+    let limit = (OUTLIER_SIGMAS * sigma).max(OUTLIER_FLOOR_MM);
+    let far = loo.iter().filter(|&&d| d > limit).count();
+    let Some((i, d)) = loo
+        .iter()
+        .copied()
+        .enumerate()
+        .filter(|&(_, d)| d > limit)
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+    else {
+        return Ok(());
+    };
+    let m = &marks[i];
+    let others = if far > 1 {
+        format!(" ({far} marks are beyond it; this is the furthest)")
+    } else {
+        String::new()
+    };
+    Err(CalibError::Invalid {
+        key: format!("mark {}", i + 1),
+        message: format!(
+            "measured at ({:.4}, {:.4}) mm for the command ({:.4}, {:.4}) at h {:.3} mm, \
+             {:.1} µm from where the other marks put it; they scatter by {:.1} µm, and a mark \
+             beyond {:.1} µm is taken for a mistyped or misread value{others}: correct or \
+             delete its row",
+            m.x_meas,
+            m.y_meas,
+            m.x_cmd,
+            m.y_cmd,
+            m.h_mm,
+            d * 1e3,
+            sigma * 1e3,
+            limit * 1e3
+        ),
+    })
+}
+
 fn rms_max_um(v: impl Iterator<Item = f64>) -> (f64, f64) {
     let (mut s, mut n, mut m) = (0.0, 0usize, 0.0_f64);
     for x in v {
@@ -679,7 +734,9 @@ pub fn fit_field(
         (m.x_meas - m.x_cmd * s).hypot(m.y_meas - m.y_cmd * s)
     }));
     let after = rms_max_um(solved.measured());
-    let (loo_rms_um, loo_max_um) = rms_max_um(loo_residuals(&design, &sm, &solved).into_iter());
+    let loo = loo_residuals(&design, &sm, &solved);
+    refuse_blunders(marks, &loo)?;
+    let (loo_rms_um, loo_max_um) = rms_max_um(loo.into_iter());
     let land = |c: [f64; 2]| {
         let mut d = c;
         for (k, v) in basis.row(c) {
@@ -785,6 +842,40 @@ mod tests {
             assert!(report.loo_rms_um <= 3.0, "{report:?}");
             assert!(report.rms_before_um > 50.0, "{report:?}");
         }
+    }
+
+    #[test]
+    fn a_mistyped_mark_is_refused_naming_it_and_its_command() {
+        let grid = MarkGrid {
+            grid: 15,
+            half_field_mm: 50.0,
+            heights_mm: vec![0.0, 2.0],
+            noise_um: 2.0,
+            offset_fraction: 0.0,
+        };
+        let clean = synth_marks(&truth(), 262.0, &grid, 7);
+        fit_field(&clean, &FieldFitSettings::default()).expect("clean marks fit");
+        // Two digits swapped in one measured y: 21.43 typed for 12.43 is 9 mm; a misread of the
+        // last digit shown, 0.05 mm, is still far beyond 2 µm noise.
+        for (k, shift_mm) in [(37_usize, 9.0), (100, 0.05)] {
+            let mut marks = clean.clone();
+            marks[k].y_meas += shift_mm;
+            let e = fit_field(&marks, &FieldFitSettings::default())
+                .expect_err("a blunder is refused")
+                .to_string();
+            let m = &clean[k];
+            let command = format!("the command ({:.4}, {:.4}) at h", m.x_cmd, m.y_cmd);
+            assert!(
+                e.starts_with(&format!("mark {}: measured at", k + 1))
+                    && e.contains(&command)
+                    && e.contains("correct or delete its row"),
+                "{shift_mm} mm: {e}"
+            );
+        }
+        // A shift within the measurement scatter is not a blunder.
+        let mut marks = clean.clone();
+        marks[37].y_meas += 0.004;
+        fit_field(&marks, &FieldFitSettings::default()).expect("4 µm is measurement scatter");
     }
 
     #[test]
