@@ -8,15 +8,17 @@
 //! structures by the path and gives a sparse scan's failure in its own terms.
 
 use trim_geom::{Aabb, Path, Point3};
+use trim_register::regional::{PATH_OUTSIDE_CAD_DIAGONAL_SHARE, PATH_OUTSIDE_CAD_MM};
 
 use crate::error::{InspectError, Result};
 
 /// A contour or a scan point may stand this share of the CAD's bounding-box diagonal outside
-/// the box and still be the part's (fixture slack, a web reaching off an edge).
-pub const OUTSIDE_SHARE: f64 = 0.1;
+/// the box and still be the part's (fixture slack, a web reaching off an edge): the
+/// registration's bound, so a path that was registered and trimmed is one inspection takes.
+pub const OUTSIDE_SHARE: f64 = PATH_OUTSIDE_CAD_DIAGONAL_SHARE;
 
-/// ... and at least this far, mm (a small part's box leaves little slack).
-pub const OUTSIDE_MIN_MM: f64 = 5.0;
+/// ... and at least this far, mm (a small part's box leaves little slack); the registration's.
+pub const OUTSIDE_MIN_MM: f64 = PATH_OUTSIDE_CAD_MM;
 
 /// The registration's coarse ICP needs this many correspondences at every level, each a scan
 /// voxel centroid (`trim_register::regional::coarse`, `min_correspondences: 50`).
@@ -134,10 +136,19 @@ mod tests {
     #[test]
     fn a_contour_off_the_cad_is_refused_naming_it() {
         let near = square(1, Point3::new(2.0, 2.0, 0.0));
-        // Off an edge by 4 mm: within the 5 mm floor of the margin.
-        let slack = square(2, Point3::new(13.0, 2.0, 0.0));
+        // Off an edge by 9 mm: within the 10 mm floor of the margin, the registration's, so a
+        // path the run registered and trimmed is one the inspection takes.
+        let slack = square(2, Point3::new(18.0, 2.0, 0.0));
         let ok = Path::new(vec![near.clone(), slack]).unwrap_or_else(|e| panic!("{e}"));
         assert!(check_path_on_cad(&cad(), &ok).is_ok());
+        let beyond = square(4, Point3::new(20.5, 2.0, 0.0));
+        let e = check_path_on_cad(&cad(), &Path::new(vec![beyond]).unwrap())
+            .expect_err("11.5 mm off is beyond the margin")
+            .to_string();
+        assert!(
+            e.contains("contour 4 lies 12 mm outside") && e.contains("10.0 mm allowed"),
+            "{e}"
+        );
         let far = square(3, Point3::new(5e4, 2.0, 0.0));
         let bad = Path::new(vec![near, far]).unwrap_or_else(|e| panic!("{e}"));
         let e = check_path_on_cad(&cad(), &bad)
