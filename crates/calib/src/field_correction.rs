@@ -65,7 +65,8 @@ pub struct Mark {
     pub y_meas: f64,
 }
 
-/// Reads marks.csv; errors name the file and line.
+/// Reads marks.csv; errors name the file and line, and a last row without a line end is warned
+/// of (`trim_geom::formats::warn_if_unterminated`).
 pub fn read_marks(path: &Path) -> Result<Vec<Mark>, CalibError> {
     let text = std::fs::read_to_string(path).map_err(|source| CalibError::Io {
         path: path.to_owned(),
@@ -131,6 +132,7 @@ pub fn read_marks(path: &Path) -> Result<Vec<Mark>, CalibError> {
             got: marks.len(),
         });
     }
+    trim_geom::formats::warn_if_unterminated(text.as_bytes(), path);
     Ok(marks)
 }
 

@@ -347,13 +347,16 @@ pub fn parse_poses(text: &str, path: &Path) -> Result<Poses, ScansError> {
     })
 }
 
-/// Reads and parses the poses file `path` ([`parse_poses`]).
+/// Reads and parses the poses file `path` ([`parse_poses`]), warning when its last row has no
+/// line end (`trim_geom::formats::warn_if_unterminated`).
 pub fn read_poses(path: &Path) -> Result<Poses, ScansError> {
     let text = std::fs::read_to_string(path).map_err(|source| ScansError::ReadPoses {
         path: path.to_path_buf(),
         source,
     })?;
-    parse_poses(&text, path)
+    let poses = parse_poses(&text, path)?;
+    trim_geom::formats::warn_if_unterminated(text.as_bytes(), path);
+    Ok(poses)
 }
 
 /// The scan `scan_in_scanner` (scanner frame, mm), taken with the machine at `pose`, in the

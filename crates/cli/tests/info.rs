@@ -241,3 +241,21 @@ fn a_point_file_with_no_points_is_refused_naming_it() {
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains(": no points"), "{stderr}");
 }
+
+#[test]
+fn a_path_cut_inside_its_last_number_reads_with_a_warning_on_stderr() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("path.csv");
+    // The last row's w was 1.25 when the copy was cut.
+    std::fs::write(&file, "contour,x,y,z,u,v,w\n3,0,0,0,0,0,1\n3,1,0,0,0,0,1.2").unwrap();
+    let out = trimctl_info(&file);
+    assert!(out.status.success());
+    let stderr = String::from_utf8(out.stderr).unwrap();
+    assert!(
+        stderr.contains("WARN")
+            && stderr.contains("path.csv: line 3, the last, has no line end")
+            && stderr.contains("its last value may be short (\"3,1,0,0,0,0,1.2\")"),
+        "{stderr}"
+    );
+    assert!(!out.stdout.is_empty());
+}

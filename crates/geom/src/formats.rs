@@ -29,6 +29,7 @@ use crate::mesh::Mesh;
 use crate::path::Path;
 
 pub use ply::PlyScalar;
+pub use text::warn_if_unterminated;
 
 /// The encoding of a PLY file body.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -311,6 +312,68 @@ pub fn encode_path(trim_path: &Path) -> Vec<u8> {
 mod tests {
     use super::*;
     use crate::math::Vector3;
+
+    /// What `f` logs through tracing, as plain text.
+    fn logged(f: impl FnOnce()) -> String {
+        use std::sync::{Arc, Mutex};
+        #[derive(Clone, Default)]
+        struct Buffer(Arc<Mutex<Vec<u8>>>);
+        impl std::io::Write for Buffer {
+            fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+                self.0
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .extend_from_slice(bytes);
+                Ok(bytes.len())
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        let buffer = Buffer::default();
+        let writer = buffer.clone();
+        let subscriber = tracing_subscriber::fmt()
+            .with_ansi(false)
+            .with_writer(move || writer.clone())
+            .finish();
+        tracing::subscriber::with_default(subscriber, f);
+        let bytes = buffer.0.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        String::from_utf8_lossy(&bytes).into_owned()
+    }
+
+    #[test]
+    fn a_text_file_without_a_last_line_end_reads_with_a_warning_naming_it() {
+        let name = FsPath::new("cam/path.csv");
+        let whole = "contour,x,y,z,u,v,w\n1,0,0,0,0,0,1\n1,1,0,0,0,0,1\n1,1,1,0,0,0,1\n";
+        // Cut after the last row's last digit, its line end lost: a cut inside a number reads
+        // the same way, with the number short.
+        let cut = &whole[..whole.len() - 1];
+        let log = logged(|| {
+            read_path_from_bytes(cut.as_bytes(), name).expect("a cut file still reads");
+        });
+        assert!(
+            log.contains("WARN")
+                && log.contains("cam/path.csv: line 4, the last, has no line end")
+                && log.contains("its last value may be short"),
+            "{log}"
+        );
+        let log = logged(|| {
+            read_path_from_bytes(whole.as_bytes(), name).expect("reads");
+        });
+        assert!(log.is_empty(), "{log}");
+        let log = logged(|| {
+            read_points_from_bytes(b"0 0 0\n1 0 0\n0 1 0\n2 2 2.5", FsPath::new("scan.xyz"))
+                .expect("reads");
+        });
+        assert!(
+            log.contains("scan.xyz: line 4, the last, has no line end"),
+            "{log}"
+        );
+        // A last line that is only a comment or blank is no cut value.
+        assert!(!warn_if_unterminated(b"0 0 0\n# end", FsPath::new("a.xyz")));
+        assert!(!warn_if_unterminated(b"0 0 0\n  ", FsPath::new("a.xyz")));
+        assert!(!warn_if_unterminated(b"", FsPath::new("a.xyz")));
+    }
 
     #[test]
     fn unit_or_none_survives_huge_and_refuses_zero_or_tiny() {

@@ -5,7 +5,7 @@
 use std::fmt::Write as _;
 use std::path::Path as FsPath;
 
-use super::text::{Lines, parse_finite, truncate, utf8};
+use super::text::{Lines, parse_finite, truncate, utf8, warn_if_unterminated};
 use crate::error::{GeomError, Location, Result};
 use crate::math::{Point3, Vector3};
 use crate::path::{Contour, ContourId, MIN_FEATURE_NORM, Path};
@@ -48,6 +48,12 @@ impl Open {
 }
 
 pub(super) fn parse(bytes: &[u8], name: &FsPath) -> Result<Path> {
+    let parsed = parse_lines(bytes, name)?;
+    warn_if_unterminated(bytes, name);
+    Ok(parsed)
+}
+
+fn parse_lines(bytes: &[u8], name: &FsPath) -> Result<Path> {
     let mut lines = Lines::new(bytes);
     // The header: the first non-blank line.
     let (header_line, header) = loop {

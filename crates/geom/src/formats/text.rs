@@ -60,6 +60,30 @@ impl<'a> Iterator for Lines<'a> {
     }
 }
 
+/// Warns (tracing, on the CLI's stderr) when the text in `bytes` does not end with a line end
+/// after a line that holds data (not blank, not a `#` comment): a file cut while it was written
+/// or copied reads without an error when the cut falls inside the last number, which is then
+/// short (`12.3` for `12.3456`). Files trimctl writes end with one; a hand-edited file may not,
+/// so this is a warning, not a refusal. Returns whether it warned.
+pub fn warn_if_unterminated(bytes: &[u8], name: &FsPath) -> bool {
+    if bytes.last().is_none_or(|&b| b == b'\n') {
+        return false;
+    }
+    let (line_no, last) = Lines::new(bytes).last().unwrap_or((0, &[]));
+    let text = String::from_utf8_lossy(last);
+    let text = text.trim();
+    if text.is_empty() || text.starts_with('#') {
+        return false;
+    }
+    tracing::warn!(
+        "{}: line {line_no}, the last, has no line end: if the file was cut while it was \
+         written or copied, its last value may be short ({:?})",
+        name.display(),
+        truncate(text)
+    );
+    true
+}
+
 /// The line as UTF-8, or an error naming it.
 pub(super) fn utf8<'a>(line: &'a [u8], name: &FsPath, line_no: usize) -> Result<&'a str> {
     std::str::from_utf8(line).map_err(|e| {

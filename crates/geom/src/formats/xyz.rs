@@ -5,7 +5,7 @@
 use std::fmt::Write as _;
 use std::path::Path as FsPath;
 
-use super::text::{Lines, parse_finite, utf8};
+use super::text::{Lines, parse_finite, utf8, warn_if_unterminated};
 use crate::cloud::PointCloud;
 use crate::error::{GeomError, Location, Result};
 use crate::math::{Point3, Vector3};
@@ -13,6 +13,12 @@ use crate::math::{Point3, Vector3};
 const AXES: [&str; 6] = ["x", "y", "z", "nx", "ny", "nz"];
 
 pub(super) fn parse(bytes: &[u8], name: &FsPath) -> Result<PointCloud> {
+    let parsed = parse_lines(bytes, name)?;
+    warn_if_unterminated(bytes, name);
+    Ok(parsed)
+}
+
+fn parse_lines(bytes: &[u8], name: &FsPath) -> Result<PointCloud> {
     let mut points = Vec::new();
     let mut normals = Vec::new();
     // (columns, line) of the first data line.
