@@ -1,5 +1,7 @@
 """Point-cloud processing and argument checks at the Python boundary."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -129,3 +131,24 @@ def test_options_without_a_unit_are_refused_naming_the_new_name(plane_points):
     for old, new in [("layer_step", "layer_step_mm"), ("field", "field_mm")]:
         with pytest.raises(TypeError, match=f"{old}= was renamed {new}="):
             trimctl.plan(path, **{old: 0.5})
+
+
+def test_a_file_cut_inside_its_last_number_reads_with_a_trim_warning(tmp_path):
+    path = tmp_path / "path.csv"
+    # The last row's w was 1.25 when the copy was cut: the file still parses.
+    path.write_text("contour,x,y,z,u,v,w\n3,0,0,0,0,0,1\n3,1,0,0,0,0,1.2")
+    with pytest.warns(trimctl.TrimWarning,
+                      match=r"path\.csv: line 3, the last, has no line end.*may be short"):
+        p = trimctl.read_path(path)
+    assert len(p) == 1
+    assert issubclass(trimctl.TrimWarning, UserWarning)
+    # A whole file reads without one; warnings as errors make the cut one an error.
+    path.write_text("contour,x,y,z,u,v,w\n3,0,0,0,0,0,1\n3,1,0,0,0,0,1.25\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        trimctl.read_path(path)
+    path.write_text("contour,x,y,z,u,v,w\n3,0,0,0,0,0,1\n3,1,0,0,0,0,1.2")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(trimctl.TrimWarning):
+            trimctl.read_path(path)

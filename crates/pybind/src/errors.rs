@@ -8,10 +8,11 @@
 //! └── InternalError        a bug: please report it
 //! ```
 //! Wrong argument shapes, dtypes, non-finite values and out-of-range options raise the
-//! built-in `ValueError` instead, naming the argument.
+//! built-in `ValueError` instead, naming the argument. What the library warns of (a text file
+//! whose last line has no line end) is a `TrimWarning(UserWarning)`, through `warnings.warn`.
 
 use pyo3::create_exception;
-use pyo3::exceptions::{PyException, PyValueError};
+use pyo3::exceptions::{PyException, PyUserWarning, PyValueError};
 use pyo3::prelude::*;
 use trim_cell::ScansError;
 use trim_geom::GeomError;
@@ -48,6 +49,13 @@ create_exception!(
     "An internal error (a bug): please report it."
 );
 
+create_exception!(
+    trimctl,
+    TrimWarning,
+    PyUserWarning,
+    "What trimctl warns of: the work went on (a text file read whose last line has no line end)."
+);
+
 /// Adds the exception classes to the module.
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
@@ -56,6 +64,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("RegistrationError", py.get_type::<RegistrationError>())?;
     m.add("PlanningError", py.get_type::<PlanningError>())?;
     m.add("InternalError", py.get_type::<InternalError>())?;
+    m.add("TrimWarning", py.get_type::<TrimWarning>())?;
     Ok(())
 }
 

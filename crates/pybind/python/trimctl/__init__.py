@@ -4,6 +4,8 @@ Registration and planning for scripting. All lengths are millimetres, angles deg
 interface. Arrays are numpy float64: points and vectors as (N, 3), galvo points as (N, 2).
 Options are keyword-only. Errors from the library derive from :class:`TrimError`; a wrong
 argument shape, dtype or a non-finite value raises :class:`ValueError` naming the argument.
+What the library warns of (a text file whose last line has no line end) is a
+:class:`TrimWarning`, a :class:`UserWarning`.
 """
 
 from ._native import (
@@ -17,6 +19,7 @@ from ._native import (
     PlanningError,
     RegistrationError,
     TrimError,
+    TrimWarning,
     __version__,
     estimate_normals,
     icp,
@@ -73,6 +76,7 @@ __all__ = [
     "PlanningError",
     "RegistrationError",
     "TrimError",
+    "TrimWarning",
     "__version__",
     "estimate_normals",
     "icp",
