@@ -7,8 +7,16 @@
 //! port already open, then on the port reopened, again and again until the laser acknowledges
 //! or the deadline passes, and reports every attempt. A client dropped while the emission may be
 //! on (a panic unwinding, a future dropped) writes the emission-off line on its way out.
+//!
+//! A port is closed on a thread of its own ([`close_in_background`]): on a stalled USB adapter a
+//! close blocks in the kernel while it drains its output (Linux's `closing_wait`, 30 s by
+//! default), and a client dropped on a runtime's thread would hold that thread, and the way
+//! down of the other devices on it, for as long. The port is opened exclusively, so an open of a
+//! path first waits, bounded, for every close of it still under way ([`wait_for_closes`]).
 
-use std::time::Duration;
+use std::collections::HashMap;
+use std::sync::{Condvar, LazyLock, Mutex};
+use std::time::{Duration, Instant};
 
 use bytes::{Buf, BytesMut};
 use futures::{SinkExt, StreamExt};
@@ -177,6 +185,81 @@ const OFF_RETRY_PAUSE_MS: u64 = 20;
 
 type Port = Framed<tokio_serial::SerialStream, LineCodec>;
 
+/// How long an open waits for a previous close of the same port (ms). Closing a port whose
+/// output is a few short lines takes milliseconds; one still closing after this is held by a
+/// stalled adapter, and the open fails naming it rather than waiting out the kernel's 30 s.
+pub const CLOSE_WAIT_MS: u64 = 2000;
+
+/// Closes of each port path still under way, and their end's signal.
+static CLOSING: LazyLock<(Mutex<HashMap<String, usize>>, Condvar)> =
+    LazyLock::new(|| (Mutex::new(HashMap::new()), Condvar::new()));
+
+/// How the client closes a port (a field so that a test can make it block as a stalled
+/// adapter's close does).
+type Closer = fn(Port);
+
+/// Closes `port` (opened at `path`) on a thread of its own, counted under its path until the
+/// close returns. If no thread can be started, the port is closed here (the closure that held it
+/// is dropped with the error).
+fn close_in_background(path: &str, port: Port, closer: Closer) {
+    *lock(&CLOSING.0).entry(path.to_owned()).or_default() += 1;
+    let key = path.to_owned();
+    let spawned = std::thread::Builder::new()
+        .name("laser-port-close".into())
+        .spawn(move || {
+            closer(port);
+            close_returned(&key);
+        });
+    if let Err(e) = spawned {
+        tracing::warn!("laser: no thread to close {path} on ({e}): closed it here");
+        close_returned(path);
+    }
+}
+
+/// One close of `path` returned: uncounted, and the waiting opens woken.
+fn close_returned(path: &str) {
+    let mut map = lock(&CLOSING.0);
+    if let Some(n) = map.get_mut(path) {
+        *n -= 1;
+        if *n == 0 {
+            map.remove(path);
+        }
+    }
+    drop(map);
+    CLOSING.1.notify_all();
+}
+
+/// Waits until no close of `path` is under way, at most `timeout`.
+fn wait_for_closes(path: &str, timeout: Duration) -> Result<(), LaserError> {
+    let (closing, ended) = &*CLOSING;
+    let until = Instant::now() + timeout;
+    let mut map = lock(closing);
+    while map.get(path).is_some_and(|&n| n > 0) {
+        let now = Instant::now();
+        if now >= until {
+            return Err(LaserError::Open {
+                path: path.to_owned(),
+                reason: format!(
+                    "its previous close has not returned within {} ms: a stalled serial \
+                     adapter holds the port (unplug and replug it, or wait for the kernel's \
+                     closing wait, 30 s by default)",
+                    timeout.as_millis()
+                ),
+            });
+        }
+        map = ended
+            .wait_timeout(map, until - now)
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .0;
+    }
+    Ok(())
+}
+
+/// Locks a mutex whose data stays valid if a holder panicked (counts and a taken closure).
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 /// A laser on a serial port.
 pub struct LaserClient {
     /// `None` only while the stop path reopens it (the port is opened exclusively: the old one
@@ -194,6 +277,8 @@ pub struct LaserClient {
     fresh_port: bool,
     /// Opens the port (a field so that a test can make it block as a stalled adapter does).
     opener: Opener,
+    /// Closes the port, on a thread of its own.
+    closer: Closer,
 }
 
 /// How the client opens its port.
@@ -202,8 +287,19 @@ type Opener = fn(&str, &Profile) -> Result<Port, LaserError>;
 impl Drop for LaserClient {
     /// The guard: dropped while the emission may be on (a panic unwinding through the
     /// executor, its future dropped), the client writes the emission-off line on the port,
-    /// without waiting for a reply.
+    /// without waiting for a reply. Then the port is closed on a thread of its own, so a close
+    /// that blocks (a stalled adapter) holds neither the caller nor the emission-off line.
     fn drop(&mut self) {
+        self.write_off_if_on();
+        if let Some(port) = self.port.take() {
+            close_in_background(&self.path, port, self.closer);
+        }
+    }
+}
+
+impl LaserClient {
+    /// The drop guard's emission-off line, written when the emission may be on.
+    fn write_off_if_on(&mut self) {
         if !self.emission_may_be_on {
             return;
         }
@@ -252,13 +348,15 @@ fn open_port(path: &str, profile: &Profile) -> Result<Port, LaserError> {
 }
 
 impl LaserClient {
-    /// Opens the serial device at `path` with the profile's line settings (8N1).
+    /// Opens the serial device at `path` with the profile's line settings (8N1), once an
+    /// earlier client's close of it has returned (waited for at most [`CLOSE_WAIT_MS`]).
     pub fn open(
         path: &str,
         profile: Profile,
         reply_timeout: Duration,
         tap: Tap,
     ) -> Result<LaserClient, LaserError> {
+        wait_for_closes(path, Duration::from_millis(CLOSE_WAIT_MS))?;
         let port = open_port(path, &profile)?;
         Ok(LaserClient::on_port(
             port,
@@ -286,6 +384,7 @@ impl LaserClient {
             emission_may_be_on: false,
             fresh_port: true,
             opener: open_port,
+            closer: drop,
         }
     }
 
@@ -501,17 +600,20 @@ impl LaserClient {
         }
     }
 
-    /// Closes the port and opens it again (exclusive ports: the old one is closed first), on a
-    /// thread of the blocking pool, waiting at most until `deadline`. On a stalled USB adapter
-    /// a close can block in the kernel while it drains its output (Linux's `closing_wait`, 30 s
-    /// by default), and so can an open; the way down must not wait for either. A close or open
-    /// still blocked at the deadline is left to finish on its own thread, and the port stays
-    /// closed.
+    /// Closes the port and opens it again (exclusive ports: the old one is closed first),
+    /// waiting at most until `deadline`. On a stalled USB adapter a close can block in the
+    /// kernel while it drains its output (Linux's `closing_wait`, 30 s by default), and so can
+    /// an open; the way down must not wait for either. The close runs on its own thread, and
+    /// the wait for it and the open on the blocking pool; a close or open still blocked at the
+    /// deadline is left to finish there, and the port stays closed.
     async fn reopen_port(&mut self, deadline: tokio::time::Instant) -> Result<(), String> {
-        let old = self.port.take();
+        if let Some(old) = self.port.take() {
+            close_in_background(&self.path, old, self.closer);
+        }
         let (path, profile, opener) = (self.path.clone(), self.profile.clone(), self.opener);
+        let wait = deadline.saturating_duration_since(tokio::time::Instant::now());
         let job = tokio::task::spawn_blocking(move || {
-            drop(old);
+            wait_for_closes(&path, wait)?;
             opener(&path, &profile)
         });
         match tokio::time::timeout_at(deadline, job).await {
@@ -667,6 +769,68 @@ mod tests {
             client.port.is_none(),
             "no port is open after a failed reopening"
         );
+    }
+
+    /// Set once [`slow_close`] has closed its port.
+    static SLOW_CLOSE_DONE: std::sync::atomic::AtomicBool =
+        std::sync::atomic::AtomicBool::new(false);
+
+    /// A close that blocks, as one on a stalled adapter draining its output does, then closes.
+    fn slow_close(port: Port) {
+        std::thread::sleep(Duration::from_millis(800));
+        drop(port);
+        SLOW_CLOSE_DONE.store(true, std::sync::atomic::Ordering::SeqCst);
+    }
+
+    #[tokio::test]
+    async fn a_dropped_client_writes_the_emission_off_then_closes_on_its_own_thread_and_an_open_waits_for_the_close()
+     {
+        use tokio::io::AsyncReadExt;
+        let (host, mut laser_side) = tokio_serial::SerialStream::pair().expect("a pty pair");
+        let profile = Profile::builtin("monaco").expect("builtin profile");
+        let off_line = format!(
+            "{}{}",
+            fill(&profile.commands[ops::EMISSION_OFF].send, None),
+            profile.terminator
+        );
+        let port = Framed::new(host, LineCodec::new(&profile.terminator));
+        let path = "/dev/pty-test-slow-close";
+        let reply = Duration::from_millis(100);
+        let mut client = LaserClient::on_port(port, path, profile, reply, Tap::none());
+        client.closer = slow_close;
+        client.emission_may_be_on = true;
+
+        let dropped = Instant::now();
+        drop(client);
+        let took = dropped.elapsed();
+        assert!(
+            took < Duration::from_millis(200),
+            "the drop waited {took:?} for a close that takes 800 ms"
+        );
+        let mut got = vec![0; off_line.len()];
+        tokio::time::timeout(Duration::from_secs(1), laser_side.read_exact(&mut got))
+            .await
+            .expect("the emission-off line within 1 s")
+            .expect("read the laser's side");
+        assert_eq!(String::from_utf8_lossy(&got), off_line);
+
+        // An open of the port meanwhile waits for the close, bounded.
+        let short = wait_for_closes(path, Duration::from_millis(100)).expect_err("still closing");
+        let why = short.to_string();
+        assert!(
+            why.contains(path) && why.contains("previous close has not returned within 100 ms"),
+            "{why}"
+        );
+        assert!(!SLOW_CLOSE_DONE.load(std::sync::atomic::Ordering::SeqCst));
+        wait_for_closes(path, Duration::from_secs(5)).expect("the close returns within 5 s");
+        assert!(SLOW_CLOSE_DONE.load(std::sync::atomic::Ordering::SeqCst));
+        let waited = dropped.elapsed();
+        assert!(
+            waited >= Duration::from_millis(700),
+            "the open went ahead after {waited:?}, before the close returned"
+        );
+        // Another port's opens never wait for this one's closes.
+        wait_for_closes("/dev/pty-test-other", Duration::ZERO).expect("nothing closing there");
     }
 
     #[test]
