@@ -64,11 +64,13 @@ use trim_cell::frame::paper_frame;
 /// The longest atom (mm). Longer contours are cut into equal atoms no longer than this.
 pub const ATOM_MAX_LENGTH_MM: f64 = 10.0;
 
-/// The most atoms the path may be cut into before the fits ([`ATOM_MAX_LENGTH_MM`] each: 200 m
-/// of contour). The covering's work grows faster than the atoms, so a contour far longer than
-/// a part (a point 10⁶ mm off, or in the wrong units) is refused naming it instead of planned
-/// for hours or cut into more pieces than memory holds.
-pub const MAX_ATOMS: usize = 20_000;
+/// The most atoms the path may be cut into, before the fits ([`ATOM_MAX_LENGTH_MM`] each: 50 m
+/// of contour) and after them (where an atom no field holds is halved). The covering's work
+/// grows faster than the atoms (at 20,000 a two-point line took 3 minutes; at 5,000 it takes at
+/// most a few seconds), so a contour far longer than a part (a point 10⁴ mm off, or in the wrong
+/// units) or a field far smaller than a lens's is refused naming it instead of planned for
+/// minutes or cut into more pieces than memory holds. The demo core is 366 atoms.
+pub const MAX_ATOMS: usize = 5_000;
 
 /// An atom's feature vectors stay within this fraction of the limit of their mean.
 pub const ATOM_SPREAD_FRACTION: f64 = 0.5;
@@ -938,6 +940,13 @@ pub fn cover(path: &Path, problem: &CoverProblem<'_>) -> Result<Cover, PlanError
         .flatten()
         .collect();
     let n = atoms.len();
+    if n > MAX_ATOMS {
+        return Err(PlanError::TooManyFieldPieces {
+            pieces: n,
+            field_radius_mm: problem.field_radius_mm,
+            max: MAX_ATOMS,
+        });
+    }
     crate::error::check_cancel()?;
     let mut sel = select(problem, &atoms);
     crate::error::check_cancel()?;
@@ -1273,8 +1282,9 @@ mod tests {
 
     #[test]
     fn a_contour_of_astronomical_length_is_refused_not_a_capacity_overflow() {
-        // Two points 1e300 mm apart: 1e299 atoms, refused by count instead of allocated.
-        for far in [1e300, 1e6] {
+        // Two points 1e300 mm apart: 1e299 atoms, refused by count instead of allocated; 2e5 mm
+        // (20,000 atoms) planned for 3 minutes before the cap was 5,000.
+        for far in [1e300, 1e6, 2e5] {
             let piece = Piece {
                 contour: 7,
                 points: vec![
@@ -1289,7 +1299,7 @@ mod tests {
                 .unwrap_err()
                 .to_string();
             assert!(
-                e.contains("contour 7:") && e.contains("its point 2") && e.contains("20000"),
+                e.contains("contour 7:") && e.contains("its point 2") && e.contains("the 5000 "),
                 "{e}"
             );
         }

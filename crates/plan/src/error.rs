@@ -94,6 +94,21 @@ pub enum PlanError {
         /// The cap.
         max: usize,
     },
+    /// The pieces no galvo field holds alone, halved until one does, are more than the planner
+    /// takes ([`crate::cover::MAX_ATOMS`]): a field far smaller than a lens's.
+    #[error(
+        "galvo.field_mm: the path needs {pieces} pieces to fit a field of radius \
+         {field_radius_mm:.3} mm (after its margins), more than the {max} the pose covering \
+         takes: is galvo.field_mm the lens's field, in mm?"
+    )]
+    TooManyFieldPieces {
+        /// The pieces after the field splits.
+        pieces: usize,
+        /// The field radius the pieces were fitted to (mm, margins taken off).
+        field_radius_mm: f64,
+        /// The cap.
+        max: usize,
+    },
     /// A contour would be cut into more cover atoms than the planner takes
     /// ([`crate::cover::MAX_ATOMS`] over the path): a point far off the part.
     #[error(

@@ -1337,4 +1337,24 @@ mod tests {
         let e = plan(&path, &settings).unwrap_err();
         assert!(e.to_string().contains("trim.kerf_clearance_um"), "{e}");
     }
+
+    #[test]
+    fn a_galvo_field_far_smaller_than_a_lens_is_refused_by_its_pieces_not_planned_for_minutes() {
+        // A 0.01 mm field cut the demo core into 14,976 pieces and planned for over a minute; a
+        // 100 mm square is 40 atoms, each halved toward a field no piece fits.
+        let path = Path::new(vec![square(1, 100.0, 40, false)]).unwrap();
+        let mut settings = PlanSettings::default();
+        settings.galvo.field_mm = [0.01, 0.01];
+        let e = plan(&path, &settings).unwrap_err();
+        assert!(
+            matches!(e, PlanError::TooManyFieldPieces { pieces, max: crate::cover::MAX_ATOMS, .. } if pieces > crate::cover::MAX_ATOMS),
+            "{e}"
+        );
+        let text = e.to_string();
+        assert!(
+            text.starts_with("galvo.field_mm: ")
+                && text.contains("the 5000 the pose covering takes"),
+            "{text}"
+        );
+    }
 }
