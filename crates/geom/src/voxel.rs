@@ -33,8 +33,8 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel_mm: f64) -> Result<PointCloud>
         return Err(GeomError::invalid(
             "voxel_mm",
             format!(
-                "voxel size {} mm is too fine for the cloud: point {i}, {} mm from the origin, \
-                 would be voxel {} along an axis (at most 2^52); use a voxel of at least {} mm",
+                "voxel size {} mm is too fine for the cloud: point {i}, at a coordinate of {} mm, \
+                 would be voxel {} along that axis (at most 2^52); use a voxel of at least {} mm",
                 crate::Num(voxel_mm),
                 crate::Num(m),
                 crate::Num((m / voxel_mm).floor()),

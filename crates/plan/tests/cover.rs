@@ -310,7 +310,7 @@ fn cover_validates_and_never_needs_more_poses_than_kmeans() {
     );
 }
 
-/// A path whose contours run 99 m off the part (each point within the ±10⁵ mm trim-geom takes)
+/// A path whose contours run 20 m off the part (each point within the ±10⁵ mm trim-geom takes)
 /// is refused naming the contour and its far point, at once: the covering planned such a path
 /// for hours (a point 10⁶ mm off) or panicked allocating its atoms (10³⁰⁰).
 #[test]
