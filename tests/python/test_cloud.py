@@ -71,6 +71,33 @@ def test_points_round_trip_through_ply(tmp_path, plane_points):
     np.testing.assert_allclose(ns, normals, atol=1e-15)
 
 
+@pytest.mark.parametrize("ext", ["ply", "pcd", "xyz", "txt"])
+def test_write_points_writes_the_format_its_extension_names(tmp_path, plane_points, ext):
+    normals = trimctl.estimate_normals(plane_points, k=8)
+    f = tmp_path / f"cloud.{ext}"
+    trimctl.write_points(f, plane_points, normals=normals)
+    head = f.read_bytes()[:8]
+    expected = {"ply": b"ply\n", "pcd": b"# .PCD"}.get(ext)
+    if expected is None:
+        assert len(f.read_text().splitlines()[0].split()) == 6
+    else:
+        assert head.startswith(expected), head
+    pts, ns = trimctl.read_points(f)
+    np.testing.assert_array_equal(pts, plane_points)
+    np.testing.assert_allclose(ns, normals, atol=1e-15)  # renormalised when read
+
+
+def test_write_points_refuses_what_read_points_could_not_read_back(tmp_path, plane_points):
+    for name, says in [("c.stl", "holds a mesh"), ("c.csv", "holds a trimming path"),
+                       ("c.obj", "unknown extension .obj")]:
+        with pytest.raises(trimctl.FileFormatError, match=says):
+            trimctl.write_points(tmp_path / name, plane_points)
+        assert not (tmp_path / name).exists()
+    with pytest.raises(ValueError, match="no points to write"):
+        trimctl.write_points(tmp_path / "empty.ply", np.zeros((0, 3)))
+    assert not (tmp_path / "empty.ply").exists()
+
+
 def test_read_points_of_real_scans():
     from conftest import TEST_DATA
 

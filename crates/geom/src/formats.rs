@@ -240,6 +240,42 @@ pub fn read_geometry_from_bytes(bytes: &[u8], name: &FsPath) -> Result<Geometry>
     }
 }
 
+/// Writes a point cloud in the format its extension names, so that [`read_points`] reads it
+/// back exactly: `.ply` binary little-endian PLY, `.pcd` binary PCD, `.xyz` or `.txt` XYZ text
+/// (all double precision, normals when the cloud has them). A `.stl` or `.csv` (a mesh or a path,
+/// not a cloud) and unknown extensions are refused by name, and so is a cloud with no points,
+/// which [`read_points`] would refuse: nothing is written then.
+pub fn write_points(path: &FsPath, cloud: &PointCloud) -> Result<()> {
+    let format = format_of(path)?;
+    if cloud.is_empty() {
+        return Err(GeomError::invalid(
+            "points",
+            format!(
+                "{}: no points to write (a cloud file with none cannot be read back)",
+                path.display()
+            ),
+        ));
+    }
+    match format {
+        Format::Ply => write_ply(path, cloud, PlyEncoding::BinaryLittleEndian),
+        Format::Pcd => write_pcd(path, cloud, PcdEncoding::Binary),
+        Format::Xyz => write_xyz(path, cloud),
+        Format::Stl => Err(not_a_cloud(path, "stl", "a mesh")),
+        Format::PathCsv => Err(not_a_cloud(path, "csv", "a trimming path")),
+    }
+}
+
+/// The error for writing a cloud to a file whose extension holds another kind of data.
+fn not_a_cloud(path: &FsPath, ext: &str, holds: &str) -> GeomError {
+    GeomError::UnsupportedFormat {
+        path: path.into(),
+        message: format!(
+            "a .{ext} file holds {holds}, not a point cloud: write a cloud as .ply, .pcd, .xyz \
+             or .txt"
+        ),
+    }
+}
+
 /// Writes a point cloud as PLY with double-precision `x y z` (and `nx ny nz` when the cloud has
 /// normals), so coordinates round-trip exactly.
 pub fn write_ply(path: &FsPath, cloud: &PointCloud, encoding: PlyEncoding) -> Result<()> {

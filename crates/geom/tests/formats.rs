@@ -152,6 +152,47 @@ fn pcd_and_xyz_round_trip() {
     }
 }
 
+/// `write_points` writes the format its extension names, which `read_points` reads back exactly;
+/// a mesh or path extension, an unknown one, or an empty cloud is refused and nothing is written.
+#[test]
+fn write_points_writes_the_format_its_extension_names_and_refuses_the_rest() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = cloud(40, true, 4);
+    for (ext, starts) in [
+        ("ply", &b"ply\nformat binary_little_endian"[..]),
+        ("PCD", &b"# .PCD"[..]),
+        ("xyz", &b""[..]),
+        ("txt", &b""[..]),
+    ] {
+        let file = dir.path().join(format!("c.{ext}"));
+        formats::write_points(&file, &c).unwrap();
+        let bytes = std::fs::read(&file).unwrap();
+        assert!(bytes.starts_with(starts), ".{ext}: {:?}", &bytes[..20]);
+        if starts.is_empty() {
+            // Text: the first line is the first point's six numbers.
+            let first = std::str::from_utf8(&bytes).unwrap().lines().next().unwrap();
+            assert_eq!(first.split_whitespace().count(), 6, ".{ext}: {first}");
+        }
+        assert_same(&read_points(&file).unwrap(), &c);
+    }
+    for (ext, says) in [
+        ("stl", "holds a mesh, not a point cloud"),
+        ("csv", "holds a trimming path, not a point cloud"),
+        ("obj", "unknown extension .obj"),
+    ] {
+        let file = dir.path().join(format!("c.{ext}"));
+        let e = formats::write_points(&file, &c).unwrap_err().to_string();
+        assert!(e.contains(says) && e.contains(&format!("c.{ext}")), "{e}");
+        assert!(!file.exists(), ".{ext} was written");
+    }
+    let file = dir.path().join("empty.ply");
+    let e = formats::write_points(&file, &PointCloud::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("empty.ply: no points to write"), "{e}");
+    assert!(!file.exists());
+}
+
 /// An empty cloud can be written, but reading a file with no points is refused, naming it.
 #[test]
 fn empty_clouds_are_refused_when_read() {

@@ -165,7 +165,9 @@ pub fn cloud_to_numpy<'py>(
     )
 }
 
-/// Writes a point cloud as binary little-endian PLY (with normals when given).
+/// Writes a point cloud in the format its extension names (`.ply` binary PLY, `.pcd` binary PCD,
+/// `.xyz`/`.txt` text; double precision, with normals when given), so `read_points` reads it back
+/// exactly. Refuses `.stl`, `.csv`, unknown extensions and an empty cloud, writing nothing.
 #[pyfunction]
 #[pyo3(signature = (path, points, *, normals = None))]
 pub fn write_points(
@@ -176,10 +178,7 @@ pub fn write_points(
 ) -> PyResult<()> {
     let pts = arrays::points("points", points)?;
     let cloud = arrays::cloud(pts, "normals", normals)?;
-    run_detached(py, move || {
-        formats::write_ply(&path, &cloud, formats::PlyEncoding::BinaryLittleEndian)
-    })?
-    .map_err(geom_error)
+    run_detached(py, move || formats::write_points(&path, &cloud))?.map_err(geom_error)
 }
 
 /// Reads a path CSV (`contour,x,y,z,u,v,w`).
