@@ -16,6 +16,19 @@ pub enum RegisterError {
         /// Which cloud ("source", "target", "scan", "CAD").
         which: &'static str,
     },
+    /// Every point of a cloud is at one place (one point, or copies of it): nothing can be
+    /// fitted to it.
+    #[error(
+        "{which} cloud's {points} points are all at one place ({at}): a scan of the part spans it"
+    )]
+    AtOnePlace {
+        /// Which cloud.
+        which: &'static str,
+        /// Its points.
+        points: usize,
+        /// The place, mm.
+        at: String,
+    },
     /// A method needs normals that the cloud does not carry.
     #[error("{which} cloud has no normals; {method} needs them")]
     MissingNormals {
@@ -25,7 +38,10 @@ pub enum RegisterError {
         method: &'static str,
     },
     /// Too few correspondences (within the maximum distance, after trimming) to solve.
-    #[error("{stage}: {got} correspondences within {max_distance_mm} mm, needs at least {needed}")]
+    #[error(
+        "{stage}: {got} correspondences {}, needs at least {needed}",
+        within(*max_distance_mm)
+    )]
     TooFewCorrespondences {
         /// Which step (e.g. "icp level 2, iteration 5").
         stage: String,
@@ -146,5 +162,14 @@ impl RegisterError {
             name: name.into(),
             message: message.into(),
         }
+    }
+}
+
+/// "within D mm", or "at any distance" when no maximum is in force.
+fn within(max_distance_mm: f64) -> String {
+    if max_distance_mm.is_finite() {
+        format!("within {max_distance_mm} mm")
+    } else {
+        "at any distance".into()
     }
 }

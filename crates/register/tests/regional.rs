@@ -130,7 +130,7 @@ fn beats_the_papers_method_by_the_issues_factors() {
 }
 
 #[test]
-fn refuses_a_scan_that_does_not_overlap_the_cad() {
+fn refuses_a_scan_that_does_not_overlap_the_cad_or_is_at_one_place() {
     let c = case(31, false);
     let far = c
         .scan
@@ -163,6 +163,23 @@ fn refuses_a_scan_that_does_not_overlap_the_cad() {
     )
     .unwrap_err();
     assert!(matches!(err, RegisterError::EmptyCloud { .. }), "{err}");
+    // One point, and copies of it: refused by what it is, not as "0 correspondences".
+    for n in [1, 100] {
+        let at = PointCloud::new(vec![c.scan.points()[7]; n]).unwrap();
+        let err = register(
+            &c.cad_points,
+            &at,
+            &c.path,
+            &c.scan_from_cad_nominal,
+            &settings(&c),
+        )
+        .unwrap_err();
+        assert!(
+            matches!(err, RegisterError::AtOnePlace { which: "scan", points, .. } if points == n),
+            "{err}"
+        );
+        assert!(err.to_string().contains("all at one place"), "{err}");
+    }
 }
 
 #[test]

@@ -415,6 +415,17 @@ fn register_once(
     if scan.is_empty() {
         return Err(RegisterError::EmptyCloud { which: "scan" });
     }
+    let first_scan_point = scan.points()[0];
+    if scan.points().iter().all(|p| *p == first_scan_point) {
+        return Err(RegisterError::AtOnePlace {
+            which: "scan",
+            points: scan.len(),
+            at: format!(
+                "{}, {}, {}",
+                first_scan_point.x, first_scan_point.y, first_scan_point.z
+            ),
+        });
+    }
     if !initial_scan_from_cad
         .to_homogeneous()
         .iter()
