@@ -1,6 +1,6 @@
 //! The error type of trim-register: every variant says what was wrong and where.
 
-use trim_geom::{ContourId, GeomError};
+use trim_geom::{ContourId, GeomError, Point3};
 
 /// Result alias for trim-register.
 pub type Result<T, E = RegisterError> = std::result::Result<T, E>;
@@ -19,7 +19,11 @@ pub enum RegisterError {
     /// Every point of a cloud is at one place (one point, or copies of it): nothing can be
     /// fitted to it.
     #[error(
-        "{which} cloud's {points} points are all at one place ({at}): a scan of the part spans it"
+        "{which} cloud's {points} points are all at one place ({}, {}, {}): a scan of the part \
+         spans it",
+        at.x,
+        at.y,
+        at.z
     )]
     AtOnePlace {
         /// Which cloud.
@@ -27,7 +31,7 @@ pub enum RegisterError {
         /// Its points.
         points: usize,
         /// The place, mm.
-        at: String,
+        at: Point3,
     },
     /// A method needs normals that the cloud does not carry.
     #[error("{which} cloud has no normals; {method} needs them")]

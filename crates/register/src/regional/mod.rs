@@ -286,6 +286,22 @@ pub const PATH_OUTSIDE_CAD_DIAGONAL_SHARE: f64 = 0.25;
 /// Refuses, before any work, a path that does not lie on the CAD (naming the contour and the
 /// point) and a field too fine for the CAD (naming `field.spacing_mm`): both would otherwise
 /// size a grid or raster without bound.
+/// A scan with points, and not all at one place (one point, or copies of it), which failed as
+/// "0 correspondences".
+fn check_scan(scan: &PointCloud) -> Result<()> {
+    let Some(&first) = scan.points().first() else {
+        return Err(RegisterError::EmptyCloud { which: "scan" });
+    };
+    if scan.points().iter().all(|p| *p == first) {
+        return Err(RegisterError::AtOnePlace {
+            which: "scan",
+            points: scan.len(),
+            at: first,
+        });
+    }
+    Ok(())
+}
+
 fn check_inputs(cad: &PointCloud, path: &Path, settings: &RegisterSettings) -> Result<()> {
     let bounds = cad
         .bounds()
@@ -343,6 +359,7 @@ pub fn register(
     settings: &RegisterSettings,
 ) -> Result<Registration> {
     check_inputs(cad, path, settings)?;
+    check_scan(scan)?;
     let t0 = Instant::now();
     let (mut first, _) = register_once(cad, scan, path, initial_scan_from_cad, settings, &[])?;
     let first_s = t0.elapsed().as_secs_f64();
@@ -411,20 +428,6 @@ fn register_once(
     settings.validate()?;
     if cad.is_empty() {
         return Err(RegisterError::EmptyCloud { which: "CAD" });
-    }
-    if scan.is_empty() {
-        return Err(RegisterError::EmptyCloud { which: "scan" });
-    }
-    let first_scan_point = scan.points()[0];
-    if scan.points().iter().all(|p| *p == first_scan_point) {
-        return Err(RegisterError::AtOnePlace {
-            which: "scan",
-            points: scan.len(),
-            at: format!(
-                "{}, {}, {}",
-                first_scan_point.x, first_scan_point.y, first_scan_point.z
-            ),
-        });
     }
     if !initial_scan_from_cad
         .to_homogeneous()
