@@ -29,6 +29,13 @@ pub const MAX_NEIGHBOURS: usize = 10_000;
 /// Refuses `k < 3` or `k >` [`MAX_NEIGHBOURS`], a cloud with fewer than 3 points, a zero
 /// reference direction and a viewpoint that is not finite. A `k` larger than the cloud takes
 /// every point.
+///
+/// A point whose neighbours span no plane (all at one place, or on one line) has no normal:
+/// it gets +Z, oriented, and a warning (tracing; Python's `TrimWarning`) counts such points and
+/// names the first. A cloud with no point whose neighbours span a plane is refused, and so is
+/// one spanning more or less than [`EXTENT_RANGE_MM`] (not at one place), where the kd-tree's
+/// squared distances overflow or vanish. Within that range the covariance is taken of the
+/// offsets scaled by a power of two, so a cloud of 1e-100 mm has the normals of one of 1 mm.
 pub fn estimate_normals(
     points: &[Point3],
     k: usize,
@@ -64,49 +71,132 @@ pub fn estimate_normals(
             "the viewpoint must be finite",
         ));
     }
+    check_extent(points)?;
     let tree = KdTree::build(points);
-    Ok(points
+    let found: Vec<Option<Vector3>> = points
         .par_iter()
         .map(|p| {
             let neighbours = tree.knn(p, k);
-            let n = pca_normal(neighbours.iter().map(|n| &points[n.index]));
-            orient(n, p, orientation)
+            plane_normal(neighbours.iter().map(|n| &points[n.index]))
         })
+        .collect();
+    let undefined = found.iter().filter(|n| n.is_none()).count();
+    if undefined == points.len() {
+        return Err(GeomError::invalid(
+            "points",
+            format!(
+                "no point's {k} nearest neighbours span a plane (the {} points are all at one \
+                 place or on one line): a normal needs a surface",
+                points.len()
+            ),
+        ));
+    }
+    if let Some(first) = found.iter().position(Option::is_none) {
+        tracing::warn!(
+            "normal estimation: {undefined} of {} points have {k} nearest neighbours that span \
+             no plane (at one place or on one line; the first is point {first}): their normals \
+             are +Z, arbitrary",
+            points.len()
+        );
+    }
+    Ok(found
+        .into_iter()
+        .zip(points)
+        .map(|(n, p)| orient(n.unwrap_or_else(Vector3::z), p, orientation))
         .collect())
 }
 
-/// The least-variance direction of a set of points (unit), or +Z for a degenerate set.
+/// The widest and narrowest spread of a cloud whose neighbours a kd-tree finds: its squared
+/// distances neither overflow nor underflow to zero (mm).
+pub const EXTENT_RANGE_MM: (f64, f64) = (1e-150, 1e150);
+
+/// Refuses a cloud that spans more than [`EXTENT_RANGE_MM`] allows, or less without being at
+/// one place: its squared distances would be infinite or zero, so any neighbours would do.
+fn check_extent(points: &[Point3]) -> Result<()> {
+    let (lo, hi) = points.iter().fold(
+        (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        ),
+        |(lo, hi), p| (lo.inf(&p.coords), hi.sup(&p.coords)),
+    );
+    let extent = (hi - lo).amax();
+    let (narrowest, widest) = EXTENT_RANGE_MM;
+    if extent > widest || !extent.is_finite() || (extent > 0.0 && extent < narrowest) {
+        return Err(GeomError::invalid(
+            "points",
+            format!(
+                "the cloud spans {} mm along an axis: normals are estimated over clouds \
+                 spanning {narrowest:e} to {widest:e} mm (their squared distances overflow or \
+                 vanish beyond that); are the coordinates in mm?",
+                crate::Num(extent)
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The least-variance direction of a set of points (unit), or +Z for a degenerate set (see
+/// [`plane_normal`]).
 #[must_use]
 pub fn pca_normal<'a>(points: impl Iterator<Item = &'a Point3> + Clone) -> Vector3 {
+    plane_normal(points).unwrap_or_else(Vector3::z)
+}
+
+/// A plane's spread across it below this share of its spread along it (variances: a
+/// millionth in distance) is no plane: the points lie on one line.
+const LINE_SPREAD: f64 = 1e-12;
+
+/// The least-variance direction of a set of points (unit), or `None` when the points span no
+/// plane: fewer than 3, all at one place, or on one line (the middle variance under
+/// [`LINE_SPREAD`] of the largest). The offsets from the mean are scaled by a power of two
+/// (exact) so that their products neither overflow nor underflow.
+#[must_use]
+pub fn plane_normal<'a>(points: impl Iterator<Item = &'a Point3> + Clone) -> Option<Vector3> {
     let (sum, count) = points
         .clone()
         .fold((Vector3::zeros(), 0usize), |(s, c), p| {
             (s + p.coords, c + 1)
         });
     if count < MIN_NEIGHBOURS {
-        return Vector3::z();
+        return None;
     }
-    let mean = sum / count as f64;
+    let mut mean = sum / count as f64;
+    if !mean.iter().all(|c| c.is_finite()) {
+        // The sum overflowed (coordinates near f64's largest): a running mean does not.
+        mean = Vector3::zeros();
+        for (i, p) in points.clone().enumerate() {
+            mean += (p.coords - mean) / (i + 1) as f64;
+        }
+    }
+    let largest = points
+        .clone()
+        .map(|p| (p.coords - mean).amax())
+        .fold(0.0_f64, f64::max);
+    if !(largest.is_finite() && largest > 0.0) {
+        return None;
+    }
+    // 2^-e with 2^e near the largest offset: the scaled offsets are near 1, and the scaling is
+    // exact, so ordinary clouds keep their normals to the bit.
+    let scale = 2f64.powi(-largest.log2().round() as i32);
     let cov = points.fold(Matrix3::zeros(), |acc, p| {
-        let d = p.coords - mean;
+        let d = (p.coords - mean) * scale;
         acc + d * d.transpose()
     });
     let eig = SymmetricEigen::new(cov);
-    let (imin, _) = eig
-        .eigenvalues
-        .iter()
-        .enumerate()
-        .fold(
-            (0, f64::INFINITY),
-            |best, (i, &v)| if v < best.1 { (i, v) } else { best },
-        );
-    let n = eig.eigenvectors.column(imin).into_owned();
-    let norm = n.norm();
-    if norm > 0.0 && norm.is_finite() {
-        n / norm
-    } else {
-        Vector3::z()
+    let mut order = [0, 1, 2];
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    let (least, middle, most) = (
+        eig.eigenvalues[order[0]],
+        eig.eigenvalues[order[1]],
+        eig.eigenvalues[order[2]],
+    );
+    if !(least.is_finite() && most.is_finite()) || middle <= LINE_SPREAD * most {
+        return None;
     }
+    let n = eig.eigenvectors.column(order[0]).into_owned();
+    let norm = n.norm();
+    (norm > 0.0 && norm.is_finite()).then(|| n / norm)
 }
 
 fn orient(n: Vector3, p: &Point3, orientation: Orientation) -> Vector3 {
@@ -164,5 +254,82 @@ mod tests {
         let normals =
             estimate_normals(&plane, 500, Orientation::AlongReference(Vector3::z())).unwrap();
         assert!(normals.iter().all(|n| (n - Vector3::z()).norm() < 1e-9));
+    }
+
+    /// A tilted plane's 12×12 grid scaled by `s` about a point at `offset` (mm).
+    fn tilted_plane(s: f64, offset: f64) -> Vec<Point3> {
+        (0..12)
+            .flat_map(|i| {
+                (0..12).map(move |j| {
+                    let (x, y) = (f64::from(i), f64::from(j));
+                    Point3::new(
+                        offset + s * x,
+                        offset + s * y,
+                        offset + s * (0.3 * x - 0.1 * y),
+                    )
+                })
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_cloud_of_any_size_a_kd_tree_can_search_has_its_normals_and_a_larger_one_is_refused() {
+        let up = Orientation::AlongReference(Vector3::z());
+        let expected = Vector3::new(-0.3, 0.1, 1.0).normalize();
+        for (s, offset) in [
+            (1.0, 0.0),
+            (1e100, 0.0),
+            (1e-100, 0.0),
+            (1e-100, 1e-95),
+            (1e120, 1e125),
+        ] {
+            let normals = estimate_normals(&tilted_plane(s, offset), 8, up)
+                .unwrap_or_else(|e| panic!("scale {s:e}, offset {offset:e}: {e}"));
+            for n in &normals {
+                assert!(
+                    (n - expected).norm() < 1e-9,
+                    "scale {s:e}, offset {offset:e}: {n:?}"
+                );
+            }
+        }
+        for s in [1e300, 1e-300] {
+            let e = estimate_normals(&tilted_plane(s, 0.0), 8, up)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("the cloud spans") && e.contains("1e150"),
+                "scale {s:e}: {e}"
+            );
+        }
+    }
+
+    #[test]
+    fn points_whose_neighbours_span_no_plane_have_no_normal_and_a_cloud_of_them_is_refused() {
+        let up = Orientation::AlongReference(Vector3::z());
+        for (what, cloud) in [
+            ("one place", vec![Point3::new(1.0, 2.0, 3.0); 100]),
+            (
+                "one line",
+                (0..100)
+                    .map(|i| Point3::new(f64::from(i), 2.0 * f64::from(i), 0.5))
+                    .collect(),
+            ),
+        ] {
+            let e = estimate_normals(&cloud, 8, up).unwrap_err().to_string();
+            assert!(
+                e.contains("span a plane") && e.contains("100 points"),
+                "{what}: {e}"
+            );
+            assert_eq!(plane_normal(cloud.iter()), None, "{what}");
+            assert_eq!(pca_normal(cloud.iter()), Vector3::z(), "{what}");
+        }
+        // A plane with 9 copies of one point: the copies' 8 neighbours are copies, so they have
+        // no normal (+Z); every other point keeps its own.
+        let mut cloud = tilted_plane(1.0, 0.0);
+        cloud.extend(std::iter::repeat_n(Point3::new(50.0, 50.0, 50.0), 9));
+        let normals = estimate_normals(&cloud, 8, up).unwrap();
+        let expected = Vector3::new(-0.3, 0.1, 1.0).normalize();
+        assert!(normals[..144].iter().all(|n| (n - expected).norm() < 1e-9));
+        assert!(normals[144..].iter().all(|n| *n == Vector3::z()));
     }
 }

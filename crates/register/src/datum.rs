@@ -8,7 +8,7 @@
 //! 3. A rigid least-squares fit (Umeyama, no scale) of the CAD datum points onto the identified
 //!    ones replaces the surface best fit.
 
-use trim_geom::normals::pca_normal;
+use trim_geom::normals::plane_normal;
 use trim_geom::{KdTree, Point3, PointCloud, Similarity3};
 
 use crate::error::{RegisterError, Result};
@@ -54,6 +54,7 @@ pub fn datum_fit(
             max_distance_mm: MAX_DATUM_DISTANCE_MM,
         });
     }
+    check_datums(datums_in_cad)?;
     if scan.is_empty() {
         return Err(RegisterError::EmptyCloud { which: "scan" });
     }
@@ -80,10 +81,10 @@ pub fn datum_fit(
             .first()
             .is_none_or(|n| n.distance_sq > MAX_DATUM_DISTANCE_MM.powi(2))
         {
-            return Err(RegisterError::Contour {
-                contour: k as i64,
+            return Err(RegisterError::Datum {
+                datum: k,
                 message: format!(
-                    "datum {k} is not on the scan (no scan point within {MAX_DATUM_DISTANCE_MM} mm)"
+                    "not on the scan (no scan point within {MAX_DATUM_DISTANCE_MM} mm)"
                 ),
             });
         }
@@ -91,7 +92,14 @@ pub fn datum_fit(
         let centre = Point3::from(
             pts.iter().map(|p| p.coords).sum::<trim_geom::Vector3>() / pts.len() as f64,
         );
-        let n = pca_normal(pts.iter());
+        let n = plane_normal(pts.iter()).ok_or_else(|| RegisterError::Datum {
+            datum: k,
+            message: format!(
+                "the {} scan points near it span no plane (at one place or on one \
+                 line), so it cannot be put on the surface",
+                pts.len()
+            ),
+        })?;
         found.push(guess - n * n.dot(&(guess - centre)));
     }
     let fit = umeyama(datums_in_cad, &found, false)?;
@@ -106,6 +114,45 @@ pub fn datum_fit(
         datums_in_scan: found,
         residuals_mm,
     })
+}
+
+/// Two datums nearer than this are one point given twice, mm.
+pub const MIN_DATUM_SEPARATION_MM: f64 = 1e-3;
+
+/// Refuses datums that cannot fix a rigid pose: one that is not finite, one given twice
+/// (within [`MIN_DATUM_SEPARATION_MM`] of an earlier one), or all on one line.
+fn check_datums(datums: &[Point3]) -> Result<()> {
+    for (k, d) in datums.iter().enumerate() {
+        if !d.iter().all(|c| c.is_finite()) {
+            return Err(RegisterError::Datum {
+                datum: k,
+                message: format!("({}, {}, {}) is not finite", d.x, d.y, d.z),
+            });
+        }
+        if let Some(j) = datums[..k]
+            .iter()
+            .position(|e| (d - e).norm() < MIN_DATUM_SEPARATION_MM)
+        {
+            return Err(RegisterError::Datum {
+                datum: k,
+                message: format!(
+                    "({}, {}, {}) repeats datum {j}: each datum is a different point on the part",
+                    d.x, d.y, d.z
+                ),
+            });
+        }
+    }
+    if plane_normal(datums.iter()).is_none() {
+        return Err(RegisterError::Datum {
+            datum: datums.len() - 1,
+            message: format!(
+                "the {} datums lie on one line, which leaves the turn about it free: a rigid fit \
+                 needs datums that span a plane",
+                datums.len()
+            ),
+        });
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -173,6 +220,38 @@ mod tests {
                 &CoarseSettings::default()
             )
             .is_err()
+        );
+        // Datums that cannot fix a pose are refused by what is wrong with them, not as "not on
+        // the scan".
+        let fit = |datums: &[Point3]| {
+            datum_fit(
+                &case.cad_points,
+                &case.scan,
+                datums,
+                &case.scan_from_cad_nominal,
+                View::From(case.scanner_in_scan),
+                &CoarseSettings::default(),
+            )
+            .unwrap_err()
+            .to_string()
+        };
+        let mut twice = datums.clone();
+        twice[4] = datums[1];
+        let e = fit(&twice);
+        assert!(
+            e.starts_with("datum 4: ") && e.contains("repeats datum 1"),
+            "{e}"
+        );
+        let (a, b) = (design_point(0.0, 0.0, 1.5), design_point(0.0, 30.0, 1.5));
+        let line: Vec<Point3> = (0..4).map(|i| a + (b - a) * f64::from(i) / 3.0).collect();
+        let e = fit(&line);
+        assert!(e.contains("the 4 datums lie on one line"), "{e}");
+        let mut nan = datums.clone();
+        nan[2].y = f64::NAN;
+        let e = fit(&nan);
+        assert!(
+            e.starts_with("datum 2: ") && e.contains("not finite"),
+            "{e}"
         );
     }
 }

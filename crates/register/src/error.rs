@@ -154,6 +154,15 @@ pub enum RegisterError {
         /// What was wrong.
         message: String,
     },
+    /// A datum point of the six-point fit cannot be used (`datum` counts from 0, in the datums
+    /// file's order).
+    #[error("datum {datum}: {message}")]
+    Datum {
+        /// The datum's index.
+        datum: usize,
+        /// What was wrong.
+        message: String,
+    },
     /// A geometry error (bad cloud, bad path).
     #[error(transparent)]
     Geom(#[from] GeomError),

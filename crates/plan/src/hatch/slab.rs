@@ -21,7 +21,7 @@
 //! the output step) and the output points are placed along the fitted polyline; the slab width
 //! δ is three mean point spacings; the distance along the contour is its arc length.
 
-use trim_geom::normals::pca_normal;
+use trim_geom::normals::plane_normal;
 use trim_geom::{KdTree, Point3, Vector3};
 
 use super::polygon::Polygon;
@@ -474,7 +474,7 @@ fn project(ctx: &Ctx<'_>, st: [f64; 2], near: &Point3) -> Option<Point3> {
     }
     let pts: Vec<Point3> = nn.iter().map(|n| ctx.points[n.index]).collect();
     let centroid = Point3::from(pts.iter().map(|p| p.coords).sum::<Vector3>() / pts.len() as f64);
-    let normal = pca_normal(pts.iter());
+    let normal = plane_normal(pts.iter())?;
     let along_e3 = normal.dot(&frame.e3);
     if along_e3.abs() < 1e-6 {
         return None;
