@@ -31,6 +31,18 @@ pub const BEAM_DIAMETER_RANGE_MM: (f64, f64) = (0.1, 100.0);
 /// for (a multimode industrial source is below 30).
 pub const MAX_M_SQUARED: f64 = 100.0;
 
+/// The physical range of `beam.power_w` (W): beyond the highest average power an ultrafast
+/// source delivers (a few kW in research systems), with margin.
+pub const POWER_RANGE_W: (f64, f64) = (1e-6, 20_000.0);
+
+/// The physical range of `beam.repetition_rate_hz` (Hz): a single-shot source to a GHz burst,
+/// with margin.
+pub const REPETITION_RATE_RANGE_HZ: (f64, f64) = (1e-3, 1e11);
+
+/// The largest `beam.fluence_threshold_ratio` (F0/Fth): far beyond any process window (2–50),
+/// where the focus processing length stops being a layer's depth.
+pub const MAX_FLUENCE_THRESHOLD_RATIO: f64 = 1e4;
+
 /// Bisection steps after the scan brackets the limit (2⁻⁴⁰ of a step).
 const INCIDENCE_BISECTION_STEPS: usize = 40;
 
@@ -106,11 +118,15 @@ impl Beam {
     /// of a size a cell can have: `wavelength_nm` within [`WAVELENGTH_RANGE_NM`],
     /// `focal_length_mm` within [`FOCAL_LENGTH_RANGE_MM`], `beam_diameter_mm` within
     /// [`BEAM_DIAMETER_RANGE_MM`], `m_squared` within [1, [`MAX_M_SQUARED`]]. The power and the
-    /// repetition rate must be > 0 here; the laser profile's `[limits]` bound them
-    /// ([`Beam::check_limits`]).
+    /// repetition rate are held here to what a laser can be ([`POWER_RANGE_W`],
+    /// [`REPETITION_RATE_RANGE_HZ`]); the laser profile's `[limits]` bound them closer
+    /// ([`Beam::check_limits`]). `fluence_threshold_ratio` is within
+    /// (1, [`MAX_FLUENCE_THRESHOLD_RATIO`]].
     pub fn validate(&self) -> Result<(), CellError> {
-        require_positive("beam.power_w", self.power_w)?;
-        require_positive("beam.repetition_rate_hz", self.repetition_rate_hz)?;
+        let (lo, hi) = POWER_RANGE_W;
+        require_range("beam.power_w", self.power_w, lo, hi)?;
+        let (lo, hi) = REPETITION_RATE_RANGE_HZ;
+        require_range("beam.repetition_rate_hz", self.repetition_rate_hz, lo, hi)?;
         let (lo, hi) = WAVELENGTH_RANGE_NM;
         require_range("beam.wavelength_nm", self.wavelength_nm, lo, hi)?;
         if !(self.m_squared.is_finite() && (1.0..=MAX_M_SQUARED).contains(&self.m_squared)) {
@@ -141,6 +157,12 @@ impl Beam {
                 "must be > 1 (below threshold nothing is ablated)",
             ));
         }
+        require_open_closed(
+            "beam.fluence_threshold_ratio",
+            self.fluence_threshold_ratio,
+            1.0,
+            MAX_FLUENCE_THRESHOLD_RATIO,
+        )?;
         require_range("beam.incidence_deg", self.incidence_deg, 0.0, 89.0)?;
         if self.fluence_threshold_ratio * self.incidence_deg.to_radians().cos() <= 1.0 {
             return Err(CellError::setting(
@@ -589,7 +611,22 @@ mod tests {
     fn optics_outside_their_physical_range_are_refused_by_key() {
         /// Sets one optics key of a beam.
         type Set = fn(&mut Beam, f64);
-        let cases: [(Set, &str, &[f64]); 4] = [
+        let cases: [(Set, &str, &[f64]); 7] = [
+            (
+                |b, v| b.power_w = v,
+                "beam.power_w",
+                &[1e300, 1e-300, 50_000.0, f64::INFINITY],
+            ),
+            (
+                |b, v| b.repetition_rate_hz = v,
+                "beam.repetition_rate_hz",
+                &[1e300, 1e-300, 1e12],
+            ),
+            (
+                |b, v| b.fluence_threshold_ratio = v,
+                "beam.fluence_threshold_ratio",
+                &[1e300, 2e4],
+            ),
             (
                 |b, v| b.wavelength_nm = v,
                 "beam.wavelength_nm",
@@ -635,6 +672,28 @@ mod tests {
                 ..Beam::default()
             };
             b.validate().unwrap();
+            assert!(b.focus_half_length_mm().is_finite() && b.focus_half_length_mm() > 0.0);
+        }
+        // So are the power's, the rate's and the ratio's: the pulse energy and the focus
+        // processing length stay finite and positive.
+        for (power_w, repetition_rate_hz, fluence_threshold_ratio) in [
+            (
+                POWER_RANGE_W.0,
+                REPETITION_RATE_RANGE_HZ.1,
+                MAX_FLUENCE_THRESHOLD_RATIO,
+            ),
+            (POWER_RANGE_W.1, REPETITION_RATE_RANGE_HZ.0, 1.0 + 1e-9),
+        ] {
+            let b = Beam {
+                power_w,
+                repetition_rate_hz,
+                fluence_threshold_ratio,
+                incidence_deg: 0.0,
+                ..Beam::default()
+            };
+            b.validate().unwrap();
+            let e = b.pulse_energy_j();
+            assert!(e.is_finite() && e > 0.0, "{e}");
             assert!(b.focus_half_length_mm().is_finite() && b.focus_half_length_mm() > 0.0);
         }
     }

@@ -163,6 +163,19 @@ impl FixturePose {
                 bail!("{key}.{name}: expected three finite numbers, got {v:?}");
             }
         }
+        // Beyond a few turns the degrees lose the digits the direction is in; beyond 100 m the
+        // part is not in any cell.
+        for (name, v, limit, unit) in [
+            ("rotation_deg", self.rotation_deg, 360.0, "degrees"),
+            ("translation_mm", self.translation_mm, 100_000.0, "mm"),
+        ] {
+            if let Some(c) = v.iter().find(|c| c.abs() > limit) {
+                bail!(
+                    "{key}.{name}: {} is beyond ±{limit} {unit}; give each within [-{limit}, {limit}]",
+                    trim_geom::Num(*c)
+                );
+            }
+        }
         let [rx, ry, rz] = self.rotation_deg.map(f64::to_radians);
         let rotation = nalgebra::UnitQuaternion::from_euler_angles(rx, ry, rz);
         Ok(trim_geom::math::Similarity3::from_parts(
@@ -969,6 +982,22 @@ mod tests {
             JobConfig::parse("[part.scan_from_cad]\nrotation_deg = [0.0, nan, 0.0]\n").unwrap_err()
         );
         assert!(e.contains("part.scan_from_cad.rotation_deg"), "{e}");
+        for (text, key) in [
+            (
+                "rotation_deg = [0.0, 1e300, 0.0]",
+                "part.scan_from_cad.rotation_deg: 1e300 is beyond ±360 degrees",
+            ),
+            (
+                "translation_mm = [-2e5, 0.0, 0.0]",
+                "part.scan_from_cad.translation_mm: -200000 is beyond ±100000 mm",
+            ),
+        ] {
+            let e = format!(
+                "{:#}",
+                JobConfig::parse(&format!("[part.scan_from_cad]\n{text}\n")).unwrap_err()
+            );
+            assert!(e.contains(key), "{text}: {e}");
+        }
         // The two poses of [part] say which is which.
         let docs = key_docs();
         assert!(docs["part.scan_pose"].contains("not the part's"));

@@ -199,11 +199,13 @@ impl HatchSettings {
     /// [`MAX_GRID_NODES`]).
     pub fn validate(&self) -> Result<(), HatchError> {
         at_least_a_micrometre("hatch.pitch_mm", self.pitch_mm)?;
-        if !self.angle_deg.is_finite() {
+        if !(self.angle_deg.is_finite() && self.angle_deg.abs() <= 360.0) {
+            // Beyond a few turns an angle's degrees lose the digits its direction is in
+            // (1e300° turns the tracks any way at all).
             return Err(HatchError::setting(
                 "hatch.angle_deg",
                 self.angle_deg,
-                "must be finite",
+                "must be within [-360, 360] degrees",
             ));
         }
         if let Some(s) = self.step_mm {
@@ -878,6 +880,27 @@ mod tests {
         assert!("slab".parse::<HatchMethod>().is_ok());
         assert!("heat".parse::<HatchMethod>().is_err());
         assert!(HatchSettings::with_pitch(0.0).validate().is_err());
+        for (angle_deg, ok) in [
+            (-360.0, true),
+            (359.5, true),
+            (361.0, false),
+            (1e300, false),
+        ] {
+            let s = HatchSettings {
+                angle_deg,
+                ..HatchSettings::with_pitch(0.1)
+            };
+            match s.validate() {
+                Ok(()) => assert!(ok, "{angle_deg} was accepted"),
+                Err(e) => {
+                    let e = e.to_string();
+                    assert!(
+                        !ok && e.contains("hatch.angle_deg") && e.contains("[-360, 360]"),
+                        "{e}"
+                    );
+                }
+            }
+        }
         assert!((HatchSettings::from_spot(2.0, 0.2).unwrap().pitch_mm - 1.6).abs() < 1e-12);
     }
 }
