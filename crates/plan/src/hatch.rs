@@ -365,6 +365,24 @@ pub enum HatchError {
         /// The longest edge between consecutive points, mm.
         longest_edge_mm: f64,
     },
+    /// The boundary crosses or touches itself (seen on the patch's plane): it is no simple
+    /// loop, so it encloses no one region (a figure eight's halves cancel in its area).
+    #[error(
+        "the boundary crosses itself: its edge from point {first} to the next crosses its edge \
+         from point {second} to the next, near ({:.3}, {:.3}, {:.3}) mm; a region's boundary is \
+         one loop that does not cross itself",
+        at.x,
+        at.y,
+        at.z
+    )]
+    BoundaryCrossesItself {
+        /// The first edge's starting point (0-based, in the boundary's order).
+        first: usize,
+        /// The second edge's starting point.
+        second: usize,
+        /// The first edge's starting point, mm.
+        at: Point3,
+    },
     /// A boundary vertex does not lie on the scanned surface.
     #[error(
         "boundary point {index} is {distance_mm:.4} mm off the scanned surface (at most \
@@ -651,6 +669,22 @@ pub fn hatch_with_progress(
             ring.push(first);
         }
         if let Some((_, points, normals)) = sample::sample_track(&surface, &ring, spacing) {
+            // A closed loop needs three points besides its closing repeat: a step longer than
+            // a third of it left the outline as its start twice, a track of zero length.
+            if points.len() < 4
+                && let PointSpacing::Pitch { step_mm } = spacing
+            {
+                let perimeter: f64 = ring.windows(2).map(|w| dist2(w[0], w[1]).sqrt()).sum();
+                return Err(HatchError::setting(
+                    "hatch.step_mm",
+                    step_mm,
+                    format!(
+                        "the outline along the boundary is about {perimeter:.3} mm long, and a \
+                         step over a third of it leaves it no loop; give a shorter step, or no \
+                         outline"
+                    ),
+                ));
+            }
             tracks.push(Track {
                 id: 0,
                 kind: TrackKind::Outline,

@@ -628,3 +628,62 @@ fn settings_that_would_not_fit_in_memory_are_refused_by_key() {
     );
     refused(with(None, Some(1e-3)), "hatch.grid_mm", "a region may have");
 }
+
+/// A boundary that crosses itself encloses no one region: it is refused naming its crossing
+/// edges, not as a grid of 10¹⁸ nodes (a figure eight's halves cancel in its area, so the scan
+/// spacing worked out from it was 10⁻⁹ mm). A step longer than a third of the outline, which
+/// left the outline as its start twice, is refused naming `hatch.step_mm`.
+#[test]
+fn a_boundary_crossing_itself_and_a_step_longer_than_the_outline_are_refused_by_what_they_are() {
+    let s = saddle();
+    let cloud = s.cloud(10_000, 5);
+    let eight: Vec<Point3> = (0..=200)
+        .map(|i| {
+            let t = f64::from(i % 200) / 200.0 * std::f64::consts::TAU;
+            s.x([6.0 * t.sin(), 6.0 * t.sin() * t.cos()])
+        })
+        .collect();
+    for method in [HatchMethod::Geodesic, HatchMethod::Slab] {
+        let settings = HatchSettings {
+            method,
+            ..HatchSettings::with_pitch(0.5)
+        };
+        let Err(e) = hatch(&cloud, &eight, &settings) else {
+            panic!("{method:?}: the figure eight was hatched");
+        };
+        assert!(
+            matches!(e, HatchError::BoundaryCrossesItself { .. }),
+            "{method:?}: {e}"
+        );
+        let e = e.to_string();
+        assert!(
+            e.contains("crosses itself") && e.contains("from point"),
+            "{e}"
+        );
+    }
+    let b = s.boundary();
+    let perimeter: f64 = b.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
+    let with_step = |step_mm: f64, outline: bool| HatchSettings {
+        step_mm: Some(step_mm),
+        outline,
+        ..HatchSettings::with_pitch(0.5)
+    };
+    for step in [perimeter / 2.0, 1e300] {
+        let e = hatch(&cloud, &b, &with_step(step, true))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("hatch.step_mm") && e.contains("outline"),
+            "{step}: {e}"
+        );
+    }
+    // Without the outline, or with a step a third of it, the tracks are planned.
+    hatch(&cloud, &b, &with_step(perimeter / 2.0, false)).unwrap();
+    let h = hatch(&cloud, &b, &with_step(perimeter / 3.5, true)).unwrap();
+    let outline = h
+        .tracks
+        .iter()
+        .find(|t| t.kind == TrackKind::Outline)
+        .unwrap();
+    assert!(outline.points.len() >= 4, "{}", outline.points.len());
+}

@@ -139,6 +139,49 @@ impl Polygon {
             .fold(f64::INFINITY, f64::min)
     }
 
+    /// The first two edges that cross or touch, as `(i, j)` with `i < j`: edge `i` runs from
+    /// vertex `i` to vertex `i + 1` (the last to vertex 0). `None` for a simple polygon. Edges
+    /// that share a vertex are not compared; each edge is tested only against the edges in its
+    /// grid cells, so a boundary of n vertices costs about n tests, not n².
+    #[must_use]
+    pub fn self_crossing(&self) -> Option<(usize, usize)> {
+        let n = self.vertices.len();
+        if n < 4 {
+            return None;
+        }
+        let adjacent = |e: usize, f: usize| {
+            let d = e.abs_diff(f);
+            d <= 1 || d == n - 1
+        };
+        let mut seen: Vec<u32> = Vec::new();
+        for e in 0..n {
+            let (a, b) = self.edge(e);
+            let (i0, j0, i1, j1) = self.cell_range(a, b);
+            seen.clear();
+            for j in j0..=j1 {
+                for i in i0..=i1 {
+                    for &f in &self.cells[j * self.nx + i] {
+                        let f = f as usize;
+                        if f <= e || adjacent(e, f) || seen.contains(&(f as u32)) {
+                            continue;
+                        }
+                        seen.push(f as u32);
+                        let (c, d) = self.edge(f);
+                        // Edges that meet at a repeated vertex (a zero-length edge between
+                        // them) are neighbours too.
+                        if a == c || a == d || b == c || b == d {
+                            continue;
+                        }
+                        if segments_meet(a, b, c, d) {
+                            return Some((e, f));
+                        }
+                    }
+                }
+            }
+        }
+        None
+    }
+
     /// The crossings of segment `a`–`b` with the polygon: the parameters `u ∈ [0, 1)` along it,
     /// sorted.
     #[must_use]
@@ -181,6 +224,40 @@ pub fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     (p[0] - a[0] - u * ab[0]).hypot(p[1] - a[1] - u * ab[1])
 }
 
+/// Whether closed segments `a`–`b` and `c`–`d` cross or touch (orientation signs; collinear
+/// segments meet where they overlap).
+fn segments_meet(a: [f64; 2], b: [f64; 2], c: [f64; 2], d: [f64; 2]) -> bool {
+    let orient = |p: [f64; 2], q: [f64; 2], r: [f64; 2]| {
+        let v = (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0]);
+        if v > 0.0 {
+            1
+        } else if v < 0.0 {
+            -1
+        } else {
+            0
+        }
+    };
+    let within = |p: [f64; 2], q: [f64; 2], r: [f64; 2]| {
+        r[0] >= p[0].min(q[0])
+            && r[0] <= p[0].max(q[0])
+            && r[1] >= p[1].min(q[1])
+            && r[1] <= p[1].max(q[1])
+    };
+    let (o1, o2, o3, o4) = (
+        orient(a, b, c),
+        orient(a, b, d),
+        orient(c, d, a),
+        orient(c, d, b),
+    );
+    if o1 * o2 < 0 && o3 * o4 < 0 {
+        return true;
+    }
+    (o1 == 0 && within(a, b, c))
+        || (o2 == 0 && within(a, b, d))
+        || (o3 == 0 && within(c, d, a))
+        || (o4 == 0 && within(c, d, b))
+}
+
 /// Where segment `a`–`b` crosses edge `c`–`d`: the parameter along `a`–`b`. Half-open on the
 /// edge (`[c, d)`) so a crossing through a shared vertex counts once, consistent with
 /// [`Polygon::contains`].
@@ -218,5 +295,37 @@ mod tests {
         let c = p.crossings([-1.0, 1.0], [3.0, 1.0]);
         assert_eq!(c.len(), 2);
         assert!((c[0] - 0.25).abs() < 1e-12 && (c[1] - 0.75).abs() < 1e-12);
+        assert_eq!(p.self_crossing(), None);
+    }
+
+    #[test]
+    fn a_figure_eight_crosses_itself_and_a_loop_with_repeated_points_does_not() {
+        let eight: Vec<[f64; 2]> = (0..200)
+            .map(|i| {
+                let t = f64::from(i) / 200.0 * std::f64::consts::TAU;
+                [6.0 * t.sin(), 6.0 * t.sin() * t.cos()]
+            })
+            .collect();
+        let (e, f) = Polygon::new(eight)
+            .self_crossing()
+            .expect("the eight crosses itself");
+        // The crossing is at the origin: the edges about t = 0 and t = π.
+        assert!(e == 0 || e == 199 || f == 199, "{e}, {f}");
+        assert!(
+            (99..=100).contains(&e) || (99..=100).contains(&f),
+            "{e}, {f}"
+        );
+        // An ellipse with every fifth point given twice (a CAM export's repeats) is simple.
+        let ellipse: Vec<[f64; 2]> = (0..300)
+            .flat_map(|i| {
+                let t = f64::from(i) / 300.0 * std::f64::consts::TAU;
+                let p = [6.0 * t.cos(), 4.0 * t.sin()];
+                std::iter::repeat_n(p, if i % 5 == 0 { 2 } else { 1 })
+            })
+            .collect();
+        assert_eq!(Polygon::new(ellipse).self_crossing(), None);
+        // A bow tie: the closing edge crosses the second.
+        let bow = Polygon::new(vec![[0.0, 0.0], [2.0, 2.0], [2.0, 0.0], [0.0, 2.0]]);
+        assert_eq!(bow.self_crossing(), Some((0, 2)));
     }
 }

@@ -171,8 +171,17 @@ impl Surface {
         let mut near = Vec::new();
         let mut inside = Vec::new();
         let mut h = 0.0;
-        for _ in 0..2 {
+        for round in 0..2 {
             let polygon = Polygon::new(boundary.iter().map(|p| frame.to_plane(p)).collect());
+            if round == 0
+                && let Some((first, second)) = polygon.self_crossing()
+            {
+                return Err(HatchError::BoundaryCrossesItself {
+                    first,
+                    second,
+                    at: boundary[first],
+                });
+            }
             let area = polygon.area();
             inside = layer
                 .par_iter()
