@@ -179,3 +179,43 @@ def test_a_file_cut_inside_its_last_number_reads_with_a_trim_warning(tmp_path):
         warnings.simplefilter("error")
         with pytest.raises(trimctl.TrimWarning):
             trimctl.read_path(path)
+
+
+def test_points_whose_neighbours_span_no_plane_warn_and_a_cloud_of_them_is_refused(plane_points):
+    # Nine copies of one point off the plane: their 8 nearest neighbours are copies, so they
+    # have no normal. The rest keep theirs; a TrimWarning counts the copies and names the first.
+    copies = np.tile([[50.0, 50.0, 50.0]], (9, 1))
+    cloud = np.vstack([plane_points, copies])
+    with pytest.warns(trimctl.TrimWarning, match=rf"9 of {len(cloud)} points .* span no plane") as w:
+        normals = trimctl.estimate_normals(cloud, k=8)
+    assert f"the first is point {len(plane_points)}" in str(w[0].message)
+    expected = np.array([-0.2, 0.0, 1.0]) / np.linalg.norm([-0.2, 0.0, 1.0])
+    np.testing.assert_allclose(normals[: len(plane_points)],
+                               np.tile(expected, (len(plane_points), 1)), atol=1e-9)
+    with pytest.raises(ValueError, match="span a plane"):
+        trimctl.estimate_normals(copies, k=8)
+    # A plane 1e300 mm across is beyond what the kd-tree's squared distances hold: refused.
+    with pytest.raises(ValueError, match="the cloud spans"):
+        trimctl.estimate_normals(plane_points * 1e300, k=8)
+
+
+def test_arguments_pyo3_converts_are_refused_naming_them(plane_points):
+    # pyo3 names an argument only in a TypeError: k=-1 raised a bare OverflowError.
+    for kwargs, error, message in [
+        (dict(k=-1), ValueError, r"^k: expected a whole number of neighbours, got -1"),
+        (dict(k=2**70), ValueError, r"^k: expected a whole number of neighbours"),
+        (dict(k="8"), TypeError, r"k: expected a whole number of neighbours, got '8'"),
+        (dict(viewpoint=(1.0, 2.0)), ValueError, r"^viewpoint: expected three numbers \(x, y, z\)"),
+        (dict(reference=5), TypeError, r"reference: expected three numbers \(x, y, z\), got 5"),
+    ]:
+        with pytest.raises(error, match=message):
+            trimctl.estimate_normals(plane_points, **kwargs)
+    target = plane_points
+    for kwargs, error, message in [
+        (dict(max_iterations=-1), ValueError, r"^max_iterations: expected a whole number"),
+        (dict(kernel=("huber",)), ValueError, r"^kernel: expected a \(name, threshold\) pair"),
+    ]:
+        with pytest.raises(error, match=message):
+            trimctl.icp(plane_points + 0.01, target, **kwargs)
+    # Good values still go through, numpy integers included.
+    assert trimctl.estimate_normals(plane_points, k=np.int64(8)).shape == plane_points.shape

@@ -281,6 +281,21 @@ def test_plan_errors(registration):
     # k larger than the contours (pieces after splitting) there are to zone.
     with pytest.raises(trimctl.PlanningError, match="zoning.k = 10000"):
         trimctl.plan(registration.path, k=10_000)
+    # Wrong arguments are refused naming them (a bare IndexError, AttributeError or serde
+    # message before).
+    for kwargs, error, message in [
+        (dict(k=-1), ValueError, "k: expected a whole number of zones >= 1, got -1"),
+        (dict(k=2.5), TypeError, "k: expected a whole number of zones"),
+        (dict(field_mm=(1,)), ValueError, "field_mm: expected two numbers .width, height., got 1"),
+        (dict(field_mm=5), TypeError, "field_mm: expected two numbers"),
+        (dict(field_mm=("a", 1)), TypeError, "field_mm: expected two numbers"),
+        (dict(beam=5), TypeError, "beam: expected a trimctl.Beam, got int"),
+    ]:
+        with pytest.raises(error, match=message):
+            trimctl.plan(registration.path, **kwargs)
+    # numpy's integers are whole numbers too: this one reaches the planner, which counts them.
+    with pytest.raises(trimctl.PlanningError, match="zoning.k = 10000"):
+        trimctl.plan(registration.path, k=np.int64(10_000))
     with pytest.raises(ValueError, match="init"):
         trimctl.register_path(np.zeros((10, 3)), np.zeros((10, 3)), registration.path,
                               cad_normals=np.tile([0.0, 0, 1], (10, 1)), init=np.eye(3))

@@ -146,3 +146,44 @@ pub fn from_points<'py>(py: Python<'py>, pts: &[Point3<f64>]) -> Bound<'py, PyAr
 pub fn from_vectors<'py>(py: Python<'py>, vs: &[Vector3<f64>]) -> Bound<'py, PyArray2<f64>> {
     from_rows(py, vs.iter().map(|v| [v.x, v.y, v.z]))
 }
+
+/// Extracts a keyword argument that pyo3 would convert itself, with its refusal naming the
+/// argument: pyo3 names it only in a `TypeError`, so `k=-1` raised a bare `OverflowError`
+/// ("can't convert negative int to unsigned") and `viewpoint=(1, 2)` a bare `ValueError`. A
+/// wrong type stays a `TypeError`, a wrong value (negative, too big, the wrong length) is a
+/// `ValueError`; both read `name: …`, and `expected` says what is taken.
+pub fn named<'py, T: FromPyObject<'py>>(
+    name: &str,
+    obj: &Bound<'py, PyAny>,
+    expected: &str,
+) -> PyResult<T> {
+    obj.extract::<T>().map_err(|e| {
+        let py = obj.py();
+        let message = format!(
+            "{name}: expected {expected}, got {} ({e})",
+            describe_value(obj)
+        );
+        if e.is_instance_of::<pyo3::exceptions::PyTypeError>(py) {
+            pyo3::exceptions::PyTypeError::new_err(message)
+        } else {
+            pyo3::exceptions::PyValueError::new_err(message)
+        }
+    })
+}
+
+/// Three numbers (`viewpoint`, `reference`), refused naming the argument.
+pub fn triple(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<[f64; 3]> {
+    named(name, obj, "three numbers (x, y, z)")
+}
+
+/// `repr(obj)`, cut to 60 characters.
+fn describe_value(obj: &Bound<'_, PyAny>) -> String {
+    let text = obj
+        .repr()
+        .map_or_else(|_| "?".to_string(), |r| r.to_string());
+    if text.chars().count() > 60 {
+        format!("{}…", text.chars().take(60).collect::<String>())
+    } else {
+        text
+    }
+}

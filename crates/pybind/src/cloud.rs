@@ -13,17 +13,25 @@ use crate::errors::{geom_error, refuse_renamed, value_error};
 use crate::gil::run_detached;
 
 /// Estimates unit normals by PCA over the `k` nearest neighbours, oriented toward `viewpoint`
-/// (mm) or along `reference`; with neither, along +Z.
+/// (mm) or along `reference`; with neither, along +Z. A point whose neighbours span no plane
+/// (at one place or on one line) gets +Z with a `TrimWarning` counting such points; a cloud
+/// of only such points raises `ValueError`.
 #[pyfunction]
 #[pyo3(signature = (points, *, k = 16, viewpoint = None, reference = None))]
 pub fn estimate_normals<'py>(
     py: Python<'py>,
     points: &Bound<'py, PyAny>,
-    k: usize,
-    viewpoint: Option<[f64; 3]>,
-    reference: Option<[f64; 3]>,
+    #[pyo3(from_py_with = neighbours)] k: usize,
+    viewpoint: Option<&Bound<'py, PyAny>>,
+    reference: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let pts = arrays::points("points", points)?;
+    let viewpoint = viewpoint
+        .map(|v| arrays::triple("viewpoint", v))
+        .transpose()?;
+    let reference = reference
+        .map(|r| arrays::triple("reference", r))
+        .transpose()?;
     let orientation = match (viewpoint, reference) {
         (Some(_), Some(_)) => {
             return Err(value_error(
@@ -37,6 +45,11 @@ pub fn estimate_normals<'py>(
     };
     let normals = run_detached(py, move || estimate(&pts, k, orientation))?.map_err(geom_error)?;
     Ok(arrays::from_vectors(py, &normals))
+}
+
+/// `k`, refused naming it (pyo3 raised a bare `OverflowError` for `k=-1`).
+fn neighbours(k: &Bound<'_, PyAny>) -> PyResult<usize> {
+    arrays::named("k", k, "a whole number of neighbours")
 }
 
 /// Down-samples to one point per occupied `voxel_mm` cube: the centroid of its points.

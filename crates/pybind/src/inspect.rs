@@ -173,11 +173,14 @@ pub fn inspect<'py>(
     path: PyPath,
     scan: &Bound<'py, PyAny>,
     init: Option<&Bound<'py, PyAny>>,
-    viewpoint_mm: Option<[f64; 3]>,
+    viewpoint_mm: Option<&Bound<'py, PyAny>>,
     tolerance_um: f64,
     band_mm: f64,
     noise_um: Option<f64>,
 ) -> PyResult<PyInspection> {
+    let viewpoint_mm = viewpoint_mm
+        .map(|v| arrays::triple("viewpoint_mm", v))
+        .transpose()?;
     let vertices = arrays::points("cad_vertices", cad_vertices)?;
     let triangles = triangle_indices(cad_triangles)?;
     let mesh = Mesh::new(vertices, triangles).map_err(geom_error)?;

@@ -90,6 +90,11 @@ fn parse_kernel(kernel: Option<(&str, f64)>) -> PyResult<RobustKernel> {
     }
 }
 
+/// `max_iterations`, refused naming it (pyo3 raised a bare `OverflowError` for `-1`).
+fn iterations(n: &Bound<'_, PyAny>) -> PyResult<usize> {
+    arrays::named("max_iterations", n, "a whole number of iterations")
+}
+
 /// ICP of `source` onto `target` ((N, 3) float64, mm). Pairs farther apart than
 /// `max_distance_mm` are not correspondences. Point-to-plane uses `target_normals`, or estimates
 /// them from 16 neighbours when not given. Returns an [`IcpResult`].
@@ -109,13 +114,22 @@ pub fn icp(
     method: &str,
     scale: bool,
     max_distance_mm: f64,
-    max_iterations: usize,
+    #[pyo3(from_py_with = iterations)] max_iterations: usize,
     init: Option<&Bound<'_, PyAny>>,
     target_normals: Option<&Bound<'_, PyAny>>,
-    kernel: Option<(String, f64)>,
+    kernel: Option<&Bound<'_, PyAny>>,
     trim: f64,
 ) -> PyResult<IcpResult> {
     let method = parse_method(method)?;
+    let kernel: Option<(String, f64)> = kernel
+        .map(|k| {
+            arrays::named(
+                "kernel",
+                k,
+                "a (name, threshold) pair such as ('huber', 0.1)",
+            )
+        })
+        .transpose()?;
     let kernel = parse_kernel(kernel.as_ref().map(|(n, k)| (n.as_str(), *k)))?;
     let source = PointCloud::new(arrays::points("source", source)?).map_err(geom_error)?;
     let target_points = arrays::points("target", target)?;

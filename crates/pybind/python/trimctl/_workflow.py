@@ -248,6 +248,21 @@ def _limits_json(laser_limits: Optional[Mapping[str, float]]) -> Optional[str]:
     return None if laser_limits is None else _settings_json("laser_limits", dict(laser_limits))
 
 
+def _pair(name: str, value: Any) -> List[float]:
+    """Two numbers (a width and a height, mm), refused naming ``name``: ``field_mm=(1,)``
+    raised a bare ``IndexError``."""
+    try:
+        items = list(value)
+    except TypeError:
+        raise TypeError(f"{name}: expected two numbers (width, height), got {value!r:.60}") from None
+    if len(items) != 2:
+        raise ValueError(f"{name}: expected two numbers (width, height), got {len(items)}: {value!r:.60}")
+    try:
+        return [float(items[0]), float(items[1])]
+    except (TypeError, ValueError):
+        raise TypeError(f"{name}: expected two numbers (width, height), got {value!r:.60}") from None
+
+
 def plan(
     path: Path,
     *,
@@ -277,13 +292,19 @@ def plan(
     _refuse_renamed("plan", renamed, {"layer_step": "layer_step_mm", "field": "field_mm"})
     s = _kw(settings, max_incidence_deg=max_incidence_deg)
     if beam is not None:
+        if not isinstance(beam, Beam):
+            raise TypeError(f"beam: expected a trimctl.Beam, got {type(beam).__name__} {beam!r:.60}")
         s["beam"] = dict(beam.settings)
     if layer_step_mm is not None:
         s.setdefault("layers", {})["step_mm"] = layer_step_mm
     if k is not None:
-        s.setdefault("zoning", {})["k"] = k
+        if isinstance(k, bool) or not isinstance(k, numbers.Integral):
+            raise TypeError(f"k: expected a whole number of zones, got {type(k).__name__} {k!r:.60}")
+        if k < 1:
+            raise ValueError(f"k: expected a whole number of zones >= 1, got {k}")
+        s.setdefault("zoning", {})["k"] = int(k)
     if field_mm is not None:
-        s.setdefault("galvo", {})["field_mm"] = [float(field_mm[0]), float(field_mm[1])]
+        s.setdefault("galvo", {})["field_mm"] = _pair("field_mm", field_mm)
     if kinematics is not None:
         s.setdefault("machine", {})["kinematics"] = kinematics
     if laser_limits is None and beam is not None:
