@@ -137,6 +137,9 @@ fn targets(job: &Job, args: &Args, plan: &Path) -> anyhow::Result<Vec<LayerKey>>
     Ok(keys)
 }
 
+/// The longest `--seconds` a layer is traced for: a day.
+pub const MAX_TRACE_SECONDS: f64 = 86_400.0;
+
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
     if !(args.sim_time_scale.is_finite() && args.sim_time_scale > 0.0) {
@@ -146,9 +149,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     if let Some(s) = args.seconds
-        && !(s.is_finite() && s > 0.0)
+        && !(s.is_finite() && s > 0.0 && s <= MAX_TRACE_SECONDS)
     {
-        bail!("--seconds: must be a number > 0, got {s}");
+        // 1e300 s panicked in the timer (a Duration holds about 5.8e11 years).
+        bail!(
+            "--seconds: must be a number > 0 and at most {MAX_TRACE_SECONDS} (a day), got {}",
+            trim_geom::Num(s)
+        );
     }
     let interactive = args.passes.is_none() && args.seconds.is_none();
     if interactive && !std::io::stdin().is_terminal() {

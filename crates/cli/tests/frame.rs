@@ -167,6 +167,39 @@ fn framing_every_zone_traces_its_outline_with_the_pointer_and_never_opens_the_ga
         .unwrap();
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("no zone 9999"));
+    // A trace time beyond a day is refused before anything moves (1e300 s panicked in the
+    // timer), and so is one that is not a number > 0.
+    for seconds in ["1e300", "86401", "nan", "0"] {
+        let out = Command::new(TRIMCTL)
+            .arg("frame")
+            .arg(&run)
+            .args(["--seconds", seconds])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "--seconds {seconds}: {stderr}");
+        assert!(
+            stderr.contains("--seconds: must be a number > 0 and at most 86400"),
+            "{stderr}"
+        );
+    }
+    // A job file cut short is refused with the parser's message once.
+    let cut = tmp.path().join("cut.json");
+    let text = std::fs::read_to_string(run.join("plan.json")).unwrap();
+    std::fs::write(&cut, &text[..text.len() / 2]).unwrap();
+    let out = Command::new(TRIMCTL)
+        .arg("frame")
+        .arg(&cut)
+        .args(["--passes", "1"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("not a valid job: EOF while parsing"),
+        "{stderr}"
+    );
+    assert_eq!(stderr.matches("EOF while parsing").count(), 1, "{stderr}");
 }
 
 #[test]

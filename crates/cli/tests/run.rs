@@ -245,6 +245,34 @@ fn killed_run_resumes_without_marking_a_layer_twice() {
     // The in-process simulators died with the run: when the kill landed mid-layer, nobody can
     // tell how far that layer got, and `redo` marks it again (between layers it is not used).
     resume_marks_each_layer_once(&out, &planned);
+
+    // Resumed again, the finished run is left as it is: nothing connected, no layer marked,
+    // the report unchanged (it gained a "Resume" section of 0 layers before).
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let journal = std::fs::read_to_string(out.join("journal.jsonl")).unwrap();
+    let again = Command::new(TRIMCTL)
+        .args(["run", "--cnc", "127.0.0.1:1", "--resume"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&again.stdout);
+    assert!(
+        again.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&again.stderr)
+    );
+    assert!(
+        stdout.contains("is finished") && stdout.contains("nothing to resume"),
+        "{stdout}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(out.join("report.md")).unwrap(),
+        report
+    );
+    assert_eq!(
+        std::fs::read_to_string(out.join("journal.jsonl")).unwrap(),
+        journal
+    );
 }
 
 /// A `--verify` run killed (SIGKILL) inside its first retrim, resumed from the retrim's folder:

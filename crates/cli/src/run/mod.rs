@@ -1202,6 +1202,16 @@ fn resume(dir: &Path, args: &Args, live: Option<&LiveServer>) -> anyhow::Result<
         #[cfg(not(feature = "sim"))]
         Some(never) => match *never {},
     }
+    if state.is_none() && job_finished(&job, &journal)? {
+        // Nothing is connected and the report is left as it was: resuming a finished run
+        // appended a "Resume" section of 0 layers and negative-zero times to it.
+        println!(
+            "resume: every layer of the job in {} is finished (or left out by --cut-layer skip): \
+             nothing to resume",
+            run_dir.display()
+        );
+        return Ok(());
+    }
     if state.is_some() && job_finished(&job, &journal)? {
         println!(
             "resume: the job in {} is finished; its --verify loop goes on",
