@@ -106,18 +106,28 @@ pub(super) fn parse_f64(token: &str, name: &FsPath, at: Location, what: &str) ->
     })
 }
 
-/// Parses a finite decimal number: NaN and infinities are refused with `what` and the place.
+/// Parses a finite decimal number: NaN and infinities are refused with `what` and the place. A
+/// number written out that is too large for a double (`1e400`) is refused as that, not as the
+/// "inf" it parses to, which the file does not say.
 pub(super) fn parse_finite(token: &str, name: &FsPath, at: Location, what: &str) -> Result<f64> {
     let v = parse_f64(token, name, at, what)?;
     if v.is_finite() {
-        Ok(v)
-    } else {
-        Err(GeomError::parse(
-            name,
-            at,
-            format!("{what}: {v} is not finite"),
-        ))
+        return Ok(v);
     }
+    let word = token
+        .trim()
+        .trim_start_matches(['+', '-'])
+        .to_ascii_lowercase();
+    let message = if v.is_infinite() && !word.starts_with("inf") {
+        format!(
+            "{what}: {} is too large for a double (at most ±{:e})",
+            truncate(token),
+            f64::MAX
+        )
+    } else {
+        format!("{what}: {v} is not finite")
+    };
+    Err(GeomError::parse(name, at, message))
 }
 
 /// A token cut to a readable length for an error message.
@@ -155,6 +165,13 @@ mod tests {
         assert_eq!(e.to_string(), "f.xyz: line 3: y: \"1x\" is not a number");
         let e = parse_finite("nan", n, Location::Line(4), "z").unwrap_err();
         assert_eq!(e.to_string(), "f.xyz: line 4: z: NaN is not finite");
+        let e = parse_finite("-inf", n, Location::Line(5), "x").unwrap_err();
+        assert_eq!(e.to_string(), "f.xyz: line 5: x: -inf is not finite");
+        let e = parse_finite("-1e400", n, Location::Line(6), "x").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "f.xyz: line 6: x: -1e400 is too large for a double (at most ±1.7976931348623157e308)"
+        );
         assert_eq!(truncate(&"9".repeat(50)).chars().count(), 41);
     }
 }
