@@ -620,6 +620,53 @@ const PIVOT_SEARCH_STEPS: usize = 60;
 /// The largest |h| (as a fraction of the focal length) a coupon may be raised or lowered.
 const MAX_HEIGHT_FRACTION: f64 = 0.25;
 
+/// The largest `smoothing` a fit takes: six decades beyond the largest that leave-one-out
+/// tries, where the penalty has long swamped the marks.
+pub const MAX_SMOOTHING: f64 = 1e12;
+
+/// The farthest a mark's command or measurement may lie from the field centre (mm): no galvo
+/// field is a metre across.
+pub const MAX_MARK_OFFSET_MM: f64 = 500.0;
+
+/// Refuses a mark with a value that is not finite, a position beyond ±[`MAX_MARK_OFFSET_MM`]
+/// or a height beyond ±`max_height_mm`, naming the mark (1-based, as a marks file's data row)
+/// and the value. A mark at 1e300 made the fit singular, which blamed the whole set.
+fn check_marks(marks: &[Mark], max_height_mm: f64) -> Result<(), CalibError> {
+    for (i, m) in marks.iter().enumerate() {
+        let values = [
+            ("x_cmd", m.x_cmd),
+            ("y_cmd", m.y_cmd),
+            ("h_mm", m.h_mm),
+            ("x_meas", m.x_meas),
+            ("y_meas", m.y_meas),
+        ];
+        for (name, v) in values {
+            let limit = if name == "h_mm" {
+                max_height_mm
+            } else {
+                MAX_MARK_OFFSET_MM
+            };
+            let message = if !v.is_finite() {
+                format!("{name} = {v} is not finite")
+            } else if v.abs() > limit {
+                let why = if name == "h_mm" {
+                    format!("a quarter of the focal length, {limit:.1} mm")
+                } else {
+                    format!("{limit} mm from the field centre: no galvo field is a metre across")
+                };
+                format!("{name} = {} mm is beyond ±{why}", trim_geom::Num(v))
+            } else {
+                continue;
+            };
+            return Err(CalibError::Invalid {
+                key: format!("mark {}", i + 1),
+                message,
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Fits the head field (and L from off-plane rows) to the marks.
 ///
 /// Steps: the design over the commands; the penalty weight with the least leave-one-command-out
@@ -653,27 +700,18 @@ pub fn fit_field(
         });
     }
     if let Some(l) = settings.smoothing
-        && !(l.is_finite() && l > 0.0)
+        && !(l.is_finite() && l > 0.0 && l <= MAX_SMOOTHING)
     {
+        // 1e300 made the fit singular, which blamed the marks.
         return Err(CalibError::Invalid {
             key: "smoothing".into(),
-            message: format!("must be > 0, got {l}"),
-        });
-    }
-    if let Some((i, m)) = marks.iter().enumerate().find(|(_, m)| {
-        ![m.x_cmd, m.y_cmd, m.h_mm, m.x_meas, m.y_meas]
-            .iter()
-            .all(|v| v.is_finite())
-            || m.h_mm.abs() > MAX_HEIGHT_FRACTION * f
-    }) {
-        return Err(CalibError::Invalid {
-            key: format!("mark {}", i + 1),
             message: format!(
-                "every value must be finite and |h| at most {:.1} mm, got {m:?}",
-                MAX_HEIGHT_FRACTION * f
+                "must be within (0, {MAX_SMOOTHING:e}] (leave-one-out chooses from 1e-8 to 1e6), got {}",
+                trim_geom::Num(l)
             ),
         });
     }
+    check_marks(marks, MAX_HEIGHT_FRACTION * f)?;
     let half = marks
         .iter()
         .map(|m| m.x_cmd.abs().max(m.y_cmd.abs()))

@@ -277,4 +277,38 @@ fn too_few_or_degenerate_marks_are_refused() {
     with_far.extend(far);
     let e = fit_field(&with_far, &FieldFitSettings::default()).expect_err("|h| too large");
     assert!(e.to_string().contains("mark 122"), "{e}");
+    assert!(
+        e.to_string()
+            .contains("h_mm = 100 mm is beyond ±a quarter of the focal length"),
+        "{e}"
+    );
+    // A mark far beyond any field is refused by its value, not as a singular fit of the set.
+    let mut stray = marks.clone();
+    stray[5].x_cmd = 1e300;
+    let e = fit_field(&stray, &FieldFitSettings::default()).expect_err("a stray mark");
+    assert!(
+        e.to_string().contains("mark 6")
+            && e.to_string().contains("x_cmd = 1e300 mm is beyond ±500 mm"),
+        "{e}"
+    );
+    stray[5].x_cmd = marks[5].x_cmd;
+    stray[5].y_meas = f64::NAN;
+    let e = fit_field(&stray, &FieldFitSettings::default()).expect_err("a NaN");
+    assert!(
+        e.to_string().contains("mark 6") && e.to_string().contains("y_meas = NaN is not finite"),
+        "{e}"
+    );
+    // A smoothing far beyond the penalties leave-one-out tries is refused by its name.
+    let e = fit_field(
+        &marks,
+        &FieldFitSettings {
+            smoothing: Some(1e300),
+            ..FieldFitSettings::default()
+        },
+    )
+    .expect_err("smoothing 1e300");
+    assert!(
+        e.to_string().contains("smoothing") && e.to_string().contains("1e300"),
+        "{e}"
+    );
 }

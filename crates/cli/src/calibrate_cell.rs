@@ -30,7 +30,13 @@ pub struct Args {
     pub sphere_diameter_mm: f64,
     /// The centre of a laser mark made at the field centre at the first pose, as the scanner
     /// saw it there (scanner frame, mm): X,Y,Z.
-    #[arg(long, value_delimiter = ',', num_args = 1, allow_hyphen_values = true)]
+    #[arg(
+        long,
+        required = true,
+        value_delimiter = ',',
+        num_args = 1,
+        allow_hyphen_values = true
+    )]
     pub tool_mark: Vec<f64>,
     /// Where to write the `[calibration]` table (TOML; paste it into job.toml).
     #[arg(long)]

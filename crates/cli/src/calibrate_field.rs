@@ -46,25 +46,32 @@ const MAX_TABLE_FIELD_MM: f64 = 1000.0;
 
 /// Refuses a numeric flag out of range before anything is read, naming the flag:
 /// `--focal-length-mm` within the lens's physical range (`trim_cell::beam::FOCAL_LENGTH_RANGE_MM`;
-/// 1e9 mm fitted and wrote `± inf`), `--smoothing` a finite number ≥ 0, `--table-field-mm` a
+/// 1e9 mm fitted and wrote `± inf`), `--smoothing` within (0, `MAX_SMOOTHING`], `--table-field-mm` a
 /// finite number within (0, [`MAX_TABLE_FIELD_MM`]].
 fn check_flags(args: &Args) -> anyhow::Result<()> {
     let (lo, hi) = trim_cell::beam::FOCAL_LENGTH_RANGE_MM;
     if !(args.focal_length_mm.is_finite() && (lo..=hi).contains(&args.focal_length_mm)) {
         anyhow::bail!(
             "--focal-length-mm: must be within [{lo}, {hi}] mm, got {}",
-            args.focal_length_mm
+            trim_geom::Num(args.focal_length_mm)
         );
     }
+    let max = trim_calib::field_correction::MAX_SMOOTHING;
     if let Some(w) = args.smoothing
-        && !(w.is_finite() && w >= 0.0)
+        && !(w.is_finite() && w > 0.0 && w <= max)
     {
-        anyhow::bail!("--smoothing: must be a finite number ≥ 0, got {w}");
+        anyhow::bail!(
+            "--smoothing: must be within (0, {max:e}] (leave-one-out chooses from 1e-8 to 1e6), got {}",
+            trim_geom::Num(w)
+        );
     }
     if let Some(f) = args.table_field_mm
         && !(f.is_finite() && f > 0.0 && f <= MAX_TABLE_FIELD_MM)
     {
-        anyhow::bail!("--table-field-mm: must be within (0, {MAX_TABLE_FIELD_MM}] mm, got {f}");
+        anyhow::bail!(
+            "--table-field-mm: must be within (0, {MAX_TABLE_FIELD_MM}] mm, got {}",
+            trim_geom::Num(f)
+        );
     }
     Ok(())
 }

@@ -73,16 +73,60 @@ pub fn code_for_usage(e: &clap::Error) -> ExitCode {
     }
 }
 
+/// The error and its causes on one line, as anyhow's `{:#}` joins them, with a cause left out
+/// where the text before it already ends with it: an error whose message shows its source
+/// (`#[error("laser profile: {0}")]` over `#[from]`) printed it twice, "… os error 2): No such
+/// file or directory (os error 2)".
+pub fn one_line(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if out.is_empty() {
+            out = text;
+        } else if !out.ends_with(&text) {
+            out.push_str(": ");
+            out.push_str(&text);
+        }
+    }
+    out
+}
+
 /// The exit code of a command's result; prints the error as one line on stderr.
 pub fn code_for(result: anyhow::Result<()>) -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("trimctl: error: {e:#}");
+            eprintln!("trimctl: error: {}", one_line(&e));
             let code = e
                 .downcast_ref::<Failure>()
                 .map_or(Exit::Refused, |f| f.exit);
             ExitCode::from(code as u8)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An error that shows its source in its own message, as `#[error("…: {0}")]` over
+    /// `#[from]` does.
+    #[derive(Debug, thiserror::Error)]
+    #[error("laser profile: {0}")]
+    struct Shows(#[from] std::io::Error);
+
+    #[test]
+    fn a_cause_the_message_already_ends_with_is_said_once() {
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "no such file");
+        let e = anyhow::Error::from(Shows(io)).context("loading the cell");
+        assert_eq!(
+            one_line(&e),
+            "loading the cell: laser profile: no such file"
+        );
+        // Causes the text does not end with are all kept, in order.
+        let e = anyhow::anyhow!("no such file")
+            .context("laser profile")
+            .context("loading");
+        assert_eq!(one_line(&e), "loading: laser profile: no such file");
     }
 }

@@ -167,6 +167,13 @@ fn out_of_range_numeric_flags_are_refused_naming_the_flag() {
         (&["--focal-length-mm", "0"][..], "--focal-length-mm"),
         (&["--smoothing=-1"][..], "--smoothing"),
         (&["--smoothing", "inf"][..], "--smoothing"),
+        // 1e300 made the fit singular, which blamed the marks; the values are shown as typed,
+        // not as 300 digits.
+        (
+            &["--smoothing", "1e300"][..],
+            "--smoothing: must be within (0, 1e12]",
+        ),
+        (&["--focal-length-mm", "1e300"][..], "mm, got 1e300"),
         (
             &["--table-out", "t.cor", "--table-field-mm", "1e9"][..],
             "--table-field-mm",
@@ -178,4 +185,11 @@ fn out_of_range_numeric_flags_are_refused_naming_the_flag() {
         assert!(stderr.contains(want), "{flags:?}: {stderr}");
         assert!(!out.exists(), "{flags:?}: field.json written");
     }
+    // An output folder that does not exist is named with the system's reason once (it was
+    // printed twice: the message showed its source and the chain showed it again).
+    let o = calibrate(&marks_csv, &dir.path().join("nowhere").join("field.json"), &[]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("nowhere"), "{stderr}");
+    assert_eq!(stderr.matches("os error 2").count(), 1, "{stderr}");
 }

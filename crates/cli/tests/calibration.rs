@@ -219,4 +219,22 @@ s.ply,0,0,0,0,0
         );
         assert!(!d.join("cal.toml").exists());
     }
+    // Without --tool-mark clap names it as required ("expected X,Y,Z (three numbers), got 0"
+    // before).
+    let out = Command::new(TRIMCTL)
+        .args(["calibrate", "cell", "--scans"])
+        .arg(d)
+        .arg("--poses")
+        .arg(d.join("poses.csv"))
+        .args(["--sphere-diameter-mm", "25.4", "--out"])
+        .arg(d.join("cal.toml"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("required") && err.contains("--tool-mark"),
+        "{err}"
+    );
+    assert!(!d.join("cal.toml").exists());
 }
