@@ -197,6 +197,7 @@ pub fn calibrate_cell(
         * sigma2;
     let (table, scanner, p) = model.unpack(&x);
     let report = cell_report(observations, &r, &cov, sigma2, solution.iterations);
+    check_fit(&report)?;
     Ok(CellCalibration {
         table,
         scanner,
@@ -297,6 +298,51 @@ fn check_observable(jtj: &DMatrix<f64>, kind: KinematicsKind) -> Result<(), Cali
                 parts.join(", ").replace("tilt", &tilt_name(kind))
             )));
         }
+    }
+    Ok(())
+}
+
+/// The most the fit's σ̂ may exceed the sphere fits' own σ: a cell whose model fits gives about
+/// 1 (the twin's cells 0.7–1.3), a wrong sphere diameter 200.
+pub const MAX_SIGMA_RATIO: f64 = 20.0;
+
+/// Refuses a solution that is not finite (a tool mark of 1e300 wrote `NaN` standard deviations
+/// with exit 0) or whose poses disagree with the model by more than [`MAX_SIGMA_RATIO`] times
+/// the sphere fits' σ (a 100 mm sphere diameter for a 25.4 mm sphere wrote a calibration with
+/// an 18 mm RMS, exit 0).
+fn check_fit(r: &CellReport) -> Result<(), CalibError> {
+    let figures = [
+        r.rms_um,
+        r.tool_mark_residual_um,
+        r.tilt_direction_sd_deg,
+        r.tilt_point_sd_um,
+        r.c_direction_sd_deg,
+        r.c_point_sd_um,
+        r.scanner_rotation_sd_deg,
+        r.scanner_translation_sd_um,
+        r.sigma_ratio,
+    ];
+    if !figures.iter().all(|v| v.is_finite()) {
+        return Err(CalibError::Inconsistent(
+            "the solution is not finite: check the tool mark (scanner frame, mm) and the poses \
+             file's rows"
+                .into(),
+        ));
+    }
+    if r.sigma_ratio > MAX_SIGMA_RATIO {
+        let worst = r
+            .pose_residual_um
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .map_or(0, |(i, _)| i);
+        return Err(CalibError::Inconsistent(format!(
+            "the poses disagree with the cell model by an RMS of {:.1} µm, {:.0} × what the \
+             sphere fits allow (at most {MAX_SIGMA_RATIO} ×; the worst is pose {worst}, {:.1} \
+             µm): check the sphere's diameter, the poses file's rows and units, and that the \
+             sphere did not move on the table",
+            r.rms_um, r.sigma_ratio, r.pose_residual_um[worst]
+        )));
     }
     Ok(())
 }

@@ -44,6 +44,10 @@ pub enum CalibError {
         /// What is wrong.
         message: String,
     },
+    /// The data do not agree with the model they are fitted to: a wrong setting or a bad
+    /// measurement, not too little data.
+    #[error("the data do not fit: {0}")]
+    Inconsistent(String),
     /// The fit did not converge.
     #[error("{what} did not converge: {detail}")]
     NotConverged {

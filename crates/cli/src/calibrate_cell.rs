@@ -46,6 +46,15 @@ pub struct Args {
     pub job: Option<PathBuf>,
 }
 
+/// A pose residual RMS over this (µm) is warned of, on stderr and in the table's header.
+const WARN_RMS_UM: f64 = 10.0;
+
+/// The largest `--sphere-diameter-mm`: a calibration sphere on a machine table.
+const MAX_SPHERE_DIAMETER_MM: f64 = 500.0;
+
+/// The farthest a `--tool-mark` coordinate may be from the scanner (mm): it is in its view.
+const MAX_TOOL_MARK_MM: f64 = 5_000.0;
+
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
     if args.tool_mark.len() != 3 {
@@ -63,10 +72,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     {
         bail!("--tool-mark: {axis} = {v}: every coordinate must be a finite number (mm)");
     }
-    if !(args.sphere_diameter_mm.is_finite() && args.sphere_diameter_mm > 0.0) {
+    if !(args.sphere_diameter_mm.is_finite()
+        && args.sphere_diameter_mm > 0.0
+        && args.sphere_diameter_mm <= MAX_SPHERE_DIAMETER_MM)
+    {
         bail!(
-            "--sphere-diameter-mm: must be > 0, got {}",
-            args.sphere_diameter_mm
+            "--sphere-diameter-mm: must be within (0, {MAX_SPHERE_DIAMETER_MM}] mm, got {}",
+            trim_geom::Num(args.sphere_diameter_mm)
+        );
+    }
+    if let Some((axis, v)) = ["X", "Y", "Z"]
+        .into_iter()
+        .zip(&args.tool_mark)
+        .find(|(_, v)| v.abs() > MAX_TOOL_MARK_MM)
+    {
+        bail!(
+            "--tool-mark: {axis} = {} mm: the mark is seen by the scanner, so within ±{MAX_TOOL_MARK_MM} mm of it",
+            trim_geom::Num(*v)
         );
     }
     let tool_mark = Point3::new(args.tool_mark[0], args.tool_mark[1], args.tool_mark[2]);
@@ -100,6 +122,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let cal = calibrate_cell(&nominal, &observations, &tool_mark).context("solving the cell")?;
     let r = &cal.report;
     let tilt = kind.tilt_axis().unwrap_or("a").to_uppercase();
+    // A residual this large misplaces spots by as much: a third of the 30 µm trimming
+    // tolerance. A 25.5 mm diameter given for the twin's 25.4 mm sphere gives 12 µm (σ̂/σ 14).
+    let warning = (r.rms_um > WARN_RMS_UM).then(|| {
+        format!(
+            "the poses disagree with the cell model by an RMS of {:.1} µm (σ̂/σ {:.1}; over \
+             {WARN_RMS_UM} µm): spots will be misplaced by about as much; check the sphere's \
+             diameter, the poses file and that the sphere did not move",
+            r.rms_um, r.sigma_ratio
+        )
+    });
+    if let Some(w) = &warning {
+        tracing::warn!("{w}");
+    }
 
     let mut calibration = Calibration::default();
     calibration.set_cell(&cal.table, &cal.scanner);
@@ -128,6 +163,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         r.scanner_rotation_sd_deg,
         r.scanner_translation_sd_um
     );
+    if let Some(w) = &warning {
+        let _ = writeln!(text, "# WARNING: {w}.");
+    }
     let _ = writeln!(
         text,
         "# Paste the table below into job.toml; add `field_correction = \"field.json\"` from `trimctl calibrate field`.\n"

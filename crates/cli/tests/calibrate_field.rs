@@ -187,7 +187,11 @@ fn out_of_range_numeric_flags_are_refused_naming_the_flag() {
     }
     // An output folder that does not exist is named with the system's reason once (it was
     // printed twice: the message showed its source and the chain showed it again).
-    let o = calibrate(&marks_csv, &dir.path().join("nowhere").join("field.json"), &[]);
+    let o = calibrate(
+        &marks_csv,
+        &dir.path().join("nowhere").join("field.json"),
+        &[],
+    );
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains("nowhere"), "{stderr}");

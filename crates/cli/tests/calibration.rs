@@ -238,3 +238,60 @@ s.ply,0,0,0,0,0
     );
     assert!(!d.join("cal.toml").exists());
 }
+
+/// A sphere diameter that is not the sphere's, or a tool mark far out of the scanner's view, is
+/// not written into a calibration: a 100 mm diameter for the twin's 25.4 mm sphere wrote one
+/// with an 18 mm pose RMS, and a 1e300 mark one with NaN standard deviations, both exit 0. A
+/// diameter 0.1 mm off is calibrated, with a warning that the residual misplaces spots.
+#[test]
+fn a_wrong_sphere_diameter_or_tool_mark_is_refused_or_warned_of_not_calibrated_silently() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    trimctl(&["synth", "--calibration", "--seed", "2", "--out", "."], d);
+    let mark = std::fs::read_to_string(d.join("tool_mark.txt")).unwrap();
+    let cell = |diameter: &str, mark: &str, out: &str| {
+        Command::new(TRIMCTL)
+            .args([
+                "calibrate",
+                "cell",
+                "--scans",
+                "spheres",
+                "--poses",
+                "poses.csv",
+            ])
+            .args([
+                "--sphere-diameter-mm",
+                diameter,
+                "--tool-mark",
+                mark.trim(),
+                "--out",
+                out,
+            ])
+            .current_dir(d)
+            .output()
+            .unwrap()
+    };
+    let o = cell("100", &mark, "wrong.toml");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("the poses disagree with the cell model") && err.contains("diameter"),
+        "{err}"
+    );
+    assert!(!d.join("wrong.toml").exists());
+    let o = cell("25.4", "1e300,0,0", "far.toml");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("--tool-mark: X = 1e300 mm"), "{err}");
+    assert!(!d.join("far.toml").exists());
+    let o = cell("25.5", &mark, "off.toml");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("spots will be misplaced"), "{err}");
+    let table = std::fs::read_to_string(d.join("off.toml")).unwrap();
+    assert!(table.contains("# WARNING: the poses disagree"), "{table}");
+    // The right diameter: no warning.
+    let o = cell("25.4", &mark, "good.toml");
+    assert!(o.status.success());
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("misplaced"));
+}
