@@ -5,6 +5,7 @@
 use std::fmt::Write as _;
 
 use trim_cell::Job;
+use trim_cell::job::LayerKey;
 use trim_io::executor::{ExecError, RunSummary};
 use trim_io::journal::CutLayer;
 use trim_plan::planner::PlanOutput;
@@ -354,19 +355,22 @@ pub fn execution(run: &RunSummary, job: &Job) -> String {
             ),
         };
     }
-    if !run.layers_left_out.is_empty() {
-        let keys: Vec<String> = run
-            .layers_left_out
-            .iter()
-            .map(ToString::to_string)
-            .collect();
-        let _ = writeln!(
-            s,
-            "layers left out (--cut-layer skip), not marked: {}",
-            keys.join(", ")
-        );
+    if let Some(line) = left_out_line(&run.layers_left_out) {
+        let _ = writeln!(s, "{line}");
     }
     s
+}
+
+/// The line naming the layers left out by `--cut-layer skip`; `None` when there are none.
+#[must_use]
+pub fn left_out_line<'a>(keys: impl IntoIterator<Item = &'a LayerKey>) -> Option<String> {
+    let keys: Vec<String> = keys.into_iter().map(ToString::to_string).collect();
+    (!keys.is_empty()).then(|| {
+        format!(
+            "layers left out (--cut-layer skip), not marked: {}",
+            keys.join(", ")
+        )
+    })
 }
 
 /// A resume's section of the run report.

@@ -1210,6 +1210,9 @@ fn resume(dir: &Path, args: &Args, live: Option<&LiveServer>) -> anyhow::Result<
              nothing to resume",
             run_dir.display()
         );
+        if let Some(line) = summary::left_out_line(&trim_io::journal::read(&journal)?.left_out) {
+            println!("{line}");
+        }
         return Ok(());
     }
     if state.is_some() && job_finished(&job, &journal)? {
