@@ -624,6 +624,19 @@ const MAX_HEIGHT_FRACTION: f64 = 0.25;
 /// tries, where the penalty has long swamped the marks.
 pub const MAX_SMOOTHING: f64 = 1e12;
 
+/// What is wrong with a `smoothing` outside (0, [`MAX_SMOOTHING`]] (1e300 made the fit
+/// singular, which blamed the marks); the caller names the key.
+pub fn check_smoothing(l: f64) -> Result<(), String> {
+    if l.is_finite() && l > 0.0 && l <= MAX_SMOOTHING {
+        Ok(())
+    } else {
+        Err(format!(
+            "must be within (0, {MAX_SMOOTHING:e}] (leave-one-out chooses from 1e-8 to 1e6), got {}",
+            trim_geom::Num(l)
+        ))
+    }
+}
+
 /// The farthest a mark's command or measurement may lie from the field centre (mm): no galvo
 /// field is a metre across.
 pub const MAX_MARK_OFFSET_MM: f64 = 500.0;
@@ -699,17 +712,11 @@ pub fn fit_field(
             ),
         });
     }
-    if let Some(l) = settings.smoothing
-        && !(l.is_finite() && l > 0.0 && l <= MAX_SMOOTHING)
-    {
-        // 1e300 made the fit singular, which blamed the marks.
-        return Err(CalibError::Invalid {
+    if let Some(l) = settings.smoothing {
+        check_smoothing(l).map_err(|message| CalibError::Invalid {
             key: "smoothing".into(),
-            message: format!(
-                "must be within (0, {MAX_SMOOTHING:e}] (leave-one-out chooses from 1e-8 to 1e6), got {}",
-                trim_geom::Num(l)
-            ),
-        });
+            message,
+        })?;
     }
     check_marks(marks, MAX_HEIGHT_FRACTION * f)?;
     let half = marks

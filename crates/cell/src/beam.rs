@@ -150,19 +150,19 @@ impl Beam {
                 "must be within (0, 1)",
             ));
         }
-        if !(self.fluence_threshold_ratio.is_finite() && self.fluence_threshold_ratio > 1.0) {
+        if !(self.fluence_threshold_ratio.is_finite()
+            && self.fluence_threshold_ratio > 1.0
+            && self.fluence_threshold_ratio <= MAX_FLUENCE_THRESHOLD_RATIO)
+        {
             return Err(CellError::setting(
                 "beam.fluence_threshold_ratio",
                 self.fluence_threshold_ratio,
-                "must be > 1 (below threshold nothing is ablated)",
+                format!(
+                    "must be within (1, {MAX_FLUENCE_THRESHOLD_RATIO:e}] (at or below 1 nothing \
+                     is ablated)"
+                ),
             ));
         }
-        require_open_closed(
-            "beam.fluence_threshold_ratio",
-            self.fluence_threshold_ratio,
-            1.0,
-            MAX_FLUENCE_THRESHOLD_RATIO,
-        )?;
         require_range("beam.incidence_deg", self.incidence_deg, 0.0, 89.0)?;
         if self.fluence_threshold_ratio * self.incidence_deg.to_radians().cos() <= 1.0 {
             return Err(CellError::setting(

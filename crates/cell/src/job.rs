@@ -486,19 +486,12 @@ pub fn workpiece_from_galvo(zone: &Zone, layer: &Layer, xy: [f64; 2]) -> Point3 
     Point3::from(layer.focus_point) + zone.frame.x_axis() * xy[0] + zone.frame.y_axis() * xy[1]
 }
 
-impl From<serde_json::Error> for JobFormatError {
-    fn from(e: serde_json::Error) -> Self {
-        JobFormatError::Json(e)
-    }
-}
-
 /// A job file that cannot be read.
 #[derive(Debug, thiserror::Error)]
 pub enum JobFormatError {
-    /// Not valid JSON or not a job. The parser's message is in the text, not a source, so a
-    /// chain printed whole (`{:#}`) says it once.
+    /// Not valid JSON or not a job.
     #[error("not a valid job: {0}")]
-    Json(serde_json::Error),
+    Json(#[from] serde_json::Error),
     /// The version is missing or not the one this code reads.
     #[error("job version {found:?} is not supported (this trimctl reads version {expected})")]
     Version {

@@ -36,14 +36,12 @@ pub fn height_scale(pivot_to_focal_plane_mm: f64, height_mm: f64) -> f64 {
 #[derive(Debug, thiserror::Error)]
 pub enum LensError {
     /// The file cannot be read or written.
-    #[error("{path}: {error}")]
+    #[error("{path}: {source}")]
     Io {
         /// The file.
         path: String,
-        /// What went wrong (in the message, so not also its `source`: a chain printed it
-        /// twice, "No such file or directory (os error 2): No such file or directory (os
-        /// error 2)").
-        error: std::io::Error,
+        /// What went wrong.
+        source: std::io::Error,
     },
     /// The file is not a field correction this code reads.
     #[error("{path}: not a field correction: {message}")]
@@ -209,7 +207,7 @@ impl FieldCorrection {
         let name = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|source| LensError::Io {
             path: name.clone(),
-            error: source,
+            source,
         })?;
         let f: FieldCorrection = serde_json::from_str(&text).map_err(|e| LensError::Format {
             path: name.clone(),
@@ -230,7 +228,7 @@ impl FieldCorrection {
         })?;
         trim_geom::fs::write_atomic(path, text).map_err(|source| LensError::Io {
             path: path.display().to_string(),
-            error: source,
+            source,
         })
     }
 
@@ -654,7 +652,7 @@ impl CorrectionTable {
         let name = path.display().to_string();
         let bytes = std::fs::read(path).map_err(|source| LensError::Io {
             path: name.clone(),
-            error: source,
+            source,
         })?;
         let binary = bytes.len() >= 2 && bytes[1] == 0 && bytes[0] != 0;
         let parsed = if binary {
@@ -683,7 +681,7 @@ impl CorrectionTable {
         };
         trim_geom::fs::write_atomic(path, bytes).map_err(|source| LensError::Io {
             path: path.display().to_string(),
-            error: source,
+            source,
         })
     }
 }

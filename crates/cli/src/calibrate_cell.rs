@@ -65,12 +65,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     // A NaN or infinite mark was written into the calibration as `scanner_translation_mm =
     // [nan, …]` with exit 0.
-    if let Some((axis, v)) = ["X", "Y", "Z"]
-        .into_iter()
-        .zip(&args.tool_mark)
-        .find(|(_, v)| !v.is_finite())
-    {
-        bail!("--tool-mark: {axis} = {v}: every coordinate must be a finite number (mm)");
+    for (axis, v) in ["X", "Y", "Z"].into_iter().zip(&args.tool_mark) {
+        if !v.is_finite() {
+            bail!("--tool-mark: {axis} = {v}: every coordinate must be a finite number (mm)");
+        }
+        if v.abs() > MAX_TOOL_MARK_MM {
+            bail!(
+                "--tool-mark: {axis} = {} mm: the mark is seen by the scanner, so within ±{MAX_TOOL_MARK_MM} mm of it",
+                trim_geom::Num(*v)
+            );
+        }
     }
     if !(args.sphere_diameter_mm.is_finite()
         && args.sphere_diameter_mm > 0.0
@@ -79,16 +83,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bail!(
             "--sphere-diameter-mm: must be within (0, {MAX_SPHERE_DIAMETER_MM}] mm, got {}",
             trim_geom::Num(args.sphere_diameter_mm)
-        );
-    }
-    if let Some((axis, v)) = ["X", "Y", "Z"]
-        .into_iter()
-        .zip(&args.tool_mark)
-        .find(|(_, v)| v.abs() > MAX_TOOL_MARK_MM)
-    {
-        bail!(
-            "--tool-mark: {axis} = {} mm: the mark is seen by the scanner, so within ±{MAX_TOOL_MARK_MM} mm of it",
-            trim_geom::Num(*v)
         );
     }
     let tool_mark = Point3::new(args.tool_mark[0], args.tool_mark[1], args.tool_mark[2]);

@@ -56,14 +56,9 @@ fn check_flags(args: &Args) -> anyhow::Result<()> {
             trim_geom::Num(args.focal_length_mm)
         );
     }
-    let max = trim_calib::field_correction::MAX_SMOOTHING;
-    if let Some(w) = args.smoothing
-        && !(w.is_finite() && w > 0.0 && w <= max)
-    {
-        anyhow::bail!(
-            "--smoothing: must be within (0, {max:e}] (leave-one-out chooses from 1e-8 to 1e6), got {}",
-            trim_geom::Num(w)
-        );
+    if let Some(w) = args.smoothing {
+        trim_calib::field_correction::check_smoothing(w)
+            .map_err(|m| anyhow::anyhow!("--smoothing: {m}"))?;
     }
     if let Some(f) = args.table_field_mm
         && !(f.is_finite() && f > 0.0 && f <= MAX_TABLE_FIELD_MM)

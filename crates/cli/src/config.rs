@@ -167,7 +167,12 @@ impl FixturePose {
         // part is not in any cell.
         for (name, v, limit, unit) in [
             ("rotation_deg", self.rotation_deg, 360.0, "degrees"),
-            ("translation_mm", self.translation_mm, 100_000.0, "mm"),
+            (
+                "translation_mm",
+                self.translation_mm,
+                trim_geom::path::MAX_COORDINATE_MM,
+                "mm",
+            ),
         ] {
             if let Some(c) = v.iter().find(|c| c.abs() > limit) {
                 bail!(

@@ -3,6 +3,7 @@
 use nalgebra::{Matrix3, SymmetricEigen};
 use rayon::prelude::*;
 
+use crate::cloud::Aabb;
 use crate::error::{GeomError, Result};
 use crate::kdtree::KdTree;
 use crate::math::{Point3, Vector3};
@@ -113,14 +114,7 @@ pub const EXTENT_RANGE_MM: (f64, f64) = (1e-150, 1e150);
 /// Refuses a cloud that spans more than [`EXTENT_RANGE_MM`] allows, or less without being at
 /// one place: its squared distances would be infinite or zero, so any neighbours would do.
 fn check_extent(points: &[Point3]) -> Result<()> {
-    let (lo, hi) = points.iter().fold(
-        (
-            Vector3::repeat(f64::INFINITY),
-            Vector3::repeat(f64::NEG_INFINITY),
-        ),
-        |(lo, hi), p| (lo.inf(&p.coords), hi.sup(&p.coords)),
-    );
-    let extent = (hi - lo).amax();
+    let extent = Aabb::around(points).map_or(0.0, |b| b.extent().amax());
     let (narrowest, widest) = EXTENT_RANGE_MM;
     if extent > widest || !extent.is_finite() || (extent > 0.0 && extent < narrowest) {
         return Err(GeomError::invalid(
@@ -161,14 +155,7 @@ pub fn plane_normal<'a>(points: impl Iterator<Item = &'a Point3> + Clone) -> Opt
     if count < MIN_NEIGHBOURS {
         return None;
     }
-    let mut mean = sum / count as f64;
-    if !mean.iter().all(|c| c.is_finite()) {
-        // The sum overflowed (coordinates near f64's largest): a running mean does not.
-        mean = Vector3::zeros();
-        for (i, p) in points.clone().enumerate() {
-            mean += (p.coords - mean) / (i + 1) as f64;
-        }
-    }
+    let mean = sum / count as f64;
     let largest = points
         .clone()
         .map(|p| (p.coords - mean).amax())

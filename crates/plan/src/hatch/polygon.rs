@@ -149,10 +149,6 @@ impl Polygon {
         if n < 4 {
             return None;
         }
-        let adjacent = |e: usize, f: usize| {
-            let d = e.abs_diff(f);
-            d <= 1 || d == n - 1
-        };
         let mut seen: Vec<u32> = Vec::new();
         for e in 0..n {
             let (a, b) = self.edge(e);
@@ -162,13 +158,13 @@ impl Polygon {
                 for i in i0..=i1 {
                     for &f in &self.cells[j * self.nx + i] {
                         let f = f as usize;
-                        if f <= e || adjacent(e, f) || seen.contains(&(f as u32)) {
+                        if f <= e || seen.contains(&(f as u32)) {
                             continue;
                         }
                         seen.push(f as u32);
                         let (c, d) = self.edge(f);
-                        // Edges that meet at a repeated vertex (a zero-length edge between
-                        // them) are neighbours too.
+                        // Neighbours share a vertex, and so do edges that meet at a repeated
+                        // vertex (a zero-length edge between them).
                         if a == c || a == d || b == c || b == d {
                             continue;
                         }
@@ -324,7 +320,7 @@ mod tests {
             })
             .collect();
         assert_eq!(Polygon::new(ellipse).self_crossing(), None);
-        // A bow tie: the closing edge crosses the second.
+        // A bow tie: the first edge crosses the third.
         let bow = Polygon::new(vec![[0.0, 0.0], [2.0, 2.0], [2.0, 0.0], [0.0, 2.0]]);
         assert_eq!(bow.self_crossing(), Some((0, 2)));
     }
